@@ -1,0 +1,42 @@
+# All set-up lives here: a fresh machine needs only `make demo` or `make test`.
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+TORCH := torch==2.13.0
+export PYTHONUNBUFFERED := 1
+
+.PHONY: install demo test test-fast lint format typecheck bench screenshot clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip setuptools wheel
+	# The CPU build of torch first, pinned: an unpinned torch pulls several GB of CUDA packages.
+	$(BIN)/pip install -q $(TORCH)
+	$(BIN)/pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: install
+	$(BIN)/python examples/demo.py
+
+test: install
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow and not browser and not postgres"
+
+lint: install
+	$(BIN)/ruff check client service workers tests bench
+	$(BIN)/ruff format --check client service workers tests bench
+
+format: install
+	$(BIN)/ruff format client service workers tests bench
+	$(BIN)/ruff check --fix client service workers tests bench
+
+typecheck: install
+	$(BIN)/mypy client/adclient service/adservice workers/adworker
+
+clean:
+	rm -rf $(VENV) var .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,1 @@
+"""activedesign service: the ask/tell server, proposers and representation fusion."""

@@ -1,0 +1,54 @@
+"""Proposers that need no model: uniform random and scrambled Sobol."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+from scipy.stats import qmc
+
+from adservice.proposers.base import Proposal, ProposalRequest
+
+
+def scale_to_bounds(unit: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    return bounds[0] + unit * (bounds[1] - bounds[0])
+
+
+class RandomProposer:
+    """Uniform samples; trial ``n`` always draws from the stream seeded by (seed, n)."""
+
+    name: ClassVar[str] = "random"
+    needs_history: ClassVar[bool] = False
+
+    def propose(self, request: ProposalRequest) -> Proposal:
+        rows = [
+            np.random.default_rng([request.seed, request.n_issued + i]).random(request.dim)
+            for i in range(request.count)
+        ]
+        return Proposal(
+            candidates=scale_to_bounds(np.array(rows), request.bounds),
+            info=[{"proposer": self.name}] * request.count,
+        )
+
+
+def sobol_points(dim: int, seed: int, start: int, count: int) -> np.ndarray:
+    """Points ``start .. start+count-1`` of the study's scrambled Sobol sequence, in [0,1]^d."""
+    engine = qmc.Sobol(d=dim, scramble=True, seed=seed)
+    if start:
+        engine.fast_forward(start)
+    return engine.random(count)
+
+
+class SobolProposer:
+    """The study's scrambled Sobol sequence, continued where the last ask stopped."""
+
+    name: ClassVar[str] = "sobol"
+    needs_history: ClassVar[bool] = False
+
+    def propose(self, request: ProposalRequest) -> Proposal:
+        unit = sobol_points(request.dim, request.seed, request.n_issued, request.count)
+        return Proposal(
+            candidates=scale_to_bounds(unit, request.bounds),
+            info=[{"proposer": self.name, "sobol_index": request.n_issued + i}
+                  for i in range(request.count)],
+        )

@@ -1,0 +1,1 @@
+"""activedesign simulation worker: leases jobs, simulates, trains, evaluates, reports."""
