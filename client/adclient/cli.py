@@ -1,0 +1,510 @@
+"""``adclient``: the command line of the SDK.
+
+Every command talks to the server named by ``--server`` (env ``AD_SERVER_URL``) with
+the token of ``--token`` (env ``AD_TOKEN``). Listings are rich tables, or JSON with
+``--json``. Errors end with one line on stderr and exit status 1 (2 for bad usage),
+never a traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn, TypeVar
+
+import typer
+import yaml
+from pydantic import BaseModel
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from adclient import __version__
+from adclient.client import Client, StudyHandle
+from adclient.errors import (
+    ApiError,
+    Conflict,
+    Forbidden,
+    Invalid,
+    NotFound,
+    PayloadTooLarge,
+    Unauthorized,
+    Unavailable,
+)
+from adclient.schemas import Study, Trial, TrialState
+
+DEFAULT_SERVER = "http://127.0.0.1:8000"
+CLI_RETRIES = 3
+"""Fewer retries than the SDK's default: a person is waiting for the answer."""
+
+app = typer.Typer(
+    name="adclient",
+    help="Submit and follow activedesign studies; ask and tell trials by hand.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+@dataclass
+class Settings:
+    server: str
+    token: str | None
+
+    def client(self) -> Client:
+        return Client(self.server, self.token, retries=CLI_RETRIES, backoff=0.1)
+
+
+def _settings(ctx: typer.Context) -> Settings:
+    settings = ctx.find_object(Settings)
+    if settings is None:  # pragma: no cover - the callback always sets it
+        settings = Settings(DEFAULT_SERVER, None)
+    return settings
+
+
+def _out() -> Console:
+    return Console(highlight=False, soft_wrap=False)
+
+
+def _err() -> Console:
+    return Console(stderr=True, highlight=False)
+
+
+def fail(message: str, code: int = 1) -> NoReturn:
+    """End the command with one line on stderr."""
+    _err().print(f"[bold red]error:[/] {message}", markup=True, highlight=False)
+    raise typer.Exit(code)
+
+
+def _api_message(exc: ApiError, server: str) -> str:
+    if isinstance(exc, Unavailable):
+        if exc.status_code is None and exc.code == "unreachable":
+            return f"cannot reach server at {server}"
+        if exc.status_code is None:
+            return f"no answer from server at {server}"
+        return f"server at {server} is unavailable: {exc.message} (HTTP {exc.status_code})"
+    if isinstance(exc, Unauthorized):
+        return f"unauthorized: {exc.message} (give a token with --token or AD_TOKEN)"
+    if isinstance(exc, Forbidden):
+        return f"forbidden: {exc.message}"
+    if isinstance(exc, Invalid):
+        return f"invalid request: {exc.message}"
+    if isinstance(exc, Conflict):
+        return f"conflict: {exc.message}"
+    if isinstance(exc, PayloadTooLarge):
+        return f"too large: {exc.message}"
+    if isinstance(exc, NotFound):
+        return f"not found: {exc.message}"
+    return str(exc)
+
+
+def friendly(func: F) -> F:
+    """Turn SDK errors into a one-line message and exit status 1."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        ctx = click_context()
+        server = _settings(ctx).server if ctx is not None else DEFAULT_SERVER
+        try:
+            return func(*args, **kwargs)
+        except ApiError as exc:
+            fail(_api_message(exc, server))
+        except KeyboardInterrupt:
+            _err().print("interrupted")
+            raise typer.Exit(130) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+def click_context() -> typer.Context | None:
+    import click
+
+    return click.get_current_context(silent=True)  # type: ignore[return-value]
+
+
+@contextmanager
+def _study_scope(study_id: int) -> Iterator[None]:
+    """Name the study in a 404 ('study 7 not found') rather than echo the server."""
+    try:
+        yield
+    except NotFound:
+        fail(f"study {study_id} not found")
+
+
+@contextmanager
+def _trial_scope(trial_id: int) -> Iterator[None]:
+    try:
+        yield
+    except NotFound:
+        fail(f"trial {trial_id} not found")
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"adclient {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    ctx: typer.Context,
+    server: str = typer.Option(
+        DEFAULT_SERVER, "--server", "-s", envvar="AD_SERVER_URL", help="Server base URL."
+    ),
+    token: str | None = typer.Option(
+        None, "--token", envvar="AD_TOKEN", help="Bearer token.", show_default=False
+    ),
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version."
+    ),
+) -> None:
+    ctx.obj = Settings(server.rstrip("/"), token or None)
+
+
+# -- formatting ------------------------------------------------------------------------
+
+
+def _num(value: float | None) -> str:
+    return "" if value is None else f"{value:.6g}"
+
+
+def _when(value: Any) -> str:
+    return "" if value is None else value.strftime("%Y-%m-%d %H:%M:%S")
+
+
+def _compact(value: Any, limit: int = 80) -> str:
+    if isinstance(value, float):
+        text = f"{value:.6g}"
+    elif isinstance(value, dict):
+        text = ", ".join(f"{key}={_compact(item, limit)}" for key, item in value.items())
+    elif isinstance(value, str):
+        text = value
+    else:
+        text = json.dumps(value, separators=(",", ":"), default=str)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _print_json(value: Any) -> None:
+    if isinstance(value, BaseModel):
+        data = value.model_dump(mode="json")
+    elif isinstance(value, list):
+        data = [item.model_dump(mode="json") for item in value]
+    else:
+        data = value
+    sys.stdout.write(json.dumps(data, indent=2) + "\n")
+
+
+def _trial_table(trials: list[Trial], title: str | None = None) -> Table:
+    table = Table(title=title)
+    for column in ("#", "id", "state", "value", "worker", "attempts", "params"):
+        table.add_column(column, justify="right" if column in {"#", "id", "value"} else "left")
+    for trial in trials:
+        table.add_row(
+            str(trial.number),
+            str(trial.id),
+            trial.state.value,
+            _num(trial.value),
+            trial.worker_id or "",
+            str(trial.attempts),
+            _compact(trial.params, 100),
+        )
+    return table
+
+
+def _best_table(trial: Trial) -> Table:
+    table = Table(title=f"best trial: #{trial.number} (id {trial.id}), value {_num(trial.value)}")
+    table.add_column("param")
+    table.add_column("value", overflow="fold")
+    for name, value in trial.params.items():
+        table.add_row(name, _compact(value, 200))
+    for name, value in trial.metrics.items():
+        table.add_row(f"metric {name}", _num(value))
+    return table
+
+
+def _status_table(info: Study, dashboard: str) -> Table:
+    table = Table(title=f"study {info.id}: {info.name}", show_header=False)
+    table.add_column("field", style="bold")
+    table.add_column("value", overflow="fold")
+    budget = f"/{info.max_trials}" if info.max_trials is not None else ""
+    rows = [
+        ("state", info.state.value),
+        ("direction", info.direction.value),
+        ("managed", "yes" if info.managed else "no"),
+        ("space", info.space.type),
+        ("proposer", info.proposer.name),
+        ("task", info.task.name if info.task is not None else ""),
+        ("trials", f"{info.n_trials}{budget}"),
+        ("queued", str(info.n_queued)),
+        ("running", str(info.n_running)),
+        ("complete", str(info.n_complete)),
+        ("failed", str(info.n_failed)),
+        ("best value", _num(info.best_value)),
+        ("best trial", "" if info.best_trial_id is None else str(info.best_trial_id)),
+        ("created", _when(info.created_at)),
+        ("updated", _when(info.updated_at)),
+        ("dashboard", dashboard),
+    ]
+    for field, value in rows:
+        table.add_row(field, value)
+    return table
+
+
+# -- commands --------------------------------------------------------------------------
+
+
+def _read_study_file(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        fail(f"cannot read {path}: {exc.strerror or exc}")
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (ValueError, yaml.YAMLError) as exc:
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        fail(f"cannot parse {path}: {first_line}")
+    if not isinstance(data, dict):
+        fail(f"{path} must hold a mapping with a study body (name, space, ...)")
+    return data
+
+
+@app.command()
+@friendly
+def submit(
+    ctx: typer.Context,
+    study_file: Path = typer.Argument(..., help="YAML or JSON file with a study body."),
+    wait: bool = typer.Option(False, "--wait", "-w", help="Follow the study until it finishes."),
+    poll: float = typer.Option(2.0, "--poll", min=0.01, help="Seconds between polls with --wait."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the study id."),
+) -> None:
+    """Create a study from STUDY_FILE; print its id and dashboard URL."""
+    body = _read_study_file(study_file)
+    settings = _settings(ctx)
+    with settings.client() as client:
+        study = client.create_study(body)
+        info = study.cached_info
+        if quiet:
+            typer.echo(str(study.id))
+        else:
+            out = _out()
+            out.print(f"study {study.id} created: {info.name}")
+            out.print(f"dashboard: {study.dashboard_url}")
+        if not wait:
+            return
+        info = _follow(study, poll)
+        best = study.best_trial
+        if quiet:
+            return
+        out = _out()
+        out.print(
+            f"study {study.id} {info.state.value}: {info.n_complete} complete, "
+            f"{info.n_failed} failed"
+        )
+        if best is None:
+            out.print("no complete trial")
+        else:
+            out.print(_best_table(best))
+
+
+def _follow(study: StudyHandle, poll: float) -> Study:
+    """Poll with a progress bar of finished trials until the study is finished."""
+    info = study.cached_info
+    with Progress(
+        TextColumn(f"study {study.id}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("best {task.fields[best]}"),
+        TimeElapsedColumn(),
+        console=_err(),
+        transient=False,
+    ) as progress:
+        bar = progress.add_task("trials", total=info.max_trials, completed=0, best="-")
+
+        def update(current: Study) -> None:
+            progress.update(
+                bar,
+                completed=current.n_complete + current.n_failed,
+                total=current.max_trials,
+                best=_num(current.best_value) or "-",
+            )
+
+        try:
+            return study.wait(poll=poll, on_update=update)
+        except KeyboardInterrupt:
+            progress.stop()
+            _err().print(f"stopped waiting; study {study.id} keeps running")
+            raise typer.Exit(130) from None
+
+
+@app.command()
+@friendly
+def studies(
+    ctx: typer.Context,
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """List the studies."""
+    with _settings(ctx).client() as client:
+        items = client.studies()
+    if as_json:
+        _print_json(items)
+        return
+    table = Table(title="studies")
+    for column in ("id", "name", "direction", "state", "trials", "complete", "failed", "best"):
+        table.add_column(column, justify="right" if column not in {"name", "state"} else "left")
+    for info in items:
+        budget = f"/{info.max_trials}" if info.max_trials is not None else ""
+        table.add_row(
+            str(info.id),
+            info.name,
+            info.direction.value,
+            info.state.value,
+            f"{info.n_trials}{budget}",
+            str(info.n_complete),
+            str(info.n_failed),
+            _num(info.best_value),
+        )
+    _out().print(table)
+
+
+@app.command()
+@friendly
+def status(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Show one study: state, trial counts, best value."""
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        info = client.study_info(study_id)
+        dashboard = client.dashboard_url(study_id)
+    if as_json:
+        _print_json(info)
+        return
+    _out().print(_status_table(info, dashboard))
+
+
+@app.command()
+@friendly
+def trials(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    state: TrialState | None = typer.Option(None, "--state", help="Only trials in this state."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """List a study's trials."""
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        items = client.trials(study_id, state)
+    if as_json:
+        _print_json(items)
+        return
+    _out().print(_trial_table(items, title=f"study {study_id}: {len(items)} trials"))
+
+
+@app.command()
+@friendly
+def best(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Show a study's best complete trial."""
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        trial = client.best_trial(study_id)
+    if trial is None:
+        fail(f"study {study_id} has no complete trial yet")
+    if as_json:
+        _print_json(trial)
+        return
+    _out().print(_best_table(trial))
+
+
+@app.command()
+@friendly
+def ask(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    count: int = typer.Option(1, "--count", "-n", help="How many trials (1..64)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Ask a study for new trials to evaluate by hand."""
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        items = client.ask(study_id, count)
+    if as_json:
+        _print_json(items)
+        return
+    _out().print(_trial_table(items, title=f"study {study_id}: {len(items)} new trials"))
+
+
+@app.command()
+@friendly
+def tell(
+    ctx: typer.Context,
+    trial_id: int = typer.Argument(..., metavar="TRIAL"),
+    value: float | None = typer.Argument(None, help="The trial's score (omit with --failed)."),
+    failed: bool = typer.Option(False, "--failed", help="Report the trial as failed."),
+    message: str | None = typer.Option(None, "--message", "-m", help="Why it failed."),
+    metric: list[str] = typer.Option([], "--metric", help="Extra metric NAME=NUMBER (repeatable)."),
+) -> None:
+    """Tell a trial's result: a VALUE, or --failed with a --message."""
+    if failed and value is not None:
+        fail("give either a VALUE or --failed, not both", code=2)
+    if not failed and value is None:
+        fail("missing VALUE (or --failed for a failed trial)", code=2)
+    metrics: dict[str, float] = {}
+    for item in metric:
+        name, sep, number = item.partition("=")
+        try:
+            if not sep or not name:
+                raise ValueError
+            metrics[name] = float(number)
+        except ValueError:
+            fail(f"--metric wants NAME=NUMBER, got {item!r}", code=2)
+    with _settings(ctx).client() as client, _trial_scope(trial_id):
+        trial = client.tell(
+            trial_id,
+            value,
+            state="failed" if failed else "complete",
+            message=message,
+            metrics=metrics,
+        )
+    shown = f": value {_num(trial.value)}" if trial.value is not None else ""
+    _out().print(f"trial {trial.id} (study {trial.study_id}, #{trial.number}) {trial.state}{shown}")
+
+
+@app.command()
+@friendly
+def export(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    format: str = typer.Option("csv", "--format", "-f", help="csv or json."),
+    output: Path | None = typer.Option(None, "--output", "-o", help="File (default: stdout)."),
+) -> None:
+    """Export a study's trials as CSV or JSON."""
+    if format not in {"csv", "json"}:
+        fail(f"--format must be csv or json, not {format!r}", code=2)
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        text = client.export(study_id, format)  # type: ignore[arg-type]
+    if output is None:
+        sys.stdout.write(text)
+        return
+    try:
+        output.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        fail(f"cannot write {output}: {exc.strerror or exc}")
+    _err().print(f"wrote study {study_id} to {output}")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
