@@ -49,6 +49,8 @@ class SobolProposer:
         unit = sobol_points(request.dim, request.seed, request.n_issued, request.count)
         return Proposal(
             candidates=scale_to_bounds(unit, request.bounds),
-            info=[{"proposer": self.name, "sobol_index": request.n_issued + i}
-                  for i in range(request.count)],
+            info=[
+                {"proposer": self.name, "sobol_index": request.n_issued + i}
+                for i in range(request.count)
+            ],
         )

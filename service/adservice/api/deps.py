@@ -1,0 +1,48 @@
+"""Dependency aliases shared by the routers."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from adservice.artifacts import ArtifactStore
+from adservice.db import Database
+from adservice.locks import StudyLocks
+from adservice.settings import Settings
+
+
+def get_app_settings(request: Request) -> Settings:
+    settings: Settings = request.app.state.settings
+    return settings
+
+
+def get_database(request: Request) -> Database:
+    db: Database = request.app.state.db
+    return db
+
+
+def get_locks(request: Request) -> StudyLocks:
+    locks: StudyLocks = request.app.state.locks
+    return locks
+
+
+def get_artifact_store(request: Request) -> ArtifactStore:
+    store: ArtifactStore = request.app.state.artifacts
+    return store
+
+
+def read_session(db: Annotated[Database, Depends(get_database)]) -> Iterator[Session]:
+    """A read-only transaction; writes go through ``Database.write`` explicitly, so a
+    commit always happens before the response is sent."""
+    with db.read() as session:
+        yield session
+
+
+SettingsDep = Annotated[Settings, Depends(get_app_settings)]
+DatabaseDep = Annotated[Database, Depends(get_database)]
+LocksDep = Annotated[StudyLocks, Depends(get_locks)]
+ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifact_store)]
+SessionDep = Annotated[Session, Depends(read_session)]

@@ -1,0 +1,23 @@
+"""Jobs: workers lease trials of managed studies."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Response
+
+from adclient.schemas import Job, LeaseRequest
+from adservice import proposing
+from adservice.api.deps import DatabaseDep, LocksDep, SettingsDep
+
+router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
+
+
+@router.post("/lease", response_model=Job, responses={204: {"description": "No work now"}})
+def lease(
+    body: LeaseRequest, db: DatabaseDep, locks: LocksDep, settings: SettingsDep
+) -> Response | Job:
+    job = proposing.lease_job(
+        db, locks, worker_id=body.worker_id, lease_seconds=settings.lease_seconds
+    )
+    if job is None:
+        return Response(status_code=204)
+    return job

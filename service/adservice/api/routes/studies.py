@@ -1,0 +1,101 @@
+"""Studies: create, list, read, ask, stop, and the views the dashboard draws from."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Response
+
+from adclient.schemas import (
+    AskRequest,
+    AskResponse,
+    Study,
+    StudyCreate,
+    Trial,
+    TrialState,
+    WorkerInfo,
+)
+from adservice import proposing, repository
+from adservice.api.deps import DatabaseDep, LocksDep, SessionDep
+from adservice.convert import study_schema, trial_schema, worker_schema
+
+router = APIRouter(prefix="/api/v1/studies", tags=["studies"])
+
+TrialOrder = Literal[
+    "number", "value", "state", "created_at", "finished_at", "worker_id", "attempts"
+]
+
+
+@router.post("", status_code=201)
+def create_study(body: StudyCreate, db: DatabaseDep) -> Study:
+    row = proposing.create_study(db, body=body)
+    return study_schema(row, {})
+
+
+@router.get("")
+def list_studies(session: SessionDep) -> list[Study]:
+    rows = repository.list_studies(session)
+    counts = repository.state_counts(session, study_ids=[row.id for row in rows])
+    return [study_schema(row, counts[row.id]) for row in rows]
+
+
+@router.get("/{study_id}")
+def get_study(study_id: int, session: SessionDep) -> Study:
+    row = repository.get_study(session, study_id=study_id)
+    counts = repository.state_counts(session, study_ids=[study_id])
+    return study_schema(row, counts[study_id])
+
+
+@router.post("/{study_id}/ask")
+def ask(study_id: int, body: AskRequest, db: DatabaseDep, locks: LocksDep) -> AskResponse:
+    rows = proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
+    return AskResponse(trials=[trial_schema(row) for row in rows])
+
+
+@router.post("/{study_id}/stop")
+def stop_study(study_id: int, db: DatabaseDep) -> Study:
+    with db.write() as session:
+        row = repository.stop_study(session, study_id=study_id)
+        counts = repository.state_counts(session, study_ids=[study_id])
+    return study_schema(row, counts[study_id])
+
+
+@router.get("/{study_id}/trials")
+def list_trials(
+    study_id: int,
+    session: SessionDep,
+    response: Response,
+    state: TrialState | None = None,
+    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
+    order_by: TrialOrder = "number",
+    desc: bool = False,
+) -> list[Trial]:
+    """Trials, optionally filtered and paged; the total that match is in ``X-Total-Count``."""
+    rows, total = repository.list_trials(
+        session,
+        study_id=study_id,
+        state=state,
+        offset=offset,
+        limit=limit,
+        order_by=order_by,
+        descending=desc,
+    )
+    response.headers["X-Total-Count"] = str(total)
+    return [trial_schema(row) for row in rows]
+
+
+@router.get("/{study_id}/best")
+def best_trial(study_id: int, session: SessionDep) -> Trial:
+    return trial_schema(repository.best_trial(session, study_id=study_id))
+
+
+@router.get("/{study_id}/workers")
+def study_workers(study_id: int, session: SessionDep) -> list[WorkerInfo]:
+    return [worker_schema(row) for row in repository.list_workers(session, study_id=study_id)]
+
+
+@router.get("/{study_id}/series")
+def study_series(study_id: int, session: SessionDep) -> dict[str, Any]:
+    """Every trial as columns (number, state, value, params): one small payload for charts."""
+    return repository.trial_columns(session, study_id=study_id)

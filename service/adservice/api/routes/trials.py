@@ -1,0 +1,49 @@
+"""Trials: read, tell, heartbeat, and the URDF of a trial's design."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Response
+
+from adclient.schemas import HeartbeatRequest, HeartbeatResponse, TellRequest, Trial
+from adservice import repository, robots
+from adservice.api.deps import DatabaseDep, SessionDep, SettingsDep
+from adservice.convert import trial_schema
+
+router = APIRouter(prefix="/api/v1/trials", tags=["trials"])
+
+
+@router.get("/{trial_id}")
+def get_trial(trial_id: int, session: SessionDep) -> Trial:
+    return trial_schema(repository.get_trial(session, trial_id=trial_id))
+
+
+@router.post("/{trial_id}/tell")
+def tell(trial_id: int, body: TellRequest, db: DatabaseDep) -> Trial:
+    with db.write() as session:
+        row = repository.tell_trial(session, trial_id=trial_id, body=body)
+    return trial_schema(row)
+
+
+@router.post("/{trial_id}/heartbeat")
+def heartbeat(
+    trial_id: int, body: HeartbeatRequest, db: DatabaseDep, settings: SettingsDep
+) -> HeartbeatResponse:
+    with db.write() as session:
+        row = repository.heartbeat(
+            session,
+            trial_id=trial_id,
+            worker_id=body.worker_id,
+            lease_seconds=settings.lease_seconds,
+        )
+    assert row.lease_expires_at is not None
+    return HeartbeatResponse(trial_id=row.id, lease_expires_at=row.lease_expires_at)
+
+
+@router.get("/{trial_id}/urdf", response_class=Response)
+def trial_urdf(trial_id: int, session: SessionDep) -> Response:
+    urdf = robots.trial_urdf(session, trial_id=trial_id)
+    return Response(
+        urdf,
+        media_type="application/xml",
+        headers={"Content-Disposition": f'attachment; filename="trial-{trial_id}.urdf"'},
+    )

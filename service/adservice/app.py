@@ -1,0 +1,146 @@
+"""The FastAPI application factory: routers, error mapping, migrations, lease sweeper."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from adclient import __version__
+from adservice import repository
+from adservice.api.routes import artifacts, health, jobs, studies, trials
+from adservice.artifacts import ArtifactStore
+from adservice.db import Database, upgrade_to_head
+from adservice.errors import (
+    ConflictError,
+    DomainError,
+    InvalidError,
+    NotFoundError,
+    TooLargeError,
+)
+from adservice.locks import StudyLocks
+from adservice.settings import Settings, get_settings
+
+log = logging.getLogger("adservice")
+
+STATIC_DIR = Path(__file__).parent / "static"
+
+STATUS_BY_ERROR: dict[type[DomainError], int] = {
+    NotFoundError: 404,
+    ConflictError: 409,
+    InvalidError: 422,
+    TooLargeError: 413,
+}
+
+
+def _status_for(error: DomainError) -> int:
+    for cls in type(error).__mro__:
+        if cls in STATUS_BY_ERROR:
+            return STATUS_BY_ERROR[cls]
+    return 400
+
+
+def _field_path(location: tuple[int | str, ...]) -> str:
+    parts = [str(part) for part in location if part not in ("body",)]
+    return ".".join(parts) or "body"
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(DomainError)
+    async def domain_error(_request: Request, error: DomainError) -> JSONResponse:
+        return JSONResponse(
+            {"error": error.code, "detail": error.detail}, status_code=_status_for(error)
+        )
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(_request: Request, error: RequestValidationError) -> JSONResponse:
+        problems = [
+            f"{_field_path(tuple(item.get('loc', ())))}: "
+            f"{str(item.get('msg', 'invalid')).removeprefix('Value error, ')}"
+            for item in error.errors()
+        ]
+        return JSONResponse(
+            {"error": "invalid", "detail": "; ".join(problems), "problems": problems},
+            status_code=422,
+        )
+
+
+def body_size_limit(
+    limit: int, artifact_limit: int
+) -> Callable[[Request, Callable[[Request], Awaitable[Response]]], Awaitable[Response]]:
+    """Refuse bodies whose declared length exceeds the limit before reading them."""
+
+    async def middleware(
+        request: Request, call_next: Callable[[Request], Awaitable[Response]]
+    ) -> Response:
+        declared = request.headers.get("content-length")
+        allowed = artifact_limit if "/artifacts/" in request.url.path else limit
+        if declared is not None:
+            if not declared.isdigit():
+                return JSONResponse(
+                    {"error": "invalid", "detail": "Content-Length must be a number"}, 400
+                )
+            if int(declared) > allowed:
+                return JSONResponse(
+                    {"error": "too_large", "detail": f"body exceeds the limit of {allowed} bytes"},
+                    413,
+                )
+        return await call_next(request)
+
+    return middleware
+
+
+def _sweep_leases(db: Database, interval: float, stop: threading.Event) -> None:
+    while not stop.wait(interval):
+        try:
+            with db.write() as session:
+                expired = repository.expire_leases(session)
+            if expired:
+                log.info("returned %d expired lease(s) to the queue", expired)
+        except Exception:  # keep sweeping: a transient database error must not end it
+            log.exception("lease sweep failed")
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        upgrade_to_head(settings.database_url)
+        db = Database(settings.database_url)
+        app.state.db = db
+        app.state.settings = settings
+        app.state.locks = StudyLocks()
+        app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
+        stop = threading.Event()
+        sweeper = threading.Thread(
+            target=_sweep_leases, args=(db, settings.sweep_seconds, stop), daemon=True
+        )
+        sweeper.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            sweeper.join(timeout=5)
+            db.dispose()
+
+    app = FastAPI(
+        title="activedesign",
+        version=__version__,
+        description="Automatic robot design: ask/tell Bayesian optimisation, simulation workers.",
+        lifespan=lifespan,
+    )
+    install_error_handlers(app)
+    app.middleware("http")(body_size_limit(settings.max_body_bytes, settings.max_artifact_bytes))
+    for module in (health, studies, trials, jobs, artifacts):
+        app.include_router(module.router)
+    if (STATIC_DIR / "index.html").is_file():
+        app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")
+    return app

@@ -1,0 +1,109 @@
+"""SQLAlchemy tables. ORM rows never leave the service: routers return schemas."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+import sqlalchemy as sa
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy.types import TypeDecorator
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """Stores naive UTC (portable across SQLite and PostgreSQL), returns aware UTC."""
+
+    impl = sa.DateTime
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            raise ValueError("naive datetime given to a UTC column")
+        return value.astimezone(UTC).replace(tzinfo=None)
+
+    def process_result_value(self, value: datetime | None, dialect: Any) -> datetime | None:
+        return None if value is None else value.replace(tzinfo=UTC)
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+class StudyRow(Base):
+    __tablename__ = "studies"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(sa.String(128))
+    direction: Mapped[str] = mapped_column(sa.String(16))
+    state: Mapped[str] = mapped_column(sa.String(16), default="running")
+    space: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
+    proposer: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
+    task: Mapped[dict[str, Any] | None] = mapped_column(sa.JSON, nullable=True)
+    representation: Mapped[dict[str, Any] | None] = mapped_column(sa.JSON, nullable=True)
+    max_trials: Mapped[int | None] = mapped_column(nullable=True)
+    max_attempts: Mapped[int] = mapped_column(default=3)
+    n_trials: Mapped[int] = mapped_column(default=0)
+    n_complete: Mapped[int] = mapped_column(default=0)
+    n_failed: Mapped[int] = mapped_column(default=0)
+    best_value: Mapped[float | None] = mapped_column(sa.Double, nullable=True)
+    best_trial_id: Mapped[int | None] = mapped_column(nullable=True)
+    metadata_: Mapped[dict[str, Any]] = mapped_column("metadata", sa.JSON, default=dict)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class TrialRow(Base):
+    __tablename__ = "trials"
+    __table_args__ = (
+        sa.UniqueConstraint("study_id", "number", name="uq_trials_study_number"),
+        sa.Index("ix_trials_study_state", "study_id", "state"),
+        sa.Index("ix_trials_state_lease", "state", "lease_expires_at"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    study_id: Mapped[int] = mapped_column(sa.ForeignKey("studies.id", ondelete="CASCADE"))
+    number: Mapped[int]
+    state: Mapped[str] = mapped_column(sa.String(16))
+    vector: Mapped[list[float]] = mapped_column(sa.JSON)
+    params: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
+    value: Mapped[float | None] = mapped_column(sa.Double, nullable=True)
+    message: Mapped[str | None] = mapped_column(sa.Text, nullable=True)
+    metrics: Mapped[dict[str, float]] = mapped_column(sa.JSON, default=dict)
+    info: Mapped[dict[str, Any]] = mapped_column(sa.JSON, default=dict)
+    worker_id: Mapped[str | None] = mapped_column(sa.String(128), nullable=True)
+    attempts: Mapped[int] = mapped_column(default=0)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    started_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+
+
+class ArtifactRow(Base):
+    __tablename__ = "artifacts"
+    __table_args__ = (sa.UniqueConstraint("trial_id", "name", name="uq_artifacts_trial_name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    trial_id: Mapped[int] = mapped_column(sa.ForeignKey("trials.id", ondelete="CASCADE"))
+    name: Mapped[str] = mapped_column(sa.String(128))
+    content_type: Mapped[str] = mapped_column(sa.String(128))
+    size: Mapped[int]
+    sha256: Mapped[str] = mapped_column(sa.String(64))
+    path: Mapped[str] = mapped_column(sa.String(1024))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class WorkerRow(Base):
+    __tablename__ = "workers"
+
+    worker_id: Mapped[str] = mapped_column(sa.String(128), primary_key=True)
+    last_seen_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    current_trial_id: Mapped[int | None] = mapped_column(nullable=True)
+    jobs_done: Mapped[int] = mapped_column(default=0)
+    jobs_failed: Mapped[int] = mapped_column(default=0)

@@ -1,0 +1,355 @@
+"""Batch log expected improvement on a Gaussian process: the default proposer.
+
+The method of the preprint (section 1 of DESIGN.md): the first ``n_initial`` trials
+of a study are points of its seeded scrambled Sobol sequence; after that a BoTorch
+``SingleTaskGP`` (inputs scaled to the unit box by the search bounds, outcomes
+standardised, hyperparameters fitted by maximum marginal likelihood) scores
+candidates with qLogEI, or qLogNEI when the study's scores are noisy, and
+``optimize_acqf`` returns a joint batch of ``count`` candidates.
+
+Decisions worth knowing:
+
+- Failed trials are *excluded* from the GP (a crashed simulation says nothing
+  about the score surface), and enter the acquisition as pending points, so that
+  the exact design that failed is not proposed again and its neighbourhood is
+  discounted the way a pending point's is. No feasibility classifier.
+- Pending (queued/running) trials enter as ``X_pending``; so do the Sobol points
+  issued earlier in the same batch.
+- Fallbacks never raise: with fewer than two distinct usable points, constant
+  observations, or a fit or acquisition optimisation that fails, the candidate
+  is the study's Sobol point at position ``n_issued + i`` and its info dict says
+  ``"method": "sobol-fallback"`` with the ``"reason"``. A model candidate that
+  duplicates another candidate of the batch (or, for noise-free studies, an
+  already observed or pending point) is replaced the same way.
+- Seeding: the acquisition's quasi-Monte-Carlo sampler, the raw samples of the
+  restarts and any random re-start of the fit are seeded from
+  ``(seed, n_issued)``, under a process-wide lock so concurrent asks cannot
+  disturb each other's random streams.
+- Speed: restarts and raw samples grow with d and q (``options`` may override
+  ``num_restarts``, ``raw_samples``, ``maxiter``). Fitted hyperparameters are kept
+  in two small in-process LRU caches: by a digest of the exact training data (an
+  identical request re-uses the exact fit, so it gives bit-identical candidates),
+  and by the study's identity ``(bounds, seed, n_initial, noisy)`` (the next ask of
+  the same study warm-starts its fit from the previous optimum). A server that
+  restarts loses the caches; its next fit starts cold and converges to the same
+  optimum up to the optimiser's tolerance, so candidates agree closely but are
+  not guaranteed bit-identical to those of the server that warm-started. Set
+  ``options["warm_start"] = False`` for strict restart-independence.
+- The GPU is used when ``torch.cuda.is_available()`` (``options["device"]`` may
+  force ``"cpu"``); everything runs in float64.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+import time
+import warnings
+from collections import OrderedDict
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from adservice.proposers.base import Proposal, ProposalRequest
+from adservice.proposers.simple import scale_to_bounds, sobol_points
+
+_LOCK = threading.Lock()
+_CACHE_SIZE = 256
+_FITS_BY_DATA: OrderedDict[str, dict[str, torch.Tensor]] = OrderedDict()
+_FITS_BY_STUDY: OrderedDict[tuple[Any, ...], dict[str, torch.Tensor]] = OrderedDict()
+_DISTINCT_TOL = 1e-9
+"""Two vectors closer than this (max-norm, unit box) are the same point."""
+_DUPLICATE_CANDIDATE_TOL = 1e-6
+_MAX_FAILED_AS_PENDING = 32
+
+
+def clear_caches() -> None:
+    """Forget every cached fit (tests and benchmarks measure cold starts with it)."""
+    with _LOCK:
+        _FITS_BY_DATA.clear()
+        _FITS_BY_STUDY.clear()
+
+
+def derived_seed(*parts: int) -> int:
+    """A 31-bit seed that depends on every part (so seed 1, n 0 and seed 0, n 1 differ)."""
+    return int(
+        np.random.SeedSequence([int(p) & 0xFFFFFFFF for p in parts]).generate_state(1)[0]
+    ) & (2**31 - 1)
+
+
+def _lru_put(cache: OrderedDict, key: Any, value: Any) -> None:
+    cache[key] = value
+    cache.move_to_end(key)
+    while len(cache) > _CACHE_SIZE:
+        cache.popitem(last=False)
+
+
+def _lru_get(cache: OrderedDict, key: Any) -> Any:
+    value = cache.get(key)
+    if value is not None:
+        cache.move_to_end(key)
+    return value
+
+
+def _to_unit(x: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    return (x - bounds[0]) / (bounds[1] - bounds[0])
+
+
+def _n_distinct(unit: np.ndarray) -> int:
+    if len(unit) == 0:
+        return 0
+    keys = np.round(unit / _DISTINCT_TOL).astype(np.int64)
+    return len(np.unique(keys, axis=0))
+
+
+def default_sizes(dim: int, q: int) -> tuple[int, int]:
+    """(num_restarts, raw_samples) for a d-dimensional, q-point joint optimisation."""
+    num_restarts = min(4 + dim // 2 + 2 * (q - 1), 24)
+    raw_samples = min(128 + 32 * dim * q, 2048)
+    return num_restarts, raw_samples
+
+
+class QLogEIProposer:
+    """Sobol start, then a GP with batch log expected improvement (noisy variant on request)."""
+
+    name: ClassVar[str] = "qei"
+    needs_history: ClassVar[bool] = True
+
+    def propose(self, request: ProposalRequest) -> Proposal:
+        count = request.count
+        bounds = np.asarray(request.bounds, dtype=np.float64)
+        candidates = np.empty((count, request.dim), dtype=np.float64)
+        info: list[dict[str, Any]] = [{} for _ in range(count)]
+
+        n_sobol = min(max(request.n_initial - request.n_issued, 0), count)
+        if n_sobol:
+            unit = sobol_points(request.dim, request.seed, request.n_issued, n_sobol)
+            candidates[:n_sobol] = scale_to_bounds(unit, bounds)
+            for i in range(n_sobol):
+                info[i] = {
+                    "proposer": self.name,
+                    "method": "sobol-initial",
+                    "sobol_index": request.n_issued + i,
+                }
+        if n_sobol == count:
+            return Proposal(candidates=candidates, info=info)
+
+        q = count - n_sobol
+        model_rows, model_info = self._model_batch(request, bounds, q, candidates[:n_sobol])
+        candidates[n_sobol:] = model_rows
+        info[n_sobol:] = model_info
+        return Proposal(candidates=np.clip(candidates, bounds[0], bounds[1]), info=info)
+
+    # -- the model phase -------------------------------------------------------------
+
+    def _fallback(
+        self, request: ProposalRequest, bounds: np.ndarray, first: int, q: int, reason: str
+    ) -> tuple[np.ndarray, list[dict[str, Any]]]:
+        start = request.n_issued + first
+        unit = sobol_points(request.dim, request.seed, start, q)
+        info = [
+            {
+                "proposer": self.name,
+                "method": "sobol-fallback",
+                "reason": reason,
+                "sobol_index": start + i,
+            }
+            for i in range(q)
+        ]
+        return scale_to_bounds(unit, bounds), info
+
+    def _model_batch(
+        self,
+        request: ProposalRequest,
+        bounds: np.ndarray,
+        q: int,
+        issued_now: np.ndarray,
+    ) -> tuple[np.ndarray, list[dict[str, Any]]]:
+        first = request.count - q
+        X = np.asarray(request.X, dtype=np.float64).reshape(-1, request.dim)
+        y = np.asarray(request.y, dtype=np.float64).reshape(-1)
+        usable = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
+        X, y = X[usable], y[usable]
+        n_dropped = int((~usable).sum())
+        unit_X = _to_unit(X, bounds)
+        n_distinct = _n_distinct(unit_X)
+        if n_distinct < 2:
+            return self._fallback(
+                request, bounds, first, q, f"fewer than 2 distinct observed points ({n_distinct})"
+            )
+        y_scale = max(1.0, float(np.max(np.abs(y))))
+        if float(np.ptp(y)) <= 1e-12 * y_scale:
+            return self._fallback(
+                request, bounds, first, q, f"constant observations (all y = {y[0]:.6g})"
+            )
+
+        pending = [np.asarray(request.pending, dtype=np.float64).reshape(-1, request.dim)]
+        failed = np.asarray(request.failed, dtype=np.float64).reshape(-1, request.dim)
+        pending.append(failed[-_MAX_FAILED_AS_PENDING:])
+        pending.append(issued_now)
+        X_pending = np.concatenate(pending, axis=0)
+        X_pending = X_pending[np.all(np.isfinite(X_pending), axis=1)]
+        X_pending = np.clip(X_pending, bounds[0], bounds[1])
+
+        options = dict(request.options)
+        import botorch  # noqa: F401  (an import error is a broken install, not a fallback)
+
+        try:
+            with _LOCK, warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                rows, extra = self._optimise(request, bounds, X, y, X_pending, q, options)
+        except Exception as error:  # any numerical failure must degrade, not crash the ask
+            return self._fallback(
+                request, bounds, first, q, f"model failed: {type(error).__name__}: {error}"[:300]
+            )
+
+        extra.update(
+            n_train=len(y), n_distinct=n_distinct, n_pending=len(X_pending), n_dropped=n_dropped
+        )
+        if len(y) > n_distinct:
+            extra["duplicate_points"] = len(y) - n_distinct
+        infos: list[dict[str, Any]] = []
+        unit_rows = _to_unit(rows, bounds)
+        taken = [unit_X, _to_unit(X_pending, bounds)] if not request.noisy else []
+        sobol_rows, sobol_info = self._fallback(request, bounds, first, q, "duplicate candidate")
+        for i in range(q):
+            stack = np.concatenate([*taken, unit_rows[:i]], axis=0)
+            if _nearest_distance(stack, unit_rows[i]) < _DUPLICATE_CANDIDATE_TOL:
+                rows[i] = sobol_rows[i]
+                unit_rows[i] = _to_unit(sobol_rows[i], bounds)
+                infos.append({**sobol_info[i], **extra, "method": "sobol-fallback"})
+            else:
+                infos.append({"proposer": self.name, **extra})
+        return rows, infos
+
+    def _optimise(
+        self,
+        request: ProposalRequest,
+        bounds: np.ndarray,
+        X: np.ndarray,
+        y: np.ndarray,
+        X_pending: np.ndarray,
+        q: int,
+        options: dict[str, Any],
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        from botorch.acquisition.logei import (
+            qLogExpectedImprovement,
+            qLogNoisyExpectedImprovement,
+        )
+        from botorch.fit import fit_gpytorch_mll
+        from botorch.models import SingleTaskGP
+        from botorch.models.transforms.input import Normalize
+        from botorch.models.transforms.outcome import Standardize
+        from botorch.optim import optimize_acqf
+        from botorch.sampling.normal import SobolQMCNormalSampler
+        from botorch.utils.sampling import manual_seed
+        from gpytorch.mlls import ExactMarginalLogLikelihood
+
+        device_name = options.get("device") or ("cuda" if torch.cuda.is_available() else "cpu")
+        device = torch.device(device_name)
+        tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
+        dim = request.dim
+        seed = derived_seed(request.seed, request.n_issued)
+
+        bounds_t = torch.as_tensor(bounds, **tkw)
+        train_X = torch.as_tensor(X, **tkw)
+        train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
+        model = SingleTaskGP(
+            train_X,
+            train_Y,
+            input_transform=Normalize(d=dim, bounds=bounds_t),
+            outcome_transform=Standardize(m=1),
+        )
+        mll = ExactMarginalLogLikelihood(model.likelihood, model)
+
+        data_key = hashlib.sha256(
+            b"".join([X.tobytes(), y.tobytes(), bounds.tobytes(), bytes([bool(request.noisy)])])
+        ).hexdigest()
+        study_key = (bounds.tobytes(), request.seed, request.n_initial, bool(request.noisy))
+        use_warm = bool(options.get("warm_start", True))
+
+        started = time.perf_counter()
+        exact = _lru_get(_FITS_BY_DATA, data_key) if use_warm else None
+        if exact is not None:
+            model.load_state_dict(_to_device(exact, device), strict=False)
+            fit_source = "cached"
+        else:
+            previous = _lru_get(_FITS_BY_STUDY, study_key) if use_warm else None
+            fit_source = "cold"
+            if previous is not None:
+                model.load_state_dict(_to_device(previous, device), strict=False)
+                fit_source = "warm"
+            with manual_seed(seed):
+                fit_gpytorch_mll(mll)
+            params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
+            if not all(torch.isfinite(p).all() for p in params.values()):
+                raise FloatingPointError("non-finite hyperparameters after the fit")
+            _lru_put(_FITS_BY_DATA, data_key, params)
+            _lru_put(_FITS_BY_STUDY, study_key, params)
+        model.eval()
+        fit_seconds = time.perf_counter() - started
+
+        default_restarts, default_raw = default_sizes(dim, q)
+        num_restarts = int(options.get("num_restarts", default_restarts))
+        raw_samples = int(options.get("raw_samples", default_raw))
+        mc_samples = int(options.get("mc_samples", 128 if q == 1 else 256))
+        sampler = SobolQMCNormalSampler(sample_shape=torch.Size([mc_samples]), seed=seed)
+        pending_t = torch.as_tensor(X_pending, **tkw) if len(X_pending) else None
+        if request.noisy:
+            acqf = qLogNoisyExpectedImprovement(
+                model=model,
+                X_baseline=train_X,
+                sampler=sampler,
+                X_pending=pending_t,
+                prune_baseline=True,
+            )
+            method = "qLogNEI"
+        else:
+            acqf = qLogExpectedImprovement(
+                model=model, best_f=float(y.max()), sampler=sampler, X_pending=pending_t
+            )
+            method = "qLogEI"
+
+        started = time.perf_counter()
+        with manual_seed(seed):
+            rows, value = optimize_acqf(
+                acq_function=acqf,
+                bounds=bounds_t,
+                q=q,
+                num_restarts=num_restarts,
+                raw_samples=raw_samples,
+                options={
+                    "batch_limit": num_restarts,
+                    "maxiter": int(options.get("maxiter", 200)),
+                    "seed": seed,
+                },
+                retry_on_optimization_warning=False,
+            )
+        acq_seconds = time.perf_counter() - started
+        rows_np = rows.detach().cpu().numpy().astype(np.float64).reshape(q, dim)
+        if not np.all(np.isfinite(rows_np)):
+            raise FloatingPointError("non-finite candidates from the acquisition optimiser")
+        acq_value = float(value.detach().cpu().reshape(-1)[0])
+        extra = {
+            "method": method,
+            "log_acq_value": acq_value if np.isfinite(acq_value) else None,
+            "fit": fit_source,
+            "fit_seconds": round(fit_seconds, 4),
+            "acq_seconds": round(acq_seconds, 4),
+            "num_restarts": num_restarts,
+            "raw_samples": raw_samples,
+            "device": device.type,
+        }
+        return rows_np, extra
+
+
+def _nearest_distance(points: np.ndarray, point: np.ndarray) -> float:
+    """Max-norm distance from ``point`` to the nearest row of ``points`` (inf if none)."""
+    if len(points) == 0:
+        return float("inf")
+    return float(np.min(np.max(np.abs(points - point), axis=1)))
+
+
+def _to_device(params: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    return {name: tensor.to(device) for name, tensor in params.items()}
