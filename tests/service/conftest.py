@@ -1,0 +1,34 @@
+"""In-process app on a real SQLite file, for contract tests that need no separate process."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from adservice.app import create_app
+from adservice.settings import Settings
+
+
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    return Settings(database_url=f"sqlite:///{tmp_path / 'studies.db'}", sweep_seconds=0.2)
+
+
+@pytest.fixture
+def api(settings: Settings) -> Iterator[TestClient]:
+    with TestClient(create_app(settings)) as client:
+        yield client
+
+
+BOX_STUDY = {
+    "name": "box",
+    "direction": "maximize",
+    "space": {
+        "type": "box",
+        "params": [{"name": "x", "low": -1.0, "high": 1.0}, {"name": "y", "low": 0, "high": 5}],
+    },
+    "proposer": {"name": "random", "seed": 3},
+}
