@@ -1,0 +1,112 @@
+"""Leases for workers: one holder at a time, heartbeats, expiry, retries, lost leases."""
+
+from __future__ import annotations
+
+import copy
+import time
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from adservice.app import create_app
+from adservice.settings import Settings
+from tests.service.conftest import BOX_STUDY
+
+
+def managed(api: TestClient, max_trials: int = 4, max_attempts: int = 3) -> dict[str, Any]:
+    body = copy.deepcopy(BOX_STUDY) | {
+        "task": {"name": "noop"},
+        "max_trials": max_trials,
+        "max_attempts": max_attempts,
+    }
+    response = api.post("/api/v1/studies", json=body)
+    assert response.status_code == 201, response.text
+    return response.json()
+
+
+def lease(api: TestClient, worker: str) -> dict[str, Any] | None:
+    response = api.post("/api/v1/jobs/lease", json={"worker_id": worker})
+    assert response.status_code in (200, 204), response.text
+    return response.json() if response.status_code == 200 else None
+
+
+def test_no_work_is_204(api: TestClient) -> None:
+    assert lease(api, "w1") is None
+    api.post("/api/v1/studies", json=BOX_STUDY)  # not managed: never leased
+    assert lease(api, "w1") is None
+
+
+def test_lease_carries_the_job_and_trials_are_distinct(api: TestClient) -> None:
+    study = managed(api, max_trials=2)
+    first, second = lease(api, "w1"), lease(api, "w2")
+    assert first is not None and second is not None
+    assert first["trial_id"] != second["trial_id"]
+    assert first["task"]["name"] == "noop" and first["space"]["type"] == "box"
+    assert first["study_id"] == study["id"] and first["attempt"] == 1
+    assert first["lease_expires_at"]
+    assert lease(api, "w3") is None  # max_trials reached, both running
+    told = api.post(
+        f"/api/v1/trials/{first['trial_id']}/tell",
+        json={"value": 1.0, "worker_id": "w1", "metrics": {"steps": 10}},
+    )
+    assert told.status_code == 200 and told.json()["metrics"] == {"steps": 10.0}
+    workers = api.get(f"/api/v1/studies/{study['id']}/workers").json()
+    assert {w["worker_id"]: w["jobs_done"] for w in workers} == {"w1": 1, "w2": 0}
+
+
+def test_only_the_holder_may_tell_or_heartbeat(api: TestClient) -> None:
+    managed(api)
+    job = lease(api, "w1")
+    assert job is not None
+    trial_url = f"/api/v1/trials/{job['trial_id']}"
+    beat = api.post(f"{trial_url}/heartbeat", json={"worker_id": "w1"})
+    assert beat.status_code == 200 and beat.json()["lease_expires_at"] >= job["lease_expires_at"]
+    assert api.post(f"{trial_url}/heartbeat", json={"worker_id": "w2"}).status_code == 409
+    stolen = api.post(f"{trial_url}/tell", json={"value": 1.0, "worker_id": "w2"})
+    assert stolen.status_code == 409 and stolen.json()["error"] == "lease_lost"
+    assert api.get(trial_url).json()["state"] == "running"
+
+
+@pytest.fixture
+def short_lease_api(settings: Settings) -> Any:
+    quick = settings.model_copy(update={"lease_seconds": 0.3, "sweep_seconds": 60.0})
+    with TestClient(create_app(quick)) as client:
+        yield client
+
+
+def test_expired_lease_is_requeued_and_the_old_holder_is_refused(
+    short_lease_api: TestClient,
+) -> None:
+    api = short_lease_api
+    managed(api, max_trials=1)
+    job = lease(api, "slow")
+    assert job is not None
+    time.sleep(0.5)
+    again = lease(api, "fast")
+    assert again is not None and again["trial_id"] == job["trial_id"] and again["attempt"] == 2
+    trial_url = f"/api/v1/trials/{job['trial_id']}"
+    assert api.post(f"{trial_url}/heartbeat", json={"worker_id": "slow"}).status_code == 409
+    late = api.post(f"{trial_url}/tell", json={"value": 9.0, "worker_id": "slow"})
+    assert late.status_code == 409
+    ok = api.post(f"{trial_url}/tell", json={"value": 2.0, "worker_id": "fast"})
+    assert ok.status_code == 200 and ok.json()["attempts"] == 2
+
+
+def test_lease_fails_the_trial_after_max_attempts(short_lease_api: TestClient) -> None:
+    api = short_lease_api
+    study = managed(api, max_trials=1, max_attempts=2)
+    assert lease(api, "a") is not None
+    time.sleep(0.5)
+    assert lease(api, "b") is not None
+    time.sleep(0.5)
+    assert lease(api, "c") is None
+    (trial,) = api.get(f"/api/v1/studies/{study['id']}/trials").json()
+    assert trial["state"] == "failed" and "2 attempts" in trial["message"]
+    assert api.get(f"/api/v1/studies/{study['id']}").json()["state"] == "complete"
+
+
+def test_stopped_study_is_not_leased(api: TestClient) -> None:
+    study = managed(api)
+    api.post(f"/api/v1/studies/{study['id']}/stop")
+    assert lease(api, "w1") is None
