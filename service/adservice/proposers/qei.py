@@ -52,7 +52,7 @@ import numpy as np
 import torch
 
 from adservice.proposers.base import Proposal, ProposalRequest
-from adservice.proposers.simple import scale_to_bounds, sobol_points
+from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 
 _LOCK = threading.Lock()
 _CACHE_SIZE = 256
@@ -69,13 +69,6 @@ def clear_caches() -> None:
     with _LOCK:
         _FITS_BY_DATA.clear()
         _FITS_BY_STUDY.clear()
-
-
-def derived_seed(*parts: int) -> int:
-    """A 31-bit seed that depends on every part (so seed 1, n 0 and seed 0, n 1 differ)."""
-    return int(
-        np.random.SeedSequence([int(p) & 0xFFFFFFFF for p in parts]).generate_state(1)[0]
-    ) & (2**31 - 1)
 
 
 def _lru_put(cache: OrderedDict, key: Any, value: Any) -> None:
@@ -321,7 +314,7 @@ class QLogEIProposer:
                 raw_samples=raw_samples,
                 options={
                     "batch_limit": num_restarts,
-                    "maxiter": int(options.get("maxiter", 200)),
+                    "maxiter": int(options.get("maxiter", 100)),
                     "seed": seed,
                 },
                 retry_on_optimization_warning=False,

@@ -31,6 +31,12 @@ class RandomProposer:
         )
 
 
+def derived_seed(*parts: int) -> int:
+    """A 31-bit seed that depends on every part (seed 1, n 0 and seed 0, n 1 differ)."""
+    words = [int(part) & 0xFFFFFFFF for part in parts]
+    return int(np.random.SeedSequence(words).generate_state(1)[0]) & (2**31 - 1)
+
+
 def sobol_points(dim: int, seed: int, start: int, count: int) -> np.ndarray:
     """Points ``start .. start+count-1`` of the study's scrambled Sobol sequence, in [0,1]^d."""
     engine = qmc.Sobol(d=dim, scramble=True, seed=seed)

@@ -1,0 +1,113 @@
+"""Optuna's TPE sampler as a proposer (a baseline users know).
+
+Each ask builds a throw-away in-memory Optuna study, adds the history as frozen
+trials (completed ones with their value, failed ones as FAIL, pending ones as
+RUNNING so that TPE's constant liar keeps new samples away from them), and asks
+``count`` trials; each asked trial stays RUNNING, so a batch is spread the same
+way. The sampler is seeded from ``(seed, n_issued)``.
+
+Start: the first ``n_startup`` trials (counted by ``n_issued``) come from the
+study's Sobol sequence, where ``n_startup = max(n_initial, options
+["n_startup_trials"] or 10)``: 10 is Optuna's own default for TPE, which needs that
+many points before its density estimates mean anything. ``options`` may also set
+``multivariate`` (default true), ``constant_liar`` (default true) and
+``n_ei_candidates`` (default 24).
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any, ClassVar
+
+import numpy as np
+
+from adservice.proposers.base import Proposal, ProposalRequest
+from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
+
+
+def _param_names(dim: int) -> list[str]:
+    return [f"x{i:03d}" for i in range(dim)]
+
+
+class TPEProposer:
+    """Sobol start, then Optuna's (multivariate, constant-liar) TPE."""
+
+    name: ClassVar[str] = "tpe"
+    needs_history: ClassVar[bool] = True
+
+    def propose(self, request: ProposalRequest) -> Proposal:
+        import optuna
+        from optuna.distributions import FloatDistribution
+        from optuna.trial import TrialState, create_trial
+
+        options = request.options
+        dim = request.dim
+        bounds = np.asarray(request.bounds, dtype=np.float64)
+        n_startup = max(request.n_initial, int(options.get("n_startup_trials", 10)))
+        n_sobol = min(max(n_startup - request.n_issued, 0), request.count)
+        rows: list[np.ndarray] = []
+        info: list[dict[str, Any]] = []
+        if n_sobol:
+            unit = sobol_points(dim, request.seed, request.n_issued, n_sobol)
+            rows.extend(scale_to_bounds(unit, bounds))
+            info.extend(
+                {
+                    "proposer": self.name,
+                    "method": "sobol-initial",
+                    "sobol_index": request.n_issued + i,
+                }
+                for i in range(n_sobol)
+            )
+        if n_sobol == request.count:
+            return Proposal(candidates=np.array(rows), info=info)
+
+        names = _param_names(dim)
+        distributions = {
+            name: FloatDistribution(float(bounds[0, i]), float(bounds[1, i]))
+            for i, name in enumerate(names)
+        }
+
+        def params(vector: np.ndarray) -> dict[str, float]:
+            clipped = np.clip(vector, bounds[0], bounds[1])
+            return {name: float(clipped[i]) for i, name in enumerate(names)}
+
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sampler = optuna.samplers.TPESampler(
+                seed=derived_seed(request.seed, request.n_issued),
+                n_startup_trials=0,
+                multivariate=bool(options.get("multivariate", True)),
+                constant_liar=bool(options.get("constant_liar", True)),
+                n_ei_candidates=int(options.get("n_ei_candidates", 24)),
+            )
+            study = optuna.create_study(direction="maximize", sampler=sampler)
+            X = np.asarray(request.X, dtype=np.float64).reshape(-1, dim)
+            y = np.asarray(request.y, dtype=np.float64).reshape(-1)
+            trials = []
+            for vector, value in zip(X, y, strict=True):
+                if np.all(np.isfinite(vector)) and np.isfinite(value):
+                    trials.append(
+                        create_trial(
+                            params=params(vector), distributions=distributions, value=float(value)
+                        )
+                    )
+            for state, vectors in (
+                (TrialState.FAIL, request.failed),
+                (TrialState.RUNNING, request.pending),
+            ):
+                for vector in np.asarray(vectors, dtype=np.float64).reshape(-1, dim):
+                    if np.all(np.isfinite(vector)):
+                        trials.append(
+                            create_trial(
+                                state=state, params=params(vector), distributions=distributions
+                            )
+                        )
+            study.add_trials(trials)
+            n_complete = sum(1 for t in trials if t.state == TrialState.COMPLETE)
+            for _ in range(request.count - n_sobol):
+                trial = study.ask(distributions)
+                rows.append(np.array([trial.params[name] for name in names]))
+                info.append({"proposer": self.name, "method": "tpe", "n_complete": n_complete})
+        candidates = np.clip(np.array(rows), bounds[0], bounds[1])
+        return Proposal(candidates=candidates, info=info)
