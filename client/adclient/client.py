@@ -258,7 +258,7 @@ class Client:
         if spec is None:
             body = {}
         elif isinstance(spec, BaseModel):
-            body = spec.model_dump(mode="json", exclude_unset=True)
+            body = spec.model_dump(mode="json")
         elif isinstance(spec, Mapping):
             body = dict(spec)
         else:
@@ -286,6 +286,11 @@ class Client:
     def study_info(self, study_id: int) -> Study:
         """The study's current record: state, counts, best value."""
         return Study.model_validate(self._get_json(f"{API}/studies/{int(study_id)}"))
+
+    def stop_study(self, study_id: int) -> Study:
+        """Stop a study: it takes no new trials; running ones may still be told."""
+        data = self.request("POST", f"{API}/studies/{int(study_id)}/stop", idempotent=True).json()
+        return Study.model_validate(data)
 
     def studies(self) -> list[Study]:
         """Every study on the server."""
@@ -343,11 +348,31 @@ class Client:
         ).json()
         return Trial.model_validate(data)
 
-    def trials(self, study_id: int, state: TrialState | str | None = None) -> list[Trial]:
-        """The study's trials in order of number, optionally only those in ``state``."""
-        params = {"state": str(getattr(state, "value", state))} if state is not None else None
-        data = self._get_json(f"{API}/studies/{int(study_id)}/trials", params=params)
+    def trials(
+        self,
+        study_id: int,
+        state: TrialState | str | None = None,
+        *,
+        offset: int = 0,
+        limit: int | None = None,
+    ) -> list[Trial]:
+        """The study's trials in order of number, optionally only those in ``state``.
+
+        ``offset`` and ``limit`` page through long studies.
+        """
+        params: dict[str, Any] = {}
+        if state is not None:
+            params["state"] = str(getattr(state, "value", state))
+        if offset:
+            params["offset"] = offset
+        if limit is not None:
+            params["limit"] = limit
+        data = self._get_json(f"{API}/studies/{int(study_id)}/trials", params=params or None)
         return [Trial.model_validate(item) for item in data]
+
+    def get_trial(self, trial: TrialRef) -> Trial:
+        """One trial's current record."""
+        return Trial.model_validate(self._get_json(f"{API}/trials/{trial_id_of(trial)}"))
 
     def best_trial(self, study_id: int) -> Trial | None:
         """The best complete trial, or ``None`` while no trial is complete.
@@ -381,9 +406,10 @@ class Client:
         ).json()
         return HeartbeatResponse.model_validate(data)
 
-    def workers(self) -> list[WorkerInfo]:
-        """The workers the server has seen, with their current leases."""
-        return [WorkerInfo.model_validate(item) for item in self._get_json(f"{API}/workers")]
+    def workers(self, study_id: int) -> list[WorkerInfo]:
+        """The workers that worked on a study, with their current leases."""
+        data = self._get_json(f"{API}/studies/{int(study_id)}/workers")
+        return [WorkerInfo.model_validate(item) for item in data]
 
     # -- artifacts -------------------------------------------------------------------
 
@@ -393,23 +419,15 @@ class Client:
         name: str,
         data: bytes,
         content_type: str = "application/octet-stream",
-    ) -> ArtifactInfo | None:
-        """Store ``data`` as the trial's artifact ``name`` (replacing one of that name).
-
-        Returns the stored artifact's record when the server sends one back.
-        """
+    ) -> ArtifactInfo:
+        """Store ``data`` as the trial's artifact ``name`` (replacing one of that name)."""
         response = self.request(
             "PUT",
             f"{API}/trials/{trial_id_of(trial)}/artifacts/{name}",
             content=bytes(data),
             headers={"Content-Type": content_type},
         )
-        if response.status_code == 204 or not response.content:
-            return None
-        try:
-            return ArtifactInfo.model_validate(response.json())
-        except (ValueError, ValidationError):
-            return None
+        return ArtifactInfo.model_validate(response.json())
 
     def get_artifact(self, trial: TrialRef, name: str) -> bytes:
         """The bytes of the trial's artifact ``name``."""
@@ -591,6 +609,14 @@ class StudyHandle:
             if timeout is not None and time.monotonic() - started >= timeout:
                 raise TimeoutError(f"study {self.id} still running after {timeout} s")
             time.sleep(poll)
+
+    def stop(self) -> Study:
+        """Stop the study: no new trials are proposed or leased."""
+        self._info = self.client.stop_study(self.id)
+        return self._info
+
+    def workers(self) -> list[WorkerInfo]:
+        return self.client.workers(self.id)
 
     def export(self, format: ExportFormat = "json") -> str:
         return self.client.export(self.id, format)

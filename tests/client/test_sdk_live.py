@@ -1,0 +1,232 @@
+"""The SDK end to end against a real ``adserver`` process on a SQLite file."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from adclient import Client, Conflict, Invalid, NotFound, PayloadTooLarge
+from adclient.client import StudyHandle, study_finished
+from adclient.schemas import BoxParam, BoxSpace, ProposerConfig, StudyCreate, Trial
+from tests.servers import ServerProcess
+
+BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
+RANDOM = {"name": "random", "seed": 3}
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    """One server for the module; every test makes its own studies."""
+    workdir = tmp_path_factory.mktemp("sdk-server")
+    process = ServerProcess(
+        database_url=f"sqlite:///{workdir / 'studies.db'}",
+        workdir=workdir,
+        env={"AD_MAX_ARTIFACT_BYTES": "4096"},
+    ).start()
+    yield process
+    process.stop()
+
+
+@pytest.fixture
+def client(server: ServerProcess) -> Iterator[Client]:
+    with Client(server.url, retries=2, backoff=0.05) as api:
+        yield api
+
+
+def box_study(client: Client, name: str, **fields: object) -> StudyHandle:
+    return client.create_study(name=name, space=BOX, proposer=RANDOM, **fields)
+
+
+def test_create_study_from_keywords_model_or_dict(client: Client) -> None:
+    by_keywords = box_study(client, "kw", direction="minimize", max_trials=3)
+    model = StudyCreate(
+        name="model",
+        space=BoxSpace(params=[BoxParam(name="x", low=-2, high=2)]),
+        proposer=ProposerConfig(name="random"),
+    )
+    by_model = client.create_study(model)
+    by_dict = client.create_study({"name": "dict", "space": BOX, "proposer": RANDOM})
+    overridden = client.create_study({"name": "old", "space": BOX, "proposer": RANDOM}, name="new")
+
+    assert by_keywords.info.direction == "minimize"
+    assert by_keywords.info.max_trials == 3
+    assert by_model.name == "model"
+    assert by_model.info.direction == "maximize"  # the contract's default
+    assert by_dict.info.proposer.name == "random"
+    assert overridden.name == "new"
+    ids = {by_keywords.id, by_model.id, by_dict.id, overridden.id}
+    assert len(ids) == 4
+    assert ids <= {study.id for study in client.studies()}
+    assert client.get_study(by_dict.id).name == "dict"
+
+
+def test_bad_study_is_invalid_naming_the_field(client: Client) -> None:
+    bad = {"type": "box", "params": [{"name": "x", "low": 1.0, "high": 1.0}]}
+    with pytest.raises(Invalid) as caught:
+        client.create_study(name="bad", space=bad, proposer=RANDOM)
+    assert caught.value.status_code == 422
+    assert "low" in caught.value.message and "high" in caught.value.message
+
+
+def test_unknown_ids_are_not_found(client: Client) -> None:
+    with pytest.raises(NotFound):
+        client.get_study(987654)
+    with pytest.raises(NotFound):
+        client.best_trial(987654)
+    with pytest.raises(NotFound):
+        client.tell(987654, 1.0)
+    with pytest.raises(NotFound):
+        client.get_trial(987654)
+
+
+def test_ask_tell_best_and_trials(client: Client) -> None:
+    study = box_study(client, "asktell", direction="minimize")
+    assert study.best_trial is None
+
+    first = study.ask()
+    assert isinstance(first, Trial) and first.state == "running"
+    batch = study.ask(count=3)
+    assert [trial.number for trial in batch] == [1, 2, 3]
+
+    values = {}
+    for trial in [first, *batch[:2]]:
+        values[trial.id] = trial.params["x"] ** 2
+        told = study.tell(trial, values[trial.id], metrics={"abs_x": abs(trial.params["x"])})
+        assert told.state == "complete" and told.value == values[trial.id]
+    failed = study.tell(batch[2].id, state="failed", message="simulator diverged")
+    assert failed.state == "failed" and failed.message == "simulator diverged"
+
+    best = study.best_trial
+    assert best is not None and best.value == min(values.values())
+    assert study.best_value == best.value
+    assert study.best_params == best.params
+    assert [trial.number for trial in study.trials] == [0, 1, 2, 3]
+    assert {trial.id for trial in study.get_trials("complete")} == set(values)
+    assert [trial.id for trial in study.get_trials("failed")] == [batch[2].id]
+    info = study.info
+    assert (info.n_trials, info.n_complete, info.n_failed) == (4, 3, 1)
+    assert client.get_trial(first.id).metrics == {"abs_x": abs(first.params["x"])}
+
+
+def test_repeated_tell_is_harmless_and_a_contradiction_conflicts(client: Client) -> None:
+    study = box_study(client, "repeat")
+    trial = study.ask()
+    once = study.tell(trial, 0.25)
+    twice = study.tell(trial, 0.25)
+    assert once.value == twice.value == 0.25
+    with pytest.raises(Conflict):
+        study.tell(trial, 0.5)
+    assert study.info.n_complete == 1
+
+
+def test_optimize_tells_values_failures_and_reraises(client: Client) -> None:
+    study = box_study(client, "optimize", direction="minimize", max_trials=10)
+    calls: list[int] = []
+
+    def objective(trial: Trial) -> float | None:
+        calls.append(trial.number)
+        if trial.number == 1:
+            raise RuntimeError("bad luck")
+        if trial.number == 2:
+            return float("nan")
+        return (trial.params["x"] - 1.0) ** 2
+
+    seen: list[int] = []
+    told = study.optimize(
+        objective, 4, catch=RuntimeError, callbacks=[lambda _s, t: seen.append(t.number)]
+    )
+    assert [trial.state for trial in told] == ["complete", "failed", "failed", "complete"]
+    assert "RuntimeError: bad luck" in (told[1].message or "")
+    assert "nan" in (told[2].message or "")
+    assert seen == [0, 2, 3]
+
+    def broken(trial: Trial) -> float:
+        raise KeyError("missing")
+
+    with pytest.raises(KeyError):
+        study.optimize(broken, 3)
+    last = study.trials[-1]
+    assert last.state == "failed" and "KeyError" in (last.message or "")
+    assert study.info.n_trials == 5, "re-raised after the first failure"
+
+
+def test_wait_returns_once_the_budget_is_spent(client: Client) -> None:
+    study = box_study(client, "budget", max_trials=2)
+    study.optimize(lambda trial: trial.params["x"], 2)
+    updates = []
+    info = study.wait(poll=0.01, on_update=updates.append)
+    assert study_finished(info)
+    assert info.n_complete == 2 and len(updates) == 1
+
+
+def test_stop_ends_the_study(client: Client) -> None:
+    study = box_study(client, "stopme")
+    stopped = study.stop()
+    assert stopped.state == "stopped"
+    assert study_finished(stopped)
+    with pytest.raises(Conflict):
+        study.ask()
+
+
+def test_worker_calls_lease_heartbeat_artifacts_tell(client: Client) -> None:
+    study = box_study(client, "managed", task={"name": "stand-up"}, max_trials=1)
+    # the other studies of this module run unmanaged: leasing must leave them alone
+    job = client.lease("sdk-worker")
+    assert job is not None and job.study_id == study.id
+    assert job.task.name == "stand-up"
+    assert job.params.keys() == {"x"}
+
+    beat = client.heartbeat(job.trial_id, "sdk-worker")
+    assert beat.trial_id == job.trial_id
+    with pytest.raises(Conflict):
+        client.heartbeat(job.trial_id, "someone-else")
+
+    blob = bytes(range(256)) * 8
+    stored = client.put_artifact(job.trial_id, "curve.bin", blob, "application/x-curve")
+    assert stored.size == len(blob)
+    assert client.get_artifact(job.trial_id, "curve.bin") == blob
+    assert [item.name for item in client.artifacts(job.trial_id)] == ["curve.bin"]
+    with pytest.raises(PayloadTooLarge):
+        client.put_artifact(job.trial_id, "huge.bin", b"x" * 5000)
+    with pytest.raises(NotFound):
+        client.get_artifact(job.trial_id, "huge.bin")
+
+    done = client.tell(job.trial_id, 2.5, worker_id="sdk-worker", metrics={"steps": 10})
+    assert done.state == "complete" and done.worker_id == "sdk-worker"
+    assert [worker.worker_id for worker in study.workers()] == ["sdk-worker"]
+    assert client.lease("sdk-worker") is None, "budget spent, and no other study is managed"
+    assert study.info.n_trials == 1
+
+
+def test_export_json_and_csv_hold_every_trial(client: Client) -> None:
+    study = box_study(client, "export", direction="minimize")
+    study.optimize(lambda trial: trial.params["x"] ** 2, 3)
+    failed = study.ask()
+    study.tell(failed, state="failed", message='a, "quoted"\nmessage')
+
+    exported = json.loads(study.export("json"))
+    assert exported["study"]["id"] == study.id
+    assert [trial["number"] for trial in exported["trials"]] == [0, 1, 2, 3]
+
+    rows = list(csv.DictReader(io.StringIO(client.export(study.id, "csv"))))
+    assert [row["state"] for row in rows] == ["complete"] * 3 + ["failed"]
+    by_number = {trial.number: trial for trial in study.trials}
+    for row in rows[:3]:
+        trial = by_number[int(row["number"])]
+        assert float(row["value"]) == trial.value
+        assert float(row["params_x"]) == trial.params["x"]
+    assert rows[3]["message"] == 'a, "quoted"\nmessage'
+    assert rows[3]["value"] == ""
+    with pytest.raises(ValueError):
+        client.export(study.id, "xml")  # type: ignore[arg-type]
+
+
+def test_client_closes_its_connection_pool(server: ServerProcess) -> None:
+    make: Callable[[], Client] = lambda: Client(server.url)  # noqa: E731
+    with make() as api:
+        assert api.health()
+    assert api._http.is_closed
