@@ -1,0 +1,55 @@
+"""Test helper: write a hand-made Design as URDF.
+
+Uses the SDK's writer (adclient.urdf) when it exists; until then a minimal writer
+following the geometry conventions of adclient.design.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from adclient.design import Design
+
+
+def _fallback_urdf(design: Design, robot_name: str = "robot") -> str:
+    lengths = {link.name: link.length for link in design.links}
+    lines = [f'<robot name="{robot_name}">']
+    for link in design.links:
+        half = link.length / 2
+        ixx = link.mass * (3 * link.radius**2 + link.length**2) / 12
+        izz = link.mass * link.radius**2 / 2
+        geometry = f'<cylinder length="{link.length}" radius="{link.radius}"/>'
+        lines += [
+            f'<link name="{link.name}">',
+            f'<inertial><origin xyz="0 0 {half}"/><mass value="{link.mass}"/>'
+            f'<inertia ixx="{ixx}" iyy="{ixx}" izz="{izz}" ixy="0" ixz="0" iyz="0"/></inertial>',
+            f'<visual><origin xyz="0 0 {half}"/><geometry>{geometry}</geometry></visual>',
+            f'<collision><origin xyz="0 0 {half}"/><geometry>{geometry}</geometry></collision>',
+            "</link>",
+        ]
+    for joint in design.joints:
+        z = joint.position * lengths[joint.parent]
+        ax = " ".join(f"{v:.9f}" for v in joint.axis)
+        lines += [
+            f'<joint name="{joint.name}" type="revolute">',
+            f'<parent link="{joint.parent}"/><child link="{joint.child}"/>',
+            f'<origin xyz="0 0 {z}" rpy="0 0 0"/><axis xyz="{ax}"/>',
+            f'<limit lower="{joint.lower}" upper="{joint.upper}" effort="{joint.effort}"'
+            f' velocity="{joint.velocity}"/>',
+            "</joint>",
+        ]
+    lines.append("</robot>")
+    return "\n".join(lines)
+
+
+def design_urdf(design: Design, robot_name: str = "robot") -> str:
+    try:
+        from adclient.urdf import design_to_urdf
+    except ImportError:
+        return _fallback_urdf(design, robot_name)
+    return design_to_urdf(design, robot_name=robot_name)
+
+
+def write_urdf(design: Design, path: Path) -> Path:
+    path.write_text(design_urdf(design))
+    return path

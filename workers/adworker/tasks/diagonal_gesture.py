@@ -1,0 +1,53 @@
+"""diagonal-gesture: an arm on a fixed base link points its distal link along (1, 1, 1).
+
+The base link stands upright on the ground, fixed (its frame at the origin, the
+chain at rest straight up along +z); two more links hang off it by two revolute
+joints. Score (DESIGN.md section 3): the cosine between the distal link's direction
+(its frame's +z, base to tip) and the diagonal (1, 1, 1)/sqrt(3), averaged over the
+second half of each evaluation episode. The reward is that cosine per step.
+
+At rest the cosine is 1/sqrt(3) = 0.577. Two parallel axes keep the distal link in
+one plane through +z, so it reaches the diagonal only when that plane happens to
+contain it; two non-parallel axes (for example one along x, one along y) reach it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+
+from adworker.tasks.base import RobotEnv, Snapshot
+
+DIAGONAL = np.array([1.0, 1.0, 1.0]) / math.sqrt(3.0)
+INV_SQRT3 = 1.0 / math.sqrt(3.0)
+
+
+class DiagonalGestureEnv(RobotEnv):
+    task_name: ClassVar[str] = "diagonal-gesture"
+    fixed_base: ClassVar[bool] = True
+    reads_contacts: ClassVar[bool] = False
+
+    def __init__(
+        self,
+        urdf_path: Any,
+        options: dict[str, Any] | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        super().__init__(urdf_path, options, render_mode)
+        distal = self.options.get("distal_link")
+        if distal is None:
+            # The deepest link: the child of the last joint in URDF (depth-first) order.
+            distal = "c" if "c" in self.link_names else self.joints[-1].child
+        self.distal = self.link_position(str(distal))
+
+    def task_observation_size(self) -> int:
+        return 3
+
+    def task_observation(self, snapshot: Snapshot) -> list[float]:
+        return list(snapshot.axis(self.distal))
+
+    def metric(self, snapshot: Snapshot) -> float:
+        x, y, z = snapshot.axis(self.distal)
+        return (x + y + z) * INV_SQRT3
