@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from adclient import __version__
 from adservice import repository
@@ -72,29 +73,47 @@ def install_error_handlers(app: FastAPI) -> None:
         )
 
 
-def body_size_limit(
-    limit: int, artifact_limit: int
-) -> Callable[[Request, Callable[[Request], Awaitable[Response]]], Awaitable[Response]]:
-    """Refuse bodies whose declared length exceeds the limit before reading them."""
+class BodySizeLimit:
+    """Pure ASGI middleware: refuse a body larger than the limit, whether it declares its
+    length or streams it, before a route reads it."""
 
-    async def middleware(
-        request: Request, call_next: Callable[[Request], Awaitable[Response]]
-    ) -> Response:
-        declared = request.headers.get("content-length")
-        allowed = artifact_limit if "/artifacts/" in request.url.path else limit
-        if declared is not None:
-            if not declared.isdigit():
-                return JSONResponse(
-                    {"error": "invalid", "detail": "Content-Length must be a number"}, 400
-                )
-            if int(declared) > allowed:
-                return JSONResponse(
-                    {"error": "too_large", "detail": f"body exceeds the limit of {allowed} bytes"},
-                    413,
-                )
-        return await call_next(request)
+    def __init__(self, app: ASGIApp, *, limit: int, artifact_limit: int) -> None:
+        self.app = app
+        self.limit = limit
+        self.artifact_limit = artifact_limit
 
-    return middleware
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        allowed = self.artifact_limit if "/artifacts/" in scope["path"] else self.limit
+        headers = dict(scope["headers"])
+        declared = headers.get(b"content-length")
+        if declared is not None and (not declared.isdigit() or int(declared) > allowed):
+            status = 400 if not declared.isdigit() else 413
+            detail = (
+                "Content-Length must be a number"
+                if status == 400
+                else f"body exceeds the limit of {allowed} bytes"
+            )
+            response = JSONResponse(
+                {"error": "too_large" if status == 413 else "invalid", "detail": detail},
+                status_code=status,
+            )
+            await response(scope, receive, send)
+            return
+        received = 0
+
+        async def counted_receive() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > allowed:
+                    raise TooLargeError(f"body exceeds the limit of {allowed} bytes")
+            return message
+
+        await self.app(scope, counted_receive, send)
 
 
 def _sweep_leases(db: Database, interval: float, stop: threading.Event) -> None:
@@ -138,7 +157,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     install_error_handlers(app)
-    app.middleware("http")(body_size_limit(settings.max_body_bytes, settings.max_artifact_bytes))
+    app.add_middleware(
+        BodySizeLimit, limit=settings.max_body_bytes, artifact_limit=settings.max_artifact_bytes
+    )
     for module in (health, studies, trials, jobs, artifacts):
         app.include_router(module.router)
     if (STATIC_DIR / "index.html").is_file():

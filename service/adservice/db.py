@@ -61,6 +61,8 @@ class Database:
         self.engine = make_engine(url)
         self._write_engine = self.engine.execution_options(ad_write=True)
         self._write_lock = threading.Lock() if is_sqlite(self.engine) else None
+        self.study_configs: dict[int, Any] = {}
+        """Parsed immutable study configurations (see ``adservice.proposing``)."""
 
     @property
     def dialect(self) -> str:

@@ -17,7 +17,7 @@ import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from adclient.schemas import StudyCreate, TellRequest, TrialState
+from adclient.schemas import StudyCreate, TellRequest, Trial, TrialState
 from adservice.errors import ConflictError, LeaseLostError, NotFoundError
 from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow, utcnow
 
@@ -142,48 +142,88 @@ def study_history(session: Session, *, study_id: int, dim: int) -> History:
 # --- trials ---------------------------------------------------------------------------
 
 
+_studies = StudyRow.__table__
+_trials = TrialRow.__table__
+_workers = WorkerRow.__table__
+
+# Hot-path statements, built once: ask and tell run these on every request.
+_RESERVE = (
+    sa.update(_studies)
+    .where(
+        _studies.c.id == sa.bindparam("sid"),
+        _studies.c.state == "running",
+        sa.or_(
+            _studies.c.max_trials.is_(None),
+            _studies.c.n_trials + sa.bindparam("count") <= _studies.c.max_trials,
+        ),
+    )
+    .values(n_trials=_studies.c.n_trials + sa.bindparam("count"), updated_at=sa.bindparam("now"))
+    .returning(_studies.c.n_trials)
+)
+
+
+def reserve_numbers(session: Session, *, study_id: int, count: int) -> int:
+    """Claim the next ``count`` trial numbers of a running study with room; returns the
+    first. One conditional UPDATE: it checks, reserves and (on PostgreSQL) row-locks."""
+    reserved = (
+        session.connection()
+        .execute(_RESERVE, {"sid": study_id, "count": count, "now": utcnow()})
+        .scalar_one_or_none()
+    )
+    if reserved is None:
+        check_room(get_study(session, study_id=study_id), count=count)
+        raise ConflictError(f"study {study_id} takes no new trials")  # changed meanwhile
+    return int(reserved) - count
+
+
+_INSERT_TRIALS = sa.insert(_trials).returning(_trials.c.id, sort_by_parameter_order=True)
+
+
 def insert_trials(
     session: Session,
     *,
     study_id: int,
+    first_number: int,
     vectors: Sequence[Sequence[float]],
     params: Sequence[dict[str, Any]],
     infos: Sequence[dict[str, Any]],
     worker_id: str | None = None,
     lease_seconds: float = 60.0,
-) -> list[TrialRow]:
-    """New trials in state ``running`` (leased to ``worker_id`` when given), numbered
-    after the study's last; refused once ``max_trials`` would be exceeded."""
-    study = get_study(session, study_id=study_id, for_update=True)
-    count = len(vectors)
-    check_room(study, count=count)
-    first = study.n_trials
-    study.n_trials += count
+) -> list[Trial]:
+    """New trials numbered from ``first_number`` (see :func:`reserve_numbers`), in state
+    ``running`` and leased to ``worker_id`` when given."""
     now = utcnow()
-    study.updated_at = now
-    rows = []
-    for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True)):
-        row = TrialRow(
-            study_id=study_id,
-            number=first + offset,
-            state=TrialState.running,
-            vector=[float(x) for x in vector],
-            params=param,
-            info=info,
-            metrics={},
-            worker_id=worker_id,
-            attempts=1 if worker_id else 0,
-            created_at=now,
-            started_at=now,
-            heartbeat_at=now if worker_id else None,
-            lease_expires_at=now + timedelta(seconds=lease_seconds) if worker_id else None,
-        )
-        session.add(row)
-        rows.append(row)
-    session.flush()
+    values = [
+        {
+            "study_id": study_id,
+            "number": first_number + offset,
+            "state": TrialState.running.value,
+            "vector": [float(x) for x in vector],
+            "params": param,
+            "value": None,
+            "message": None,
+            "metrics": {},
+            "info": info,
+            "worker_id": worker_id,
+            "attempts": 1 if worker_id else 0,
+            "created_at": now,
+            "started_at": now,
+            "finished_at": None,
+            "heartbeat_at": now if worker_id else None,
+            "lease_expires_at": now + timedelta(seconds=lease_seconds) if worker_id else None,
+        }
+        for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
+    ]
+    trials = TrialRow.__table__
+    ids = (
+        session.connection()
+        .execute(sa.insert(trials).returning(trials.c.id, sort_by_parameter_order=True), values)
+        .scalars()
+        .all()
+    )
     if worker_id:
-        _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=rows[0].id)
-    return rows
+        _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
+    return [Trial(id=trial_id, **row) for trial_id, row in zip(ids, values, strict=True)]
 
 
 def check_room(study: StudyRow, *, count: int) -> None:
@@ -240,12 +280,6 @@ def best_trial(session: Session, *, study_id: int) -> TrialRow:
     return get_trial(session, trial_id=study.best_trial_id)
 
 
-def _is_better(direction: str, value: float, best: float | None) -> bool:
-    if best is None:
-        return True
-    return value > best if direction == "maximize" else value < best
-
-
 def _same_tell(trial: TrialRow, body: TellRequest) -> bool:
     if trial.state != body.state:
         return False
@@ -255,52 +289,116 @@ def _same_tell(trial: TrialRow, body: TellRequest) -> bool:
     return trial.value == body.value or math.isclose(trial.value, body.value, rel_tol=1e-12)
 
 
-def tell_trial(session: Session, *, trial_id: int, body: TellRequest) -> TrialRow:
+def _finish_statement(*, by_worker: bool) -> sa.Update:
+    holder = (
+        [_trials.c.state == TrialState.running.value, _trials.c.worker_id == sa.bindparam("wid")]
+        if by_worker
+        else [_trials.c.state.in_((TrialState.queued.value, TrialState.running.value))]
+    )
+    return (
+        sa.update(_trials)
+        .where(_trials.c.id == sa.bindparam("tid"), *holder)
+        .values(
+            state=sa.bindparam("state"),
+            value=sa.bindparam("value"),
+            message=sa.bindparam("message"),
+            metrics=sa.bindparam("metrics", type_=sa.JSON),
+            finished_at=sa.bindparam("now"),
+            lease_expires_at=None,
+            started_at=sa.func.coalesce(_trials.c.started_at, sa.bindparam("now")),
+        )
+        .returning(*_trials.c)
+    )
+
+
+def _count_statement(*, complete: bool) -> sa.Update:
+    counter = _studies.c.n_complete if complete else _studies.c.n_failed
+    updates: dict[Any, Any] = {counter: counter + 1, _studies.c.updated_at: sa.bindparam("now")}
+    if complete:
+        value = sa.bindparam("value", type_=sa.Double)
+        better = sa.or_(
+            _studies.c.best_value.is_(None),
+            sa.case(
+                (_studies.c.direction == "maximize", _studies.c.best_value < value),
+                else_=_studies.c.best_value > value,
+            ),
+        )
+        updates[_studies.c.best_value] = sa.case((better, value), else_=_studies.c.best_value)
+        updates[_studies.c.best_trial_id] = sa.case(
+            (better, sa.bindparam("tid")), else_=_studies.c.best_trial_id
+        )
+    done = _studies.c.n_complete + _studies.c.n_failed + 1 >= _studies.c.max_trials
+    updates[_studies.c.state] = sa.case(
+        (sa.and_(_studies.c.state == "running", done), "complete"), else_=_studies.c.state
+    )
+    return sa.update(_studies).where(_studies.c.id == sa.bindparam("sid")).values(updates)
+
+
+def _worker_statement(*, complete: bool) -> sa.Update:
+    counter = _workers.c.jobs_done if complete else _workers.c.jobs_failed
+    return (
+        sa.update(_workers)
+        .where(_workers.c.worker_id == sa.bindparam("wid"))
+        .values(
+            {
+                counter: counter + 1,
+                _workers.c.last_seen_at: sa.bindparam("now"),
+                _workers.c.current_trial_id: sa.case(
+                    (_workers.c.current_trial_id == sa.bindparam("tid"), None),
+                    else_=_workers.c.current_trial_id,
+                ),
+            }
+        )
+    )
+
+
+_FINISH = {by_worker: _finish_statement(by_worker=by_worker) for by_worker in (False, True)}
+_COUNT = {complete: _count_statement(complete=complete) for complete in (False, True)}
+_WORKER_COUNT = {complete: _worker_statement(complete=complete) for complete in (False, True)}
+
+
+def tell_trial(session: Session, *, trial_id: int, body: TellRequest) -> Trial:
     """Finish a trial. Repeating an identical tell is harmless; a contradicting one is
-    a conflict; a worker that no longer holds the lease is told so."""
-    trial = get_trial(session, trial_id=trial_id, for_update=True)
+    a conflict; a worker that no longer holds the lease is told so.
+
+    The common case is two conditional UPDATEs (trial, then study counters and best);
+    only a tell that changes nothing takes the slow path that finds out why."""
+    connection = session.connection()
+    now = utcnow()
+    complete = body.state == "complete"
+    finished = connection.execute(
+        _FINISH[body.worker_id is not None],
+        {
+            "tid": trial_id,
+            "wid": body.worker_id,
+            "state": body.state,
+            "value": body.value,
+            "message": body.message,
+            "metrics": dict(body.metrics),
+            "now": now,
+        },
+    ).one_or_none()
+    if finished is None:
+        return _explain_refused_tell(session, trial_id=trial_id, body=body)
+    connection.execute(
+        _COUNT[complete],
+        {"sid": finished.study_id, "tid": trial_id, "value": body.value, "now": now},
+    )
+    if finished.worker_id is not None:
+        connection.execute(
+            _WORKER_COUNT[complete], {"wid": finished.worker_id, "tid": trial_id, "now": now}
+        )
+    return Trial.model_validate(dict(finished._mapping))
+
+
+def _explain_refused_tell(session: Session, *, trial_id: int, body: TellRequest) -> Trial:
+    trial = get_trial(session, trial_id=trial_id)
     if trial.state in (TrialState.complete, TrialState.failed):
         if _same_tell(trial, body):
-            return trial
+            return Trial.model_validate(trial, from_attributes=True)
         told = f"value {trial.value}" if trial.state == TrialState.complete else "failed"
         raise ConflictError(f"trial {trial_id} is already {trial.state} ({told})")
-    if body.worker_id is not None and (
-        trial.state != TrialState.running or trial.worker_id != body.worker_id
-    ):
-        raise LeaseLostError(
-            f"worker {body.worker_id!r} does not hold the lease of trial {trial_id}"
-        )
-    study = get_study(session, study_id=trial.study_id, for_update=True)
-    now = utcnow()
-    trial.state = body.state
-    trial.value = body.value
-    trial.message = body.message
-    trial.metrics = dict(body.metrics)
-    trial.finished_at = now
-    trial.lease_expires_at = None
-    if trial.started_at is None:
-        trial.started_at = now
-    if body.state == "complete":
-        assert body.value is not None
-        study.n_complete += 1
-        if _is_better(study.direction, body.value, study.best_value):
-            study.best_value = body.value
-            study.best_trial_id = trial.id
-    else:
-        study.n_failed += 1
-    _finish_study_if_done(study)
-    study.updated_at = now
-    if trial.worker_id is not None:
-        worker = session.get(WorkerRow, trial.worker_id)
-        if worker is not None:
-            if body.state == "complete":
-                worker.jobs_done += 1
-            else:
-                worker.jobs_failed += 1
-            worker.last_seen_at = now
-            if worker.current_trial_id == trial.id:
-                worker.current_trial_id = None
-    return trial
+    raise LeaseLostError(f"worker {body.worker_id!r} does not hold the lease of trial {trial_id}")
 
 
 def _finish_study_if_done(study: StudyRow) -> None:

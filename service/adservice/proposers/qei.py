@@ -37,11 +37,16 @@ Decisions worth knowing:
   ``options["warm_start"] = False`` for strict restart-independence.
 - The GPU is used when ``torch.cuda.is_available()`` (``options["device"]`` may
   force ``"cpu"``); everything runs in float64.
+- Threads: torch's intra-op pool is set to one thread (``AD_TORCH_THREADS``
+  overrides). These are small matrices; on a shared two-core machine two torch
+  threads competing with other processes made asks 5 to 20 times slower, and the
+  server already runs each ask in its own thread.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import threading
 import time
 import warnings
@@ -62,6 +67,7 @@ _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
 _DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
+_TORCH_THREADS = int(os.environ.get("AD_TORCH_THREADS", "1"))
 
 
 def clear_caches() -> None:
@@ -239,6 +245,8 @@ class QLogEIProposer:
         from botorch.utils.sampling import manual_seed
         from gpytorch.mlls import ExactMarginalLogLikelihood
 
+        if torch.get_num_threads() != _TORCH_THREADS:
+            torch.set_num_threads(_TORCH_THREADS)
         device_name = options.get("device") or ("cuda" if torch.cuda.is_available() else "cpu")
         device = torch.device(device_name)
         tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}

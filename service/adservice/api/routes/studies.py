@@ -48,8 +48,8 @@ def get_study(study_id: int, session: SessionDep) -> Study:
 
 @router.post("/{study_id}/ask")
 def ask(study_id: int, body: AskRequest, db: DatabaseDep, locks: LocksDep) -> AskResponse:
-    rows = proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
-    return AskResponse(trials=[trial_schema(row) for row in rows])
+    trials = proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
+    return AskResponse(trials=trials)
 
 
 @router.post("/{study_id}/stop")

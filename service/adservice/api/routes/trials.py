@@ -20,8 +20,7 @@ def get_trial(trial_id: int, session: SessionDep) -> Trial:
 @router.post("/{trial_id}/tell")
 def tell(trial_id: int, body: TellRequest, db: DatabaseDep) -> Trial:
     with db.write() as session:
-        row = repository.tell_trial(session, trial_id=trial_id, body=body)
-    return trial_schema(row)
+        return repository.tell_trial(session, trial_id=trial_id, body=body)
 
 
 @router.post("/{trial_id}/heartbeat")
