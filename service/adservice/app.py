@@ -16,15 +16,18 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from adclient import __version__
 from adservice import repository
-from adservice.api.routes import artifacts, health, jobs, studies, trials
+from adservice.api.routes import artifacts, dashboard, health, jobs, studies, trials
 from adservice.artifacts import ArtifactStore
+from adservice.auth import TokenCache
 from adservice.db import Database, upgrade_to_head
 from adservice.errors import (
     ConflictError,
     DomainError,
+    ForbiddenError,
     InvalidError,
     NotFoundError,
     TooLargeError,
+    UnauthorizedError,
 )
 from adservice.locks import StudyLocks
 from adservice.settings import Settings, get_settings
@@ -38,6 +41,8 @@ STATUS_BY_ERROR: dict[type[DomainError], int] = {
     ConflictError: 409,
     InvalidError: 422,
     TooLargeError: 413,
+    UnauthorizedError: 401,
+    ForbiddenError: 403,
 }
 
 
@@ -56,8 +61,10 @@ def _field_path(location: tuple[int | str, ...]) -> str:
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(DomainError)
     async def domain_error(_request: Request, error: DomainError) -> JSONResponse:
+        status = _status_for(error)
+        headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
         return JSONResponse(
-            {"error": error.code, "detail": error.detail}, status_code=_status_for(error)
+            {"error": error.code, "detail": error.detail}, status_code=status, headers=headers
         )
 
     @app.exception_handler(RequestValidationError)
@@ -137,6 +144,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.db = db
         app.state.settings = settings
         app.state.locks = StudyLocks()
+        app.state.tokens = TokenCache()
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
         stop = threading.Event()
         sweeper = threading.Thread(
@@ -160,7 +168,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(
         BodySizeLimit, limit=settings.max_body_bytes, artifact_limit=settings.max_artifact_bytes
     )
-    for module in (health, studies, trials, jobs, artifacts):
+    for module in (health, studies, trials, jobs, artifacts, dashboard):
         app.include_router(module.router)
     if (STATIC_DIR / "index.html").is_file():
         app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")

@@ -29,3 +29,11 @@ class InvalidError(DomainError):
 
 class TooLargeError(DomainError):
     code = "too_large"
+
+
+class UnauthorizedError(DomainError):
+    code = "unauthorized"
+
+
+class ForbiddenError(DomainError):
+    code = "forbidden"

@@ -107,3 +107,17 @@ class WorkerRow(Base):
     current_trial_id: Mapped[int | None] = mapped_column(nullable=True)
     jobs_done: Mapped[int] = mapped_column(default=0)
     jobs_failed: Mapped[int] = mapped_column(default=0)
+
+
+class TokenRow(Base):
+    """An API token: only its SHA-256 is stored (tokens are 256 random bits, so a fast
+    hash is enough; the plain token is shown once, at creation)."""
+
+    __tablename__ = "tokens"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(sa.String(128))
+    role: Mapped[str] = mapped_column(sa.String(16))
+    token_sha256: Mapped[str] = mapped_column(sa.String(64), unique=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)

@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 
 from adclient.schemas import StudyCreate, TellRequest, Trial, TrialState
 from adservice.errors import ConflictError, LeaseLostError, NotFoundError
-from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow, utcnow
+from adservice.models import ArtifactRow, StudyRow, TokenRow, TrialRow, WorkerRow, utcnow
 
 TRIAL_ORDERS = {
     "number": TrialRow.number,
@@ -594,3 +594,32 @@ def trial_columns(session: Session, *, study_id: int) -> dict[str, Any]:
         "value": [row.value for row in rows],
         "params": {name: [row.params.get(name) for row in rows] for name in names},
     }
+
+
+# --- tokens ---------------------------------------------------------------------------
+
+
+def create_token(session: Session, *, name: str, role: str, digest: str) -> TokenRow:
+    row = TokenRow(name=name, role=role, token_sha256=digest)
+    session.add(row)
+    session.flush()
+    return row
+
+
+def find_token(session: Session, *, digest: str) -> TokenRow | None:
+    return session.scalars(
+        sa.select(TokenRow).where(TokenRow.token_sha256 == digest, TokenRow.revoked_at.is_(None))
+    ).one_or_none()
+
+
+def list_tokens(session: Session) -> list[TokenRow]:
+    return list(session.scalars(sa.select(TokenRow).order_by(TokenRow.id)))
+
+
+def revoke_token(session: Session, *, token_id: int) -> TokenRow:
+    row = session.get(TokenRow, token_id)
+    if row is None:
+        raise NotFoundError(f"token {token_id} not found")
+    if row.revoked_at is None:
+        row.revoked_at = utcnow()
+    return row

@@ -20,6 +20,9 @@ class Settings(BaseSettings):
     max_body_bytes: int = 1_000_000
     max_artifact_bytes: int = 16_000_000
     public_url: str | None = None
+    auth: bool | None = None
+    """Require bearer tokens. None: decided by ``adserver`` from the bind address (off on
+    loopback, on elsewhere); an app built in-process without it runs open."""
 
     def resolved_artifact_dir(self) -> Path:
         if self.artifact_dir is not None:

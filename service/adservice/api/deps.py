@@ -9,6 +9,7 @@ from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
 from adservice.artifacts import ArtifactStore
+from adservice.auth import Principal, Role, require
 from adservice.db import Database
 from adservice.locks import StudyLocks
 from adservice.settings import Settings
@@ -46,3 +47,8 @@ DatabaseDep = Annotated[Database, Depends(get_database)]
 LocksDep = Annotated[StudyLocks, Depends(get_locks)]
 ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifact_store)]
 SessionDep = Annotated[Session, Depends(read_session)]
+
+
+ReaderDep = Annotated[Principal, Depends(require(Role.reader))]
+WorkerDep = Annotated[Principal, Depends(require(Role.worker))]
+AdminDep = Annotated[Principal, Depends(require(Role.admin))]

@@ -12,7 +12,14 @@ from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import NAME_PATTERN, ArtifactInfo
 from adservice import repository
-from adservice.api.deps import ArtifactStoreDep, DatabaseDep, SessionDep, SettingsDep
+from adservice.api.deps import (
+    ArtifactStoreDep,
+    DatabaseDep,
+    ReaderDep,
+    SessionDep,
+    SettingsDep,
+    WorkerDep,
+)
 from adservice.convert import artifact_schema
 from adservice.db import Database
 from adservice.errors import NotFoundError
@@ -24,7 +31,7 @@ ArtifactName = Annotated[str, PathParam(pattern=NAME_PATTERN, max_length=128)]
 
 
 @router.get("")
-def list_artifacts(trial_id: int, session: SessionDep) -> list[ArtifactInfo]:
+def list_artifacts(trial_id: int, session: SessionDep, _: ReaderDep) -> list[ArtifactInfo]:
     return [artifact_schema(row) for row in repository.list_artifacts(session, trial_id=trial_id)]
 
 
@@ -36,6 +43,7 @@ async def put_artifact(
     db: DatabaseDep,
     store: ArtifactStoreDep,
     settings: SettingsDep,
+    _: WorkerDep,
     content_type: Annotated[str, Header(max_length=128)] = "application/octet-stream",
 ) -> ArtifactInfo:
     trial = await run_in_threadpool(_trial, db, trial_id)
@@ -73,7 +81,9 @@ def _record(
 
 
 @router.get("/{name}")
-def get_artifact(trial_id: int, name: ArtifactName, session: SessionDep) -> FileResponse:
+def get_artifact(
+    trial_id: int, name: ArtifactName, session: SessionDep, _: ReaderDep
+) -> FileResponse:
     row = repository.get_artifact(session, trial_id=trial_id, name=name)
     path = Path(row.path)
     if not path.is_file() or path.stat().st_size != row.size:

@@ -6,14 +6,14 @@ from fastapi import APIRouter, Response
 
 from adclient.schemas import Job, LeaseRequest
 from adservice import proposing
-from adservice.api.deps import DatabaseDep, LocksDep, SettingsDep
+from adservice.api.deps import DatabaseDep, LocksDep, SettingsDep, WorkerDep
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 
 
 @router.post("/lease", response_model=Job, responses={204: {"description": "No work now"}})
 def lease(
-    body: LeaseRequest, db: DatabaseDep, locks: LocksDep, settings: SettingsDep
+    body: LeaseRequest, db: DatabaseDep, locks: LocksDep, settings: SettingsDep, _: WorkerDep
 ) -> Response | Job:
     job = proposing.lease_job(
         db, locks, worker_id=body.worker_id, lease_seconds=settings.lease_seconds

@@ -16,7 +16,7 @@ from adclient.schemas import (
     WorkerInfo,
 )
 from adservice import proposing, repository
-from adservice.api.deps import DatabaseDep, LocksDep, SessionDep
+from adservice.api.deps import AdminDep, DatabaseDep, LocksDep, ReaderDep, SessionDep
 from adservice.convert import study_schema, trial_schema, worker_schema
 
 router = APIRouter(prefix="/api/v1/studies", tags=["studies"])
@@ -27,33 +27,35 @@ TrialOrder = Literal[
 
 
 @router.post("", status_code=201)
-def create_study(body: StudyCreate, db: DatabaseDep) -> Study:
+def create_study(body: StudyCreate, db: DatabaseDep, _: AdminDep) -> Study:
     row = proposing.create_study(db, body=body)
     return study_schema(row, {})
 
 
 @router.get("")
-def list_studies(session: SessionDep) -> list[Study]:
+def list_studies(session: SessionDep, _: ReaderDep) -> list[Study]:
     rows = repository.list_studies(session)
     counts = repository.state_counts(session, study_ids=[row.id for row in rows])
     return [study_schema(row, counts[row.id]) for row in rows]
 
 
 @router.get("/{study_id}")
-def get_study(study_id: int, session: SessionDep) -> Study:
+def get_study(study_id: int, session: SessionDep, _: ReaderDep) -> Study:
     row = repository.get_study(session, study_id=study_id)
     counts = repository.state_counts(session, study_ids=[study_id])
     return study_schema(row, counts[study_id])
 
 
 @router.post("/{study_id}/ask")
-def ask(study_id: int, body: AskRequest, db: DatabaseDep, locks: LocksDep) -> AskResponse:
+def ask(
+    study_id: int, body: AskRequest, db: DatabaseDep, locks: LocksDep, _: AdminDep
+) -> AskResponse:
     trials = proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
     return AskResponse(trials=trials)
 
 
 @router.post("/{study_id}/stop")
-def stop_study(study_id: int, db: DatabaseDep) -> Study:
+def stop_study(study_id: int, db: DatabaseDep, _: AdminDep) -> Study:
     with db.write() as session:
         row = repository.stop_study(session, study_id=study_id)
         counts = repository.state_counts(session, study_ids=[study_id])
@@ -65,6 +67,7 @@ def list_trials(
     study_id: int,
     session: SessionDep,
     response: Response,
+    _: ReaderDep,
     state: TrialState | None = None,
     offset: Annotated[int, Query(ge=0)] = 0,
     limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
@@ -86,16 +89,16 @@ def list_trials(
 
 
 @router.get("/{study_id}/best")
-def best_trial(study_id: int, session: SessionDep) -> Trial:
+def best_trial(study_id: int, session: SessionDep, _: ReaderDep) -> Trial:
     return trial_schema(repository.best_trial(session, study_id=study_id))
 
 
 @router.get("/{study_id}/workers")
-def study_workers(study_id: int, session: SessionDep) -> list[WorkerInfo]:
+def study_workers(study_id: int, session: SessionDep, _: ReaderDep) -> list[WorkerInfo]:
     return [worker_schema(row) for row in repository.list_workers(session, study_id=study_id)]
 
 
 @router.get("/{study_id}/series")
-def study_series(study_id: int, session: SessionDep) -> dict[str, Any]:
+def study_series(study_id: int, session: SessionDep, _: ReaderDep) -> dict[str, Any]:
     """Every trial as columns (number, state, value, params): one small payload for charts."""
     return repository.trial_columns(session, study_id=study_id)
