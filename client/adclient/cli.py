@@ -106,11 +106,14 @@ def _api_message(exc: ApiError, server: str) -> str:
 
 
 def friendly(func: F) -> F:
-    """Turn SDK errors into a one-line message and exit status 1."""
+    """Turn SDK errors into a one-line message and exit status 1.
+
+    The wrapped command takes the ``typer.Context`` (for the server URL in messages).
+    """
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        ctx = click_context()
+        ctx = next((arg for arg in (*args, *kwargs.values()) if hasattr(arg, "find_object")), None)
         server = _settings(ctx).server if ctx is not None else DEFAULT_SERVER
         try:
             return func(*args, **kwargs)
@@ -121,12 +124,6 @@ def friendly(func: F) -> F:
             raise typer.Exit(130) from None
 
     return wrapper  # type: ignore[return-value]
-
-
-def click_context() -> typer.Context | None:
-    import click
-
-    return click.get_current_context(silent=True)  # type: ignore[return-value]
 
 
 @contextmanager
