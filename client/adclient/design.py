@@ -7,7 +7,8 @@ a tree plus concrete specs, ready to be written as URDF.
 
 Geometry conventions (shared by decoding, the URDF writer and the worker tasks):
 - Every link frame sits at the joint to its parent. A cylinder link extends along
-  the frame's +z axis from 0 to ``length``.
+  the frame's +z axis from 0 to ``length``. A box link is ``2 radius`` by
+  ``2 radius`` in x and y and ``length`` along z, over the same span.
 - A child's joint sits on its parent's axis at ``position * parent.length``
   (``position`` = 1.0: at the parent's far end); at joint angle 0 the child's frame
   is aligned with its parent's, so a chain at rest is straight along +z.
@@ -17,15 +18,45 @@ Geometry conventions (shared by decoding, the URDF writer and the worker tasks):
 - The spec vector orders the instances' part specs, then the instances' joint specs:
   the joint of an instance is the one to its parent, so every structure has the same
   spec slots; the root's joint slots are padded.
+
+Spec keys: ``"<instance>.<part spec>"`` (``"a.length"``) and
+``"<instance>.joint.<joint spec>"`` (``"b.joint.axis_theta"``).
 """
 
 from __future__ import annotations
 
-from typing import Literal
+import heapq
+import math
+from collections.abc import Iterator
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    model_validator,
+)
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]{0,63}$"
+
+PART_SPECS: tuple[str, ...] = ("length", "radius", "mass")
+"""The searchable specs of a part, in spec-vector order."""
+
+JOINT_SPECS: tuple[str, ...] = (
+    "axis_theta",
+    "axis_phi",
+    "position",
+    "lower",
+    "upper",
+    "effort",
+    "velocity",
+)
+"""The searchable specs of a joint, in spec-vector order."""
+
+_POSITIVE_SPECS = frozenset({"length", "radius", "mass", "effort", "velocity"})
 
 
 class _Strict(BaseModel):
@@ -38,9 +69,75 @@ class Bound(_Strict):
     low: float
     high: float
 
+    @model_validator(mode="after")
+    def _check(self) -> Bound:
+        for name, value in (("low", self.low), ("high", self.high)):
+            if not math.isfinite(value):
+                raise ValueError(f"bound {name} must be a finite number, got {value!r}")
+        if not self.low < self.high:
+            raise ValueError(f"bound low ({self.low}) must be < high ({self.high})")
+        return self
 
-SpecValue = float | Bound
+
+def _spec_value(value: Any) -> Any:
+    """One clear message for a bad spec, instead of pydantic's two union branches."""
+    if isinstance(value, Bound):
+        return value
+    if isinstance(value, dict):
+        try:
+            return Bound.model_validate(value)
+        except ValidationError as error:
+            messages = "; ".join(
+                str(item["msg"]).removeprefix("Value error, ") for item in error.errors()
+            )
+            raise ValueError(f"a searched spec is {{low, high}}: {messages}") from None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(
+            f"a spec is a number (fixed) or {{low: .., high: ..}} (searched), got {value!r}"
+        )
+    if not math.isfinite(value):
+        raise ValueError(f"a fixed spec must be a finite number, got {value!r}")
+    return float(value)
+
+
+SpecValue = Annotated[float | Bound, BeforeValidator(_spec_value)]
 """A spec is fixed (a number) or searched (a Bound)."""
+
+
+def spec_range(value: float | Bound) -> tuple[float, float]:
+    """The smallest and largest value a spec can take."""
+    if isinstance(value, Bound):
+        return value.low, value.high
+    return value, value
+
+
+def is_free(value: float | Bound) -> bool:
+    return isinstance(value, Bound)
+
+
+def _check_spec(name: str, value: float | Bound, where: str) -> None:
+    low, high = spec_range(value)
+    if name in _POSITIVE_SPECS and not low > 0:
+        raise ValueError(f"{where}.{name}: must be > 0, got {_show(value)}")
+    if name == "position" and not (low >= 0.0 and high <= 1.0):
+        raise ValueError(
+            f"{where}.position: must lie in [0, 1] (a fraction of the parent's length), "
+            f"got {_show(value)}"
+        )
+
+
+def _show(value: float | Bound) -> str:
+    if isinstance(value, Bound):
+        return f"{{low: {value.low}, high: {value.high}}}"
+    return repr(value)
+
+
+def _check_limits(lower: float | Bound, upper: float | Bound, where: str) -> None:
+    if spec_range(lower)[1] > spec_range(upper)[0]:
+        raise ValueError(
+            f"{where}: joint limit lower ({_show(lower)}) can exceed upper ({_show(upper)}); "
+            "the largest lower must be <= the smallest upper"
+        )
 
 
 class PartType(_Strict):
@@ -48,6 +145,12 @@ class PartType(_Strict):
     length: SpecValue = 0.4
     radius: SpecValue = 0.04
     mass: SpecValue = 1.0
+
+    @model_validator(mode="after")
+    def _check(self) -> PartType:
+        for name in PART_SPECS:
+            _check_spec(name, getattr(self, name), "part")
+        return self
 
 
 class JointType(_Strict):
@@ -60,6 +163,13 @@ class JointType(_Strict):
     effort: SpecValue = 20.0
     velocity: SpecValue = 5.0
 
+    @model_validator(mode="after")
+    def _check(self) -> JointType:
+        for name in JOINT_SPECS:
+            _check_spec(name, getattr(self, name), "joint")
+        _check_limits(self.lower, self.upper, "joint")
+        return self
+
 
 class PartInstance(_Strict):
     name: str = Field(pattern=NAME_PATTERN)
@@ -67,13 +177,35 @@ class PartInstance(_Strict):
     overrides: dict[str, SpecValue] = Field(default_factory=dict)
     joint_overrides: dict[str, SpecValue] = Field(default_factory=dict)
 
+    @model_validator(mode="after")
+    def _check(self) -> PartInstance:
+        for field, known in (("overrides", PART_SPECS), ("joint_overrides", JOINT_SPECS)):
+            for key, value in getattr(self, field).items():
+                if key not in known:
+                    raise ValueError(
+                        f"instance {self.name!r}: {field} has unknown key {key!r} "
+                        f"(expected one of {', '.join(known)})"
+                    )
+                _check_spec(key, value, f"instance {self.name!r}: {field}")
+        return self
+
 
 Edge = tuple[str, str]
 """(parent instance, child instance): one revolute joint."""
 
 
 class DesignSpace(_Strict):
-    type: Literal["design"] = "design"
+    """Parts, instances and candidate trees; see the module docstring for conventions.
+
+    ``structures: "all"`` means every labelled tree over the instances (Cayley:
+    n^(n-2) of them for n instances, enumerated through Pruefer sequences), each
+    rooted at the first instance with its edges pointing away from the root. The
+    first instance is the base: which instance is the root changes the robot's
+    geometry (children sit at their parent's far end), so the rooted variants of one
+    tree are different robots; list them explicitly to search over them.
+    """
+
+    type: Literal["design"]
     parts: dict[str, PartType]
     joint: JointType = Field(default_factory=JointType)
     instances: list[PartInstance] = Field(min_length=1, max_length=32)
@@ -84,6 +216,252 @@ class DesignSpace(_Strict):
     fusion_solver: Literal["osqp", "exact"] = "osqp"
     fusion_margin: float = Field(default=0.0, ge=0.0)
     reference_per_structure: int = Field(default=16, ge=2, le=256)
+    reference_seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    embedding_mass: float = Field(
+        default=0.99,
+        gt=0.0,
+        le=1.0,
+        description="Fraction of the positive eigenvalue mass the MDS embedding keeps",
+    )
+    embedding_max_dim: int | None = Field(
+        default=None,
+        ge=1,
+        le=256,
+        description="Cap on the embedding's dimension; default: free specs + structures - 1",
+    )
+
+    _trees: list[list[Edge]] | None = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _check(self) -> DesignSpace:
+        if not self.parts:
+            raise ValueError("parts: at least one part type is needed")
+        for part_name in self.parts:
+            if not _valid_name(part_name):
+                raise ValueError(f"parts: part type name {part_name!r} must match {NAME_PATTERN}")
+        seen: dict[str, int] = {}
+        for index, instance in enumerate(self.instances):
+            if instance.name in seen:
+                raise ValueError(
+                    f"instances[{index}]: duplicate instance name {instance.name!r} "
+                    f"(also instances[{seen[instance.name]}])"
+                )
+            seen[instance.name] = index
+            if instance.part not in self.parts:
+                raise ValueError(
+                    f"instances[{index}] ({instance.name!r}): unknown part {instance.part!r} "
+                    f"(known: {', '.join(sorted(self.parts))})"
+                )
+            _check_limits(
+                self.joint_spec(instance.name, "lower"),
+                self.joint_spec(instance.name, "upper"),
+                f"instances[{index}] ({instance.name!r})",
+            )
+        if self.structures == "all":
+            n = len(self.instances)
+            if n < 2:
+                raise ValueError("structures: 'all' needs at least two instances")
+            count = n ** (n - 2)
+            if count > self.max_structures:
+                raise ValueError(
+                    f"structures: 'all' over {n} instances gives {count} trees, more than "
+                    f"max_structures={self.max_structures}; list the structures instead "
+                    "or raise max_structures (up to 1000)"
+                )
+        else:
+            self._check_structures(self.structures)
+        if not self.spec_slots()[0] and len(self.tree_structures()) == 1:
+            raise ValueError(
+                "nothing to search: no spec used by the structure is given as "
+                "{low, high}, and there is a single structure"
+            )
+        return self
+
+    def _check_structures(self, structures: list[list[Edge]]) -> None:
+        if not structures:
+            raise ValueError("structures: at least one structure is needed")
+        if len(structures) > self.max_structures:
+            raise ValueError(
+                f"structures: {len(structures)} structures, more than "
+                f"max_structures={self.max_structures}"
+            )
+        names = {instance.name for instance in self.instances}
+        used: set[str] = set()
+        first_of: dict[frozenset[Edge], int] = {}
+        for index, edges in enumerate(structures):
+            where = f"structures[{index}]"
+            _check_tree(edges, names, where)
+            key = frozenset(edges)
+            if key in first_of:
+                raise ValueError(f"{where}: same tree as structures[{first_of[key]}]")
+            first_of[key] = index
+            for parent, child in edges:
+                used.update((parent, child))
+        unused = [instance.name for instance in self.instances if instance.name not in used]
+        if unused:
+            raise ValueError(
+                f"instances: {', '.join(map(repr, unused))} appear in no structure; "
+                "remove them or use them in a structure"
+            )
+
+    # -- queries ---------------------------------------------------------------
+
+    def instance(self, name: str) -> PartInstance:
+        for instance in self.instances:
+            if instance.name == name:
+                return instance
+        raise KeyError(f"unknown instance {name!r}")
+
+    def part_spec(self, instance_name: str, spec: str) -> float | Bound:
+        """An instance's part spec: its override, else its part type's value."""
+        instance = self.instance(instance_name)
+        if spec in instance.overrides:
+            return instance.overrides[spec]
+        return getattr(self.parts[instance.part], spec)
+
+    def joint_spec(self, instance_name: str, spec: str) -> float | Bound:
+        """The spec of the joint from an instance to its parent."""
+        instance = self.instance(instance_name)
+        if spec in instance.joint_overrides:
+            return instance.joint_overrides[spec]
+        return getattr(self.joint, spec)
+
+    def tree_structures(self) -> list[list[Edge]]:
+        """The candidate structures as edge lists (``"all"`` enumerated, deterministic)."""
+        if self._trees is None:
+            if self.structures == "all":
+                names = [instance.name for instance in self.instances]
+                self._trees = list(_all_trees(names))
+            else:
+                self._trees = [[(p, c) for p, c in edges] for edges in self.structures]
+        return self._trees
+
+    def spec_slots(self) -> tuple[list[str], list[tuple[float, float]]]:
+        """Free spec keys in spec-vector order, and their (low, high).
+
+        A part slot exists when its instance is in some structure and its spec is a
+        Bound; a joint slot when its instance is a child in some structure.
+        """
+        structures = self.tree_structures()
+        members: set[str] = set()
+        children: set[str] = set()
+        for edges in structures:
+            for parent, child in edges:
+                members.update((parent, child))
+                children.add(child)
+        names: list[str] = []
+        ranges: list[tuple[float, float]] = []
+        for instance in self.instances:
+            if instance.name not in members:
+                continue
+            for spec in PART_SPECS:
+                value = self.part_spec(instance.name, spec)
+                if isinstance(value, Bound):
+                    names.append(f"{instance.name}.{spec}")
+                    ranges.append((value.low, value.high))
+        for instance in self.instances:
+            if instance.name not in children:
+                continue
+            for spec in JOINT_SPECS:
+                value = self.joint_spec(instance.name, spec)
+                if isinstance(value, Bound):
+                    names.append(f"{instance.name}.joint.{spec}")
+                    ranges.append((value.low, value.high))
+        return names, ranges
+
+
+def _valid_name(name: str) -> bool:
+    import re
+
+    return re.fullmatch(NAME_PATTERN, name) is not None
+
+
+def _check_tree(edges: list[Edge], names: set[str], where: str) -> None:
+    """A structure is a rooted tree: >= 1 edge, one parent per child, one root, connected."""
+    if not edges:
+        raise ValueError(f"{where}: a structure needs at least one edge (two links)")
+    parent_of: dict[str, str] = {}
+    nodes: list[str] = []
+    for number, (parent, child) in enumerate(edges):
+        for name in (parent, child):
+            if name not in names:
+                raise ValueError(
+                    f"{where}[{number}]: unknown instance {name!r} "
+                    f"(instances: {', '.join(sorted(names))})"
+                )
+            if name not in nodes:
+                nodes.append(name)
+        if parent == child:
+            raise ValueError(f"{where}[{number}]: edge joins {parent!r} to itself")
+        if child in parent_of:
+            raise ValueError(
+                f"{where}: not a tree: {child!r} has two parents "
+                f"({parent_of[child]!r} and {parent!r})"
+            )
+        parent_of[child] = parent
+    roots = [name for name in nodes if name not in parent_of]
+    if len(roots) != 1:
+        raise ValueError(
+            f"{where}: not a tree: it has no root (a cycle)"
+            if not roots
+            else f"{where}: not a tree: several roots ({', '.join(map(repr, roots))}), "
+            "so it is not connected"
+        )
+    for start in parent_of:
+        seen = {start}
+        node = start
+        while node in parent_of:
+            node = parent_of[node]
+            if node in seen:
+                raise ValueError(f"{where}: not a tree: a cycle through {node!r}")
+            seen.add(node)
+
+
+def _all_trees(names: list[str]) -> Iterator[list[Edge]]:
+    """Every labelled tree over ``names`` (Pruefer sequences in lexicographic order),
+    rooted at ``names[0]``, edges listed breadth-first with children in name order."""
+    import itertools
+
+    n = len(names)
+    if n == 2:
+        yield [(names[0], names[1])]
+        return
+    for sequence in itertools.product(range(n), repeat=n - 2):
+        adjacency: list[list[int]] = [[] for _ in range(n)]
+        for u, v in _pruefer_edges(list(sequence), n):
+            adjacency[u].append(v)
+            adjacency[v].append(u)
+        edges: list[Edge] = []
+        visited = {0}
+        frontier = [0]
+        while frontier:
+            following: list[int] = []
+            for node in frontier:
+                for neighbour in sorted(adjacency[node]):
+                    if neighbour not in visited:
+                        visited.add(neighbour)
+                        edges.append((names[node], names[neighbour]))
+                        following.append(neighbour)
+            frontier = following
+        yield edges
+
+
+def _pruefer_edges(sequence: list[int], n: int) -> list[tuple[int, int]]:
+    degree = [1] * n
+    for node in sequence:
+        degree[node] += 1
+    leaves = [node for node in range(n) if degree[node] == 1]
+    heapq.heapify(leaves)
+    edges: list[tuple[int, int]] = []
+    for node in sequence:
+        leaf = heapq.heappop(leaves)
+        edges.append((leaf, node))
+        degree[node] -= 1
+        if degree[node] == 1:
+            heapq.heappush(leaves, node)
+    u, v = heapq.heappop(leaves), heapq.heappop(leaves)
+    edges.append((u, v))
+    return edges
 
 
 class Link(BaseModel):
@@ -116,6 +494,9 @@ class Design(BaseModel):
     links: list[Link]
     joints: list[Joint]
 
+    def edges(self) -> list[Edge]:
+        return [(joint.parent, joint.child) for joint in self.joints]
+
 
 class Representation(BaseModel):
     """What turns a search vector back into a design, computed once per study.
@@ -123,6 +504,11 @@ class Representation(BaseModel):
     ``identity``: one structure; the vector is the spec vector normalised to [0, 1].
     ``fused``: several structures; the vector lives in the MDS embedding of the
     fused distances, decoded by nearest reference design plus an affine map.
+
+    ``affine[s]`` is a ``(dim + 1) x p`` matrix: the normalised spec vector of
+    structure ``s`` at search vector ``v`` is ``[v, 1] @ affine[s]``, clipped to
+    [0, 1]. ``ref_coords`` (M x dim) and ``ref_structure`` (M) are the reference
+    designs' coordinates and structure indices.
     """
 
     kind: Literal["identity", "fused"]

@@ -46,6 +46,8 @@ VIOLATION_TOLERANCE = 1e-8
 MAX_REFERENCES = 512
 """Reference designs are capped near this count (at least 2 per structure)."""
 LEVEL_DECIMALS = 12
+RHO = 5.0
+"""OSQP's ADMM step size, fixed, for distances scaled to at most 1 (tuned on bench/fusion.py)."""
 """Similarities equal to this many decimals are one level (ties)."""
 
 
@@ -108,7 +110,7 @@ def exact_pairs(problem: PairProblem) -> np.ndarray:
 
 
 def osqp_pairs(
-    problem: PairProblem, *, eps: float = 1e-6, max_iter: int = 20_000
+    problem: PairProblem, *, eps: float = 1e-5, max_iter: int = 20_000
 ) -> tuple[np.ndarray, dict[str, float | int | str]]:
     """The optimum by OSQP on the sparse boundary formulation, f recovered from the
     boundary values (``recover_pairs``); also the solver's report."""
@@ -119,19 +121,25 @@ def osqp_pairs(
 
 
 def solve_boundary_qp(
-    problem: PairProblem, *, eps: float = 1e-6, max_iter: int = 20_000
+    problem: PairProblem, *, eps: float = 1e-5, max_iter: int = 20_000, rho: float = RHO
 ) -> tuple[np.ndarray, np.ndarray, dict[str, float | int | str]]:
     """OSQP on the sparse formulation: (raw f, boundary values t, report).
 
-    Tolerances are 1e-6 (OSQP's default is 1e-3), over-relaxation 1.8. OSQP's own
-    polishing is off: the boundaries make the active set degenerate (many pairs tight
-    at one t), and its polish step failed on nearly every instance tried while
-    costing a quarter of the time; ``recover_pairs`` does that job exactly.
+    Settings, tuned on bench/fusion.py: tolerances 1e-5 (OSQP's default is 1e-3),
+    distances scaled to at most 1 and a fixed step size ``rho`` (adaptive updates
+    refactorise the KKT matrix, which at 1e5 pairs costs as much as a hundred
+    iterations), over-relaxation 1.8. OSQP's own polishing is off: with the
+    boundary variables the active set is degenerate (many pairs tight at one t, a
+    boundary's t free when no pair is tight) and its polish step failed on nearly
+    every instance tried; ``recover_pairs`` does that job exactly.
     """
     n, levels, level = problem.d.size, problem.n_levels, problem.level
     if n == 0:
         return np.zeros(0), np.zeros(max(levels - 1, 0)), {"status": "empty", "iterations": 0}
     n_aux = levels - 1
+    # distances scaled to at most 1, so one step size suits every problem
+    scale = max(float(problem.d.max()), problem.margin, 1e-300)
+    d, margin = problem.d / scale, problem.margin / scale
     pairs = np.arange(n)
     below = pairs[level < levels - 1]  # f_k - t_level <= 0
     above = pairs[level > 0]  # f_k - t_(level-1) >= margin
@@ -160,13 +168,13 @@ def solve_boundary_qp(
     )
     A = sp.csc_matrix((values, (row_index, col_index)), shape=(rows, n + n_aux))
     lower = np.concatenate(
-        [np.full(len(below), -np.inf), np.full(len(above), problem.margin), np.zeros(len(first))]
+        [np.full(len(below), -np.inf), np.full(len(above), margin), np.zeros(len(first))]
     )
     upper = np.concatenate(
         [np.zeros(len(below)), np.full(len(above), np.inf), np.full(len(first), np.inf)]
     )
     P = sp.diags(np.concatenate([np.ones(n), np.zeros(n_aux)]), format="csc")
-    q = np.concatenate([-problem.d, np.zeros(n_aux)])
+    q = np.concatenate([-d, np.zeros(n_aux)])
     solver = osqp.OSQP()
     solver.setup(
         P,
@@ -177,6 +185,8 @@ def solve_boundary_qp(
         eps_abs=eps,
         eps_rel=eps,
         alpha=1.8,
+        rho=rho,
+        adaptive_rho=False,
         max_iter=max_iter,
         polishing=False,
         verbose=False,
@@ -188,7 +198,7 @@ def solve_boundary_qp(
         "status": str(result.info.status),
         "iterations": int(result.info.iter),
     }
-    x = np.asarray(result.x, dtype=np.float64)
+    x = np.asarray(result.x, dtype=np.float64) * scale
     return x[:n], x[n:], report
 
 

@@ -1,0 +1,341 @@
+"""Search vector <-> design, per DESIGN.md section 2 (pure numpy: runs in workers too).
+
+The *spec vector* x holds the free specs of a space (``spec_layout``), each
+normalised to [0, 1] by its bounds; slots a structure does not use (absent
+instances, the root's joint) hold ``PAD``. An ``identity`` representation searches x
+itself; a ``fused`` one searches the MDS embedding of the fused distances and maps
+back through the nearest reference design (structure) and that structure's affine
+map (specs).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from adclient.design import (
+    JOINT_SPECS,
+    PART_SPECS,
+    Bound,
+    Design,
+    DesignSpace,
+    Edge,
+    Joint,
+    Link,
+    Representation,
+)
+
+PAD = 0.5
+"""Normalised value of the spec slots a structure does not use."""
+
+
+@dataclass(frozen=True)
+class SpecLayout:
+    """The free specs of a space: ``names[k]`` is searched in ``[low[k], high[k]]``.
+
+    ``fixed`` holds every fixed spec (key -> value) of every instance, so a design
+    can be completed from the free values. ``structures`` are the candidate trees.
+    """
+
+    names: list[str]
+    low: np.ndarray
+    high: np.ndarray
+    fixed: dict[str, float]
+    structures: list[list[Edge]]
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def used_slots(self, structure: Sequence[Edge]) -> np.ndarray:
+        """Boolean mask of the slots a structure uses (its links, its non-root joints)."""
+        members = {name for edge in structure for name in edge}
+        children = {child for _, child in structure}
+        mask = np.zeros(len(self.names), dtype=bool)
+        for k, key in enumerate(self.names):
+            instance, _, rest = key.partition(".")
+            mask[k] = instance in children if rest.startswith("joint.") else instance in members
+        return mask
+
+    def normalise(self, values: np.ndarray) -> np.ndarray:
+        return (values - self.low) / (self.high - self.low)
+
+    def denormalise(self, x: np.ndarray) -> np.ndarray:
+        return self.low + x * (self.high - self.low)
+
+
+def spec_layout(space: DesignSpace) -> SpecLayout:
+    names, ranges = space.spec_slots()
+    fixed: dict[str, float] = {}
+    for instance in space.instances:
+        for spec in PART_SPECS:
+            value = space.part_spec(instance.name, spec)
+            if not isinstance(value, Bound):
+                fixed[f"{instance.name}.{spec}"] = float(value)
+        for spec in JOINT_SPECS:
+            value = space.joint_spec(instance.name, spec)
+            if not isinstance(value, Bound):
+                fixed[f"{instance.name}.joint.{spec}"] = float(value)
+    low = np.array([r[0] for r in ranges], dtype=np.float64)
+    high = np.array([r[1] for r in ranges], dtype=np.float64)
+    return SpecLayout(names, low, high, fixed, [list(s) for s in space.tree_structures()])
+
+
+def identity_representation(space: DesignSpace) -> Representation:
+    """The representation of a single-structure space: the normalised spec vector."""
+    layout = spec_layout(space)
+    if len(layout.structures) != 1:
+        raise ValueError(
+            f"identity representation needs one structure, the space has "
+            f"{len(layout.structures)}; build a fused one (adservice.representation)"
+        )
+    return Representation(
+        kind="identity",
+        spec_names=layout.names,
+        spec_low=layout.low.tolist(),
+        spec_high=layout.high.tolist(),
+        structures=layout.structures,
+        bounds=[[0.0] * layout.size, [1.0] * layout.size],
+        info={"dim": layout.size, "n_structures": 1},
+    )
+
+
+def _checked_layout(space: DesignSpace, representation: Representation) -> SpecLayout:
+    layout = spec_layout(space)
+    if layout.names != representation.spec_names:
+        raise ValueError(
+            "the representation does not belong to this space: spec names differ "
+            f"({representation.spec_names} vs {layout.names})"
+        )
+    if [list(map(tuple, s)) for s in representation.structures] != [
+        list(s) for s in layout.structures
+    ]:
+        raise ValueError("the representation does not belong to this space: structures differ")
+    return layout
+
+
+def _vector(representation: Representation, vector: Sequence[float]) -> np.ndarray:
+    v = np.asarray(vector, dtype=np.float64)
+    dim = len(representation.bounds[0])
+    if v.shape != (dim,):
+        raise ValueError(f"vector has {v.size} values, the search space has {dim}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("vector has non-finite values")
+    return v
+
+
+def structure_of(representation: Representation, vector: Sequence[float]) -> int:
+    """Structure index a vector decodes to: the nearest reference design's."""
+    v = _vector(representation, vector)
+    if representation.kind == "identity":
+        return 0
+    refs = np.asarray(representation.ref_coords, dtype=np.float64)
+    nearest = int(np.argmin(((refs - v) ** 2).sum(axis=1)))
+    return int(representation.ref_structure[nearest])
+
+
+def spec_vector(representation: Representation, vector: Sequence[float]) -> tuple[int, np.ndarray]:
+    """(structure index, normalised spec vector in [0, 1]) of a search vector."""
+    v = _vector(representation, vector)
+    if representation.kind == "identity":
+        return 0, np.clip(v, 0.0, 1.0)
+    structure = structure_of(representation, v)
+    matrix = np.asarray(representation.affine[structure], dtype=np.float64)
+    return structure, np.clip(np.append(v, 1.0) @ matrix, 0.0, 1.0)
+
+
+def decode(space: DesignSpace, representation: Representation, vector: Sequence[float]) -> Design:
+    """The design a search vector stands for."""
+    layout = _checked_layout(space, representation)
+    structure, x = spec_vector(representation, vector)
+    values = dict(zip(layout.names, layout.denormalise(x).tolist(), strict=True))
+    return build_design(space, layout, structure, values)
+
+
+def build_design(
+    space: DesignSpace, layout: SpecLayout, structure: int, values: Mapping[str, float]
+) -> Design:
+    """A design from a structure index and the free specs' physical values."""
+    edges = layout.structures[structure]
+
+    def spec(key: str) -> float:
+        return float(values[key]) if key in values else layout.fixed[key]
+
+    children = {child for _, child in edges}
+    members: list[str] = []
+    for edge in edges:
+        for name in edge:
+            if name not in members:
+                members.append(name)
+    root = next(name for name in members if name not in children)
+    order = [instance.name for instance in space.instances if instance.name in members]
+    links = [
+        Link(
+            name=name,
+            shape=space.parts[space.instance(name).part].shape,
+            length=spec(f"{name}.length"),
+            radius=spec(f"{name}.radius"),
+            mass=spec(f"{name}.mass"),
+        )
+        for name in order
+    ]
+    joints: list[Joint] = []
+    taken: set[str] = set()
+    for parent, child in edges:
+        name = f"{parent}_{child}"
+        while name in taken:
+            name += "_"
+        taken.add(name)
+        theta = spec(f"{child}.joint.axis_theta")
+        phi = spec(f"{child}.joint.axis_phi")
+        joints.append(
+            Joint(
+                name=name,
+                parent=parent,
+                child=child,
+                axis=axis_from_angles(theta, phi),
+                axis_theta=theta,
+                axis_phi=phi,
+                position=spec(f"{child}.joint.position"),
+                lower=spec(f"{child}.joint.lower"),
+                upper=spec(f"{child}.joint.upper"),
+                effort=spec(f"{child}.joint.effort"),
+                velocity=spec(f"{child}.joint.velocity"),
+            )
+        )
+    return Design(structure_index=structure, root=root, links=links, joints=joints)
+
+
+def axis_from_angles(theta: float, phi: float) -> tuple[float, float, float]:
+    """The unit joint axis of (theta, phi), per the convention in adclient.design."""
+    return (
+        math.sin(theta) * math.cos(phi),
+        math.sin(theta) * math.sin(phi),
+        math.cos(theta),
+    )
+
+
+def design_params(design: Design) -> dict[str, Any]:
+    """A readable, JSON-able summary: structure, then every link's and joint's specs."""
+    params: dict[str, Any] = {
+        "structure": ",".join(f"{parent}-{child}" for parent, child in design.edges()),
+        "structure_index": design.structure_index,
+        "root": design.root,
+    }
+    for link in design.links:
+        if link.shape != "cylinder":
+            params[f"{link.name}.shape"] = link.shape
+        for spec in PART_SPECS:
+            params[f"{link.name}.{spec}"] = float(getattr(link, spec))
+    for joint in design.joints:
+        for spec in JOINT_SPECS:
+            params[f"{joint.child}.joint.{spec}"] = float(getattr(joint, spec))
+        params[f"{joint.child}.joint.axis"] = [float(value) for value in joint.axis]
+    return params
+
+
+def design_values(layout: SpecLayout, design: Design) -> dict[str, float]:
+    """The free specs (physical values) a design fills; slots it leaves empty are absent."""
+    links = {link.name: link for link in design.links}
+    joints = {joint.child: joint for joint in design.joints}
+    values: dict[str, float] = {}
+    for key in layout.names:
+        instance, _, spec = key.partition(".")
+        if spec.startswith("joint."):
+            if instance in joints:
+                values[key] = float(getattr(joints[instance], spec.removeprefix("joint.")))
+        elif instance in links:
+            values[key] = float(getattr(links[instance], spec))
+    return values
+
+
+def _structure_index(layout: SpecLayout, edges: Sequence[Edge]) -> int:
+    wanted = frozenset((parent, child) for parent, child in edges)
+    for index, structure in enumerate(layout.structures):
+        if frozenset(structure) == wanted:
+            return index
+    raise ValueError(f"structure {list(edges)} is not one of the space's candidate structures")
+
+
+def encode(
+    space: DesignSpace,
+    representation: Representation,
+    design_or_specs: Design | Mapping[str, Any],
+) -> list[float]:
+    """A search vector for a design, or for a mapping of spec key -> value.
+
+    Identity representations: exact (``decode(encode(d))`` gives ``d`` back). Fused
+    ones: a vector that decodes to the design's structure and, among those tried
+    (the structure's reference designs and the least-squares inverse of its affine
+    map), to the specs nearest the design's; exact for reference designs up to the
+    affine map's fit. A mapping may name ``structure_index`` (default 0) and must give
+    every free spec the structure uses; other known spec keys (as in
+    ``design_params``) are ignored.
+    """
+    layout = _checked_layout(space, representation)
+    if isinstance(design_or_specs, Design):
+        structure = _structure_index(layout, design_or_specs.edges())
+        values = design_values(layout, design_or_specs)
+    else:
+        structure = int(design_or_specs.get("structure_index", 0))
+        if not 0 <= structure < len(layout.structures):
+            raise ValueError(f"structure_index {structure} out of range")
+        values = {}
+        for key, value in design_or_specs.items():
+            if key in layout.names:
+                values[key] = float(value)
+    used = layout.used_slots(layout.structures[structure])
+    x = np.full(layout.size, PAD)
+    for k, key in enumerate(layout.names):
+        if not used[k]:
+            continue
+        if key not in values:
+            raise ValueError(f"encode: spec {key!r} is missing")
+        value = values[key]
+        low, high = layout.low[k], layout.high[k]
+        tolerance = 1e-9 * max(1.0, abs(low), abs(high))
+        if not (math.isfinite(value) and low - tolerance <= value <= high + tolerance):
+            raise ValueError(f"encode: spec {key!r} = {value!r} lies outside [{low}, {high}]")
+        x[k] = min(max((value - low) / (high - low), 0.0), 1.0)
+    if representation.kind == "identity":
+        return x.tolist()
+    return _encode_fused(representation, structure, x, used).tolist()
+
+
+def _encode_fused(
+    representation: Representation, structure: int, x: np.ndarray, used: np.ndarray
+) -> np.ndarray:
+    refs = np.asarray(representation.ref_coords, dtype=np.float64)
+    labels = np.asarray(representation.ref_structure)
+    matrix = np.asarray(representation.affine[structure], dtype=np.float64)
+    linear, offset = matrix[:-1], matrix[-1]
+    # the vectors v with v @ linear[:, used] == x[used] - offset[used] form an affine
+    # subspace (when reachable); project the structure's references onto it, so some
+    # candidate both reproduces the specs and lies near its own structure
+    own = refs[labels == structure]
+    if not used.any():
+        return own[0]
+    system = linear[:, used].T
+    particular, *_ = np.linalg.lstsq(system, (x - offset)[used], rcond=None)
+    _, singular, rows = np.linalg.svd(system)
+    rank = int(np.sum(singular > 1e-10 * max(float(singular.max()), 1e-300)))
+    null = rows[rank:].T
+    projected = particular + ((own - particular) @ null) @ null.T
+    low, high = np.asarray(representation.bounds[0]), np.asarray(representation.bounds[1])
+    candidates = [*np.clip(projected, low, high), np.clip(particular, low, high), *own]
+    best, best_error = None, math.inf
+    for v in candidates:
+        nearest = int(np.argmin(((refs - v) ** 2).sum(axis=1)))
+        if labels[nearest] != structure:
+            continue
+        decoded = np.clip(np.append(v, 1.0) @ matrix, 0.0, 1.0)
+        error = float(np.abs(decoded - x)[used].max(initial=0.0))
+        if error < best_error:
+            best, best_error = v, error
+    if best is None:  # unreachable: a reference's own coordinates decode to its structure
+        raise ValueError(f"no vector decodes to structure {structure}")
+    return best
