@@ -215,8 +215,13 @@ def _trial_table(trials: list[Trial], title: str | None = None) -> Table:
     return table
 
 
+def _print_best(out: Console, trial: Trial) -> None:
+    out.print(f"best trial #{trial.number} (id {trial.id}): value {_num(trial.value)}")
+    out.print(_best_table(trial))
+
+
 def _best_table(trial: Trial) -> Table:
-    table = Table(title=f"best trial: #{trial.number} (id {trial.id}), value {_num(trial.value)}")
+    table = Table()
     table.add_column("param")
     table.add_column("value", overflow="fold")
     for name, value in trial.params.items():
@@ -307,7 +312,7 @@ def submit(
         if best is None:
             out.print("no complete trial")
         else:
-            out.print(_best_table(best))
+            _print_best(out, best)
 
 
 def _follow(study: StudyHandle, poll: float) -> Study:
@@ -354,7 +359,8 @@ def studies(
         return
     table = Table(title="studies")
     for column in ("id", "name", "direction", "state", "trials", "complete", "failed", "best"):
-        table.add_column(column, justify="right" if column not in {"name", "state"} else "left")
+        left = column in {"name", "direction", "state"}
+        table.add_column(column, justify="left" if left else "right")
     for info in items:
         budget = f"/{info.max_trials}" if info.max_trials is not None else ""
         table.add_row(
@@ -419,7 +425,7 @@ def best(
     if as_json:
         _print_json(trial)
         return
-    _out().print(_best_table(trial))
+    _print_best(_out(), trial)
 
 
 @app.command()

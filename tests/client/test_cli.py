@@ -143,7 +143,7 @@ def test_submit_wait_follows_until_the_budget_is_spent(
     assert len(told) == 6
     assert "6 complete, 0 failed" in result.stdout
     assert f"value {min(told):.6g}" in result.stdout
-    assert "best trial" in result.stdout
+    assert "best trial #" in result.stdout
     assert "6/6" in result.stderr  # the progress bar, on stderr
 
 
@@ -251,7 +251,7 @@ def test_best_shows_the_best_trial_or_says_there_is_none(
     study.tell(low, 1.0)
     study.tell(high, 7.0, metrics={"reward_std": 0.5})
     result = ok(run(server.url, "best", str(study_id)))
-    assert f"id {high.id}), value 7" in result.stdout
+    assert f"best trial #{high.number} (id {high.id}): value 7" in result.stdout
     assert "metric reward_std" in result.stdout
     assert json.loads(ok(run(server.url, "best", str(study_id), "--json")).stdout)["id"] == high.id
 
