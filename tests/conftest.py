@@ -1,4 +1,10 @@
-"""Shared fixtures: real server processes on SQLite files in a temporary folder."""
+"""Shared fixtures: real server processes, and databases of each kind the service runs on.
+
+Tests that ask for ``database_url``, ``new_database_url``, ``server_factory`` or
+``live_server`` run twice: on a SQLite file and on a throwaway PostgreSQL cluster (one
+per test process, started on first use; see ``tests.postgres``). Each test gets fresh
+databases.
+"""
 
 from __future__ import annotations
 
@@ -6,19 +12,66 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from tests.postgres import PostgresCluster, PostgresUnavailable
 from tests.servers import ServerProcess
+
+DATABASES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
+
+
+@pytest.fixture(scope="session")
+def postgres_cluster() -> Iterator[PostgresCluster]:
+    """One PostgreSQL cluster per test process (so per xdist worker), stopped at the end."""
+    try:
+        cluster = PostgresCluster.start(durable=False)
+    except PostgresUnavailable as error:
+        pytest.skip(f"POSTGRESQL TESTS SKIPPED: {error}")
+    yield cluster
+    cluster.stop()
+
+
+@pytest.fixture(params=DATABASES)
+def database(request: pytest.FixtureRequest) -> str:
+    """The kind of database under test: "sqlite" or "postgresql"."""
+    return str(request.param)
+
+
+@pytest.fixture
+def new_database_url(
+    database: str, tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
+) -> Iterator[Callable[[], str]]:
+    """Make fresh empty databases of the kind under test: ``new_database_url()``."""
+    if database == "sqlite":
+        yield lambda: f"sqlite:///{tmp_path_factory.mktemp('db') / 'studies.db'}"
+        return
+    cluster: PostgresCluster = request.getfixturevalue("postgres_cluster")
+    made: list[str] = []
+
+    def make() -> str:
+        made.append(cluster.create_database())
+        return made[-1]
+
+    yield make
+    for url in made:
+        cluster.drop_database(url)
+
+
+@pytest.fixture
+def database_url(new_database_url: Callable[[], str]) -> str:
+    """A fresh empty database of the kind under test."""
+    return new_database_url()
 
 
 @pytest.fixture
 def server_factory(
-    tmp_path_factory: pytest.TempPathFactory,
+    tmp_path_factory: pytest.TempPathFactory, new_database_url: Callable[[], str]
 ) -> Iterator[Callable[..., ServerProcess]]:
-    """Start real ``adserver`` processes: ``server_factory(AD_LEASE_SECONDS="2")``."""
+    """Start real ``adserver`` processes: ``server_factory(AD_LEASE_SECONDS="2")``; each
+    on a fresh database of the kind under test unless given ``database_url``."""
     started: list[ServerProcess] = []
 
     def start(database_url: str | None = None, **env: str) -> ServerProcess:
         workdir = tmp_path_factory.mktemp("server")
-        url = database_url or f"sqlite:///{workdir / 'studies.db'}"
+        url = database_url or new_database_url()
         server = ServerProcess(database_url=url, workdir=workdir, env=env).start()
         started.append(server)
         return server
@@ -30,5 +83,5 @@ def server_factory(
 
 @pytest.fixture
 def live_server(server_factory: Callable[..., ServerProcess]) -> ServerProcess:
-    """One real ``adserver`` on a fresh SQLite file; ``.url`` is its base URL."""
+    """One real ``adserver`` on a fresh database; ``.url`` is its base URL."""
     return server_factory()

@@ -1,4 +1,5 @@
-"""In-process app on a real SQLite file, for contract tests that need no separate process."""
+"""In-process app on a real database (SQLite file, then PostgreSQL: see ``database_url``),
+for contract tests that need no separate process."""
 
 from __future__ import annotations
 
@@ -13,8 +14,10 @@ from adservice.settings import Settings
 
 
 @pytest.fixture
-def settings(tmp_path: Path) -> Settings:
-    return Settings(database_url=f"sqlite:///{tmp_path / 'studies.db'}", sweep_seconds=0.2)
+def settings(tmp_path: Path, database_url: str) -> Settings:
+    return Settings(
+        database_url=database_url, artifact_dir=tmp_path / "artifacts", sweep_seconds=0.2
+    )
 
 
 @pytest.fixture

@@ -1,0 +1,220 @@
+"""A throwaway PostgreSQL cluster for tests and benchmarks: Debian's ``postgresql``
+package (installed with apt-get where missing), a cluster in a temporary folder owned
+by an unprivileged user, listening on a free loopback port, removed when stopped.
+
+    with PostgresCluster.start() as cluster:
+        url = cluster.create_database()   # postgresql+psycopg://postgres@127.0.0.1:PORT/db_1
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import fcntl
+import glob
+import itertools
+import os
+import pwd
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import psycopg
+
+from tests.servers import free_port
+
+SUPERUSER = "postgres"
+UNPRIVILEGED_USER = "nobody"  # initdb and postgres refuse to run as root
+INSTALL_LOCK = Path(tempfile.gettempdir()) / "activedesign-postgresql-install.lock"
+
+
+class PostgresUnavailable(RuntimeError):
+    """PostgreSQL is missing and cannot be installed here (no apt-get)."""
+
+
+def _bin_dir() -> Path | None:
+    """The folder with ``initdb`` and ``postgres``: Debian keeps them off PATH, in
+    /usr/lib/postgresql/VERSION/bin; the newest version wins."""
+    on_path = shutil.which("initdb")
+    if on_path and Path(on_path).resolve().with_name("postgres").exists():
+        return Path(on_path).resolve().parent
+    versions = sorted(
+        glob.glob("/usr/lib/postgresql/*/bin/initdb"),
+        key=lambda path: int(Path(path).parts[-3]) if Path(path).parts[-3].isdigit() else 0,
+    )
+    return Path(versions[-1]).parent if versions else None
+
+
+def ensure_installed() -> Path:
+    """The PostgreSQL bin folder, installing Debian's ``postgresql`` first if needed.
+
+    A file lock keeps parallel test processes from running apt-get at once."""
+    found = _bin_dir()
+    if found is not None:
+        return found
+    apt_get = shutil.which("apt-get")
+    if apt_get is None:
+        raise PostgresUnavailable(
+            "PostgreSQL (initdb) is not installed and apt-get is not available to install "
+            "it: install Debian's `postgresql` package to run the PostgreSQL tests"
+        )
+    with INSTALL_LOCK.open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        found = _bin_dir()
+        if found is None:
+            env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+            prefix = [] if os.geteuid() == 0 else ["sudo", "-n"]
+            for command in (
+                [*prefix, apt_get, "update", "-q"],
+                [*prefix, apt_get, "install", "-y", "-q", "--no-install-recommends", "postgresql"],
+            ):
+                done = subprocess.run(command, env=env, capture_output=True, text=True)
+                if done.returncode != 0:
+                    raise RuntimeError(
+                        f"{' '.join(command)} failed ({done.returncode}):\n"
+                        f"{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+                    )
+            found = _bin_dir()
+        if found is None:
+            raise RuntimeError("apt-get installed postgresql but initdb was not found")
+    return found
+
+
+def _die_with_parent() -> None:
+    """Runs in the child after it dropped privileges: SIGQUIT (PostgreSQL's immediate
+    shutdown) when the process that started it dies, so a killed test run leaves no
+    server behind."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGQUIT)  # PR_SET_PDEATHSIG
+
+
+@dataclass
+class PostgresCluster:
+    """One running throwaway cluster; trust authentication on 127.0.0.1 only."""
+
+    root: Path
+    port: int
+    process: subprocess.Popen[bytes]
+    _names: Iterator[int] = field(default_factory=lambda: itertools.count(1))
+
+    @classmethod
+    def start(cls, *, durable: bool = True, max_connections: int = 300) -> PostgresCluster:
+        """Create and start a cluster. ``durable=False`` turns off fsync and synchronous
+        commit: what tests need (nothing survives the run anyway), not what a benchmark
+        of a real deployment should measure."""
+        bin_dir = ensure_installed()
+        root = Path(tempfile.mkdtemp(prefix="activedesign-pg-"))
+        as_user: dict[str, object] = {}
+        if os.geteuid() == 0:
+            account = pwd.getpwnam(UNPRIVILEGED_USER)
+            os.chown(root, account.pw_uid, account.pw_gid)
+            as_user = {"user": account.pw_uid, "group": account.pw_gid, "extra_groups": []}
+        data = root / "data"
+        env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "LC_ALL": "C", "TZ": "UTC"}
+        done = subprocess.run(
+            [
+                str(bin_dir / "initdb"),
+                "-D",
+                str(data),
+                "-U",
+                SUPERUSER,
+                "--auth=trust",
+                "--encoding=UTF8",
+                "--locale=C",
+                "--no-sync",
+            ],
+            cwd=root,
+            env=env,
+            capture_output=True,
+            text=True,
+            **as_user,  # type: ignore[call-overload]
+        )
+        if done.returncode != 0:
+            shutil.rmtree(root, ignore_errors=True)
+            raise RuntimeError(f"initdb failed:\n{done.stdout}\n{done.stderr}")
+        settings = {
+            "listen_addresses": "127.0.0.1",
+            "unix_socket_directories": str(root),
+            "max_connections": str(max_connections),
+            "shared_buffers": "128MB",
+        }
+        if not durable:
+            settings |= {"fsync": "off", "synchronous_commit": "off", "full_page_writes": "off"}
+        last_error = ""
+        for _attempt in range(5):  # another process may take the free port first
+            port = free_port()
+            options = [f"-c{key}={value}" for key, value in {**settings, "port": port}.items()]
+            log = (root / "postgres.log").open("ab")
+            process = subprocess.Popen(
+                [str(bin_dir / "postgres"), "-D", str(data), *options],
+                cwd=root,
+                env=env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                preexec_fn=_die_with_parent,
+                **as_user,  # type: ignore[call-overload]
+            )
+            log.close()
+            cluster = cls(root=root, port=port, process=process)
+            if cluster._wait_ready():
+                return cluster
+            last_error = (root / "postgres.log").read_text(errors="replace")[-3000:]
+            cluster._terminate()
+        shutil.rmtree(root, ignore_errors=True)
+        raise RuntimeError(f"PostgreSQL did not start:\n{last_error}")
+
+    def _wait_ready(self, timeout: float = 60.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                return False
+            try:
+                with psycopg.connect(self.dsn("postgres"), connect_timeout=2):
+                    return True
+            except psycopg.OperationalError:
+                time.sleep(0.1)
+        return False
+
+    def dsn(self, database: str) -> str:
+        return f"host=127.0.0.1 port={self.port} user={SUPERUSER} dbname={database}"
+
+    def url(self, database: str) -> str:
+        """The SQLAlchemy URL of one database (psycopg 3)."""
+        return f"postgresql+psycopg://{SUPERUSER}@127.0.0.1:{self.port}/{database}"
+
+    def create_database(self, prefix: str = "db") -> str:
+        """A new empty database; returns its SQLAlchemy URL."""
+        name = f"{prefix}_{os.getpid()}_{next(self._names)}"
+        with psycopg.connect(self.dsn("postgres"), autocommit=True) as connection:
+            connection.execute(f'CREATE DATABASE "{name}"')  # name is ours: no user text
+        return self.url(name)
+
+    def drop_database(self, url: str) -> None:
+        """Drop a database made by :meth:`create_database`, ending its connections."""
+        name = url.rsplit("/", 1)[1]
+        with psycopg.connect(self.dsn("postgres"), autocommit=True) as connection:
+            connection.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+    def _terminate(self) -> None:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)  # "fast" shutdown
+            try:
+                self.process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.process.send_signal(signal.SIGQUIT)
+                self.process.wait()
+
+    def stop(self) -> None:
+        self._terminate()
+        shutil.rmtree(self.root, ignore_errors=True)
+
+    def __enter__(self) -> PostgresCluster:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.stop()
