@@ -189,6 +189,7 @@ def _compact(value: Any, limit: int = 80) -> str:
 
 
 def _print_json(value: Any) -> None:
+    data: Any
     if isinstance(value, BaseModel):
         data = value.model_dump(mode="json")
     elif isinstance(value, list):

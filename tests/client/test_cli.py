@@ -6,7 +6,7 @@ import csv
 import io
 import json
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import pytest
@@ -59,7 +59,7 @@ def failed_with(result: Result, message: str, code: int = 1) -> None:
     assert len(result.stderr.strip().splitlines()) == 1, result.stderr
 
 
-def write_study(tmp_path: Path, body: dict[str, object], suffix: str = ".yaml") -> Path:
+def write_study(tmp_path: Path, body: Mapping[str, object], suffix: str = ".yaml") -> Path:
     path = tmp_path / f"study{suffix}"
     text = json.dumps(body) if suffix == ".json" else yaml.safe_dump(body)
     path.write_text(text)

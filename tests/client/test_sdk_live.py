@@ -11,7 +11,7 @@ import pytest
 
 from adclient import Client, Conflict, Invalid, NotFound, PayloadTooLarge
 from adclient.client import StudyHandle, study_finished
-from adclient.schemas import BoxParam, BoxSpace, ProposerConfig, StudyCreate, Trial
+from adclient.schemas import BoxParam, BoxSpace, ProposerConfig, Study, StudyCreate, Trial
 from tests.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
@@ -45,7 +45,7 @@ def test_create_study_from_keywords_model_or_dict(client: Client) -> None:
     by_keywords = box_study(client, "kw", direction="minimize", max_trials=3)
     model = StudyCreate(
         name="model",
-        space=BoxSpace(params=[BoxParam(name="x", low=-2, high=2)]),
+        space=BoxSpace(type="box", params=[BoxParam(name="x", low=-2, high=2)]),
         proposer=ProposerConfig(name="random"),
     )
     by_model = client.create_study(model)
@@ -157,7 +157,7 @@ def test_optimize_tells_values_failures_and_reraises(client: Client) -> None:
 def test_wait_returns_once_the_budget_is_spent(client: Client) -> None:
     study = box_study(client, "budget", max_trials=2)
     study.optimize(lambda trial: trial.params["x"], 2)
-    updates = []
+    updates: list[Study] = []
     info = study.wait(poll=0.01, on_update=updates.append)
     assert study_finished(info)
     assert info.n_complete == 2 and len(updates) == 1
@@ -222,7 +222,7 @@ def test_export_json_and_csv_hold_every_trial(client: Client) -> None:
     assert rows[3]["message"] == 'a, "quoted"\nmessage'
     assert rows[3]["value"] == ""
     with pytest.raises(ValueError):
-        client.export(study.id, "xml")  # type: ignore[arg-type]
+        client.export(study.id, "xml")  # type: ignore[arg-type, unused-ignore]
 
 
 def test_client_closes_its_connection_pool(server: ServerProcess) -> None:

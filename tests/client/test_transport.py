@@ -235,7 +235,7 @@ def test_bad_tell_is_refused_before_sending(
     scripted: ScriptedServer, client: Client, kwargs: dict[str, object], fragment: str
 ) -> None:
     with pytest.raises(Invalid) as caught:
-        client.tell(1, **kwargs)  # type: ignore[arg-type]
+        client.tell(1, **kwargs)  # type: ignore[arg-type, unused-ignore]
     assert fragment in caught.value.message
     assert caught.value.status_code is None
     assert scripted.seen == []
