@@ -297,3 +297,10 @@ def test_api_errors_survive_pickling() -> None:
     assert type(copy) is Conflict
     assert (copy.status_code, copy.code, copy.detail) == (409, "lease_lost", error.detail)
     assert str(copy) == str(error)
+
+
+def test_trial_urdf_is_text(scripted: ScriptedServer, client: Client) -> None:
+    urdf = '<?xml version="1.0"?>\n<robot name="r1"><link name="base"/></robot>\n'
+    scripted.play(Reply(200, raw=urdf.encode(), headers={"Content-Type": "application/xml"}))
+    assert client.trial_urdf(9) == urdf
+    assert (scripted.seen[0].method, scripted.seen[0].path) == ("GET", "/api/v1/trials/9/urdf")
