@@ -53,3 +53,54 @@ def design_urdf(design: Design, robot_name: str = "robot") -> str:
 def write_urdf(design: Design, path: Path) -> Path:
     path.write_text(design_urdf(design))
     return path
+
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+HALF_PI = 1.5707963267948966
+
+
+def example_study(name: str):
+    """The StudyCreate of examples/<name>.yaml."""
+    import yaml
+
+    from adclient.schemas import StudyCreate
+
+    return StudyCreate.model_validate(yaml.safe_load((EXAMPLES / f"{name}.yaml").read_text()))
+
+
+def make_job(example: str, specs: dict[str, float], trial_id: int = 1, **task: object):
+    """A Job for a single-structure example, its vector encoding ``specs``."""
+    from datetime import UTC, datetime, timedelta
+
+    from adclient.decode import encode, identity_representation
+    from adclient.schemas import Job
+
+    study = example_study(example)
+    representation = identity_representation(study.space)
+    vector = encode(study.space, representation, specs)
+    task_config = study.task.model_copy(update=task)
+    return Job(
+        trial_id=trial_id,
+        study_id=1,
+        number=trial_id - 1,
+        attempt=1,
+        vector=vector,
+        params=dict(specs),
+        task=task_config,
+        space=study.space,
+        representation=representation,
+        lease_expires_at=datetime.now(UTC) + timedelta(minutes=5),
+    )
+
+
+def stand_up_specs(theta: float, phi: float, length: float = 0.4) -> dict[str, float]:
+    """Stand-up specs with both joints at (theta, phi) and equal link lengths."""
+    return {
+        "a.length": length,
+        "b.length": length,
+        "c.length": length,
+        "b.joint.axis_theta": theta,
+        "b.joint.axis_phi": phi,
+        "c.joint.axis_theta": theta,
+        "c.joint.axis_phi": phi,
+    }

@@ -148,6 +148,6 @@ def test_render_image_is_a_picture_of_the_robot(urdf_of) -> None:
     finally:
         env.close()
     assert image is not None
-    assert image.shape == (360, 480, 3)
+    assert image.shape == (240, 320, 3)
     assert image.dtype == np.uint8
     assert len(np.unique(image.reshape(-1, 3), axis=0)) > 10  # not a blank frame

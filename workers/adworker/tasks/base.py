@@ -32,9 +32,9 @@ import gymnasium as gym
 import numpy as np
 import pybullet
 
-DEFAULT_TIME_STEP = 1.0 / 240.0
-DEFAULT_FRAME_SKIP = 8
-DEFAULT_EPISODE_STEPS = 64
+DEFAULT_TIME_STEP = 1.0 / 120.0
+DEFAULT_FRAME_SKIP = 12
+DEFAULT_EPISODE_STEPS = 32
 DEFAULT_INIT_NOISE = 0.05
 GROUND_FRICTION = 1.0
 CONTACT_SLACK = 0.002
@@ -575,7 +575,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
             return None
         return self.render_image()
 
-    def render_image(self, width: int = 480, height: int = 360) -> np.ndarray:
+    def render_image(self, width: int = 320, height: int = 240) -> np.ndarray:
         """The current pose through PyBullet's software renderer (works headless)."""
         cid = self._client
         snapshot = self.snapshot()

@@ -1,0 +1,101 @@
+"""``adworker``: evaluate designs for an activedesign server until stopped.
+
+    adworker --server http://127.0.0.1:8000 --token $AD_TOKEN --concurrency 2
+
+Each worker process leases a job, trains and evaluates the design in PyBullet, and
+reports the score with its metrics and artifacts (URDF, picture, curve). SIGTERM or
+Ctrl-C: finish the current job and exit; a second one: abandon it and exit now.
+Exit status 0 when stopped, 2 when the server refused the token.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import typer
+
+from adworker.worker import (
+    Worker,
+    WorkerConfig,
+    configure_logging,
+    default_worker_id,
+    run_pool,
+)
+
+app = typer.Typer(
+    name="adworker",
+    help="Simulation worker for an activedesign server.",
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.command()
+def run(
+    server: str = typer.Option(
+        "http://127.0.0.1:8000", "--server", envvar="AD_SERVER_URL", help="Server base URL."
+    ),
+    token: str | None = typer.Option(
+        None, "--token", envvar="AD_TOKEN", help="A worker (or admin) bearer token."
+    ),
+    concurrency: int = typer.Option(
+        1, "--concurrency", min=1, max=256, help="Jobs at once, each in its own process."
+    ),
+    poll: float = typer.Option(
+        2.0, "--poll", min=0.05, help="Seconds between lease attempts when there is no work."
+    ),
+    max_jobs: int | None = typer.Option(
+        None, "--max-jobs", min=1, help="Exit after this many jobs (all processes together)."
+    ),
+    worker_id: str | None = typer.Option(
+        None, "--worker-id", help="Name shown on the server (default: host-pid)."
+    ),
+    idle_exit: float | None = typer.Option(
+        None, "--idle-exit", min=0.0, help="Exit after this many seconds without work."
+    ),
+    workdir: Path | None = typer.Option(
+        None, "--workdir", help="Where jobs write their files (default: a temporary folder)."
+    ),
+    keep_files: bool = typer.Option(
+        False, "--keep-files", help="Keep each job's URDF, picture and curve in the workdir."
+    ),
+    render: bool = typer.Option(True, "--render/--no-render", help="Upload a picture."),
+    log_level: str = typer.Option("info", "--log-level", envvar="AD_LOG_LEVEL"),
+) -> None:
+    """Lease and evaluate jobs until stopped."""
+    # One BLAS/torch thread per process: N processes share the cores.
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("MKL_NUM_THREADS", "1")
+    level = logging.getLevelNamesMapping().get(log_level.upper())
+    if level is None:
+        raise typer.BadParameter(f"unknown log level {log_level!r}", param_hint="--log-level")
+    base_id = worker_id or default_worker_id()
+    config = WorkerConfig(
+        server=server,
+        token=token,
+        worker_id=base_id,
+        poll=poll,
+        max_jobs=max_jobs,
+        idle_exit=idle_exit,
+        workdir=workdir,
+        keep_files=keep_files,
+        render=render,
+    )
+    configure_logging(level, base_id)
+    if concurrency == 1:
+        worker = Worker(config)
+        worker.install_signal_handlers()
+        code = worker.run()
+    else:
+        code = run_pool(config, concurrency, level)
+    raise typer.Exit(code)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

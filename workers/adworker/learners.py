@@ -1,0 +1,353 @@
+"""Controller learners: what turns a task env into a policy, within a step budget.
+
+``fast`` is a non-RL search over constant joint targets (a design is judged by the
+best pose it can hold, found in about a second); ``ddpg`` (the preprint's method),
+``td3``, ``sac`` and ``ppo`` train stable-baselines3 agents with small networks, at
+budgets sized so one evaluation takes about 10 s on one CPU core per worker process.
+
+A learner gets a built env, a step budget (environment control steps; the task
+config's ``train_steps`` overrides the learner's default) and a seed, and returns a
+deterministic policy plus its training curve. Evaluation is separate (see
+:func:`evaluate_policy`) and identical for every learner.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from adworker.tasks.base import RobotEnv, episode_score
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass
+class TrainResult:
+    policy: Policy
+    train_steps: int
+    curve: list[dict[str, float]] = field(default_factory=list)
+    """One point per training episode (or candidate): steps so far and its score."""
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class EpisodeResult:
+    seed: int
+    score: float
+    episode_return: float
+    metric: list[float]
+
+
+class UnknownLearner(KeyError):
+    """The job names a learner this worker does not have."""
+
+
+def _no_check() -> None:
+    return None
+
+
+def evaluate_policy(
+    env: RobotEnv, policy: Policy, seeds: list[int], check: Callable[[], None] = _no_check
+) -> list[EpisodeResult]:
+    """Run one deterministic episode per seed; the score is the task's episode score.
+
+    ``check`` runs before each episode and may raise to cancel the evaluation.
+    """
+    results = []
+    for seed in seeds:
+        check()
+        observation, _ = env.reset(seed=seed)
+        total = 0.0
+        truncated = terminated = False
+        while not (terminated or truncated):
+            observation, reward, terminated, truncated, _ = env.step(policy(observation))
+            total += reward
+        metric = list(env.record.metric)
+        results.append(EpisodeResult(seed, episode_score(metric), total, metric))
+    return results
+
+
+class Learner:
+    name: ClassVar[str]
+    default_steps: ClassVar[int]
+
+    def train(
+        self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
+    ) -> TrainResult:
+        """Train within ``steps`` env steps; ``check`` is called often and may raise."""
+        raise NotImplementedError
+
+
+class ConstantTargetSearch(Learner):
+    """Search over constant joint targets: the best pose the design can reach and hold.
+
+    Three phases over the episode budget. Explore (3/8): the rest pose, then a
+    scrambled Halton sequence over [-1, 1]^joints. Refine (3/8): a (1+1) evolution
+    strategy around the best so far, its step shrinking on failure. Each of those
+    candidates is scored by one episode with the training seed. Validate (1/4): the
+    best few candidates run again with other seeds and the best mean wins, so a pose
+    that only holds from one starting state (an arch on the edge of tipping over)
+    loses to one that holds from all.
+    """
+
+    name: ClassVar[str] = "fast"
+    default_steps: ClassVar[int] = 32 * 32
+
+    def train(
+        self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
+    ) -> TrainResult:
+        joints = env.action_space.shape[0]
+        episodes = max(1, steps // env.episode_steps)
+        validate_seeds = 2 if episodes >= 8 else 0
+        validate_count = max(1, episodes // 4 // validate_seeds) if validate_seeds else 0
+        search = episodes - validate_seeds * validate_count
+        explore = max(1, (search + 1) // 2)
+        rng = np.random.default_rng(seed)
+        curve: list[dict[str, float]] = []
+        used = 0
+
+        def score_of(action: np.ndarray, episode_seed: int) -> float:
+            nonlocal used
+            result = evaluate_policy(env, _constant(action), [episode_seed], check)[0]
+            used += env.episode_steps
+            curve.append({"steps": float(used), "score": result.score})
+            return result.score
+
+        tried: list[tuple[float, np.ndarray]] = []
+        candidates = [np.zeros(joints), *(_halton(explore - 1, joints, rng) * 2.0 - 1.0)]
+        for action in candidates:
+            tried.append((score_of(action, seed), action))
+        best_score, best_action = max(tried, key=lambda pair: pair[0])
+        sigma = 0.3
+        for _ in range(search - len(candidates)):
+            trial = np.clip(best_action + rng.normal(0.0, sigma, joints), -1.0, 1.0)
+            score = score_of(trial, seed)
+            tried.append((score, trial))
+            if score > best_score:
+                best_action, best_score = trial, score
+                sigma = min(0.5, sigma * 1.5)
+            else:
+                sigma = max(0.02, sigma * 0.8)
+        ranked = sorted(tried, key=lambda pair: -pair[0])
+        finalists = _distinct(ranked, validate_count) if validate_count else ranked[:1]
+        best_mean = -np.inf
+        for first, action in finalists:
+            extra = [score_of(action, seed + 1 + k) for k in range(validate_seeds)]
+            mean = float(np.mean([first, *extra]))
+            if mean > best_mean:
+                best_mean, best_action = mean, action
+        return TrainResult(
+            policy=_constant(best_action),
+            train_steps=used,
+            curve=curve,
+            info={"best_train_score": float(best_mean), "action": best_action.tolist()},
+        )
+
+
+def _distinct(
+    ranked: list[tuple[float, np.ndarray]], count: int, spacing: float = 0.05
+) -> list[tuple[float, np.ndarray]]:
+    """The best ``count`` candidates, skipping near-duplicates of one already taken."""
+    taken: list[tuple[float, np.ndarray]] = []
+    for score, action in ranked:
+        if all(np.abs(action - other).max() > spacing for _, other in taken):
+            taken.append((score, action))
+        if len(taken) == count:
+            break
+    return taken
+
+
+RAMP_PER_STEP = 0.1
+"""How far (in normalised joint range, [-1, 1]) a constant-target policy moves its
+command per control step: 0 to 1 in ten steps (about a second at 10 Hz)."""
+
+
+def _constant(action: np.ndarray, ramp: float = RAMP_PER_STEP) -> Policy:
+    """Hold ``action`` as joint targets, approached at a bounded rate from the current pose.
+
+    Every task's observation starts with the joints' normalised positions, in the
+    action's own scale, so the ramp needs no state: it commands at most ``ramp`` away
+    from where each joint is now. Slamming to the target instead flings a free robot
+    about, and the search would then judge the transient rather than the pose.
+    """
+    fixed = np.asarray(action, dtype=np.float32)
+    joints = fixed.shape[0]
+
+    def policy(observation: np.ndarray) -> np.ndarray:
+        current = observation[:joints]
+        return np.clip(fixed, current - ramp, current + ramp).astype(np.float32)
+
+    return policy
+
+
+def _halton(count: int, dims: int, rng: np.random.Generator) -> np.ndarray:
+    """A randomly shifted Halton sequence in [0, 1)^dims (deterministic given rng)."""
+    primes = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53]
+    if count <= 0:
+        return np.zeros((0, dims))
+    out = np.empty((count, dims))
+    for d in range(dims):
+        base = primes[d % len(primes)]
+        for i in range(count):
+            f, r, n = 1.0, 0.0, i + 1
+            while n > 0:
+                f /= base
+                r += f * (n % base)
+                n //= base
+            out[i, d] = r
+    return (out + rng.random(dims)) % 1.0
+
+
+class StableBaselinesLearner(Learner):
+    """A stable-baselines3 agent with small networks; see the subclasses for budgets.
+
+    ``hyperparameters`` are the constructor arguments; ``overrides`` (from the task
+    config's ``options["learner_kwargs"]``) replace any of them, ``action_noise`` as
+    ``{"kind": "normal" | "ou", "sigma": s}``.
+    """
+
+    algorithm: ClassVar[str]
+    net_arch: ClassVar[list[int]] = [64, 64]
+    hyperparameters: ClassVar[dict[str, Any]] = {}
+
+    def __init__(self, overrides: dict[str, Any] | None = None) -> None:
+        self.overrides = dict(overrides or {})
+
+    def make_model(self, env: Any, *, steps: int, seed: int) -> Any:
+        import stable_baselines3
+
+        kwargs = {**self.hyperparameters, **self.overrides}
+        kwargs.setdefault("policy_kwargs", {"net_arch": list(self.net_arch)})
+        if "buffer_size" in kwargs:
+            kwargs["buffer_size"] = max(int(kwargs["buffer_size"]), steps, 1000)
+        if "learning_starts" in kwargs:
+            kwargs["learning_starts"] = min(int(kwargs["learning_starts"]), max(steps // 4, 1))
+        if "n_steps" in kwargs and steps < 2 * int(kwargs["n_steps"]):
+            kwargs["n_steps"] = max(32, steps // 2)
+            kwargs["batch_size"] = min(int(kwargs.get("batch_size", 64)), kwargs["n_steps"])
+        noise = kwargs.pop("action_noise", None)
+        if noise is not None:
+            kwargs["action_noise"] = _action_noise(env, **noise)
+        cls = getattr(stable_baselines3, self.algorithm)
+        return cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)
+
+    def train(
+        self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
+    ) -> TrainResult:
+        import torch
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        torch.set_num_threads(1)
+        curve: list[dict[str, float]] = []
+
+        class EpisodeScores(BaseCallback):
+            def _on_step(self) -> bool:
+                if self.num_timesteps % 64 == 0:
+                    check()
+                for info in self.locals.get("infos", []):
+                    if "score" in info:
+                        curve.append(
+                            {"steps": float(self.num_timesteps), "score": float(info["score"])}
+                        )
+                return True
+
+        model = self.make_model(env, steps=steps, seed=seed)
+        if steps > 0:
+            model.learn(total_timesteps=steps, callback=EpisodeScores(), progress_bar=False)
+
+        def policy(observation: np.ndarray) -> np.ndarray:
+            action, _ = model.predict(observation, deterministic=True)
+            return np.asarray(action, dtype=np.float32)
+
+        return TrainResult(
+            policy=policy,
+            train_steps=int(model.num_timesteps),
+            curve=curve,
+            info={"algorithm": self.algorithm},
+        )
+
+
+def _action_noise(env: RobotEnv, kind: str = "normal", sigma: float = 0.3, **kwargs: Any) -> Any:
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+    joints = env.action_space.shape[0]
+    mean, scale = np.zeros(joints), sigma * np.ones(joints)
+    if kind == "ou":
+        return OrnsteinUhlenbeckActionNoise(mean=mean, sigma=scale, **kwargs)
+    return NormalActionNoise(mean=mean, sigma=scale)
+
+
+_OFF_POLICY = {
+    "learning_rate": 1e-3,
+    "buffer_size": 1000,
+    "learning_starts": 256,
+    "batch_size": 64,
+    "tau": 0.02,
+    "gamma": 0.95,
+    "train_freq": 1,
+    "gradient_steps": 1,
+}
+
+
+class DDPGLearner(StableBaselinesLearner):
+    """Deep deterministic policy gradient, as in the preprint."""
+
+    name: ClassVar[str] = "ddpg"
+    algorithm: ClassVar[str] = "DDPG"
+    default_steps: ClassVar[int] = 3000
+    hyperparameters: ClassVar[dict[str, Any]] = {
+        **_OFF_POLICY,
+        "action_noise": {"kind": "normal", "sigma": 0.3},
+    }
+
+
+class TD3Learner(StableBaselinesLearner):
+    name: ClassVar[str] = "td3"
+    algorithm: ClassVar[str] = "TD3"
+    default_steps: ClassVar[int] = 3000
+    hyperparameters: ClassVar[dict[str, Any]] = {
+        **_OFF_POLICY,
+        "action_noise": {"kind": "normal", "sigma": 0.3},
+    }
+
+
+class SACLearner(StableBaselinesLearner):
+    name: ClassVar[str] = "sac"
+    algorithm: ClassVar[str] = "SAC"
+    default_steps: ClassVar[int] = 2000
+    hyperparameters: ClassVar[dict[str, Any]] = dict(_OFF_POLICY)
+
+
+class PPOLearner(StableBaselinesLearner):
+    name: ClassVar[str] = "ppo"
+    algorithm: ClassVar[str] = "PPO"
+    default_steps: ClassVar[int] = 12288
+    hyperparameters: ClassVar[dict[str, Any]] = {
+        "learning_rate": 1e-3,
+        "n_steps": 1024,
+        "batch_size": 64,
+        "n_epochs": 5,
+        "gamma": 0.95,
+        "gae_lambda": 0.9,
+    }
+
+
+LEARNERS: dict[str, type[Learner]] = {
+    cls.name: cls for cls in (ConstantTargetSearch, DDPGLearner, TD3Learner, SACLearner, PPOLearner)
+}
+DEFAULT_LEARNER = "ddpg"
+
+
+def get_learner(name: str, overrides: dict[str, Any] | None = None) -> Learner:
+    """A learner by name; ``overrides`` tune an SB3 learner's hyperparameters."""
+    try:
+        cls = LEARNERS[name]
+    except KeyError:
+        known = ", ".join(sorted(LEARNERS))
+        raise UnknownLearner(f"unknown learner {name!r}; known learners: {known}") from None
+    if issubclass(cls, StableBaselinesLearner):
+        return cls(overrides)
+    return cls()

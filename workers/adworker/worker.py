@@ -1,0 +1,448 @@
+"""The worker loop: lease a job, keep its lease alive, evaluate it, report, repeat.
+
+One :class:`Worker` runs jobs one at a time in its own process; ``--concurrency N``
+runs N of them in child processes (:func:`run_pool`). The rules it keeps:
+
+- Network errors and 5xx answers are retried with backoff (the SDK retries each
+  request a few times; the loop keeps waiting, with a growing pause, while the server
+  stays away). A result is not thrown away lightly: a tell is retried for
+  ``TELL_PATIENCE`` seconds.
+- 401/403 stop the worker with a message naming the token: more tries cannot help.
+- A heartbeat thread extends the lease while the job runs. A 409 on it means the
+  lease is lost (it expired and another worker may have the job): the evaluation is
+  cancelled at its next check and nothing is reported.
+- An exception inside the evaluation (a bad design, a physics or training failure)
+  becomes a ``failed`` tell carrying the error; the worker goes on.
+- SIGTERM/SIGINT: stop leasing, finish the current job, report it, exit 0. A second
+  one abandons the current job (unreported; its lease expires and the server hands
+  it to another worker) and exits at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import random
+import shutil
+import signal
+import socket
+import tempfile
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from adclient.client import Client
+from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized, Unavailable
+from adclient.schemas import Job
+
+log = logging.getLogger("adworker")
+
+TELL_PATIENCE = 300.0
+"""Seconds a finished job's tell keeps being retried while the server is unreachable."""
+MAX_IDLE_BACKOFF = 30.0
+MESSAGE_LIMIT = 4000
+EXIT_OK = 0
+EXIT_AUTH = 2
+
+
+class AuthError(Exception):
+    """The server refused the token: the worker cannot do anything useful."""
+
+
+def default_worker_id() -> str:
+    return f"{socket.gethostname()}-{os.getpid()}"
+
+
+@dataclass
+class WorkerConfig:
+    server: str
+    token: str | None = None
+    worker_id: str = field(default_factory=default_worker_id)
+    poll: float = 2.0
+    max_jobs: int | None = None
+    idle_exit: float | None = None
+    """Exit after this many seconds without work (None: never)."""
+    workdir: Path | None = None
+    keep_files: bool = False
+    render: bool = True
+
+
+@dataclass
+class Rates:
+    """Running totals for the log's rates."""
+
+    started: float = field(default_factory=time.monotonic)
+    jobs: int = 0
+    failed: int = 0
+    sim_steps: float = 0.0
+    busy_seconds: float = 0.0
+
+    def line(self) -> str:
+        minutes = max(time.monotonic() - self.started, 1e-9) / 60
+        sim_rate = self.sim_steps / max(self.busy_seconds, 1e-9)
+        return (
+            f"{self.jobs} jobs ({self.failed} failed), {self.jobs / minutes:.1f} jobs/min, "
+            f"{sim_rate:,.0f} sim steps/s while busy"
+        )
+
+
+class Heartbeat:
+    """Extends one job's lease from a background thread until stopped or lost."""
+
+    def __init__(self, client: Client, job: Job, worker_id: str) -> None:
+        self.client = client
+        self.job = job
+        self.worker_id = worker_id
+        self.lost = threading.Event()
+        self.reason = ""
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._run, name=f"heartbeat-{job.trial_id}", daemon=True
+        )
+
+    def _interval(self, expires_at: datetime) -> float:
+        remaining = (expires_at - datetime.now(UTC)).total_seconds()
+        if not 0 < remaining < 24 * 3600:  # clock skew or nonsense: a safe default
+            remaining = 15.0
+        return max(0.2, min(remaining / 3, 20.0))
+
+    def _run(self) -> None:
+        interval = self._interval(self.job.lease_expires_at)
+        while not self._stop.wait(interval):
+            try:
+                answer = self.client.heartbeat(self.job.trial_id, self.worker_id)
+            except (Conflict, NotFound) as exc:
+                self.reason = f"lease lost: {exc}"
+                self.lost.set()
+                return
+            except (Unauthorized, Forbidden) as exc:
+                self.reason = f"heartbeat refused: {exc}"
+                self.lost.set()
+                return
+            except ApiError as exc:
+                log.warning("trial %s: heartbeat failed (%s); retrying", self.job.trial_id, exc)
+                interval = max(0.2, interval / 2)
+                continue
+            interval = self._interval(answer.lease_expires_at)
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10)
+
+
+class Worker:
+    """Leases and evaluates jobs, one at a time; see the module docstring."""
+
+    def __init__(
+        self,
+        config: WorkerConfig,
+        *,
+        client: Client | None = None,
+        claim: Callable[[], bool] | None = None,
+        unclaim: Callable[[], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.client = client or Client(config.server, config.token)
+        self.stopping = threading.Event()
+        """Finish the current job, then exit."""
+        self.abandon = threading.Event()
+        """Drop the current job now and exit."""
+        self.rates = Rates()
+        self._claim = claim
+        self._unclaim = unclaim
+        self._own_workdir = config.workdir is None
+        self.workdir = Path(config.workdir or tempfile.mkdtemp(prefix="adworker-"))
+
+    # ------------------------------------------------------------------ signals
+
+    def install_signal_handlers(self) -> None:
+        signal.signal(signal.SIGTERM, self._on_signal)
+        signal.signal(signal.SIGINT, self._on_signal)
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        name = signal.Signals(signum).name
+        if self.stopping.is_set():
+            log.warning("%s again: abandoning the current job and exiting", name)
+            self.abandon.set()
+        else:
+            log.info("%s: finishing the current job, then exiting (again to abandon it)", name)
+            self.stopping.set()
+
+    # --------------------------------------------------------------------- loop
+
+    def run(self) -> int:
+        """Work until told to stop, out of jobs (``max_jobs``) or idle (``idle_exit``)."""
+        config = self.config
+        log.info("worker %s serving %s", config.worker_id, config.server)
+        idle_since = time.monotonic()
+        failures = 0
+        try:
+            while not self.stopping.is_set():
+                if config.max_jobs is not None and self.rates.jobs >= config.max_jobs:
+                    log.info("done %d jobs (--max-jobs)", self.rates.jobs)
+                    break
+                if self._claim is not None and not self._claim():
+                    log.info("the pool's job budget is spent")
+                    break
+                try:
+                    job = self.client.lease(config.worker_id)
+                except (Unauthorized, Forbidden) as exc:
+                    raise AuthError(str(exc)) from exc
+                except ApiError as exc:
+                    job = None
+                    failures += 1
+                    pause = min(MAX_IDLE_BACKOFF, config.poll * 2 ** min(failures, 6))
+                    log.warning("lease failed (%s); next try in %.1f s", exc, pause)
+                    self._unclaim_job()
+                    self._sleep(pause * (0.5 + random.random() / 2))
+                    continue
+                failures = 0
+                if job is None:
+                    self._unclaim_job()
+                    idle = time.monotonic() - idle_since
+                    if config.idle_exit is not None and idle >= config.idle_exit:
+                        log.info("no work for %.0f s (--idle-exit)", idle)
+                        break
+                    self._sleep(config.poll)
+                    continue
+                self.process(job)
+                idle_since = time.monotonic()
+                if self.abandon.is_set():
+                    break
+        except AuthError as exc:
+            log.error(
+                "the server refused this worker's token: %s. Pass a worker or admin token "
+                "with --token or AD_TOKEN.",
+                exc,
+            )
+            return EXIT_AUTH
+        finally:
+            log.info("worker %s stopping: %s", config.worker_id, self.rates.line())
+            if self._own_workdir and not config.keep_files:
+                shutil.rmtree(self.workdir, ignore_errors=True)
+        return EXIT_OK
+
+    def _unclaim_job(self) -> None:
+        if self._unclaim is not None:
+            self._unclaim()
+
+    def _sleep(self, seconds: float) -> None:
+        self.stopping.wait(seconds)
+
+    # ---------------------------------------------------------------------- job
+
+    def process(self, job: Job) -> str:
+        """Evaluate and report one job; returns 'complete', 'failed' or 'abandoned'."""
+        from adworker.evaluate import Cancelled, evaluate_job
+
+        label = f"trial {job.trial_id} (study {job.study_id} #{job.number}, attempt {job.attempt})"
+        log.info(
+            "%s: %s with %s, %s steps",
+            label,
+            job.task.name,
+            job.task.learner,
+            job.task.train_steps if job.task.train_steps is not None else "default",
+        )
+        jobdir = self.workdir / f"trial-{job.trial_id}-attempt-{job.attempt}"
+        started = time.monotonic()
+        with Heartbeat(self.client, job, self.config.worker_id) as heartbeat:
+
+            def check() -> None:
+                if heartbeat.lost.is_set():
+                    raise Cancelled(heartbeat.reason)
+                if self.abandon.is_set():
+                    raise Cancelled("worker shutting down")
+
+            try:
+                evaluation = evaluate_job(job, jobdir, render=self.config.render, check=check)
+            except Cancelled as exc:
+                log.warning("%s: abandoned (%s); not reported", label, exc)
+                outcome = "abandoned"
+            except Exception as exc:
+                message = _failure_message(exc)
+                log.error("%s: evaluation failed: %s", label, message.splitlines()[0])
+                self.rates.jobs += 1
+                self.rates.failed += 1
+                outcome = "failed"
+                self._report(
+                    job,
+                    label,
+                    state="failed",
+                    message=message,
+                    worker_id=self.config.worker_id,
+                )
+            else:
+                busy = time.monotonic() - started
+                self.rates.jobs += 1
+                self.rates.sim_steps += evaluation.metrics["sim_steps"]
+                self.rates.busy_seconds += busy
+                outcome = "complete"
+                self._upload(job, heartbeat, label, evaluation.artifacts)
+                self._report(
+                    job,
+                    label,
+                    value=evaluation.value,
+                    metrics=evaluation.metrics,
+                    worker_id=self.config.worker_id,
+                )
+                timings = ", ".join(
+                    f"{stage} {seconds:.2f}" for stage, seconds in evaluation.timings.items()
+                )
+                log.info(
+                    "%s: score %.4f ± %.4f in %.1f s (%s s); %s",
+                    label,
+                    evaluation.value,
+                    evaluation.metrics["score_std"],
+                    busy,
+                    timings,
+                    self.rates.line(),
+                )
+        if not self.config.keep_files:
+            shutil.rmtree(jobdir, ignore_errors=True)
+        return outcome
+
+    def _upload(self, job: Job, heartbeat: Heartbeat, label: str, artifacts: list[Any]) -> None:
+        for artifact in artifacts:
+            if heartbeat.lost.is_set() or self.abandon.is_set():
+                return
+            try:
+                self.client.put_artifact(
+                    job.trial_id, artifact.name, artifact.data, artifact.content_type
+                )
+            except (Unauthorized, Forbidden) as exc:
+                raise AuthError(str(exc)) from exc
+            except ApiError as exc:
+                log.warning("%s: artifact %s not stored (%s)", label, artifact.name, exc)
+
+    def _report(self, job: Job, label: str, **tell: Any) -> None:
+        deadline = time.monotonic() + TELL_PATIENCE
+        pause = 1.0
+        while True:
+            if self.abandon.is_set():
+                log.warning("%s: shutting down before the result was reported", label)
+                return
+            try:
+                self.client.tell(job.trial_id, **tell)
+                return
+            except (Unauthorized, Forbidden) as exc:
+                raise AuthError(str(exc)) from exc
+            except (Conflict, NotFound) as exc:
+                log.warning("%s: result not accepted (%s)", label, exc)
+                return
+            except Unavailable as exc:
+                if time.monotonic() > deadline:
+                    log.error("%s: result lost, the server stayed away: %s", label, exc)
+                    return
+                log.warning("%s: tell failed (%s); retrying in %.0f s", label, exc, pause)
+                self.abandon.wait(pause)
+                pause = min(pause * 2, MAX_IDLE_BACKOFF)
+            except ApiError as exc:
+                log.error("%s: result refused: %s", label, exc)
+                return
+
+
+def _failure_message(exc: BaseException) -> str:
+    """The error first (what a user reads in the trial), then the traceback's tail."""
+    head = f"{type(exc).__name__}: {exc}"
+    tail = "".join(traceback.format_exception(exc)[-6:])
+    return (head + "\n\n" + tail)[:MESSAGE_LIMIT]
+
+
+# ------------------------------------------------------------------------- pool
+
+
+def _child_main(config: WorkerConfig, budget: Any, log_level: int) -> None:
+    """Entry point of one pool process (spawned: a fresh interpreter)."""
+    configure_logging(log_level, config.worker_id)
+
+    def claim() -> bool:
+        if budget is None:
+            return True
+        with budget.get_lock():
+            if budget.value <= 0:
+                return False
+            budget.value -= 1
+            return True
+
+    def unclaim() -> None:
+        if budget is not None:
+            with budget.get_lock():
+                budget.value += 1
+
+    worker = Worker(config, claim=claim, unclaim=unclaim)
+    worker.install_signal_handlers()
+    raise SystemExit(worker.run())
+
+
+def run_pool(config: WorkerConfig, concurrency: int, log_level: int = logging.INFO) -> int:
+    """Run ``concurrency`` workers in child processes until they stop.
+
+    Signals are passed on to the children (each finishes or abandons its own job).
+    A child that dies of something else (a crash inside the physics engine) is
+    replaced; one that stops on a refused token stops the pool.
+    """
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")
+    budget = context.Value("i", config.max_jobs) if config.max_jobs is not None else None
+    children: dict[int, Any] = {}
+    signals_seen = 0
+
+    def start(slot: int) -> None:
+        child_config = WorkerConfig(
+            **{**config.__dict__, "worker_id": f"{config.worker_id}-{slot}", "max_jobs": None}
+        )
+        process = context.Process(
+            target=_child_main, args=(child_config, budget, log_level), name=f"adworker-{slot}"
+        )
+        process.start()
+        children[slot] = process
+
+    def forward(signum: int, _frame: Any) -> None:
+        nonlocal signals_seen
+        signals_seen += 1
+        log.info("%s: passing it on to %d workers", signal.Signals(signum).name, len(children))
+        for process in children.values():
+            if process.is_alive() and process.pid is not None:
+                os.kill(process.pid, signal.SIGTERM)
+
+    signal.signal(signal.SIGTERM, forward)
+    signal.signal(signal.SIGINT, forward)
+    for slot in range(concurrency):
+        start(slot)
+    code = EXIT_OK
+    while children:
+        time.sleep(0.2)
+        for slot, process in list(children.items()):
+            if process.is_alive():
+                continue
+            process.join()
+            del children[slot]
+            if process.exitcode == EXIT_AUTH:
+                code = EXIT_AUTH
+                forward(signal.SIGTERM, None)
+            elif process.exitcode not in (EXIT_OK, None) and signals_seen == 0:
+                log.error("worker %d died (exit %s); starting another", slot, process.exitcode)
+                time.sleep(1.0)
+                start(slot)
+    return code
+
+
+def configure_logging(level: int, worker_id: str) -> None:
+    logging.basicConfig(
+        level=level,
+        format=f"%(asctime)s %(levelname)s [{worker_id}] %(message)s",
+        datefmt="%H:%M:%S",
+        force=True,
+    )
+    # httpx logs every request at INFO: too much for a loop that polls.
+    logging.getLogger("httpx").setLevel(max(level, logging.WARNING))
