@@ -202,6 +202,7 @@ class QLogEIProposer:
         options = dict(request.options)
         import botorch  # noqa: F401  (an import error is a broken install, not a fallback)
 
+        cpu_started = time.thread_time()
         try:
             with _LOCK, warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -212,7 +213,11 @@ class QLogEIProposer:
             )
 
         extra.update(
-            n_train=len(y), n_distinct=n_distinct, n_pending=len(X_pending), n_dropped=n_dropped
+            cpu_seconds=round(time.thread_time() - cpu_started, 4),
+            n_train=len(y),
+            n_distinct=n_distinct,
+            n_pending=len(X_pending),
+            n_dropped=n_dropped,
         )
         if len(y) > n_distinct:
             extra["duplicate_points"] = len(y) - n_distinct
@@ -346,6 +351,7 @@ class QLogEIProposer:
                 raw_samples=raw_samples,
                 options={
                     "batch_limit": num_restarts,
+                    "init_batch_limit": max(raw_samples, 1),
                     "maxiter": int(options.get("maxiter", 100)),
                     "seed": seed,
                 },
