@@ -12,7 +12,16 @@ from datetime import datetime
 from enum import StrEnum
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    GetJsonSchemaHandler,
+    field_validator,
+    model_validator,
+)
+from pydantic.json_schema import JsonSchemaValue
+from pydantic_core import CoreSchema
 
 from adclient.design import DesignSpace, Representation
 
@@ -67,7 +76,7 @@ class BoxParam(_Strict):
 class BoxSpace(_Strict):
     """A plain continuous box: each param searched between its bounds."""
 
-    type: Literal["box"] = "box"
+    type: Literal["box"]
     params: list[BoxParam] = Field(min_length=1, max_length=256)
 
     @field_validator("params")
@@ -178,6 +187,11 @@ class AskResponse(BaseModel):
 
 
 class TellRequest(_Strict):
+    """``{"value": v}`` completes a trial; ``{"state": "failed", "message": m}`` fails it.
+
+    The published JSON schema says exactly that (one of two shapes), so generated
+    clients and fuzzers see the same rule the validator enforces."""
+
     value: float | None = None
     state: Literal["complete", "failed"] = "complete"
     message: str | None = Field(default=None, max_length=10_000)
@@ -195,6 +209,32 @@ class TellRequest(_Strict):
         for key, metric in self.metrics.items():
             _finite(metric, f"metric {key!r}")
         return self
+
+    @classmethod
+    def __get_pydantic_json_schema__(
+        cls, core_schema: CoreSchema, handler: GetJsonSchemaHandler
+    ) -> JsonSchemaValue:
+        schema = handler.resolve_ref_schema(handler(core_schema))
+        common = {k: v for k, v in schema["properties"].items() if k not in ("value", "state")}
+        complete = {
+            "type": "object",
+            "title": "TellComplete",
+            "properties": {
+                "value": {"type": "number"},
+                "state": {"const": "complete", "default": "complete"},
+                **common,
+            },
+            "required": ["value"],
+            "additionalProperties": False,
+        }
+        failed = {
+            "type": "object",
+            "title": "TellFailed",
+            "properties": {"state": {"const": "failed"}, **common},
+            "required": ["state"],
+            "additionalProperties": False,
+        }
+        return {"title": "TellRequest", "description": cls.__doc__, "oneOf": [complete, failed]}
 
 
 class LeaseRequest(_Strict):
@@ -245,3 +285,4 @@ class ErrorBody(BaseModel):
 
     error: str
     detail: Any
+    problems: list[str] | None = Field(default=None, description="each invalid field, named")

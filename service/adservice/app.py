@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import logging
+import re
 import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from adclient import __version__
+from adclient.schemas import ErrorBody
 from adservice import repository
 from adservice.api.routes import artifacts, dashboard, health, jobs, studies, trials
 from adservice.artifacts import ArtifactStore
@@ -58,7 +62,73 @@ def _field_path(location: tuple[int | str, ...]) -> str:
     return ".".join(parts) or "body"
 
 
+ERROR_RESPONSES = {
+    400: "Malformed request",
+    401: "No valid bearer token",
+    403: "The token's role does not allow this",
+    404: "No such study, trial or artifact",
+    405: "Method not allowed on this path",
+    409: "Conflicts with the current state (finished trial, lost lease, full study)",
+    413: "Body too large",
+    422: "Invalid field; the detail names it",
+}
+
+
+def document_error_bodies(app: FastAPI) -> None:
+    """Every operation documents its 4xx answers as ``ErrorBody``, which is what the
+    handlers below send (FastAPI's default 422 schema would be a lie)."""
+    build = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema:
+            return app.openapi_schema
+        schema = build()
+        components = schema.setdefault("components", {}).setdefault("schemas", {})
+        components["ErrorBody"] = ErrorBody.model_json_schema(
+            ref_template="#/components/schemas/{model}"
+        )
+        for component in ("HTTPValidationError", "ValidationError"):
+            components.pop(component, None)
+        ref = {"$ref": "#/components/schemas/ErrorBody"}
+        for operations in schema["paths"].values():
+            for operation in operations.values():
+                responses = operation.setdefault("responses", {})
+                for status, description in ERROR_RESPONSES.items():
+                    content: dict[str, Any] = {"application/json": {"schema": ref}}
+                    if status == 400:  # uvicorn answers malformed HTTP itself, in plain text
+                        content["text/plain"] = {"schema": {"type": "string"}}
+                    responses[str(status)] = {"description": description, "content": content}
+        app.openapi_schema = schema
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _allowed_methods(app: FastAPI, path: str) -> list[str]:
+    """The methods the published API serves at ``path`` (for 405's ``Allow``)."""
+    methods: set[str] = set()
+    for template, operations in app.openapi()["paths"].items():
+        pattern = re.sub(r"\\{[^/]+?\\}", "[^/]+", re.escape(template))
+        if re.fullmatch(pattern, path):
+            methods |= {method.upper() for method in operations}
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods)
+
+
 def install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, error: StarletteHTTPException) -> JSONResponse:
+        headers = dict(error.headers or {})
+        if error.status_code == 405:
+            headers["Allow"] = ", ".join(_allowed_methods(app, request.url.path))
+        code = {404: "not_found", 405: "method_not_allowed"}.get(error.status_code, "error")
+        return JSONResponse(
+            {"error": code, "detail": str(error.detail)},
+            status_code=error.status_code,
+            headers=headers,
+        )
+
     @app.exception_handler(DomainError)
     async def domain_error(_request: Request, error: DomainError) -> JSONResponse:
         status = _status_for(error)
@@ -165,11 +235,26 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     install_error_handlers(app)
+    document_error_bodies(app)
     app.add_middleware(
         BodySizeLimit, limit=settings.max_body_bytes, artifact_limit=settings.max_artifact_bytes
     )
     for module in (health, studies, trials, jobs, artifacts, dashboard):
         app.include_router(module.router)
+
+    @app.api_route(
+        "/api/{rest:path}",
+        methods=["GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"],
+        include_in_schema=False,
+    )
+    def unknown_api_path(request: Request, rest: str) -> None:
+        """Under /api, a path no route serves is a JSON 404, and a known path with the
+        wrong method a 405 with ``Allow``, never the dashboard's static files."""
+        allowed = _allowed_methods(app, request.url.path)
+        if allowed:
+            raise StarletteHTTPException(405, headers={"Allow": ", ".join(allowed)})
+        raise StarletteHTTPException(404, f"no API path {request.url.path}")
+
     if (STATIC_DIR / "index.html").is_file():
         app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")
     return app

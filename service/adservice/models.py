@@ -44,8 +44,12 @@ class StudyRow(Base):
     state: Mapped[str] = mapped_column(sa.String(16), default="running")
     space: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
     proposer: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
-    task: Mapped[dict[str, Any] | None] = mapped_column(sa.JSON, nullable=True)
-    representation: Mapped[dict[str, Any] | None] = mapped_column(sa.JSON, nullable=True)
+    # none_as_null: a study without a task must be SQL NULL, not the JSON text 'null',
+    # or "managed studies" (task IS NOT NULL) would take in every study.
+    task: Mapped[dict[str, Any] | None] = mapped_column(sa.JSON(none_as_null=True), nullable=True)
+    representation: Mapped[dict[str, Any] | None] = mapped_column(
+        sa.JSON(none_as_null=True), nullable=True
+    )
     max_trials: Mapped[int | None] = mapped_column(nullable=True)
     max_attempts: Mapped[int] = mapped_column(default=3)
     n_trials: Mapped[int] = mapped_column(default=0)

@@ -110,3 +110,10 @@ def test_stopped_study_is_not_leased(api: TestClient) -> None:
     study = managed(api)
     api.post(f"/api/v1/studies/{study['id']}/stop")
     assert lease(api, "w1") is None
+
+
+def test_studies_without_a_task_are_never_leased(api: TestClient) -> None:
+    """Regression: a task-less study stored JSON 'null', which counted as a task."""
+    body = copy.deepcopy(BOX_STUDY) | {"max_trials": 5}
+    api.post("/api/v1/studies", json=body)
+    assert lease(api, "w1") is None

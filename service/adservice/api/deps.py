@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 from sqlalchemy.orm import Session
 
 from adservice.artifacts import ArtifactStore
@@ -52,3 +52,8 @@ SessionDep = Annotated[Session, Depends(read_session)]
 ReaderDep = Annotated[Principal, Depends(require(Role.reader))]
 WorkerDep = Annotated[Principal, Depends(require(Role.worker))]
 AdminDep = Annotated[Principal, Depends(require(Role.admin))]
+
+MAX_ID = 2**63 - 1
+"""Ids are 64-bit integers in every database: anything larger is a 422, not an overflow."""
+StudyId = Annotated[int, Path(ge=1, le=MAX_ID, description="A study's id")]
+TrialId = Annotated[int, Path(ge=1, le=MAX_ID, description="A trial's id")]

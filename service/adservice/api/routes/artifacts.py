@@ -18,6 +18,7 @@ from adservice.api.deps import (
     ReaderDep,
     SessionDep,
     SettingsDep,
+    TrialId,
     WorkerDep,
 )
 from adservice.convert import artifact_schema
@@ -31,13 +32,13 @@ ArtifactName = Annotated[str, PathParam(pattern=NAME_PATTERN, max_length=128)]
 
 
 @router.get("")
-def list_artifacts(trial_id: int, session: SessionDep, _: ReaderDep) -> list[ArtifactInfo]:
+def list_artifacts(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> list[ArtifactInfo]:
     return [artifact_schema(row) for row in repository.list_artifacts(session, trial_id=trial_id)]
 
 
 @router.put("/{name}", status_code=201)
 async def put_artifact(
-    trial_id: int,
+    trial_id: TrialId,
     name: ArtifactName,
     request: Request,
     db: DatabaseDep,
@@ -59,13 +60,13 @@ async def put_artifact(
     )
 
 
-def _trial(db: Database, trial_id: int) -> TrialRow:
+def _trial(db: Database, trial_id: TrialId) -> TrialRow:
     with db.read() as session:
         return repository.get_trial(session, trial_id=trial_id)
 
 
 def _record(
-    db: Database, trial_id: int, name: str, content_type: str, size: int, sha256: str, path: str
+    db: Database, trial_id: TrialId, name: str, content_type: str, size: int, sha256: str, path: str
 ) -> ArtifactInfo:
     with db.write() as session:
         row = repository.record_artifact(
@@ -80,9 +81,18 @@ def _record(
         return artifact_schema(row)
 
 
-@router.get("/{name}")
+@router.get(
+    "/{name}",
+    response_class=FileResponse,
+    responses={
+        200: {
+            "description": "The artifact's bytes, with the content type it was uploaded with",
+            "content": {"*/*": {"schema": {"type": "string", "format": "binary"}}},
+        }
+    },
+)
 def get_artifact(
-    trial_id: int, name: ArtifactName, session: SessionDep, _: ReaderDep
+    trial_id: TrialId, name: ArtifactName, session: SessionDep, _: ReaderDep
 ) -> FileResponse:
     row = repository.get_artifact(session, trial_id=trial_id, name=name)
     path = Path(row.path)

@@ -16,7 +16,7 @@ from adclient.schemas import (
     WorkerInfo,
 )
 from adservice import proposing, repository
-from adservice.api.deps import AdminDep, DatabaseDep, LocksDep, ReaderDep, SessionDep
+from adservice.api.deps import AdminDep, DatabaseDep, LocksDep, ReaderDep, SessionDep, StudyId
 from adservice.convert import study_schema, trial_schema, worker_schema
 
 router = APIRouter(prefix="/api/v1/studies", tags=["studies"])
@@ -40,7 +40,7 @@ def list_studies(session: SessionDep, _: ReaderDep) -> list[Study]:
 
 
 @router.get("/{study_id}")
-def get_study(study_id: int, session: SessionDep, _: ReaderDep) -> Study:
+def get_study(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Study:
     row = repository.get_study(session, study_id=study_id)
     counts = repository.state_counts(session, study_ids=[study_id])
     return study_schema(row, counts[study_id])
@@ -48,14 +48,14 @@ def get_study(study_id: int, session: SessionDep, _: ReaderDep) -> Study:
 
 @router.post("/{study_id}/ask")
 def ask(
-    study_id: int, body: AskRequest, db: DatabaseDep, locks: LocksDep, _: AdminDep
+    study_id: StudyId, body: AskRequest, db: DatabaseDep, locks: LocksDep, _: AdminDep
 ) -> AskResponse:
     trials = proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
     return AskResponse(trials=trials)
 
 
 @router.post("/{study_id}/stop")
-def stop_study(study_id: int, db: DatabaseDep, _: AdminDep) -> Study:
+def stop_study(study_id: StudyId, db: DatabaseDep, _: AdminDep) -> Study:
     with db.write() as session:
         row = repository.stop_study(session, study_id=study_id)
         counts = repository.state_counts(session, study_ids=[study_id])
@@ -64,7 +64,7 @@ def stop_study(study_id: int, db: DatabaseDep, _: AdminDep) -> Study:
 
 @router.get("/{study_id}/trials")
 def list_trials(
-    study_id: int,
+    study_id: StudyId,
     session: SessionDep,
     response: Response,
     _: ReaderDep,
@@ -89,16 +89,16 @@ def list_trials(
 
 
 @router.get("/{study_id}/best")
-def best_trial(study_id: int, session: SessionDep, _: ReaderDep) -> Trial:
+def best_trial(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Trial:
     return trial_schema(repository.best_trial(session, study_id=study_id))
 
 
 @router.get("/{study_id}/workers")
-def study_workers(study_id: int, session: SessionDep, _: ReaderDep) -> list[WorkerInfo]:
+def study_workers(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[WorkerInfo]:
     return [worker_schema(row) for row in repository.list_workers(session, study_id=study_id)]
 
 
 @router.get("/{study_id}/series")
-def study_series(study_id: int, session: SessionDep, _: ReaderDep) -> dict[str, Any]:
+def study_series(study_id: StudyId, session: SessionDep, _: ReaderDep) -> dict[str, Any]:
     """Every trial as columns (number, state, value, params): one small payload for charts."""
     return repository.trial_columns(session, study_id=study_id)

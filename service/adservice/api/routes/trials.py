@@ -6,7 +6,7 @@ from fastapi import APIRouter, Response
 
 from adclient.schemas import HeartbeatRequest, HeartbeatResponse, TellRequest, Trial
 from adservice import repository, robots
-from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, SettingsDep, WorkerDep
+from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, SettingsDep, TrialId, WorkerDep
 from adservice.auth import Role
 from adservice.convert import trial_schema
 from adservice.errors import ForbiddenError
@@ -15,12 +15,12 @@ router = APIRouter(prefix="/api/v1/trials", tags=["trials"])
 
 
 @router.get("/{trial_id}")
-def get_trial(trial_id: int, session: SessionDep, _: ReaderDep) -> Trial:
+def get_trial(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> Trial:
     return trial_schema(repository.get_trial(session, trial_id=trial_id))
 
 
 @router.post("/{trial_id}/tell")
-def tell(trial_id: int, body: TellRequest, db: DatabaseDep, caller: WorkerDep) -> Trial:
+def tell(trial_id: TrialId, body: TellRequest, db: DatabaseDep, caller: WorkerDep) -> Trial:
     if caller.role == Role.worker and body.worker_id is None:
         raise ForbiddenError("a worker token tells only the trials it holds: give worker_id")
     with db.write() as session:
@@ -29,7 +29,7 @@ def tell(trial_id: int, body: TellRequest, db: DatabaseDep, caller: WorkerDep) -
 
 @router.post("/{trial_id}/heartbeat")
 def heartbeat(
-    trial_id: int, body: HeartbeatRequest, db: DatabaseDep, settings: SettingsDep, _: WorkerDep
+    trial_id: TrialId, body: HeartbeatRequest, db: DatabaseDep, settings: SettingsDep, _: WorkerDep
 ) -> HeartbeatResponse:
     with db.write() as session:
         row = repository.heartbeat(
@@ -43,7 +43,7 @@ def heartbeat(
 
 
 @router.get("/{trial_id}/urdf", response_class=Response)
-def trial_urdf(trial_id: int, session: SessionDep, _: ReaderDep) -> Response:
+def trial_urdf(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> Response:
     urdf = robots.trial_urdf(session, trial_id=trial_id)
     return Response(
         urdf,
