@@ -38,5 +38,8 @@ format: install
 typecheck: install
 	$(BIN)/mypy client/adclient service/adservice workers/adworker
 
+screenshot: install
+	$(BIN)/python docs/screenshot.py
+
 clean:
 	rm -rf $(VENV) var .pytest_cache .mypy_cache .ruff_cache

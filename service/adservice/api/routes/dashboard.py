@@ -1,0 +1,57 @@
+"""Reads only the dashboard needs: incremental chart columns and artifact names per page."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query
+
+from adservice import views
+from adservice.api.deps import ReaderDep, SessionDep
+from adservice.errors import InvalidError
+
+router = APIRouter(prefix="/api/v1/dashboard", tags=["dashboard"])
+
+MAX_LISTED = 1000
+
+
+def _numbers(text: str, what: str) -> list[int]:
+    """A comma-separated list of non-negative integers, at most ``MAX_LISTED`` of them."""
+    parts = [part for part in text.split(",") if part.strip()]
+    if len(parts) > MAX_LISTED:
+        raise InvalidError(f"{what}: at most {MAX_LISTED} numbers, got {len(parts)}")
+    try:
+        numbers = [int(part) for part in parts]
+    except ValueError:
+        raise InvalidError(f"{what}: expected comma-separated integers, got {text!r}") from None
+    if any(number < 0 for number in numbers):
+        raise InvalidError(f"{what}: numbers must be >= 0")
+    return numbers
+
+
+@router.get("/studies/{study_id}/series")
+def changed_series(
+    study_id: int,
+    session: SessionDep,
+    _: ReaderDep,
+    after: Annotated[int, Query(ge=0)] = 0,
+    numbers: Annotated[str, Query(max_length=20_000)] = "",
+) -> dict[str, Any]:
+    """Like ``/studies/{id}/series`` but only trials numbered ``after`` or more, plus the
+    trial numbers listed in ``numbers`` (those the page last saw queued or running)."""
+    return views.changed_trial_columns(
+        session, study_id=study_id, after=after, numbers=_numbers(numbers, "numbers")
+    )
+
+
+@router.get("/studies/{study_id}/artifacts")
+def artifact_names(
+    study_id: int,
+    session: SessionDep,
+    _: ReaderDep,
+    trial_ids: Annotated[str, Query(max_length=20_000)] = "",
+) -> dict[int, list[str]]:
+    """Artifact names of each listed trial of the study (one request for a table page)."""
+    return views.artifact_names(
+        session, study_id=study_id, trial_ids=_numbers(trial_ids, "trial_ids")
+    )

@@ -1,0 +1,85 @@
+"""The dashboard's own reads: chart columns as a delta, artifact names for a table page,
+and the page itself served at ``/``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi.testclient import TestClient
+
+from tests.service.conftest import BOX_STUDY
+
+
+def make_study(api: TestClient, asked: int) -> tuple[int, list[dict[str, Any]]]:
+    study = api.post("/api/v1/studies", json=BOX_STUDY).json()
+    trials = api.post(f"/api/v1/studies/{study['id']}/ask", json={"count": asked}).json()["trials"]
+    return study["id"], trials
+
+
+def test_full_series_matches_the_plain_series(api: TestClient) -> None:
+    study_id, trials = make_study(api, asked=5)
+    api.post(f"/api/v1/trials/{trials[0]['id']}/tell", json={"value": 1.5})
+    api.post(f"/api/v1/trials/{trials[1]['id']}/tell", json={"state": "failed"})
+    full = api.get(f"/api/v1/dashboard/studies/{study_id}/series").json()
+    assert full == api.get(f"/api/v1/studies/{study_id}/series").json()
+    assert full["number"] == [0, 1, 2, 3, 4]
+    assert full["state"][:3] == ["complete", "failed", "running"]
+    assert full["value"][:2] == [1.5, None]
+    assert set(full["params"]) == {"x", "y"}
+    assert full["params"]["x"][0] == trials[0]["params"]["x"]
+
+
+def test_series_delta_is_new_trials_and_the_listed_open_ones(api: TestClient) -> None:
+    study_id, trials = make_study(api, asked=4)
+    api.post(f"/api/v1/trials/{trials[2]['id']}/tell", json={"value": 3.0})
+    api.post(f"/api/v1/studies/{study_id}/ask", json={"count": 2})
+    url = f"/api/v1/dashboard/studies/{study_id}/series"
+    delta = api.get(url, params={"after": 4, "numbers": "1,2"}).json()
+    assert delta["number"] == [1, 2, 4, 5]
+    assert delta["state"] == ["running", "complete", "running", "running"]
+    assert delta["value"] == [None, 3.0, None, None]
+    assert len(delta["params"]["y"]) == 4
+    nothing = api.get(url, params={"after": 6}).json()
+    assert nothing == {"number": [], "state": [], "value": [], "params": {}}
+
+
+def test_series_delta_refuses_bad_lists_and_unknown_studies(api: TestClient) -> None:
+    study_id, _ = make_study(api, asked=1)
+    url = f"/api/v1/dashboard/studies/{study_id}/series"
+    bad = api.get(url, params={"numbers": "1,two"})
+    assert bad.status_code == 422 and "numbers" in bad.json()["detail"]
+    assert api.get(url, params={"numbers": "-3"}).status_code == 422
+    assert api.get(url, params={"numbers": ",".join(["1"] * 1001)}).status_code == 422
+    assert api.get(url, params={"after": -1}).status_code == 422
+    assert api.get("/api/v1/dashboard/studies/999/series").status_code == 404
+
+
+def test_artifact_names_for_a_page_of_trials(api: TestClient) -> None:
+    study_id, trials = make_study(api, asked=3)
+    first, second, third = (trial["id"] for trial in trials)
+    for name in ("robot.png", "curve.json"):
+        put = api.put(f"/api/v1/trials/{first}/artifacts/{name}", content=b"x")
+        assert put.status_code == 201, put.text
+    api.put(f"/api/v1/trials/{third}/artifacts/robot.urdf", content=b"<robot/>")
+    other_id, other_trials = make_study(api, asked=1)
+    url = f"/api/v1/dashboard/studies/{study_id}/artifacts"
+    names = api.get(url, params={"trial_ids": f"{first},{second},{third}"}).json()
+    assert names == {
+        str(first): ["curve.json", "robot.png"],
+        str(second): [],
+        str(third): ["robot.urdf"],
+    }
+    # A trial of another study lists nothing here.
+    foreign = other_trials[0]["id"]
+    api.put(f"/api/v1/trials/{foreign}/artifacts/robot.png", content=b"x")
+    assert api.get(url, params={"trial_ids": str(foreign)}).json() == {str(foreign): []}
+    assert api.get(url).json() == {}
+    assert other_id != study_id
+
+
+def test_the_page_is_served_at_the_root(api: TestClient) -> None:
+    page = api.get("/")
+    assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+    assert 'src="js/app.js"' in page.text and "ad_token" not in page.text
+    for asset in ("/dashboard.css", "/js/app.js", "/js/charts.js", "/js/api.js"):
+        assert api.get(asset).status_code == 200, asset

@@ -1,0 +1,449 @@
+"""The dashboard in a real headless Chromium against a real ``adserver``.
+
+The checks read the rendered page, not the HTML: canvas pixels and the counts the
+charts drew, the table's rows, an image's decoded width, and the same document
+following a study as trials are told. A 10,000-trial study reports its render and
+update times in the log (no timing asserts; goals live in bench/).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+
+from adclient.schemas import TellRequest
+from adservice import repository
+from adservice.db import Database
+from tests.servers import ADSERVER, ServerProcess
+from tests.service.chromium import Chromium, find_or_install_chromium
+
+pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+
+PARAMS = ("x", "y", "z")
+
+MANAGED_BOX = {
+    "name": "dashboard-box",
+    "direction": "maximize",
+    "space": {
+        "type": "box",
+        "params": [{"name": name, "low": 0.0, "high": 1.0} for name in PARAMS],
+    },
+    "proposer": {"name": "random", "seed": 11},
+    "task": {"name": "noop"},
+    "max_trials": 40,
+}
+
+STUDY_PAGE_READY = "document.querySelector('.study')?.dataset.ready === 'true'"
+
+COUNT_PIXELS = """
+((selector, rgb, tolerance) => {
+  const canvas = document.querySelector(selector);
+  const data = canvas.getContext('2d').getImageData(0, 0, canvas.width, canvas.height).data;
+  let count = 0;
+  for (let i = 0; i < data.length; i += 4) {
+    if (data[i + 3] === 0) continue;
+    if (rgb === null || (Math.abs(data[i] - rgb[0]) <= tolerance
+        && Math.abs(data[i + 1] - rgb[1]) <= tolerance
+        && Math.abs(data[i + 2] - rgb[2]) <= tolerance)) count++;
+  }
+  return count;
+})
+"""
+ORANGE = [234, 88, 12]  # the best-so-far curve
+BLUE = [37, 99, 235]  # the score points
+
+TABLE_NUMBERS = (
+    "[...document.querySelectorAll('[data-trials] tbody tr[data-trial-id]')]"
+    ".map(row => parseInt(row.cells[0].textContent))"
+)
+TABLE_STATES = (
+    "[...document.querySelectorAll('[data-trials] tbody tr[data-trial-id]')]"
+    ".map(row => row.cells[1].textContent.trim())"
+)
+
+
+@pytest.fixture(scope="session")
+def chromium_executable() -> str:
+    found = find_or_install_chromium()
+    if found is None:
+        pytest.skip(
+            "BROWSER TESTS SKIPPED: chromium is not installed and apt-get is not available "
+            "to install it; install Debian's `chromium` package to run the dashboard tests"
+        )
+    return found
+
+
+@pytest.fixture
+def browser(chromium_executable: str, tmp_path: Path) -> Iterator[Chromium]:
+    profile = tmp_path / "chromium-profile"
+    profile.mkdir()
+    chromium = Chromium(chromium_executable, profile)
+    yield chromium
+    chromium.close()
+
+
+def png(width: int, height: int) -> bytes:
+    image = Image.new("RGB", (width, height), (40, 120, 200))
+    for x in range(width):
+        image.putpixel((x, height // 2), (250, 200, 0))
+    buffer = io.BytesIO()
+    image.save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def score(params: dict[str, float]) -> float:
+    return params["x"] + 2 * params["y"] - params["z"]
+
+
+def lease(http: httpx.Client, worker: str) -> dict[str, Any]:
+    response = http.post("/api/v1/jobs/lease", json={"worker_id": worker})
+    assert response.status_code == 200, response.text
+    return dict(response.json())
+
+
+def tell(http: httpx.Client, trial_id: int, **body: Any) -> None:
+    response = http.post(f"/api/v1/trials/{trial_id}/tell", json=body)
+    assert response.status_code == 200, response.text
+
+
+def upload(http: httpx.Client, trial_id: int, name: str, content: bytes, content_type: str) -> None:
+    response = http.put(
+        f"/api/v1/trials/{trial_id}/artifacts/{name}",
+        content=content,
+        headers={"Content-Type": content_type},
+    )
+    assert response.status_code == 201, response.text
+
+
+def seed_mixed_study(http: httpx.Client) -> dict[str, Any]:
+    """A managed study: 8 complete and 2 failed trials told by two workers, one trial
+    leased by worker-1 and two asked (running), and images on the best trial."""
+    study = http.post("/api/v1/studies", json=MANAGED_BOX).raise_for_status().json()
+    values: dict[int, float] = {}
+    done = {"worker-1": 0, "worker-2": 0}
+    failed = {"worker-1": 0, "worker-2": 0}
+    for i in range(10):
+        worker = f"worker-{i % 2 + 1}"
+        job = lease(http, worker)
+        if i in (3, 6):
+            tell(http, job["trial_id"], state="failed", worker_id=worker, message="diverged")
+            failed[worker] += 1
+        else:
+            value = score(job["params"])
+            tell(http, job["trial_id"], value=value, worker_id=worker)
+            values[job["number"]] = value
+            done[worker] += 1
+    held = lease(http, "worker-1")
+    asked = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 2}).raise_for_status()
+    best = http.get(f"/api/v1/studies/{study['id']}/best").raise_for_status().json()
+    upload(http, best["id"], "robot.png", png(64, 48), "image/png")
+    upload(
+        http,
+        best["id"],
+        "robot.urdf",
+        b'<robot name="r"><link name="a"/></robot>',
+        "application/xml",
+    )
+    return {
+        "study": study,
+        "values": values,
+        "best": best,
+        "held": held,
+        "asked": asked.json()["trials"],
+        "done": done,
+        "failed": failed,
+    }
+
+
+def test_study_page_draws_the_study_and_follows_it_live(
+    live_server: ServerProcess, browser: Chromium
+) -> None:
+    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+        seeded = seed_mixed_study(http)
+        other = dict(MANAGED_BOX, name="another-study")
+        http.post("/api/v1/studies", json=other).raise_for_status()
+        study_id = seeded["study"]["id"]
+        best, values = seeded["best"], seeded["values"]
+
+        # The studies list, then into the study by its link: hash routing, no reload.
+        browser.navigate(f"{live_server.url}/")
+        names = browser.wait_for(
+            "[...document.querySelectorAll('table.studies tbody tr')]"
+            ".map(row => row.cells[0].querySelector('a').textContent)"
+        )
+        assert sorted(names) == ["another-study", "dashboard-box"]
+        row_text = browser.evaluate(
+            "[...document.querySelectorAll('table.studies tbody tr')]"
+            ".find(row => row.textContent.includes('dashboard-box')).textContent"
+        )
+        assert "8 complete · 3 running · 0 queued · 2 failed of 40" in " ".join(row_text.split())
+        browser.evaluate("window.sameDocument = true")
+        browser.evaluate(
+            f"document.querySelector('table.studies a[href=\"#/studies/{study_id}\"]').click()"
+        )
+        browser.wait_for(STUDY_PAGE_READY)
+        assert (
+            browser.evaluate("document.querySelector('[data-name]').textContent") == "dashboard-box"
+        )
+
+        # Progress and counts.
+        counts = browser.evaluate("document.querySelector('[data-counts]').textContent")
+        for text in ("8 complete", "3 running", "0 queued", "2 failed", "13 asked of 40"):
+            assert text in counts
+        segments = browser.evaluate(
+            "[...document.querySelectorAll('.study [data-progress] .segment')]"
+            ".map(s => [s.classList[1], parseFloat(s.style.width)])"
+        )
+        assert dict(segments) == pytest.approx({"complete": 20, "failed": 5, "running": 7.5})
+
+        # The history chart drew every complete trial and the best-so-far curve.
+        history = "[data-history]"
+        assert browser.evaluate(f"document.querySelector('{history}').dataset.points") == "8"
+        assert browser.evaluate(f"document.querySelector('{history}').dataset.failed") == "2"
+        assert browser.evaluate(f"{COUNT_PIXELS}('{history}', {ORANGE}, 40)") > 50
+        assert browser.evaluate(f"{COUNT_PIXELS}('{history}', {BLUE}, 40)") > 8 * 4
+        # Parallel coordinates: one line per complete trial.
+        assert browser.evaluate("document.querySelector('[data-parallel]').dataset.lines") == "8"
+        assert browser.evaluate(f"{COUNT_PIXELS}('[data-parallel]', null, 0)") > 1000
+
+        # The table: every trial, newest first, with its state.
+        assert browser.evaluate(TABLE_NUMBERS) == list(range(12, -1, -1))
+        states = browser.evaluate(TABLE_STATES)
+        assert sorted(states) == sorted(["complete"] * 8 + ["failed"] * 2 + ["running"] * 3)
+        assert browser.evaluate("document.querySelector('[data-trials]').dataset.total") == "13"
+
+        # The best design: its image decoded, its score and params, its URDF.
+        assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 64
+        shown = float(browser.evaluate("document.querySelector('.best-value').textContent"))
+        assert shown == pytest.approx(best["value"], rel=1e-3)
+        assert shown == pytest.approx(max(values.values()), rel=1e-3)
+        best_text = browser.evaluate("document.querySelector('[data-best]').textContent")
+        assert f"#{best['number']}" in best_text and "x" in best_text
+        urdf = browser.evaluate(
+            "(async () => { const a = document.querySelector('[data-best] a[data-download]');"
+            " const r = await fetch(a.href); return [a.getAttribute('href'), await r.text()]; })()"
+        )
+        assert urdf[0] == f"/api/v1/trials/{best['id']}/artifacts/robot.urdf"
+        assert urdf[1].startswith("<robot")
+
+        # Workers: who holds which lease, jobs done and failed.
+        workers = browser.evaluate(
+            "[...document.querySelectorAll('table.workers tbody tr')]"
+            ".map(row => [...row.cells].map(cell => cell.textContent.trim()))"
+        )
+        by_name = {row[0]: row for row in workers}
+        assert set(by_name) == {"worker-1", "worker-2"}
+        assert by_name["worker-1"][1] == f"trial #{seeded['held']['number']}"
+        assert by_name["worker-2"][1] == "idle"
+        for name in ("worker-1", "worker-2"):
+            assert by_name[name][3:] == [str(seeded["done"][name]), str(seeded["failed"][name])]
+
+        # A row opens its trial: image and files.
+        browser.evaluate("document.querySelector('tr.is-best a[data-image]').click()")
+        assert (
+            browser.wait_for(
+                "document.querySelector('[data-trial-dialog]').open"
+                " && document.querySelector('[data-trial-image]')?.naturalWidth"
+            )
+            == 64
+        )
+        dialog = browser.evaluate("document.querySelector('[data-trial-dialog]').textContent")
+        assert f"Trial #{best['number']}" in dialog and "robot.png" in dialog
+        browser.evaluate("document.querySelector('[data-trial-dialog] [data-close]').click()")
+
+        # Sorting happens on the server: by score, best first, then worst first.
+        browser.evaluate("document.querySelector('th[data-sort=\"value\"]').click()")
+        ranked = sorted(values, key=lambda number: -values[number])
+        first_eight = f"{TABLE_NUMBERS}.slice(0, 8).join(',')"
+        browser.wait_for(f"{first_eight} === '{','.join(map(str, ranked))}'")
+        browser.evaluate("document.querySelector('th[data-sort=\"value\"]').click()")
+        browser.wait_for(f"{first_eight} === '{','.join(map(str, ranked[::-1]))}'")
+        browser.evaluate("document.querySelector('th[data-sort=\"value\"]').click()")
+        browser.wait_for(f"{TABLE_NUMBERS}[0] === {best['number']}")
+
+        # Live: a better trial is told; the same document shows it without a reload.
+        held = seeded["held"]
+        new_value = best["value"] + 10.0
+        tell(http, held["trial_id"], value=new_value, worker_id="worker-1")
+        browser.wait_for(f"{TABLE_NUMBERS}[0] === {held['number']}")
+        browser.wait_for(f"document.querySelector('{history}').dataset.points === '9'")
+        browser.wait_for(
+            f"Math.abs(parseFloat(document.querySelector('.best-value').textContent)"
+            f" - {new_value}) < 1e-2"
+        )
+        assert "9 complete" in browser.evaluate(
+            "document.querySelector('[data-counts]').textContent"
+        )
+        assert browser.evaluate("document.querySelector('[data-best-image]').hidden") is True
+        # The image arrives after the tell (as a worker uploads it): the page picks it up.
+        upload(http, held["trial_id"], "robot.png", png(80, 60), "image/png")
+        assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 80
+        workers_after = browser.wait_for(
+            "(() => { const row = [...document.querySelectorAll('table.workers tbody tr')]"
+            ".find(r => r.cells[0].textContent === 'worker-1');"
+            " return row.cells[1].textContent === 'idle' && row.cells[3].textContent; })()"
+        )
+        assert workers_after == str(seeded["done"]["worker-1"] + 1)
+        assert browser.evaluate("window.sameDocument") is True
+        assert browser.evaluate("window.adMetrics.updates.length") >= 1
+    assert browser.errors == []
+
+
+def seed_many(database_url: str, study_id: int, count: int, open_count: int) -> list[int]:
+    """``count`` trials straight into the database (fast), all told but the last
+    ``open_count``; every 50th told one failed. Returns the ids of the open ones."""
+    rng = np.random.default_rng(5)
+    vectors = rng.random((count, len(PARAMS)))
+    params = [dict(zip(PARAMS, map(float, vector), strict=True)) for vector in vectors]
+    db = Database(database_url)
+    try:
+        with db.write() as session:
+            first = repository.reserve_numbers(session, study_id=study_id, count=count)
+            trials = repository.insert_trials(
+                session,
+                study_id=study_id,
+                first_number=first,
+                vectors=vectors.tolist(),
+                params=params,
+                infos=[{}] * count,
+            )
+            for k, trial in enumerate(trials[: count - open_count]):
+                body = (
+                    TellRequest(state="failed", message="seeded failure")
+                    if k % 50 == 7
+                    else TellRequest(value=score(trial.params))
+                )
+                repository.tell_trial(session, trial_id=trial.id, body=body)
+    finally:
+        db.dispose()
+    return [trial.id for trial in trials[count - open_count :]]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("database", ["sqlite"])
+def test_ten_thousand_trials_render_and_update(
+    database: str,
+    server_factory: Callable[..., ServerProcess],
+    browser: Chromium,
+    record_property: Callable[[str, object], None],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    server = server_factory()
+    count, open_count = 10_000, 20
+    with httpx.Client(base_url=server.url, timeout=60) as http:
+        body = {
+            key: value for key, value in MANAGED_BOX.items() if key not in ("task", "max_trials")
+        }
+        study = http.post("/api/v1/studies", json=dict(body, name="ten-thousand")).json()
+        open_ids = seed_many(server.database_url, study["id"], count, open_count)
+        n_failed = len([k for k in range(count - open_count) if k % 50 == 7])
+        n_complete = count - open_count - n_failed
+
+        started = time.monotonic()
+        browser.navigate(f"{server.url}/#/studies/{study['id']}")
+        browser.wait_for(STUDY_PAGE_READY, timeout=120)
+        ready_s = time.monotonic() - started
+        first_render = browser.evaluate("window.adMetrics.firstRenderMs")
+        page_render = browser.evaluate("window.adMetrics.renders[0]")
+        assert browser.evaluate("document.querySelector('[data-history]').dataset.points") == str(
+            n_complete
+        )
+        assert browser.evaluate("document.querySelector('[data-parallel]').dataset.lines") == str(
+            n_complete
+        )
+        assert browser.evaluate("document.querySelector('[data-trials]').dataset.total") == str(
+            count
+        )
+        assert browser.evaluate(TABLE_NUMBERS)[:3] == [count - 1, count - 2, count - 3]
+
+        # One open trial is told and a new one asked: the page follows both.
+        updates_before = browser.evaluate("window.adMetrics.updates.length")
+        told_at = time.monotonic()
+        tell(http, open_ids[-1], value=100.0)
+        browser.wait_for(f"{TABLE_STATES}[0] === 'complete'", timeout=60)
+        tell_visible_s = time.monotonic() - told_at
+        browser.wait_for(f"window.adMetrics.updates.length > {updates_before}")
+        tell_update = browser.evaluate("window.adMetrics.updates.at(-1)")
+        assert browser.evaluate("document.querySelector('[data-history]').dataset.points") == str(
+            n_complete + 1
+        )
+        updates_before = browser.evaluate("window.adMetrics.updates.length")
+        http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1}).raise_for_status()
+        browser.wait_for(f"{TABLE_NUMBERS}[0] === {count}", timeout=60)
+        browser.wait_for(f"window.adMetrics.updates.length > {updates_before}")
+        ask_update = browser.evaluate("window.adMetrics.updates.at(-1)")
+
+        # Paging and sorting go to the server: time them as a user would see them.
+        started = time.monotonic()
+        browser.evaluate("document.querySelector('[data-page=\"last\"]').click()")
+        browser.wait_for(f"{TABLE_NUMBERS}.includes(0)")
+        last_page_s = time.monotonic() - started
+        started = time.monotonic()
+        browser.evaluate("document.querySelector('th[data-sort=\"value\"]').click()")
+        browser.wait_for(f"{TABLE_NUMBERS}[0] === {count - 1}")  # the 100.0 told above
+        sort_s = time.monotonic() - started
+    assert browser.errors == []
+
+    timings = {
+        "first_render_ms_since_navigation": round(first_render),
+        "study_page_render_ms": round(page_render),
+        "ready_seen_by_test_s": round(ready_s, 3),
+        "update_after_tell_ms": round(tell_update["ms"]),
+        "update_after_tell_fetch_ms": round(tell_update["fetchMs"]),
+        "update_after_tell_render_ms": round(tell_update["renderMs"]),
+        "update_after_ask_ms": round(ask_update["ms"]),
+        "tell_to_visible_s_incl_2s_polling": round(tell_visible_s, 3),
+        "table_last_page_s": round(last_page_s, 3),
+        "table_sort_by_score_s": round(sort_s, 3),
+    }
+    for name, value in timings.items():
+        record_property(name, value)
+    with capsys.disabled():
+        print(f"\ndashboard with {count} trials: {json.dumps(timings)}")
+
+
+def make_token(server: ServerProcess, role: str) -> str:
+    done = subprocess.run(
+        [str(ADSERVER), "token", "create", "--role", role, "--database-url", server.database_url],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return done.stdout.strip().splitlines()[-1]
+
+
+def test_page_sends_a_stored_token_when_auth_is_on(
+    server_factory: Callable[..., ServerProcess], browser: Chromium
+) -> None:
+    server = server_factory(AD_AUTH="true")
+    admin, reader = make_token(server, "admin"), make_token(server, "reader")
+    with httpx.Client(
+        base_url=server.url, timeout=30, headers={"Authorization": f"Bearer {admin}"}
+    ) as http:
+        seeded = seed_mixed_study(http)
+    study_id = seeded["study"]["id"]
+
+    browser.navigate(f"{server.url}/#/studies/{study_id}")
+    browser.wait_for("!document.querySelector('[data-auth]').hidden")
+    assert "requires a token" in browser.evaluate(
+        "document.querySelector('[data-auth]').textContent"
+    )
+
+    browser.navigate(f"{server.url}/?token={reader}#/studies/{study_id}")
+    browser.wait_for(STUDY_PAGE_READY)
+    assert browser.evaluate("location.search") == ""  # the token left the address bar
+    assert browser.evaluate("localStorage.getItem('ad_token')") == reader
+    assert browser.evaluate("document.querySelector('[data-auth]').hidden") is True
+    assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 64
+    assert browser.evaluate("document.querySelector('[data-trials]').dataset.total") == "13"
+    assert all("401" in error for error in browser.errors)  # only the refused first visit
