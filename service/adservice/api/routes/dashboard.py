@@ -7,7 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query
 
 from adservice import views
-from adservice.api.deps import ReaderDep, SessionDep
+from adservice.api.deps import MAX_ID, ReaderDep, SessionDep, StudyId
 from adservice.errors import InvalidError
 
 router = APIRouter(prefix="/api/v1/dashboard", tags=["dashboard"])
@@ -16,25 +16,25 @@ MAX_LISTED = 1000
 
 
 def _numbers(text: str, what: str) -> list[int]:
-    """A comma-separated list of non-negative integers, at most ``MAX_LISTED`` of them."""
+    """A comma-separated list of integers in [0, MAX_ID], at most ``MAX_LISTED`` of them."""
     parts = [part for part in text.split(",") if part.strip()]
     if len(parts) > MAX_LISTED:
         raise InvalidError(f"{what}: at most {MAX_LISTED} numbers, got {len(parts)}")
     try:
         numbers = [int(part) for part in parts]
     except ValueError:
-        raise InvalidError(f"{what}: expected comma-separated integers, got {text!r}") from None
-    if any(number < 0 for number in numbers):
-        raise InvalidError(f"{what}: numbers must be >= 0")
+        raise InvalidError(f"{what}: expected comma-separated integers: {text[:40]!r}") from None
+    if any(not 0 <= number <= MAX_ID for number in numbers):
+        raise InvalidError(f"{what}: numbers must be between 0 and {MAX_ID}")
     return numbers
 
 
 @router.get("/studies/{study_id}/series")
 def changed_series(
-    study_id: int,
+    study_id: StudyId,
     session: SessionDep,
     _: ReaderDep,
-    after: Annotated[int, Query(ge=0)] = 0,
+    after: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
     numbers: Annotated[str, Query(max_length=20_000)] = "",
 ) -> dict[str, Any]:
     """Like ``/studies/{id}/series`` but only trials numbered ``after`` or more, plus the
@@ -46,7 +46,7 @@ def changed_series(
 
 @router.get("/studies/{study_id}/artifacts")
 def artifact_names(
-    study_id: int,
+    study_id: StudyId,
     session: SessionDep,
     _: ReaderDep,
     trial_ids: Annotated[str, Query(max_length=20_000)] = "",
