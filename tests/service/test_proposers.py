@@ -292,6 +292,19 @@ def test_qei_warm_start_and_cache_keep_results_identical() -> None:
     assert qei_propose(X=X2, y=y2, seed=21).info[0]["fit"] == "warm"
 
 
+def test_qei_noisy_proposals_are_seeded_too() -> None:
+    """qLogNEI prunes its baseline with a sampler of its own: that must be seeded as well."""
+    X, y = history(9)
+    pending = history(1, seed=8)[0]
+    clear_caches()
+    first = qei_propose(X=X, y=y, seed=3, count=2, noisy=True, pending=pending)
+    clear_caches()
+    again = qei_propose(X=X, y=y, seed=3, count=2, noisy=True, pending=pending)
+    np.testing.assert_array_equal(first.candidates, again.candidates)
+    other_seed = qei_propose(X=X, y=y, seed=4, count=2, noisy=True, pending=pending)
+    assert not np.array_equal(first.candidates, other_seed.candidates)
+
+
 def test_qei_options_override_the_optimiser_sizes() -> None:
     X, y = history(8)
     (entry,) = qei_propose(X=X, y=y, options={"num_restarts": 2, "raw_samples": 16}).info

@@ -269,7 +269,7 @@ class QLogEIProposer:
         bounds_t = torch.as_tensor(bounds, **tkw)
         train_X = torch.as_tensor(X, **tkw)
         train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
-        noise_mode = options.get("noise", "inferred" if request.noisy else "floor")
+        noise_mode = str(options.get("noise", "inferred" if request.noisy else "floor"))
         train_Yvar = None
         likelihood = None
         if noise_mode == "fixed":
@@ -294,9 +294,9 @@ class QLogEIProposer:
         mll = ExactMarginalLogLikelihood(model.likelihood, model)
 
         data_key = hashlib.sha256(
-            b"".join([X.tobytes(), y.tobytes(), bounds.tobytes(), bytes([bool(request.noisy)])])
+            b"".join([X.tobytes(), y.tobytes(), bounds.tobytes(), noise_mode.encode()])
         ).hexdigest()
-        study_key = (bounds.tobytes(), request.seed, request.n_initial, bool(request.noisy))
+        study_key = (bounds.tobytes(), request.seed, request.n_initial, noise_mode)
         use_warm = bool(options.get("warm_start", True))
 
         started = time.perf_counter()
@@ -324,25 +324,26 @@ class QLogEIProposer:
         num_restarts = int(options.get("num_restarts", default_restarts))
         raw_samples = int(options.get("raw_samples", default_raw))
         mc_samples = int(options.get("mc_samples", 128 if q == 1 else 256))
-        sampler = SobolQMCNormalSampler(sample_shape=torch.Size([mc_samples]), seed=seed)
-        pending_t = torch.as_tensor(X_pending, **tkw) if len(X_pending) else None
-        if request.noisy:
-            acqf = qLogNoisyExpectedImprovement(
-                model=model,
-                X_baseline=train_X,
-                sampler=sampler,
-                X_pending=pending_t,
-                prune_baseline=True,
-            )
-            method = "qLogNEI"
-        else:
-            acqf = qLogExpectedImprovement(
-                model=model, best_f=float(y.max()), sampler=sampler, X_pending=pending_t
-            )
-            method = "qLogEI"
-
         started = time.perf_counter()
+        # prune_baseline draws its sampler seed from the global stream: seed that too.
         with manual_seed(seed):
+            sampler = SobolQMCNormalSampler(sample_shape=torch.Size([mc_samples]), seed=seed)
+            pending_t = torch.as_tensor(X_pending, **tkw) if len(X_pending) else None
+            if request.noisy:
+                acqf = qLogNoisyExpectedImprovement(
+                    model=model,
+                    X_baseline=train_X,
+                    sampler=sampler,
+                    X_pending=pending_t,
+                    prune_baseline=True,
+                )
+                method = "qLogNEI"
+            else:
+                acqf = qLogExpectedImprovement(
+                    model=model, best_f=float(y.max()), sampler=sampler, X_pending=pending_t
+                )
+                method = "qLogEI"
+
             rows, value = optimize_acqf(
                 acq_function=acqf,
                 bounds=bounds_t,
