@@ -112,11 +112,14 @@ def exact_pairs(problem: PairProblem) -> np.ndarray:
 def osqp_pairs(
     problem: PairProblem, *, eps: float = 1e-5, max_iter: int = 20_000
 ) -> tuple[np.ndarray, dict[str, float | int | str]]:
-    """The optimum by OSQP on the sparse boundary formulation, f recovered from the
-    boundary values (``recover_pairs``); also the solver's report."""
+    """The optimum by OSQP on the sparse boundary formulation, its boundary values
+    polished (``polish_boundaries``) and f recovered from them (``recover_pairs``);
+    also the solver's report."""
     raw, boundaries, report = solve_boundary_qp(problem, eps=eps, max_iter=max_iter)
-    f = recover_pairs(problem, boundaries)
+    polished = polish_boundaries(problem, boundaries)
+    f = recover_pairs(problem, polished)
     report["raw_max_change"] = float(np.abs(f - raw).max(initial=0.0))
+    report["polish_max_change"] = float(np.abs(polished - boundaries).max(initial=0.0))
     return f, report
 
 
@@ -191,7 +194,7 @@ def solve_boundary_qp(
         polishing=False,
         verbose=False,
     )
-    result = solver.solve()
+    result = solver.solve(raise_error=False)
     if result.x is None or not np.all(np.isfinite(result.x)):
         raise RuntimeError(f"OSQP failed: {result.info.status}")
     report: dict[str, float | int | str] = {
@@ -211,13 +214,78 @@ def recover_pairs(problem: PairProblem, boundaries: np.ndarray) -> np.ndarray:
     objective is smooth in t, while f read straight off the solver carries O(eps)
     violations.
     """
-    t = np.asarray(boundaries, dtype=np.float64).copy()
-    for index in range(len(t)):  # make the slots nonempty: 0 <= t_0, t_l + margin <= t_(l+1)
-        floor = 0.0 if index == 0 else t[index - 1] + problem.margin
-        t[index] = max(t[index], floor)
+    t = _chained(problem, boundaries)
     lows = np.concatenate([[0.0], t + problem.margin])
     highs = np.concatenate([t, [np.inf]])
     return np.clip(problem.d, lows[problem.level], highs[problem.level])
+
+
+def _chained(problem: PairProblem, boundaries: np.ndarray) -> np.ndarray:
+    """Boundaries with nonempty slots: 0 <= t_0 and t_l + margin <= t_(l+1)."""
+    t = np.asarray(boundaries, dtype=np.float64).copy()
+    for index in range(len(t)):
+        floor = 0.0 if index == 0 else t[index - 1] + problem.margin
+        t[index] = max(t[index], floor)
+    return t
+
+
+def polish_boundaries(problem: PairProblem, boundaries: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """OSQP's polish, done in closed form for this problem.
+
+    From the solver's boundary values, guess the active set: which pairs are clipped
+    to which boundary (level l's pairs above t_l, level l+1's below t_l + margin),
+    and which consecutive boundaries are tied (a level squeezed to t_l + margin =
+    t_(l+1), or t_0 held at 0). The equality-constrained QP that guess defines has a
+    closed-form answer: each group of tied boundaries moves as one, to the mean of
+    its active pairs' targets. Keep the step only if it lowers the objective.
+    OSQP's built-in polish cannot do this here: a boundary with no active pair has a
+    free t_l, which leaves its reduced KKT system singular, so it fails.
+    """
+    t = _chained(problem, boundaries)
+    if problem.n_levels < 2:
+        return t
+    scale = max(float(problem.d.max(initial=0.0)), problem.margin, 1e-300)
+    best_t, best = t, problem.objective(recover_pairs(problem, t))
+    # which boundaries are tied is read off the solver's answer, accurate to about its
+    # tolerance: try a few thresholds, keep the best
+    for tolerance in (1e-4 * scale, 1e-6 * scale, 1e-8 * scale):
+        current, objective = t, problem.objective(recover_pairs(problem, t))
+        for _ in range(rounds):
+            step = _active_set_step(problem, current, tolerance)
+            step_objective = problem.objective(recover_pairs(problem, step))
+            if not step_objective < objective:
+                break
+            current, objective = step, step_objective
+        if objective < best:
+            best_t, best = current, objective
+    return best_t
+
+
+def _active_set_step(problem: PairProblem, t: np.ndarray, tolerance: float) -> np.ndarray:
+    d, level, levels, margin = problem.d, problem.level, problem.n_levels, problem.margin
+    # groups of tied boundaries: group[b] is the first boundary of b's group
+    tied = np.diff(t) - margin <= tolerance
+    group = np.zeros(levels - 1, dtype=np.int64)
+    for b in range(1, levels - 1):
+        group[b] = group[b - 1] if tied[b - 1] else b
+    # pairs clipped to a boundary: f_k = t_b + offset_k
+    lows = np.concatenate([[0.0], t + margin])[level]
+    highs = np.concatenate([t, [np.inf]])[level]
+    down = (level < levels - 1) & (d >= highs)
+    up = (level > 0) & (d <= lows) & ~down
+    boundary = np.concatenate([level[down], level[up] - 1])
+    target = np.concatenate([d[down], d[up] - margin])
+    # within a group, t_b = t_first + margin * (b - first): one unknown per group
+    first = group[boundary]
+    target = target - margin * (boundary - first)
+    sums = np.zeros(levels - 1)
+    counts = np.zeros(levels - 1)
+    np.add.at(sums, first, target)
+    np.add.at(counts, first, 1.0)
+    base = np.where(counts > 0, sums / np.maximum(counts, 1.0), t)
+    # t_0 >= 0 (f >= 0): held at 0 when the solver put it there
+    base[0] = 0.0 if t[0] <= tolerance else max(base[0], 0.0)
+    return _chained(problem, base[group] + margin * (np.arange(levels - 1) - group))
 
 
 def check_pairs(

@@ -1,0 +1,197 @@
+"""Decode/encode: exact round trips for single-structure spaces, own structures for fused ones."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from adclient.decode import (
+    decode,
+    design_params,
+    encode,
+    identity_representation,
+    spec_layout,
+)
+from adclient.design import Bound, DesignSpace
+from adclient.schemas import NAME_PATTERN as PARAM_NAME
+from tests.client.design_strategies import multi_structure_spaces, single_structure_spaces
+
+
+def unit_vectors(dim: int) -> st.SearchStrategy[list[float]]:
+    return st.lists(st.floats(0.0, 1.0), min_size=dim, max_size=dim)
+
+
+@settings(max_examples=40, deadline=None)
+@given(single_structure_spaces(), st.data())
+def test_identity_round_trip(body: dict[str, Any], data: st.DataObject) -> None:
+    space = DesignSpace.model_validate(body)
+    representation = identity_representation(space)
+    layout = spec_layout(space)
+    assert representation.bounds == [[0.0] * layout.size, [1.0] * layout.size]
+    vector = data.draw(unit_vectors(layout.size))
+    design = decode(space, representation, vector)
+    assert encode(space, representation, design) == pytest.approx(vector, abs=1e-9)
+    # the readable params carry the same specs
+    params = design_params(design)
+    assert encode(space, representation, params) == pytest.approx(vector, abs=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(single_structure_spaces(), st.data())
+def test_decoded_design_follows_the_space(body: dict[str, Any], data: st.DataObject) -> None:
+    space = DesignSpace.model_validate(body)
+    representation = identity_representation(space)
+    vector = data.draw(unit_vectors(len(representation.spec_names)))
+    design = decode(space, representation, vector)
+    (structure,) = space.tree_structures()
+    assert sorted(design.edges()) == sorted(structure)
+    assert {link.name for link in design.links} == {i.name for i in space.instances}
+    children = {child for _, child in structure}
+    assert design.root not in children
+    for link in design.links:
+        instance = space.instance(link.name)
+        assert link.shape == space.parts[instance.part].shape
+        for spec in ("length", "radius", "mass"):
+            expected = space.part_spec(link.name, spec)
+            value = getattr(link, spec)
+            if isinstance(expected, Bound):
+                assert expected.low - 1e-12 <= value <= expected.high + 1e-12
+            else:
+                assert value == expected
+    for joint in design.joints:
+        theta, phi = joint.axis_theta, joint.axis_phi
+        expected_axis = (
+            math.sin(theta) * math.cos(phi),
+            math.sin(theta) * math.sin(phi),
+            math.cos(theta),
+        )
+        assert joint.axis == pytest.approx(expected_axis)
+        assert math.isclose(sum(c * c for c in joint.axis), 1.0)
+        assert joint.lower <= joint.upper
+        for spec in ("axis_theta", "axis_phi", "position", "lower", "upper", "effort"):
+            expected = space.joint_spec(joint.child, spec)
+            value = getattr(joint, spec)
+            if isinstance(expected, Bound):
+                assert expected.low - 1e-12 <= value <= expected.high + 1e-12
+            else:
+                assert value == expected
+
+
+@settings(max_examples=20, deadline=None)
+@given(single_structure_spaces(), st.data())
+def test_params_are_readable_json(body: dict[str, Any], data: st.DataObject) -> None:
+    space = DesignSpace.model_validate(body)
+    representation = identity_representation(space)
+    vector = data.draw(unit_vectors(len(representation.spec_names)))
+    params = design_params(decode(space, representation, vector))
+    assert json.loads(json.dumps(params)) == params
+    assert all(re.fullmatch(PARAM_NAME, key) for key in params)
+    edges = space.tree_structures()[0]
+    assert sorted(params["structure"].split(",")) == sorted(f"{p}-{c}" for p, c in edges)
+    for name in representation.spec_names:  # every searched spec is shown
+        assert name in params
+
+
+def test_vectors_are_clipped_and_checked() -> None:
+    space = DesignSpace.model_validate(
+        {
+            "type": "design",
+            "parts": {"link": {"length": {"low": 0.2, "high": 0.6}}},
+            "instances": [{"name": "a", "part": "link"}, {"name": "b", "part": "link"}],
+            "structures": [[["a", "b"]]],
+        }
+    )
+    representation = identity_representation(space)
+    assert representation.spec_names == [
+        "a.length",
+        "b.length",
+        "b.joint.axis_theta",
+        "b.joint.axis_phi",
+    ]
+    design = decode(space, representation, [-1.0, 2.0, 0.5, 0.5])
+    assert [link.length for link in design.links] == [0.2, 0.6]
+    with pytest.raises(ValueError, match="vector has 2 values, the search space has 4"):
+        decode(space, representation, [0.5, 0.5])
+    with pytest.raises(ValueError, match="non-finite"):
+        decode(space, representation, [0.5, math.nan, 0.5, 0.5])
+    with pytest.raises(ValueError, match=r"'a\.length' = 0\.9 lies outside"):
+        encode(
+            space,
+            representation,
+            {"a.length": 0.9, "b.length": 0.3, "b.joint.axis_theta": 1.0, "b.joint.axis_phi": 1.0},
+        )
+    with pytest.raises(ValueError, match=r"'b\.joint\.axis_phi' is missing"):
+        encode(space, representation, {"a.length": 0.3, "b.length": 0.3, "b.joint.axis_theta": 1.0})
+    other = DesignSpace.model_validate(space.model_dump() | {"parts": {"link": {"length": 0.3}}})
+    with pytest.raises(ValueError, match="does not belong to this space"):
+        decode(other, representation, [0.5, 0.5, 0.5, 0.5])
+
+
+def test_identity_needs_one_structure() -> None:
+    space = DesignSpace.model_validate(
+        {
+            "type": "design",
+            "parts": {"link": {}},
+            "instances": [{"name": n, "part": "link"} for n in "abc"],
+            "structures": "all",
+        }
+    )
+    with pytest.raises(ValueError, match="needs one structure, the space has 3"):
+        identity_representation(space)
+
+
+# -- fused representations (built by the service) -------------------------------------
+
+representation_module = pytest.importorskip("adservice.representation")
+
+
+@settings(max_examples=10, deadline=None)
+@given(multi_structure_spaces(), st.data())
+def test_fused_reference_designs_decode_to_their_structure(
+    body: dict[str, Any], data: st.DataObject
+) -> None:
+    space = DesignSpace.model_validate(body)
+    representation = representation_module.build_representation(space)
+    assert representation.kind == "fused"
+    coords = np.asarray(representation.ref_coords)
+    low, high = np.asarray(representation.bounds)
+    assert np.all(coords >= low) and np.all(coords <= high)
+    for point, structure in zip(coords, representation.ref_structure, strict=True):
+        design = decode(space, representation, point.tolist())
+        assert design.structure_index == structure
+        assert sorted(design.edges()) == sorted(space.tree_structures()[structure])
+        # and encoding that design comes back to a vector of the same design
+        again = decode(space, representation, encode(space, representation, design))
+        assert again.structure_index == structure
+        assert _close(again, design)
+    # any vector in the box decodes to one of the candidate structures, specs in bounds
+    layout = spec_layout(space)
+    vector = [data.draw(st.floats(lo, hi)) for lo, hi in zip(low, high, strict=True)]
+    design = decode(space, representation, vector)
+    assert 0 <= design.structure_index < len(space.tree_structures())
+    for link in design.links:
+        key = f"{link.name}.length"
+        if key in layout.names:
+            k = layout.names.index(key)
+            assert layout.low[k] - 1e-12 <= link.length <= layout.high[k] + 1e-12
+
+
+def _close(a: Any, b: Any) -> bool:
+    first, second = a.model_dump(), b.model_dump()
+    links = all(
+        x["name"] == y["name"] and math.isclose(x["length"], y["length"], abs_tol=1e-9)
+        for x, y in zip(first["links"], second["links"], strict=True)
+    )
+    joints = all(
+        math.isclose(x["axis_theta"], y["axis_theta"], abs_tol=1e-9)
+        and math.isclose(x["axis_phi"], y["axis_phi"], abs_tol=1e-9)
+        for x, y in zip(first["joints"], second["joints"], strict=True)
+    )
+    return links and joints

@@ -1,0 +1,267 @@
+"""Design-space validation: good spaces load, bad ones fail with a message naming the problem."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pydantic import ValidationError
+
+from adclient.design import DesignSpace
+from adclient.schemas import StudyCreate
+from adclient.similarity import structure_similarity, tree_edit_distance
+from tests.client.design_strategies import NAMES, single_structure_spaces, trees
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+BASE: dict[str, Any] = {
+    "type": "design",
+    "parts": {"link": {"length": {"low": 0.2, "high": 0.6}, "radius": 0.04, "mass": 1.0}},
+    "instances": [
+        {"name": "a", "part": "link"},
+        {"name": "b", "part": "link"},
+        {"name": "c", "part": "link"},
+    ],
+    "structures": [[["a", "b"], ["b", "c"]]],
+}
+
+
+def space_with(**changes: Any) -> dict[str, Any]:
+    body = copy.deepcopy(BASE)
+    body.update(changes)
+    return body
+
+
+def error_of(body: dict[str, Any]) -> str:
+    with pytest.raises(ValidationError) as caught:
+        DesignSpace.model_validate(body)
+    return str(caught.value)
+
+
+@pytest.mark.parametrize("name", ["stand-up", "diagonal-gesture", "multi-structure"])
+def test_examples_are_valid_study_bodies(name: str) -> None:
+    body = StudyCreate.model_validate(yaml.safe_load((EXAMPLES / f"{name}.yaml").read_text()))
+    space = body.space
+    assert isinstance(space, DesignSpace)
+    assert [instance.name for instance in space.instances][:3] == ["a", "b", "c"]
+    assert body.task is not None and body.max_trials == 15
+    names, _ = space.spec_slots()
+    assert "b.joint.axis_theta" in names and "c.joint.axis_phi" in names
+    assert "a.joint.axis_theta" not in names  # the root has no joint
+
+
+def test_bound_low_not_below_high() -> None:
+    body = space_with(parts={"link": {"length": {"low": 0.6, "high": 0.2}}})
+    message = error_of(body)
+    assert "parts.link.length" in message and "low (0.6) must be < high (0.2)" in message
+    assert "low (0.3) must be < high (0.3)" in error_of(
+        space_with(parts={"link": {"length": {"low": 0.3, "high": 0.3}}})
+    )
+
+
+@pytest.mark.parametrize("bad", [math.inf, -math.inf, math.nan])
+def test_non_finite_specs(bad: float) -> None:
+    assert "finite" in error_of(space_with(parts={"link": {"length": {"low": 0.1, "high": bad}}}))
+    assert "finite" in error_of(space_with(parts={"link": {"mass": bad}}))
+
+
+def test_spec_must_be_number_or_bound() -> None:
+    assert "a spec is a number" in error_of(space_with(parts={"link": {"mass": "heavy"}}))
+    assert "radius: must be > 0" in error_of(space_with(parts={"link": {"radius": 0.0}}))
+    message = error_of(space_with(joint={"position": {"low": 0.5, "high": 1.5}}))
+    assert "position: must lie in [0, 1]" in message
+
+
+def test_joint_limits_must_not_cross() -> None:
+    message = error_of(space_with(joint={"lower": {"low": -1.0, "high": 0.5}, "upper": 0.2}))
+    assert "lower" in message and "can exceed upper" in message
+    body = space_with()
+    body["instances"][1]["joint_overrides"] = {"lower": 2.0}
+    assert "instances[1] ('b')" in error_of(body)
+
+
+def test_unknown_part() -> None:
+    body = space_with()
+    body["instances"][2]["part"] = "wheel"
+    message = error_of(body)
+    assert "instances[2] ('c'): unknown part 'wheel'" in message and "known: link" in message
+
+
+def test_unknown_override_keys() -> None:
+    body = space_with()
+    body["instances"][0]["overrides"] = {"lenght": 0.3}
+    assert "overrides has unknown key 'lenght'" in error_of(body)
+    body = space_with()
+    body["instances"][1]["joint_overrides"] = {"axis": 0.3}
+    assert "joint_overrides has unknown key 'axis'" in error_of(body)
+
+
+def test_duplicate_instance_names() -> None:
+    body = space_with()
+    body["instances"][2]["name"] = "a"
+    assert "instances[2]: duplicate instance name 'a' (also instances[0])" in error_of(body)
+
+
+def test_bad_instance_name_pattern() -> None:
+    body = space_with()
+    body["instances"][0]["name"] = 'a"><x'
+    assert "instances.0.name" in error_of(body)
+
+
+@pytest.mark.parametrize(
+    ("structure", "expected"),
+    [
+        ([["a", "b"], ["b", "a"], ["b", "c"]], "no root (a cycle)"),
+        ([["a", "b"], ["c", "b"]], "'b' has two parents"),
+        ([["a", "b"], ["b", "c"], ["c", "a"]], "no root (a cycle)"),
+        ([["a", "b"], ["b", "c"], ["c", "b"]], "'b' has two parents"),
+        ([["a", "a"]], "joins 'a' to itself"),
+        ([], "at least one edge"),
+        ([["a", "b"], ["b", "z"]], "structures[0][1]: unknown instance 'z'"),
+    ],
+)
+def test_structure_not_a_tree(structure: list[list[str]], expected: str) -> None:
+    assert expected in error_of(space_with(structures=[structure]))
+
+
+def test_cycle_without_root_and_disconnected() -> None:
+    body = space_with(
+        instances=[{"name": n, "part": "link"} for n in "abcd"],
+        structures=[[["a", "b"], ["c", "d"]]],
+    )
+    assert "several roots ('a', 'c')" in error_of(body)
+    body = space_with(structures=[[["a", "b"], ["b", "c"]], [["b", "c"], ["c", "b"]]])
+    message = error_of(body)
+    assert "structures[1]: not a tree: it has no root (a cycle)" in message
+
+
+def test_unused_instances_and_duplicate_structures() -> None:
+    body = space_with(structures=[[["a", "b"]]])
+    assert "'c' appear in no structure" in error_of(body)
+    body = space_with(structures=[[["a", "b"], ["b", "c"]], [["b", "c"], ["a", "b"]]])
+    assert "structures[1]: same tree as structures[0]" in error_of(body)
+
+
+def test_too_many_structures() -> None:
+    body = space_with(
+        structures=[[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"]], [["a", "c"], ["c", "b"]]],
+        max_structures=2,
+    )
+    assert "3 structures, more than max_structures=2" in error_of(body)
+    body = space_with(instances=[{"name": n, "part": "link"} for n in "abcde"], structures="all")
+    assert "'all' over 5 instances gives 125 trees, more than max_structures=64" in error_of(body)
+    assert "at least two instances" in error_of(
+        space_with(instances=[{"name": "a", "part": "link"}], structures="all")
+    )
+
+
+def test_no_free_spec() -> None:
+    body = space_with(parts={"link": {"length": 0.4}}, joint={"axis_theta": 0.0, "axis_phi": 0.0})
+    assert "nothing to search" in error_of(body)
+    # several structures are something to search even with every spec fixed
+    body["structures"] = [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"]]]
+    assert len(DesignSpace.model_validate(body).tree_structures()) == 2
+
+
+def test_unknown_fields_rejected() -> None:
+    assert "Extra inputs are not permitted" in error_of(space_with(colour="red"))
+
+
+def test_errors_reach_the_study_body() -> None:
+    body = {"name": "s", "space": space_with(parts={"link": {"length": {"low": 1, "high": 0}}})}
+    with pytest.raises(ValidationError) as caught:
+        StudyCreate.model_validate(body)
+    assert "must be < high" in str(caught.value)
+
+
+@settings(max_examples=30, deadline=None)
+@given(single_structure_spaces())
+def test_generated_spaces_are_valid_and_round_trip(body: dict[str, Any]) -> None:
+    space = DesignSpace.model_validate(body)
+    again = DesignSpace.model_validate(space.model_dump(mode="json"))
+    assert again.tree_structures() == space.tree_structures()
+    assert again.spec_slots() == space.spec_slots()
+    names, ranges = space.spec_slots()
+    assert names and all(low < high for low, high in ranges)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(3, 5).flatmap(lambda n: st.tuples(st.just(n), trees(NAMES[:n]))), st.data())
+def test_adding_an_edge_to_a_tree_breaks_it(case: tuple[int, list], data: st.DataObject) -> None:
+    n, tree = case
+    names = NAMES[:n]
+    extra = data.draw(
+        st.tuples(st.sampled_from(names), st.sampled_from(names)).filter(
+            lambda e: e not in tree and (e[1], e[0]) not in tree and e[0] != e[1]
+        )
+    )
+    body = space_with(
+        instances=[{"name": name, "part": "link"} for name in names],
+        structures=[[list(edge) for edge in tree]],
+    )
+    DesignSpace.model_validate(body)
+    body["structures"] = [[list(edge) for edge in [*tree, extra]]]
+    assert "not a tree" in error_of(body)
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_all_trees_enumerated(n: int) -> None:
+    names = NAMES[:n]
+    space = DesignSpace.model_validate(
+        space_with(instances=[{"name": name, "part": "link"} for name in names], structures="all")
+        | {"max_structures": 1000}
+    )
+    structures = space.tree_structures()
+    assert len(structures) == n ** (n - 2)  # Cayley
+    assert len({frozenset(s) for s in structures}) == len(structures)
+    for structure in structures:
+        assert len(structure) == n - 1
+        children = [child for _, child in structure]
+        assert sorted(children) == sorted(names[1:])  # rooted at the first instance
+    # explicit listing of the same trees validates too
+    DesignSpace.model_validate(
+        space_with(
+            instances=[{"name": name, "part": "link"} for name in names],
+            structures=[[list(e) for e in s] for s in structures],
+            max_structures=1000,
+        )
+    )
+
+
+# -- structure similarity -------------------------------------------------------------
+
+
+def test_similarity_known_values() -> None:
+    chain = [("a", "b"), ("b", "c")]
+    assert structure_similarity(chain, list(reversed(chain))) == 1.0
+    assert tree_edit_distance(chain, [("a", "b"), ("a", "c")]) == 2.0  # move c up
+    assert tree_edit_distance(chain, [("a", "c"), ("c", "b")]) == 2.0  # swap b and c
+    same_type = {"a": "link", "b": "link", "c": "link"}
+    assert tree_edit_distance(chain, [("a", "c"), ("c", "b")], same_type) == 1.0
+    assert tree_edit_distance(chain, [("a", "b")]) == 1.0  # drop c
+    assert structure_similarity(chain, [("a", "b")]) == pytest.approx(1 - 2 / 6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.data())
+def test_similarity_is_a_bounded_symmetric_metric(data: st.DataObject) -> None:
+    def tree() -> list[tuple[str, str]]:
+        size = data.draw(st.integers(2, 6))
+        return data.draw(trees(NAMES[:size]))
+
+    a, b, c = tree(), tree(), tree()
+    part_of = data.draw(st.none() | st.just({n: ("x" if n in "abc" else "y") for n in NAMES}))
+    ab = tree_edit_distance(a, b, part_of)
+    assert ab == tree_edit_distance(b, a, part_of)
+    assert tree_edit_distance(a, a, part_of) == 0.0
+    assert (ab == 0.0) == (frozenset(a) == frozenset(b))
+    assert ab <= tree_edit_distance(a, c, part_of) + tree_edit_distance(c, b, part_of) + 1e-12
+    similarity = structure_similarity(a, b, part_of)
+    assert 0.0 <= similarity <= 1.0
+    assert (similarity == 1.0) == (frozenset(a) == frozenset(b))
