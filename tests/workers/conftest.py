@@ -1,15 +1,11 @@
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from robots import write_urdf
-
 from adworker import designs
+from tests.workers.robots import write_urdf
 
 
 @pytest.fixture

@@ -8,10 +8,10 @@ import warnings
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from robots import write_urdf
 
 from adworker import designs
 from adworker.tasks import TASKS, UnknownTask, get_task
+from tests.workers.robots import write_urdf
 
 
 @pytest.mark.parametrize("task", sorted(TASKS))

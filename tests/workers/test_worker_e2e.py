@@ -1,0 +1,195 @@
+"""Real adserver + real adworker processes + a managed study, over HTTP on loopback."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ElementTree
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from adclient import Client
+from adclient.schemas import Trial
+from tests.servers import ServerProcess
+from tests.workers.robots import example_study
+
+pytestmark = pytest.mark.e2e
+
+ADWORKER = Path(sys.executable).with_name("adworker")
+PATIENCE = 300.0
+"""A bound on waits so a broken build fails instead of hanging; not a speed check."""
+
+
+class WorkerProcess:
+    """One ``adworker`` process with its log file."""
+
+    def __init__(self, server: ServerProcess, workdir: Path, worker_id: str, *args: str) -> None:
+        self.worker_id = worker_id
+        self.log_path = workdir / f"{worker_id}.log"
+        env = {**os.environ, "AD_SERVER_URL": server.url}
+        env.pop("AD_TOKEN", None)
+        with self.log_path.open("ab") as log:
+            self.process = subprocess.Popen(
+                [str(ADWORKER), "--worker-id", worker_id, "--poll", "0.2", *args],
+                env=env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def wait(self, timeout: float = PATIENCE) -> int:
+        return self.process.wait(timeout=timeout)
+
+    def signal(self, signum: int) -> None:
+        self.process.send_signal(signum)
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+
+@pytest.fixture
+def server_factory(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
+    started: list[ServerProcess] = []
+
+    def start(**env: str) -> ServerProcess:
+        server = ServerProcess(
+            database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path, env=env
+        ).start()
+        started.append(server)
+        return server
+
+    yield start
+    for server in started:
+        server.stop()
+
+
+@pytest.fixture
+def workers(tmp_path: Path) -> Iterator[Callable[..., WorkerProcess]]:
+    started: list[WorkerProcess] = []
+
+    def start(server: ServerProcess, worker_id: str, *args: str) -> WorkerProcess:
+        worker = WorkerProcess(server, tmp_path, worker_id, *args)
+        started.append(worker)
+        return worker
+
+    yield start
+    for worker in started:
+        worker.stop()
+
+
+def stand_up_study(client: Client, *, max_trials: int, **task: object):
+    body = example_study("stand-up").model_dump(mode="json")
+    body["max_trials"] = max_trials
+    body["task"].update(task)
+    return client.create_study(body)
+
+
+def wait_for(condition: Callable[[], object], what: str, poll: float = 0.05) -> object:
+    deadline = time.monotonic() + PATIENCE
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(poll)
+    raise AssertionError(f"gave up waiting for {what}")
+
+
+def running_trial(client: Client, study_id: int, worker_id: str) -> Trial | None:
+    for trial in client.trials(study_id, state="running"):
+        if trial.worker_id == worker_id:
+            return trial
+    return None
+
+
+def test_managed_study_runs_to_completion_with_a_pool_of_workers(server_factory, workers):
+    server = server_factory()
+    with Client(server.url) as client:
+        study = stand_up_study(client, max_trials=4, learner="fast", train_steps=256)
+        pool = workers(server, "pool", "--concurrency", "2")
+        final = study.wait(poll=0.2, timeout=PATIENCE)
+        assert final.n_complete == 4, [t.message for t in study.trials]
+        assert final.n_failed == 0
+        trials = study.trials
+        assert {trial.worker_id for trial in trials} <= {"pool-0", "pool-1"}
+        for trial in trials:
+            assert trial.value is not None and trial.value >= 0.0
+            assert trial.value == trial.metrics["score_mean"]
+            assert trial.metrics["train_steps"] == 256
+            assert {"time_train_s", "time_evaluate_s", "score_std"} <= set(trial.metrics)
+            names = {artifact.name for artifact in client.artifacts(trial)}
+            assert names == {"robot.urdf", "robot.png", "curve.json"}
+        best = study.best_trial
+        assert best is not None
+        urdf = ElementTree.fromstring(client.get_artifact(best, "robot.urdf"))
+        assert urdf.tag == "robot"
+        assert client.get_artifact(best, "robot.png").startswith(b"\x89PNG")
+        curve = json.loads(client.get_artifact(best, "curve.json"))
+        assert len(curve["evaluation"]) == 3
+    pool.signal(signal.SIGTERM)
+    assert pool.wait() == 0, pool.log()
+    assert "jobs/min" in pool.log()
+
+
+def test_killed_worker_job_is_finished_by_another_after_the_lease_expires(server_factory, workers):
+    server = server_factory(AD_LEASE_SECONDS="3")
+    with Client(server.url) as client:
+        # A job of a few seconds, so the kill lands in the middle of it.
+        study = stand_up_study(client, max_trials=1, learner="fast", train_steps=32 * 128)
+        doomed = workers(server, "doomed")
+        trial = wait_for(lambda: running_trial(client, study.id, "doomed"), "the first lease")
+        doomed.signal(signal.SIGKILL)
+        doomed.wait()
+        assert client.get_trial(trial).state == "running"  # killed mid-job: nothing told
+        rescuer = workers(server, "rescuer")
+        final = study.wait(poll=0.2, timeout=PATIENCE)
+        assert final.n_complete == 1
+        finished = client.get_trial(trial)
+        assert finished.state == "complete"
+        assert finished.worker_id == "rescuer"
+        assert finished.attempts == 2
+        rescuer.signal(signal.SIGTERM)
+        assert rescuer.wait() == 0
+
+
+def test_sigterm_mid_job_finishes_and_reports_it_then_exits(server_factory, workers):
+    server = server_factory()
+    with Client(server.url) as client:
+        study = stand_up_study(client, max_trials=2, learner="fast", train_steps=32 * 64)
+        worker = workers(server, "polite")
+        trial = wait_for(lambda: running_trial(client, study.id, "polite"), "a lease")
+        worker.signal(signal.SIGTERM)
+        assert worker.wait() == 0, worker.log()
+        finished = client.get_trial(trial)
+        assert finished.state == "complete", worker.log()
+        assert finished.worker_id == "polite"
+        assert client.study_info(study.id).n_complete == 1  # it took no second job
+
+
+def test_evaluation_error_becomes_a_failed_tell_and_the_worker_goes_on(server_factory, workers):
+    server = server_factory()
+    with Client(server.url) as client:
+        # One control step per episode is too short to score its second half.
+        study = stand_up_study(client, max_trials=2, learner="fast", episode_steps=1)
+        worker = workers(server, "careful", "--max-jobs", "2")
+        assert worker.wait() == 0, worker.log()
+        trials = study.trials
+        assert [trial.state for trial in trials] == ["failed", "failed"]
+        assert all("episode_steps" in (trial.message or "") for trial in trials)
+        assert all(trial.message.startswith("ValueError") for trial in trials)
+
+
+def test_refused_token_stops_the_worker_with_a_clear_message(server_factory, workers):
+    server = server_factory(AD_AUTH="true")
+    worker = workers(server, "stranger", "--token", "not-a-real-token")
+    assert worker.wait() == 2
+    assert "refused this worker's token" in worker.log()
