@@ -38,11 +38,20 @@ class ServerProcess:
         return f"http://127.0.0.1:{self.port}"
 
     @property
+    def artifact_dir(self) -> Path:
+        return self.workdir / "artifacts"
+
+    @property
     def log_path(self) -> Path:
         return self.workdir / f"adserver-{self.port}.log"
 
     def start(self, timeout: float = 60.0) -> ServerProcess:
-        env = {**os.environ, "AD_SWEEP_SECONDS": "0.5", **self.env}
+        env = {
+            **os.environ,
+            "AD_SWEEP_SECONDS": "0.5",
+            "AD_ARTIFACT_DIR": str(self.artifact_dir),
+            **self.env,
+        }
         log = self.log_path.open("ab")
         self.process = subprocess.Popen(
             [
