@@ -5,9 +5,10 @@ Requests are built by hand (no server): the proposer interface is arrays in, arr
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -17,6 +18,7 @@ from adservice.proposers.base import ProposalRequest, empty_history
 from adservice.proposers.neldermead import _initial_simplex
 from adservice.proposers.qei import clear_caches
 from adservice.proposers.simple import sobol_points
+from tests.servers import ServerProcess
 
 BOUNDS = np.array([[-2.0, 0.0, 10.0], [2.0, 5.0, 10.5]])
 """A 3-d box with sides of different lengths and offsets, so scaling mistakes show."""
@@ -387,3 +389,58 @@ def test_nelder_mead_batch_with_pending_speculates_and_says_so() -> None:
     batch = proposer.propose(request(X=sequence_X, y=sequence_y, pending=nxt[None], count=3))
     assert all(entry.get("speculative") for entry in batch.info)
     assert min_pairwise_distance(np.vstack([nxt[None], batch.candidates])) > 1e-9
+
+
+# -- through the real service -------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sqlite_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    """One real adserver on a SQLite file (the proposer does not care which database)."""
+    workdir = tmp_path_factory.mktemp("proposers-server")
+    server = ServerProcess(database_url=f"sqlite:///{workdir / 'studies.db'}", workdir=workdir)
+    server.start()
+    yield server
+    server.stop()
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("direction", ["maximize", "minimize"])
+def test_qei_through_http_spreads_batches_and_reports_its_method(
+    sqlite_server: ServerProcess, direction: str
+) -> None:
+    """The service hands qei its pending trials: two batches asked back to back, with
+    nothing told in between, are eight distinct designs chosen by the model."""
+
+    params = [
+        {"name": name, "low": float(low), "high": float(high)}
+        for name, low, high in zip("abc", BOUNDS[0], BOUNDS[1], strict=True)
+    ]
+    with httpx.Client(base_url=sqlite_server.url, timeout=120) as http:
+        study = http.post(
+            "/api/v1/studies",
+            json={
+                "name": f"qei-{direction}",
+                "direction": direction,
+                "space": {"type": "box", "params": params},
+                "proposer": {"name": "qei", "n_initial": 4, "seed": 1},
+            },
+        )
+        assert study.status_code == 201, study.text
+        study_id = study.json()["id"]
+        sign = 1.0 if direction == "maximize" else -1.0
+        first = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 4}).json()["trials"]
+        assert [t["info"]["method"] for t in first] == ["sobol-initial"] * 4
+        for trial in first:
+            value = sign * float(bumps(np.array(trial["vector"]))[0])
+            told = http.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": value})
+            assert told.status_code == 200, told.text
+        batches = [
+            http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 4}).json()["trials"]
+            for _ in range(2)
+        ]
+    for batch in batches:
+        assert [t["info"]["method"] for t in batch] == ["qLogEI"] * 4
+    assert batches[1][0]["info"]["n_pending"] == 4
+    vectors = np.array([t["vector"] for batch in batches for t in batch])
+    assert min_pairwise_distance(vectors) > 1e-3
