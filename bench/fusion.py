@@ -24,7 +24,9 @@ import os
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.distance import pdist, squareform
@@ -93,7 +95,7 @@ def realistic_problem(n_refs: int, seed: int, margin: float = 0.0) -> PairProble
     return pair_problem(squareform(pdist(X)), G, margin)
 
 
-def timed(function, *args):  # type: ignore[no-untyped-def]
+def timed(function: Callable[..., Any], *args: Any) -> tuple[Any, float]:
     """The result and the CPU seconds it took."""
     started = time.process_time()
     result = function(*args)

@@ -118,7 +118,7 @@ def _checked_layout(space: DesignSpace, representation: Representation) -> SpecL
     return layout
 
 
-def _vector(representation: Representation, vector: Sequence[float]) -> np.ndarray:
+def _vector(representation: Representation, vector: Sequence[float] | np.ndarray) -> np.ndarray:
     v = np.asarray(vector, dtype=np.float64)
     dim = len(representation.bounds[0])
     if v.shape != (dim,):
@@ -128,7 +128,7 @@ def _vector(representation: Representation, vector: Sequence[float]) -> np.ndarr
     return v
 
 
-def structure_of(representation: Representation, vector: Sequence[float]) -> int:
+def structure_of(representation: Representation, vector: Sequence[float] | np.ndarray) -> int:
     """Structure index a vector decodes to: the nearest reference design's."""
     v = _vector(representation, vector)
     if representation.kind == "identity":

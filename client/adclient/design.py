@@ -26,7 +26,9 @@ Spec keys: ``"<instance>.<part spec>"`` (``"a.length"``) and
 from __future__ import annotations
 
 import heapq
+import itertools
 import math
+import re
 from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
@@ -203,6 +205,13 @@ class DesignSpace(_Strict):
     first instance is the base: which instance is the root changes the robot's
     geometry (children sit at their parent's far end), so the rooted variants of one
     tree are different robots; list them explicitly to search over them.
+
+    Fusion settings (used only with several structures; see
+    ``adservice.representation``): ``fusion_solver`` and ``fusion_margin`` (the gap
+    forced between consecutive similarity levels), ``reference_per_structure`` Sobol
+    references per structure (capped near 512 in all, at least 2 each) drawn with
+    ``reference_seed``, and the embedding's ``embedding_mass`` and
+    ``embedding_max_dim``.
     """
 
     type: Literal["design"]
@@ -371,8 +380,6 @@ class DesignSpace(_Strict):
 
 
 def _valid_name(name: str) -> bool:
-    import re
-
     return re.fullmatch(NAME_PATTERN, name) is not None
 
 
@@ -420,8 +427,6 @@ def _check_tree(edges: list[Edge], names: set[str], where: str) -> None:
 def _all_trees(names: list[str]) -> Iterator[list[Edge]]:
     """Every labelled tree over ``names`` (Pruefer sequences in lexicographic order),
     rooted at ``names[0]``, edges listed breadth-first with children in name order."""
-    import itertools
-
     n = len(names)
     if n == 2:
         yield [(names[0], names[1])]

@@ -9,13 +9,22 @@
 either with OSQP (a sparse QP: one auxiliary variable t_l per boundary between
 consecutive similarity levels; each pair of the more similar level is bounded above
 by t_l, each pair of the next level below by t_l + margin, so the constraint count is
-linear in the number of pairs) or exactly (``solver="exact"``): with levels sorted by
-similarity, descending, and each level's pairs by d ascending, the nonnegative
-least-squares non-decreasing fit of d (shifted by the margin per level) is the
-optimum (Kruskal's primary approach to ties; de Leeuw, 1977), which
-pool-adjacent-violators computes in O(n). Every OSQP answer is checked against the
-exact one (relative objective gap and largest order violation), and replaced by it
-when the check fails.
+linear in the number of pairs; the ADMM answer is polished in closed form on the
+active set it suggests, and f is read off the polished boundaries) or exactly
+(``solver="exact"``): with levels sorted by similarity, descending, and each level's
+pairs by d ascending, the nonnegative least-squares non-decreasing fit of d (shifted
+by the margin per level) is the optimum (Kruskal's primary approach to ties; de Leeuw,
+1977), which pool-adjacent-violators computes in O(n). Every OSQP answer is checked
+against the exact one (relative objective gap and largest order violation), and
+replaced by it when the check fails (``fusion_fallback`` in the diagnostics).
+
+``build_representation`` then embeds the fused distances by classical MDS and fits
+the decoder tables (see ``adclient.decode``). The embedding keeps the leading
+positive eigenvalues holding ``embedding_mass`` of the positive mass, at most
+``embedding_max_dim`` of them (default: free specs + structures - 1, what a lossless
+embedding of a spec vector and a structure label needs): fused distances are far
+from Euclidean (pooled ties spread the spectrum), and without the cap "nearly all of
+the mass" means nearly one dimension per reference design, far too many for the GP.
 """
 
 from __future__ import annotations
@@ -474,7 +483,8 @@ def build_representation(space: DesignSpace) -> Representation:
             "spec_dim": layout.size,
             "similarity_seconds": similarity_seconds,
             "embedding_stress": float(
-                np.linalg.norm(embedded[upper] - F[upper]) / max(np.linalg.norm(F[upper]), 1e-300)
+                np.linalg.norm(embedded[upper] - F[upper])
+                / max(float(np.linalg.norm(F[upper])), 1e-300)
             ),
             "build_seconds": time.perf_counter() - started,
         }

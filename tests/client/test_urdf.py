@@ -109,7 +109,7 @@ def test_generated_urdf_loads_and_matches(
     check_matches(client, body_id, design)
 
 
-def chain(names: tuple[str, str] = ("a", "b"), joint_name: str = "a_b", **link: Any) -> Design:
+def chain(names: tuple[str, str] = ("a", "b"), joint_name: str = "a_b", **link: float) -> Design:
     child = {"length": 0.3, "radius": 0.03, "mass": 0.5} | link
     links = [
         Link(name=names[0], shape="cylinder", length=0.4, radius=0.04, mass=1.0),
@@ -161,7 +161,7 @@ def test_allowed_names_survive_the_xml(client: int, tmp_path: Path) -> None:
 )
 def test_bad_numbers_are_rejected(change: dict[str, float], message: str) -> None:
     with pytest.raises(URDFError, match=message):
-        design_to_urdf(chain(**change))
+        design_to_urdf(chain(("a", "b"), "a_b", **change))
 
 
 def test_bad_trees_are_rejected() -> None:

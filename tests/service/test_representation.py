@@ -67,7 +67,10 @@ def all_pairs_qp(D: np.ndarray, G: np.ndarray, margin: float) -> np.ndarray:
     tight tolerances with polishing."""
     problem = pair_problem(D, G, margin)
     n = problem.d.size
-    rows, cols, values, lower = [], [], [], []
+    rows: list[int] = []
+    cols: list[int] = []
+    values: list[float] = []
+    lower: list[float] = []
     for level in range(problem.n_levels - 1):
         near = np.flatnonzero(problem.level == level)
         far = np.flatnonzero(problem.level == level + 1)
@@ -75,12 +78,12 @@ def all_pairs_qp(D: np.ndarray, G: np.ndarray, margin: float) -> np.ndarray:
             for j in near:
                 r = len(lower)
                 rows += [r, r]
-                cols += [k, j]
+                cols += [int(k), int(j)]
                 values += [1.0, -1.0]
                 lower.append(margin)
-    for k in range(n):
+    for pair in range(n):
         rows.append(len(lower))
-        cols.append(k)
+        cols.append(pair)
         values.append(1.0)
         lower.append(0.0)
     A = sp.csc_matrix((values, (rows, cols)), shape=(len(lower), n))
@@ -194,7 +197,7 @@ def multi() -> tuple[DesignSpace, Representation]:
 
 def test_multi_structure_representation(multi: tuple[DesignSpace, Representation]) -> None:
     space, representation = multi
-    info = representation.info
+    info: dict[str, Any] = dict(representation.info)
     assert representation.kind == "fused"
     assert info["n_structures"] == 6 and info["n_references"] == 6 * 32
     assert info["fusion_relative_gap"] <= GAP_TOLERANCE
