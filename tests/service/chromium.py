@@ -126,8 +126,9 @@ class Chromium:
         self.send("Page.navigate", url=url)
 
     def wait_for(self, expression: str, timeout: float = 30.0, interval: float = 0.02) -> Any:
-        """Poll ``expression`` until it is truthy; its value. Fails naming the expression,
-        its last value and any page errors."""
+        """Poll ``expression`` until its value, as Python sees it, is truthy (so a DOM
+        node, which comes back as ``{}``, needs ``!!``); returns the value. Fails naming
+        the expression, its last value and any page errors."""
         deadline = time.monotonic() + timeout
         value: Any = None
         while time.monotonic() < deadline:

@@ -59,6 +59,7 @@ COUNT_PIXELS = """
   return count;
 })
 """
+DISPLAY = "((selector) => getComputedStyle(document.querySelector(selector)).display)"
 ORANGE = [234, 88, 12]  # the best-so-far curve
 BLUE = [37, 99, 235]  # the score points
 
@@ -170,8 +171,15 @@ def test_study_page_draws_the_study_and_follows_it_live(
 ) -> None:
     with httpx.Client(base_url=live_server.url, timeout=30) as http:
         seeded = seed_mixed_study(http)
-        other = dict(MANAGED_BOX, name="another-study")
-        http.post("/api/v1/studies", json=other).raise_for_status()
+        other = {
+            key: value for key, value in MANAGED_BOX.items() if key not in ("task", "max_trials")
+        }
+        other.update(name="another-study", direction="minimize")
+        other_id = http.post("/api/v1/studies", json=other).raise_for_status().json()["id"]
+        other_values = [3.0, 1.0, 2.0, 0.5, 4.0]
+        asked = http.post(f"/api/v1/studies/{other_id}/ask", json={"count": 5}).json()["trials"]
+        for trial, value in zip(asked, other_values, strict=True):
+            tell(http, trial["id"], value=value)
         study_id = seeded["study"]["id"]
         best, values = seeded["best"], seeded["values"]
 
@@ -187,6 +195,10 @@ def test_study_page_draws_the_study_and_follows_it_live(
             ".find(row => row.textContent.includes('dashboard-box')).textContent"
         )
         assert "8 complete · 3 running · 0 queued · 2 failed of 40" in " ".join(row_text.split())
+        assert "0.5" in browser.evaluate(
+            "[...document.querySelectorAll('table.studies tbody tr')]"
+            ".find(row => row.textContent.includes('another-study')).cells[3].textContent"
+        )
         browser.evaluate("window.sameDocument = true")
         browser.evaluate(
             f"document.querySelector('table.studies a[href=\"#/studies/{study_id}\"]').click()"
@@ -210,11 +222,31 @@ def test_study_page_draws_the_study_and_follows_it_live(
         history = "[data-history]"
         assert browser.evaluate(f"document.querySelector('{history}').dataset.points") == "8"
         assert browser.evaluate(f"document.querySelector('{history}').dataset.failed") == "2"
+        assert float(
+            browser.evaluate(f"document.querySelector('{history}').dataset.best")
+        ) == pytest.approx(max(values.values()))
         assert browser.evaluate(f"{COUNT_PIXELS}('{history}', {ORANGE}, 40)") > 50
         assert browser.evaluate(f"{COUNT_PIXELS}('{history}', {BLUE}, 40)") > 8 * 4
         # Parallel coordinates: one line per complete trial.
         assert browser.evaluate("document.querySelector('[data-parallel]').dataset.lines") == "8"
         assert browser.evaluate(f"{COUNT_PIXELS}('[data-parallel]', null, 0)") > 1000
+
+        # Slices: one plot per param, each with a point per complete trial; the other
+        # views hidden.
+        browser.evaluate("document.querySelector('button[data-tab=\"slices\"]').click()")
+        captions = browser.evaluate(
+            "[...document.querySelectorAll('[data-slices] figcaption')].map(c => c.textContent)"
+        )
+        assert sorted(captions) == sorted(PARAMS)
+        for k in range(len(PARAMS)):
+            selector = f"[data-slices] figure:nth-child({k + 1}) canvas"
+            assert browser.evaluate(f"{COUNT_PIXELS}('{selector}', null, 0)") > 8 * 4
+        assert browser.evaluate(f"{DISPLAY}('[data-parallel]')") == "none"
+        browser.evaluate("document.querySelector('button[data-tab=\"correlation\"]').click()")
+        assert len(browser.evaluate("[...document.querySelectorAll('.corr-row')]")) == 3
+        assert browser.evaluate(f"{DISPLAY}('[data-slices]')") == "none"
+        browser.evaluate("document.querySelector('button[data-tab=\"parallel\"]').click()")
+        assert browser.evaluate(f"{DISPLAY}('[data-parallel]')") == "block"
 
         # The table: every trial, newest first, with its state.
         assert browser.evaluate(TABLE_NUMBERS) == list(range(12, -1, -1))
@@ -284,7 +316,8 @@ def test_study_page_draws_the_study_and_follows_it_live(
         assert "9 complete" in browser.evaluate(
             "document.querySelector('[data-counts]').textContent"
         )
-        assert browser.evaluate("document.querySelector('[data-best-image]').hidden") is True
+        assert browser.evaluate(f"{DISPLAY}('[data-best-image]')") == "none"
+        assert browser.evaluate(f"{DISPLAY}('[data-best-placeholder]')") != "none"
         # The image arrives after the tell (as a worker uploads it): the page picks it up.
         upload(http, held["trial_id"], "robot.png", png(80, 60), "image/png")
         assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 80
@@ -296,6 +329,19 @@ def test_study_page_draws_the_study_and_follows_it_live(
         assert workers_after == str(seeded["done"]["worker-1"] + 1)
         assert browser.evaluate("window.sameDocument") is True
         assert browser.evaluate("window.adMetrics.updates.length") >= 1
+
+        # A minimising study: the best so far is the lowest score.
+        browser.evaluate(f"location.hash = '#/studies/{other_id}'")
+        browser.wait_for(
+            f"{STUDY_PAGE_READY} && document.querySelector('[data-name]').textContent"
+            " === 'another-study'"
+        )
+        assert browser.evaluate("window.sameDocument") is True
+        assert float(browser.evaluate(f"document.querySelector('{history}').dataset.best")) == min(
+            other_values
+        )
+        shown = browser.evaluate("document.querySelector('.best-value').textContent")
+        assert float(shown) == min(other_values)
     assert browser.errors == []
 
 

@@ -51,6 +51,10 @@ function ago(iso) {
   return new Date(iso).toLocaleString();
 }
 
+function when(iso) {
+  return iso ? `<span title="${esc(iso)}">${new Date(iso).toLocaleString()}</span>` : '—';
+}
+
 function seconds(value) {
   if (value < 1) return `${Math.round(value * 1000)} ms`;
   if (value < 60) return `${value.toFixed(1)} s`;
@@ -660,6 +664,7 @@ class StudyPage {
       }
     } else if (this.tab === 'slices') {
       drawSlices(slices, this.series, names.slice(0, SLICE_PLOTS));
+      notes.push('Colour: trial number, yellow early to purple late.');
     }
     this.$('params-note').textContent = notes.join(' ');
     if (this.tab === 'correlation') {
@@ -851,9 +856,9 @@ async function openTrialDialog(study, trialId) {
         <table class="kv">
           <tr><th>worker</th><td>${esc(trial.worker_id ?? '—')}</td></tr>
           <tr><th>attempts</th><td>${trial.attempts}</td></tr>
-          <tr><th>created</th><td>${esc(trial.created_at)}</td></tr>
-          <tr><th>started</th><td>${esc(trial.started_at ?? '—')}</td></tr>
-          <tr><th>finished</th><td>${esc(trial.finished_at ?? '—')}</td></tr>
+          <tr><th>created</th><td>${when(trial.created_at)}</td></tr>
+          <tr><th>started</th><td>${when(trial.started_at)}</td></tr>
+          <tr><th>finished</th><td>${when(trial.finished_at)}</td></tr>
           <tr><th>duration</th><td>${duration(trial)}</td></tr>
         </table>
         ${trial.message ? `<h3>Message</h3><pre>${esc(trial.message)}</pre>` : ''}

@@ -128,7 +128,8 @@ function drawXAxis(ctx, left, right, bottom, low, high, x, integers) {
 /**
  * Every complete trial's score against its number, the best-so-far curve over them,
  * and ticks for failed (red) and unfinished (grey) trials along the bottom.
- * Leaves on the canvas what hovering needs (`canvas.hit`) and `data-points`.
+ * Leaves on the canvas what hovering needs (`canvas.hit`), and `data-points`,
+ * `data-failed` and `data-best` (the curve's last value) for tests.
  */
 export function drawHistory(canvas, series, direction) {
   const { ctx, width, height } = prepare(canvas);
@@ -147,6 +148,7 @@ export function drawHistory(canvas, series, direction) {
   }
   canvas.dataset.points = String(values.length);
   canvas.dataset.failed = String(failed.length);
+  canvas.dataset.best = '';
   canvas.hit = null;
   if (series.number.length === 0) {
     message(ctx, width, height, 'No trials yet');
@@ -192,6 +194,7 @@ export function drawHistory(canvas, series, direction) {
     ctx.lineTo(x(lastNumber), y(best));
     ctx.stroke();
     ctx.lineWidth = 1;
+    canvas.dataset.best = String(best);
   }
   canvas.hit = { numbers, values, x, y };
 }
