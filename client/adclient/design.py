@@ -236,7 +236,9 @@ class DesignSpace(_Strict):
         default=None,
         ge=1,
         le=256,
-        description="Cap on the embedding's dimension; default: free specs + structures - 1",
+        description=(
+            "Cap on the embedding's dimension; default: free specs + min(structures - 1, 8)"
+        ),
     )
 
     _trees: list[list[Edge]] | None = PrivateAttr(default=None)
