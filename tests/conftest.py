@@ -36,23 +36,28 @@ def database(request: pytest.FixtureRequest) -> str:
 
 
 @pytest.fixture
-def new_database_url(
-    database: str, tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
-) -> Iterator[Callable[[], str]]:
-    """Make fresh empty databases of the kind under test: ``new_database_url()``."""
-    if database == "sqlite":
-        yield lambda: f"sqlite:///{tmp_path_factory.mktemp('db') / 'studies.db'}"
-        return
-    cluster: PostgresCluster = request.getfixturevalue("postgres_cluster")
+def new_postgres_url(postgres_cluster: PostgresCluster) -> Iterator[Callable[[], str]]:
+    """Make fresh empty PostgreSQL databases (for tests of PostgreSQL alone); each is
+    dropped after the test."""
     made: list[str] = []
 
     def make() -> str:
-        made.append(cluster.create_database())
+        made.append(postgres_cluster.create_database())
         return made[-1]
 
     yield make
     for url in made:
-        cluster.drop_database(url)
+        postgres_cluster.drop_database(url)
+
+
+@pytest.fixture
+def new_database_url(
+    database: str, tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
+) -> Callable[[], str]:
+    """Make fresh empty databases of the kind under test: ``new_database_url()``."""
+    if database == "postgresql":
+        return request.getfixturevalue("new_postgres_url")
+    return lambda: f"sqlite:///{tmp_path_factory.mktemp('db') / 'studies.db'}"
 
 
 @pytest.fixture

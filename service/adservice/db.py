@@ -91,12 +91,33 @@ class Database:
         self.engine.dispose()
 
 
+MIGRATION_LOCK = {"ns": 0x414D, "id": 0}  # "AM": apart from the per-study proposal locks
+
+
 def upgrade_to_head(url: str) -> None:
-    """Bring the schema to the newest Alembic revision (the server does this at start)."""
+    """Bring the schema to the newest Alembic revision (the server does this at start).
+
+    On PostgreSQL an advisory lock makes processes that start at once (several servers,
+    or a server and ``adserver token create``) migrate one after the other: otherwise
+    both try to create the same tables and one fails."""
     from alembic import command
     from alembic.config import Config
 
     config = Config()
     config.set_main_option("script_location", str(MIGRATIONS_DIR))
     config.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
-    command.upgrade(config, "head")
+    if sa.make_url(url).get_backend_name() != "postgresql":
+        command.upgrade(config, "head")
+        return
+    engine = sa.create_engine(url, poolclass=sa.NullPool)
+    try:
+        with engine.connect() as connection:
+            connection.execute(sa.text("SELECT pg_advisory_lock(:ns, :id)"), MIGRATION_LOCK)
+            connection.commit()
+            try:
+                command.upgrade(config, "head")
+            finally:
+                connection.execute(sa.text("SELECT pg_advisory_unlock(:ns, :id)"), MIGRATION_LOCK)
+                connection.commit()
+    finally:
+        engine.dispose()

@@ -1,9 +1,13 @@
-"""Alembic's head on an empty database is exactly the models' schema."""
+"""Alembic's head on an empty database is exactly the models' schema, on SQLite and on
+PostgreSQL; upgrading twice, or from several processes at once, is harmless."""
 
 from __future__ import annotations
 
-from pathlib import Path
+import subprocess
+import sys
+from collections.abc import Callable
 
+import pytest
 import sqlalchemy as sa
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
@@ -11,22 +15,43 @@ from alembic.migration import MigrationContext
 from adservice.db import upgrade_to_head
 from adservice.models import Base
 
+TABLES = {"studies", "trials", "artifacts", "workers", "tokens", "alembic_version"}
 
-def test_upgrade_head_matches_models(tmp_path: Path) -> None:
-    url = f"sqlite:///{tmp_path / 'migrated.db'}"
-    upgrade_to_head(url)
-    engine = sa.create_engine(url)
+
+def test_upgrade_head_matches_models(database_url: str) -> None:
+    upgrade_to_head(database_url)
+    engine = sa.create_engine(database_url)
     with engine.connect() as connection:
         diff = compare_metadata(MigrationContext.configure(connection), Base.metadata)
     engine.dispose()
     assert diff == []
 
 
-def test_upgrade_is_idempotent(tmp_path: Path) -> None:
-    url = f"sqlite:///{tmp_path / 'twice.db'}"
-    upgrade_to_head(url)
-    upgrade_to_head(url)
-    engine = sa.create_engine(url)
+def test_upgrade_is_idempotent(database_url: str) -> None:
+    upgrade_to_head(database_url)
+    upgrade_to_head(database_url)
+    engine = sa.create_engine(database_url)
     tables = set(sa.inspect(engine).get_table_names())
     engine.dispose()
-    assert {"studies", "trials", "artifacts", "workers", "alembic_version"} <= tables
+    assert tables >= TABLES
+
+
+@pytest.mark.postgres
+def test_processes_starting_at_once_migrate_one_after_the_other(
+    new_postgres_url: Callable[[], str],
+) -> None:
+    """Several servers started together on one PostgreSQL database all come up."""
+    url = new_postgres_url()
+    script = "import sys; from adservice.db import upgrade_to_head; upgrade_to_head(sys.argv[1])"
+    processes = [
+        subprocess.Popen([sys.executable, "-c", script, url], stderr=subprocess.PIPE, text=True)
+        for _ in range(4)
+    ]
+    errors = [(p.communicate()[1][-2000:], p.returncode) for p in processes]
+    assert [error for error, code in errors if code != 0] == []
+    engine = sa.create_engine(url)
+    with engine.connect() as connection:
+        versions = connection.execute(sa.text("SELECT count(*) FROM alembic_version")).scalar()
+        tables = set(sa.inspect(connection).get_table_names())
+    engine.dispose()
+    assert versions == 1 and tables >= TABLES
