@@ -5,7 +5,9 @@ normalised to [0, 1] by its bounds; slots a structure does not use (absent
 instances, the root's joint) hold ``PAD``. An ``identity`` representation searches x
 itself; a ``fused`` one searches the MDS embedding of the fused distances and maps
 back through the nearest reference design (structure) and that structure's affine
-map (specs).
+map (specs); a ``onehot`` one (the plain encoding, ``encoding: onehot``) searches one
+coordinate per structure followed by x, and decodes the largest coordinate's
+structure with x's specs.
 """
 
 from __future__ import annotations
@@ -104,6 +106,29 @@ def identity_representation(space: DesignSpace) -> Representation:
     )
 
 
+def onehot_representation(space: DesignSpace) -> Representation:
+    """The plain encoding of a multi-structure space: [one-hot structure, spec vector].
+
+    Every coordinate lies in [0, 1]; the structure is the argmax of the first
+    ``n_structures`` coordinates (ties to the first), the specs are the rest. A
+    structure's unused spec slots are ignored, so many vectors decode to one design.
+    """
+    layout = spec_layout(space)
+    count = len(layout.structures)
+    if count < 2:
+        raise ValueError("a one-hot representation needs several structures; use identity")
+    dim = count + layout.size
+    return Representation(
+        kind="onehot",
+        spec_names=layout.names,
+        spec_low=layout.low.tolist(),
+        spec_high=layout.high.tolist(),
+        structures=layout.structures,
+        bounds=[[0.0] * dim, [1.0] * dim],
+        info={"dim": dim, "n_structures": count, "spec_dim": layout.size},
+    )
+
+
 def _checked_layout(space: DesignSpace, representation: Representation) -> SpecLayout:
     layout = spec_layout(space)
     if layout.names != representation.spec_names:
@@ -133,6 +158,8 @@ def structure_of(representation: Representation, vector: Sequence[float] | np.nd
     v = _vector(representation, vector)
     if representation.kind == "identity":
         return 0
+    if representation.kind == "onehot":
+        return int(np.argmax(v[: len(representation.structures)]))
     refs = np.asarray(representation.ref_coords, dtype=np.float64)
     nearest = int(np.argmin(((refs - v) ** 2).sum(axis=1)))
     return int(representation.ref_structure[nearest])
@@ -143,6 +170,9 @@ def spec_vector(representation: Representation, vector: Sequence[float]) -> tupl
     v = _vector(representation, vector)
     if representation.kind == "identity":
         return 0, np.clip(v, 0.0, 1.0)
+    if representation.kind == "onehot":
+        count = len(representation.structures)
+        return structure_of(representation, v), np.clip(v[count:], 0.0, 1.0)
     structure = structure_of(representation, v)
     matrix = np.asarray(representation.affine[structure], dtype=np.float64)
     return structure, np.clip(np.append(v, 1.0) @ matrix, 0.0, 1.0)
@@ -272,9 +302,10 @@ def encode(
     ones: a vector that decodes to the design's structure and, among those tried
     (the structure's reference designs and the least-squares inverse of its affine
     map), to the specs nearest the design's; exact for reference designs up to the
-    affine map's fit. A mapping may name ``structure_index`` (default 0) and must give
-    every free spec the structure uses; other known spec keys (as in
-    ``design_params``) are ignored.
+    affine map's fit. One-hot ones: exact (the structure's coordinate 1, the others
+    0). A mapping may name ``structure_index`` (default 0) and must give every free
+    spec the structure uses; other known spec keys (as in ``design_params``) are
+    ignored.
     """
     layout = _checked_layout(space, representation)
     if isinstance(design_or_specs, Design):
@@ -303,6 +334,10 @@ def encode(
         x[k] = min(max((value - low) / (high - low), 0.0), 1.0)
     if representation.kind == "identity":
         return x.tolist()
+    if representation.kind == "onehot":
+        onehot = np.zeros(len(layout.structures))
+        onehot[structure] = 1.0
+        return [*onehot.tolist(), *x.tolist()]
     return _encode_fused(representation, structure, x, used).tolist()
 
 

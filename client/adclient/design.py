@@ -212,6 +212,13 @@ class DesignSpace(_Strict):
     references per structure (capped near 512 in all, at least 2 each) drawn with
     ``reference_seed``, and the embedding's ``embedding_mass`` and
     ``embedding_max_dim``.
+
+    ``encoding`` says how a space with several structures is searched: ``fused`` (the
+    default, DESIGN.md section 2) or ``onehot``, the plain encoding a user would build
+    without fusion: one [0, 1] coordinate per structure (the largest names the
+    structure) followed by the normalised spec vector. Single-structure spaces search
+    the spec vector either way. ``onehot`` exists so the benchmark can show what the
+    fusion earns (bench/paper.py).
     """
 
     type: Literal["design"]
@@ -222,6 +229,11 @@ class DesignSpace(_Strict):
         description="Candidate trees as edge lists, or 'all' trees over the instances"
     )
     max_structures: int = Field(default=64, ge=1, le=1000)
+    encoding: Literal["fused", "onehot"] = Field(
+        default="fused",
+        description="Search vector of a multi-structure space: fused MDS embedding, or "
+        "one-hot structure + spec vector",
+    )
     fusion_solver: Literal["osqp", "exact"] = "osqp"
     fusion_margin: float = Field(default=0.0, ge=0.0)
     reference_per_structure: int = Field(default=16, ge=2, le=256)
@@ -511,6 +523,8 @@ class Representation(BaseModel):
     ``identity``: one structure; the vector is the spec vector normalised to [0, 1].
     ``fused``: several structures; the vector lives in the MDS embedding of the
     fused distances, decoded by nearest reference design plus an affine map.
+    ``onehot``: several structures, plain encoding: one [0, 1] coordinate per
+    structure (the largest wins, ties to the first), then the normalised spec vector.
 
     ``affine[s]`` is a ``(dim + 1) x p`` matrix: the normalised spec vector of
     structure ``s`` at search vector ``v`` is ``[v, 1] @ affine[s]``, clipped to
@@ -518,7 +532,7 @@ class Representation(BaseModel):
     designs' coordinates and structure indices.
     """
 
-    kind: Literal["identity", "fused"]
+    kind: Literal["identity", "fused", "onehot"]
     spec_names: list[str]
     spec_low: list[float]
     spec_high: list[float]

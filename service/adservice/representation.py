@@ -46,7 +46,7 @@ from scipy.spatial.distance import pdist, squareform
 from scipy.stats import qmc
 from threadpoolctl import threadpool_limits
 
-from adclient.decode import PAD, identity_representation, spec_layout
+from adclient.decode import PAD, identity_representation, onehot_representation, spec_layout
 from adclient.design import DesignSpace, Representation
 from adclient.similarity import similarity_matrix
 
@@ -451,11 +451,14 @@ def reference_specs(space: DesignSpace) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_representation(space: DesignSpace) -> Representation:
-    """The study's representation: identity for one structure, else the fused one."""
+    """The study's representation: identity for one structure, else the fused one (or
+    the plain one-hot encoding when the space asks for ``encoding: onehot``)."""
     layout = spec_layout(space)
     structures = layout.structures
     if len(structures) == 1:
         return identity_representation(space)
+    if space.encoding == "onehot":
+        return onehot_representation(space)
     started = time.perf_counter()
     X, labels = reference_specs(space)
     part_of = {instance.name: instance.part for instance in space.instances}
