@@ -1,0 +1,562 @@
+"""Tables, plots and pictures from bench/paper.py's results (``paper.py --report``).
+
+Definitions (also printed in docs/paper.md):
+- evaluations to target: 1 + the number of the first trial (in proposal order) whose
+  score reaches the target, 95% of the task's best-known score for the study's
+  learner (bench/best_known.py); a study that never reaches it within its budget is
+  censored (counted as "more than the budget": medians and quartiles that fall on
+  censored studies print as ">B").
+- success within 15 / within budget: the fraction of seeds reaching the target by
+  evaluation 15 / by the study's last evaluation.
+- wall time per study: from the create request until every trial of the budget is
+  scored, measured by the bench client (two workers, two cores shared with whatever
+  else ran: the load average is recorded); time to target: from the study's creation
+  to the end of the first trial that reached the target (server clock).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.paperlib import (
+    BEST_KNOWN,
+    QUICK,
+    REPO,
+    RESULTS,
+    TASK_LABELS,
+    TASKS,
+    quantiles,
+    read_jsonl,
+)
+
+DOCS = REPO / "docs"
+FIGURES = DOCS / "paper"
+PAPER_MD = DOCS / "paper.md"
+RESULTS_MD = REPO / "bench" / "RESULTS.md"
+SECTION = "## Paper Table 1 (issue 7)"
+START, END = "<!-- paper.py:generated:start -->", "<!-- paper.py:generated:end -->"
+METHOD_ORDER = ["qei", "nelder-mead", "tpe", "random", "qei-onehot"]
+COLOURS = {
+    "qei": "tab:blue",
+    "nelder-mead": "tab:red",
+    "tpe": "tab:green",
+    "random": "tab:gray",
+    "qei-onehot": "tab:purple",
+}
+GOAL_MEDIAN = {"stand-up": 5, "diagonal-gesture": 7}
+EARLY = 15
+
+
+@dataclass
+class Study:
+    record: dict[str, Any]
+    target: float | None
+    values: list[float | None] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        trials = sorted(self.record["trials"], key=lambda t: t["number"])
+        self.values = [t["value"] if t["state"] == "complete" else None for t in trials]
+        self.trials = trials
+
+    @property
+    def budget(self) -> int:
+        return int(self.record["budget"])
+
+    @property
+    def evals_to_target(self) -> float:
+        if self.target is None:
+            return math.nan
+        for index, value in enumerate(self.values):
+            if value is not None and value >= self.target:
+                return float(index + 1)
+        return math.inf
+
+    @property
+    def time_to_target(self) -> float:
+        count = self.evals_to_target
+        if not math.isfinite(count):
+            return math.nan
+        finished = self.trials[int(count) - 1]["finished_s"]
+        return float(finished) if finished is not None else math.nan
+
+    def best_so_far(self, length: int) -> np.ndarray:
+        out = np.full(length, np.nan)
+        best = -np.inf
+        for index in range(min(length, len(self.values))):
+            value = self.values[index]
+            if value is not None:
+                best = max(best, value)
+            out[index] = best if np.isfinite(best) else np.nan
+        return out
+
+    def best_within(self, count: int) -> float:
+        values = [v for v in self.values[:count] if v is not None]
+        return max(values) if values else math.nan
+
+    @property
+    def worker_s(self) -> float:
+        return float(sum(t["worker_s"] or 0.0 for t in self.trials))
+
+    @property
+    def ask_s(self) -> float:
+        return float(sum(t.get("ask_s") or 0.0 for t in self.trials))
+
+
+def load(quick: bool) -> tuple[dict[str, Any], dict[str, list[Study]]]:
+    """Best-known scores and the studies, by learner."""
+    folder = QUICK if quick else RESULTS
+    best_path = folder / "best_known.json" if quick else BEST_KNOWN
+    if quick and not best_path.exists():
+        best_path = BEST_KNOWN
+    best_known = json.loads(best_path.read_text())["tasks"] if best_path.exists() else {}
+    studies: dict[str, list[Study]] = {}
+    for path in sorted(folder.glob("paper-*.jsonl")):
+        for record in read_jsonl(path):
+            entry = best_known.get(record["task"], {}).get(record["learner"])
+            target = entry["target"] if entry else None
+            studies.setdefault(record["learner"], []).append(Study(record, target))
+    return best_known, studies
+
+
+# -- numbers ---------------------------------------------------------------------------
+
+
+def _count(value: float, budget: int | None = None) -> str:
+    if math.isnan(value):
+        return "-"
+    if math.isinf(value):
+        return f">{budget}" if budget else "inf"
+    return f"{value:g}" if value == int(value) else f"{value:.1f}"
+
+
+def summarise(group: list[Study]) -> dict[str, Any]:
+    budget = max(s.budget for s in group)
+    counts = [s.evals_to_target for s in group]
+    q1, median, q3 = quantiles(counts)
+    reached = [s for s in group if math.isfinite(s.evals_to_target)]
+    times = [s.time_to_target for s in reached if not math.isnan(s.time_to_target)]
+    return {
+        "n": len(group),
+        "budget": budget,
+        "median": median,
+        "q1": q1,
+        "q3": q3,
+        "early": sum(1 for c in counts if c <= EARLY),
+        "within": len(reached),
+        "wall": float(np.median([s.record["wall_s"] for s in group])),
+        "wall_q": quantiles([s.record["wall_s"] for s in group], (0.25, 0.75)),
+        "time_to_target": float(np.median(times)) if times else math.nan,
+        "best_early": float(np.nanmedian([s.best_within(EARLY) for s in group])),
+        "worker_s": float(np.median([s.worker_s for s in group])),
+        "ask_s": float(np.median([s.ask_s for s in group])),
+        "load": float(np.median([s.record.get("load_before", math.nan) for s in group])),
+    }
+
+
+def grouped(studies: list[Study]) -> dict[tuple[str, str], list[Study]]:
+    groups: dict[tuple[str, str], list[Study]] = {}
+    for study in studies:
+        groups.setdefault((study.record["task"], study.record["method"]), []).append(study)
+    return groups
+
+
+def _ordered_keys(groups: dict[tuple[str, str], list[Study]]) -> list[tuple[str, str]]:
+    tasks = list(TASKS)
+    return sorted(
+        groups,
+        key=lambda k: (
+            tasks.index(k[0]) if k[0] in tasks else 99,
+            METHOD_ORDER.index(k[1]) if k[1] in METHOD_ORDER else 99,
+        ),
+    )
+
+
+def table(studies: list[Study], best_known: dict[str, Any], learner: str) -> list[str]:
+    groups = grouped(studies)
+    lines = [
+        "| task | method | seeds | budget | evaluations to target: median [IQR] "
+        "| reached within 15 | within budget | wall s / study: median [IQR] "
+        "| time to target s: median | best score by 15 / best known: median "
+        "| worker s / study | proposer s / study |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for key in _ordered_keys(groups):
+        task, method = key
+        s = summarise(groups[key])
+        entry = best_known.get(task, {}).get(learner)
+        ratio = s["best_early"] / entry["score"] if entry and entry["score"] else math.nan
+        b = s["budget"]
+        lines.append(
+            f"| {TASK_LABELS.get(task, task)} | {method} | {s['n']} | {b} "
+            f"| {_count(s['median'], b)} [{_count(s['q1'], b)}, {_count(s['q3'], b)}] "
+            f"| {s['early']}/{s['n']} | {s['within']}/{s['n']} "
+            f"| {s['wall']:.0f} [{s['wall_q'][0]:.0f}, {s['wall_q'][1]:.0f}] "
+            f"| {_fmt(s['time_to_target'], '.0f')} | {_fmt(ratio, '.3f')} "
+            f"| {s['worker_s']:.0f} | {s['ask_s']:.1f} |"
+        )
+    return lines
+
+
+def _fmt(value: float, spec: str) -> str:
+    return "-" if value is None or math.isnan(value) else format(value, spec)
+
+
+def goals(studies: list[Study], learner: str) -> list[str]:
+    """The issue's goals, judged on these numbers (never tuned: see docs/paper.md)."""
+    groups = grouped(studies)
+    lines = []
+    for task, limit in GOAL_MEDIAN.items():
+        qei = groups.get((task, "qei"))
+        if not qei:
+            continue
+        s = summarise(qei)
+        ok = s["median"] <= limit
+        lines.append(
+            f"- {task}, qei median evaluations to target {_count(s['median'], s['budget'])} "
+            f"(goal <= {limit}): {'met' if ok else 'missed'}"
+            + ("" if ok else f" by {_count(s['median'] - limit, s['budget'])}")
+        )
+        ok = s["early"] >= math.ceil(0.9 * s["n"])
+        lines.append(
+            f"- {task}, qei seeds reaching the target within 15: {s['early']}/{s['n']} "
+            f"(goal >= 9/10): {'met' if ok else 'missed'}"
+        )
+        for method, factor in (("nelder-mead", 3), ("tpe", 2), ("random", 2)):
+            other = groups.get((task, method))
+            if not other:
+                continue
+            o = summarise(other)
+            lines.append(f"- {task}, {method} vs qei: " + _ratio(o, s, factor))
+    for task in TASKS:
+        qei = groups.get((task, "qei"))
+        if qei and task == "stand-up":
+            s = summarise(qei)
+            lines.append(
+                f"- {task}, qei wall time per full study ({s['budget']} evaluations, 2 workers): "
+                f"median {s['wall']:.0f} s, time to target median "
+                f"{_fmt(s['time_to_target'], '.0f')} s (goal < 120 s): "
+                + ("met" if s["wall"] < 120 else "missed")
+                + f" (load average at start, median {s['load']:.1f} on 2 cores)"
+            )
+    return lines
+
+
+def _ratio(other: dict[str, Any], qei: dict[str, Any], factor: int) -> str:
+    """'other needs >= factor x qei's evaluations' on medians; censored medians give bounds."""
+    if math.isinf(qei["median"]):
+        return f"qei's median is censored (>{qei['budget']}): no ratio"
+    if qei["median"] <= 0 or math.isnan(qei["median"]):
+        return "no ratio"
+    if math.isinf(other["median"]):
+        bound = (other["budget"] + 1) / qei["median"]
+        verdict = "met" if bound >= factor else "undecided (its budget is too short to tell)"
+        return (
+            f"median >{other['budget']} vs {_count(qei['median'])}: ratio > {bound:.1f} "
+            f"(goal >= {factor}x): {verdict}"
+        )
+    ratio = other["median"] / qei["median"]
+    verdict = "met" if ratio >= factor else f"missed (needs {factor}x)"
+    return (
+        f"median {_count(other['median'])} vs {_count(qei['median'])}: ratio {ratio:.1f} "
+        f"(goal >= {factor}x): {verdict}"
+    )
+
+
+def fusion_comparison(studies: list[Study]) -> list[str]:
+    groups = grouped(studies)
+    lines = []
+    for task in TASKS:
+        fused, plain = groups.get((task, "qei")), groups.get((task, "qei-onehot"))
+        if not fused or not plain:
+            continue
+        from scipy.stats import mannwhitneyu
+
+        f_best = [s.best_within(EARLY) for s in fused]
+        p_best = [s.best_within(EARLY) for s in plain]
+        test = mannwhitneyu(f_best, p_best, alternative="greater")
+        f, p = summarise(fused), summarise(plain)
+        lines.append(
+            f"| {TASK_LABELS[task]} | fused (qei) | {f['n']} "
+            f"| {_count(f['median'], f['budget'])} [{_count(f['q1'], f['budget'])}, "
+            f"{_count(f['q3'], f['budget'])}] | {f['early']}/{f['n']} "
+            f"| {np.median(f_best):.4f} [{np.percentile(f_best, 25):.4f}, "
+            f"{np.percentile(f_best, 75):.4f}] | {_structures(fused)} |"
+        )
+        lines.append(
+            f"| {TASK_LABELS[task]} | one-hot (qei) | {p['n']} "
+            f"| {_count(p['median'], p['budget'])} [{_count(p['q1'], p['budget'])}, "
+            f"{_count(p['q3'], p['budget'])}] | {p['early']}/{p['n']} "
+            f"| {np.median(p_best):.4f} [{np.percentile(p_best, 25):.4f}, "
+            f"{np.percentile(p_best, 75):.4f}] | {_structures(plain)} |"
+        )
+        lines.append(
+            f"| | fused > one-hot? | | | | one-sided Mann-Whitney U on best by 15: "
+            f"p = {test.pvalue:.3f} | |"
+        )
+    if lines:
+        lines = [
+            "| task | encoding | seeds | evaluations to target: median [IQR] "
+            "| reached within 15 | best score by 15: median [IQR] | structure of each best |",
+            "| --- | --- | ---: | ---: | ---: | ---: | --- |",
+            *lines,
+        ]
+    return lines
+
+
+def _structures(group: list[Study]) -> str:
+    counts: dict[str, int] = {}
+    for study in group:
+        structure = study.record.get("best", {}).get("params", {}).get("structure")
+        if structure:
+            counts[structure] = counts.get(structure, 0) + 1
+    return "; ".join(f"{k} x{v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
+# -- figures ---------------------------------------------------------------------------
+
+
+def plot_best_so_far(
+    studies: list[Study], best_known: dict[str, Any], learner: str, folder: Path
+) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    groups = grouped(studies)
+    for task in TASKS:
+        keys = [k for k in _ordered_keys(groups) if k[0] == task]
+        if not keys:
+            continue
+        figure, axes = plt.subplots(figsize=(6.4, 4.0), dpi=110)
+        length = max(s.budget for k in keys for s in groups[k])
+        x = np.arange(1, length + 1)
+        for key in keys:
+            curves = np.array([s.best_so_far(length) for s in groups[key]])
+            with np.errstate(all="ignore"):
+                import warnings
+
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    median = np.nanmedian(curves, axis=0)
+                    low = np.nanpercentile(curves, 25, axis=0)
+                    high = np.nanpercentile(curves, 75, axis=0)
+            budget = max(s.budget for s in groups[key])
+            colour = COLOURS.get(key[1])
+            axes.plot(
+                x[:budget],
+                median[:budget],
+                color=colour,
+                label=f"{key[1]} (n={len(groups[key])})",
+                linestyle="--" if key[1].endswith("onehot") else "-",
+            )
+            axes.fill_between(x[:budget], low[:budget], high[:budget], color=colour, alpha=0.15)
+        entry = best_known.get(task, {}).get(learner)
+        if entry:
+            axes.axhline(entry["target"], color="black", linewidth=0.8, linestyle=":")
+            axes.annotate(
+                f"target {entry['target']:.3f} (95% of best known)",
+                (1, entry["target"]),
+                textcoords="offset points",
+                xytext=(2, 3),
+                fontsize=8,
+            )
+        axes.axvline(EARLY, color="black", linewidth=0.5, alpha=0.4)
+        axes.set_xlabel("evaluations")
+        axes.set_ylabel("best score so far")
+        axes.set_title(f"{TASK_LABELS[task]}, {learner} learner: median and IQR over seeds")
+        axes.legend(fontsize=8, loc="lower right")
+        axes.grid(alpha=0.3)
+        figure.tight_layout()
+        path = folder / f"bestsofar-{task}-{learner}.png"
+        figure.savefig(path)
+        plt.close(figure)
+        paths.append(path)
+    return paths
+
+
+def best_designs(studies: list[Study], learner: str, folder: Path) -> list[str]:
+    """Copy each (task, method)'s best design picture; return markdown table rows."""
+    groups = grouped(studies)
+    rows = []
+    for key in _ordered_keys(groups):
+        candidates = [s for s in groups[key] if s.record.get("best") and s.record.get("png")]
+        if not candidates:
+            continue
+        study = max(candidates, key=lambda s: s.record["best"]["value"])
+        source = REPO / study.record["png"]
+        if not source.exists():
+            continue
+        name = f"best-{key[0]}-{key[1]}-{learner}.png"
+        shutil.copyfile(source, folder / name)
+        best = study.record["best"]
+        rows.append(
+            f"| {TASK_LABELS[key[0]]} | {key[1]} | ![{key[1]}](paper/{name}) "
+            f"| {best['value']:.4f} (seed {study.record['seed']}, evaluation "
+            f"{best['number'] + 1}) | {_design_text(best['params'])} |"
+        )
+    return rows
+
+
+def _design_text(params: dict[str, Any]) -> str:
+    parts = [f"tree {params.get('structure', '?')}"]
+    for key, value in params.items():
+        if key.endswith(".joint.axis") and isinstance(value, list):
+            parts.append(f"{key.split('.')[0]} axis ({', '.join(f'{v:.2f}' for v in value)})")
+        elif key.endswith(".length") and isinstance(value, float):
+            parts.append(f"{key} {value:.2f}")
+    return "; ".join(parts)
+
+
+# -- documents -------------------------------------------------------------------------
+
+
+def best_known_lines(best_known: dict[str, Any]) -> list[str]:
+    lines = [
+        "| task | learner | best known (mean over seeds) | target (95%) "
+        "| dense: median / best single | best design |",
+        "| --- | --- | ---: | ---: | ---: | --- |",
+    ]
+    for task, entry in best_known.items():
+        for learner in ("fast", "ddpg"):
+            if learner not in entry:
+                continue
+            e = entry[learner]
+            seeds = ", ".join(f"{v:.3f}" for v in e["seed_scores"])
+            lines.append(
+                f"| {TASK_LABELS.get(task, task)} | {learner} | {e['score']:.4f} ({seeds}) "
+                f"| {e['target']:.4f} | {entry['dense_median']:.4f} / "
+                f"{entry['dense_best_single']:.4f} | {e['design_id']}: "
+                f"{_design_text(e['params'])} |"
+            )
+    return lines
+
+
+def generated_block(
+    best_known: dict[str, Any], studies: dict[str, list[Study]], quick: bool, folder: Path
+) -> tuple[list[str], list[str]]:
+    """(lines for docs/paper.md, lines for bench/RESULTS.md)."""
+    doc: list[str] = []
+    summary: list[str] = []
+    codes = sorted({s.record.get("code", "?") for group in studies.values() for s in group})
+    doc.append(f"Code under test: {', '.join(codes) or '-'} (`bench/results/code_ref`).")
+    doc.append("")
+    doc.append("### Best-known scores and targets")
+    doc.append("")
+    doc.extend(best_known_lines(best_known))
+    doc.append("")
+    for learner in sorted(studies, key=lambda k: (k != "fast", k)):
+        group = studies[learner]
+        label = "fast learner" if learner == "fast" else f"{learner} learner (RL)"
+        rows = table(group, best_known, learner)
+        goal_lines = goals(group, learner)
+        doc += [f"### Table 1, {label}", "", *rows, "", "Goals:", "", *goal_lines, ""]
+        summary += [f"Table 1, {label}:", "", *rows, "", *goal_lines, ""]
+        plots = plot_best_so_far(group, best_known, learner, folder)
+        doc += [f"Best score so far, {label} (median line, interquartile band):", ""]
+        doc += [f"![{p.stem}](paper/{p.name})" for p in plots]
+        doc.append("")
+        fusion = fusion_comparison(group)
+        if fusion:
+            doc += [f"### Fused vs plain (one-hot) encoding, {label}", "", *fusion, ""]
+            summary += [f"Fused vs one-hot encoding, {label}:", "", *fusion, ""]
+        pictures = best_designs(group, learner, folder)
+        if pictures:
+            doc += [
+                f"### Best design found per method, {label}",
+                "",
+                "| task | method | picture (final pose) | score | design |",
+                "| --- | --- | --- | ---: | --- |",
+                *pictures,
+                "",
+            ]
+    if quick:
+        doc.insert(0, "**Quick (smoke) run: 1 seed, 5 evaluations; not results.**\n")
+    return doc, summary
+
+
+def _replace_block(text: str, block: list[str]) -> str:
+    body = "\n".join([START, *block, END])
+    if START in text and END in text:
+        return re.sub(re.escape(START) + ".*?" + re.escape(END), lambda _: body, text, flags=re.S)
+    return text.rstrip() + "\n\n" + body + "\n"
+
+
+def write_results_section(summary: list[str]) -> None:
+    text = RESULTS_MD.read_text() if RESULTS_MD.exists() else "# Benchmark results\n"
+    intro = (
+        "Command: `.venv/bin/python bench/best_known.py && .venv/bin/python bench/paper.py` "
+        "(fast learner, resumable), then `.venv/bin/python bench/paper.py --learner ddpg` "
+        "(RL, 3 seeds). Full write-up, plots and design pictures: [docs/paper.md]"
+        "(../docs/paper.md)."
+    )
+    if SECTION not in text:
+        text = text.rstrip() + f"\n\n{SECTION}\n\n{intro}\n\n{START}\n{END}\n"
+    head, _, rest = text.partition(SECTION)
+    following = re.search(r"^## ", rest, flags=re.M)
+    section, tail = (
+        (rest[: following.start()], rest[following.start() :])
+        if following
+        else (
+            rest,
+            "",
+        )
+    )
+    section = _replace_block(section, summary)
+    RESULTS_MD.write_text(head + SECTION + section.rstrip() + "\n" + ("\n" + tail if tail else ""))
+
+
+DOC_HEAD = """# Paper Table 1: evaluations to a good robot design
+
+This page is written by `bench/paper.py --report` between the markers below; the
+notes outside them are written by hand. See `bench/paper.py` and
+`bench/best_known.py` for exactly what runs.
+"""
+
+
+def write_report(console: Any, *, quick: bool) -> None:
+    best_known, studies = load(quick)
+    if not studies:
+        console.print("no results yet")
+        return
+    folder = QUICK / "figures" if quick else FIGURES
+    folder.mkdir(parents=True, exist_ok=True)
+    doc, summary = generated_block(best_known, studies, quick, folder)
+    if quick:
+        from rich.markdown import Markdown
+
+        console.print(Markdown("\n".join(summary)))
+        estimate(console, studies)
+        return
+    text = PAPER_MD.read_text() if PAPER_MD.exists() else DOC_HEAD
+    PAPER_MD.write_text(_replace_block(text, doc))
+    write_results_section(summary)
+    console.print(f"wrote {PAPER_MD.relative_to(REPO)}, {RESULTS_MD.relative_to(REPO)}")
+    for line in summary:
+        console.print(line, markup=False, highlight=False)
+
+
+def estimate(console: Any, studies: dict[str, list[Study]]) -> None:
+    """From a quick run: seconds per evaluation by (task, method), scaled to the full grid."""
+    from bench.paper import BASELINE_BUDGET, DEFAULT_SEEDS, MODEL_BUDGET, RL_SEEDS
+
+    for learner, group in studies.items():
+        seeds = DEFAULT_SEEDS.get(learner, RL_SEEDS)
+        total = 0.0
+        for (_task, method), members in grouped(group).items():
+            per_eval = np.mean([s.record["wall_s"] / s.budget for s in members])
+            budget = MODEL_BUDGET if method.startswith("qei") else BASELINE_BUDGET
+            total += per_eval * budget * seeds
+        console.print(
+            f"estimated full {learner} grid ({seeds} seeds, budgets {MODEL_BUDGET}/"
+            f"{BASELINE_BUDGET}): {total / 3600:.1f} h at this run's load"
+        )
