@@ -300,7 +300,7 @@ class DDPGLearner(StableBaselinesLearner):
     default_steps: ClassVar[int] = 3000
     hyperparameters: ClassVar[dict[str, Any]] = {
         **_OFF_POLICY,
-        "action_noise": {"kind": "normal", "sigma": 0.3},
+        "action_noise": {"kind": "ou", "sigma": 0.5, "dt": 0.1},
     }
 
 
@@ -310,7 +310,7 @@ class TD3Learner(StableBaselinesLearner):
     default_steps: ClassVar[int] = 3000
     hyperparameters: ClassVar[dict[str, Any]] = {
         **_OFF_POLICY,
-        "action_noise": {"kind": "normal", "sigma": 0.3},
+        "action_noise": {"kind": "ou", "sigma": 0.5, "dt": 0.1},
     }
 
 

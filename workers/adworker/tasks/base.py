@@ -37,6 +37,14 @@ DEFAULT_FRAME_SKIP = 12
 DEFAULT_EPISODE_STEPS = 32
 DEFAULT_INIT_NOISE = 0.05
 GROUND_FRICTION = 1.0
+ROLLING_FRICTION = 0.02
+"""Rolling resistance (m) of the links on the ground. A rubber-coated link touches the
+ground over a patch, not at a point, and the patch resists tipping about the contact.
+Without it an arch standing on two rim contacts holds only when exactly planar (axes
+exactly perpendicular to the chain); with it the score falls off gradually as the
+axes tilt away, which is both closer to a real robot and a landscape an optimiser can
+climb."""
+SPINNING_FRICTION = 0.0
 CONTACT_SLACK = 0.002
 """A link touches the ground when the engine reports a contact closer than this (m)."""
 
@@ -285,6 +293,8 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.frame_skip = int(self.options.get("frame_skip", DEFAULT_FRAME_SKIP))
         self.time_step = float(self.options.get("time_step", DEFAULT_TIME_STEP))
         self.init_noise = float(self.options.get("init_noise", DEFAULT_INIT_NOISE))
+        self.rolling_friction = float(self.options.get("rolling_friction", ROLLING_FRICTION))
+        self.spinning_friction = float(self.options.get("spinning_friction", SPINNING_FRICTION))
         if self.episode_steps < 2 or self.frame_skip < 1 or self.time_step <= 0:
             raise ValueError("episode_steps >= 2, frame_skip >= 1 and time_step > 0 required")
         self.sim_steps = 0
@@ -324,7 +334,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.robot = pybullet.loadURDF(
             str(self.urdf_path),
             useFixedBase=self.fixed_base,
-            flags=pybullet.URDF_USE_INERTIA_FROM_FILE,
+            flags=pybullet.URDF_USE_INERTIA_FROM_FILE | pybullet.URDF_USE_IMPLICIT_CYLINDER,
             physicsClientId=cid,
         )
         root_name = pybullet.getBodyInfo(self.robot, physicsClientId=cid)[0].decode()
@@ -372,7 +382,12 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
                 )
             )
             pybullet.changeDynamics(
-                self.robot, index, lateralFriction=GROUND_FRICTION, physicsClientId=cid
+                self.robot,
+                index,
+                lateralFriction=GROUND_FRICTION,
+                rollingFriction=self.rolling_friction,
+                spinningFriction=self.spinning_friction,
+                physicsClientId=cid,
             )
         for joint in self.joints:
             pybullet.changeDynamics(
@@ -410,17 +425,35 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self._link_slot = {g.index: k for k, g in enumerate(self.geometry)}
 
     def _place_robot(self) -> None:
-        """Lay a free robot on the ground along world +x, its lowest point just touching.
+        """Lay a free robot on its side along world +x, its lowest point just touching.
 
-        The root frame's +z (the chain at rest) runs along world +x and its +y stays
-        world +y, so a joint axis with phi = pi/2 is horizontal (bending lifts links off
-        the ground) and one with phi = 0 is vertical (bending stays in the ground plane).
+        The chain at rest (the root frame's +z) runs along world +x. Lying on round
+        links, the robot could rest at any roll about that line; it is laid with the
+        axis of the root's first joint horizontal, so bending that joint lifts links
+        off the ground (as anyone setting the robot down would place it). What the
+        design then decides is how the other axes sit relative to that one: parallel
+        ones fold the chain in a vertical plane, others twist it out of that plane.
         A fixed-base robot stays where its URDF puts it: root frame at the origin.
         """
         if self.fixed_base:
             return
         cid = self._client
-        orientation = pybullet.getQuaternionFromEuler([0.0, math.pi / 2, 0.0])
+        roll = 0.0
+        for j in range(pybullet.getNumJoints(self.robot, physicsClientId=cid)):
+            info = pybullet.getJointInfo(self.robot, j, physicsClientId=cid)
+            if info[16] == -1 and info[2] == pybullet.JOINT_REVOLUTE:
+                ux, uy, _ = info[13]
+                if math.hypot(ux, uy) > 1e-6:
+                    # Root +x, +y, +z land on world -z, +y, +x; rolling by atan2(ux, uy)
+                    # about world x brings the axis into the horizontal plane.
+                    roll = math.atan2(ux, uy)
+                break
+        _, orientation = pybullet.multiplyTransforms(
+            [0, 0, 0],
+            pybullet.getQuaternionFromEuler([roll, 0.0, 0.0]),
+            [0, 0, 0],
+            pybullet.getQuaternionFromEuler([0.0, math.pi / 2, 0.0]),
+        )
         pybullet.resetBasePositionAndOrientation(self.robot, [0, 0, 1.0], orientation, cid)
         for joint in self.joints:
             pybullet.resetJointState(self.robot, joint.index, 0.0, 0.0, cid)
