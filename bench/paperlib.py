@@ -62,8 +62,14 @@ def read_jsonl(path: Path) -> list[dict[str, Any]]:
 def append_jsonl(path: Path, record: dict[str, Any]) -> None:
     """Append one record and flush it to disk, so a killed run loses at most the one in flight."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("a") as handle:
-        handle.write(json.dumps(record, separators=(",", ":")) + "\n")
+    with path.open("a+b") as handle:
+        # a line cut short by a crash stays a line of its own (read_jsonl skips it)
+        handle.seek(0, os.SEEK_END)
+        if handle.tell():
+            handle.seek(-1, os.SEEK_END)
+            if handle.read(1) != b"\n":
+                handle.write(b"\n")
+        handle.write((json.dumps(record, separators=(",", ":")) + "\n").encode())
         handle.flush()
         os.fsync(handle.fileno())
 
