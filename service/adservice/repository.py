@@ -425,6 +425,16 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
     if _locking(session):
         query = query.with_for_update(of=TrialRow, skip_locked=True)
     expired = session.execute(query).all()
+    if expired and _locking(session):
+        # The counters below are read-modify-write: lock the studies (in id order, after
+        # the trials, as a tell does) and reload them, or a concurrent tell's count is lost.
+        session.execute(
+            sa.select(StudyRow)
+            .where(StudyRow.id.in_({study.id for _, study in expired}))
+            .order_by(StudyRow.id)
+            .with_for_update()
+            .execution_options(populate_existing=True)
+        ).all()
     for trial, study in expired:
         worker = session.get(WorkerRow, trial.worker_id) if trial.worker_id else None
         if worker is not None and worker.current_trial_id == trial.id:
@@ -436,7 +446,7 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
             trial.finished_at = now
             study.n_failed += 1
             if worker is not None:
-                worker.jobs_failed += 1
+                worker.jobs_failed = WorkerRow.jobs_failed + 1  # in SQL: the row is not locked
             _finish_study_if_done(study)
         else:
             trial.state = TrialState.queued
