@@ -10,11 +10,11 @@ pending.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy.orm import Session
 
 from adclient.design import DesignSpace, Representation
 from adclient.schemas import Job, ProposerConfig, StudyCreate, TaskConfig, Trial
@@ -121,26 +121,31 @@ def _request(
     )
 
 
-def _insert(
-    session: Session,
+def _record(
+    db: Database,
     config: StudyConfig,
     *,
-    first_number: int,
-    proposal: Proposal,
+    count: int,
+    propose: Callable[[int], Proposal],
     worker_id: str | None,
     lease_seconds: float,
 ) -> list[Trial]:
-    candidates = np.clip(proposal.candidates, config.bounds[0], config.bounds[1])
-    return repository.insert_trials(
-        session,
-        study_id=config.study_id,
-        first_number=first_number,
-        vectors=candidates.tolist(),
-        params=[config.params(vector) for vector in candidates],
-        infos=proposal.info,
-        worker_id=worker_id,
-        lease_seconds=lease_seconds,
-    )
+    """Reserve trial numbers and store what ``propose(first_number)`` returns, in one
+    write transaction."""
+    with db.write() as session:
+        first = repository.reserve_numbers(session, study_id=config.study_id, count=count)
+        proposal = propose(first)
+        candidates = np.clip(proposal.candidates, config.bounds[0], config.bounds[1])
+        return repository.insert_trials(
+            session,
+            study_id=config.study_id,
+            first_number=first,
+            vectors=candidates.tolist(),
+            params=[config.params(vector) for vector in candidates],
+            infos=proposal.info,
+            worker_id=worker_id,
+            lease_seconds=lease_seconds,
+        )
 
 
 def propose_trials(
@@ -155,34 +160,32 @@ def propose_trials(
     config = study_config(db, study_id)
     proposer = get_proposer(config.proposer.name)
     if not proposer.needs_history:
-        with db.write() as session:
-            first = repository.reserve_numbers(session, study_id=study_id, count=count)
-            proposal = proposer.propose(_request(config, count=count, n_issued=first, history=None))
-            return _insert(
-                session,
-                config,
-                first_number=first,
-                proposal=proposal,
-                worker_id=worker_id,
-                lease_seconds=lease_seconds,
-            )
+        return _record(
+            db,
+            config,
+            count=count,
+            propose=lambda first: proposer.propose(
+                _request(config, count=count, n_issued=first, history=None)
+            ),
+            worker_id=worker_id,
+            lease_seconds=lease_seconds,
+        )
     with locks.hold(db, study_id):
         with db.read() as session:
             study = repository.get_study(session, study_id=study_id)
             repository.check_room(study, count=count)
             history = repository.study_history(session, study_id=study_id, dim=config.dim)
-        request = _request(config, count=count, n_issued=study.n_trials, history=history)
-        proposal = proposer.propose(request)
-        with db.write() as session:
-            first = repository.reserve_numbers(session, study_id=study_id, count=count)
-            return _insert(
-                session,
-                config,
-                first_number=first,
-                proposal=proposal,
-                worker_id=worker_id,
-                lease_seconds=lease_seconds,
-            )
+        proposal = proposer.propose(
+            _request(config, count=count, n_issued=study.n_trials, history=history)
+        )
+        return _record(
+            db,
+            config,
+            count=count,
+            propose=lambda _first: proposal,
+            worker_id=worker_id,
+            lease_seconds=lease_seconds,
+        )
 
 
 def lease_job(

@@ -7,6 +7,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import httpx
 import pytest
@@ -16,6 +17,14 @@ from tests.servers import ServerProcess
 pytestmark = pytest.mark.e2e
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
+
+
+def one_trial(http: httpx.Client) -> dict[str, Any]:
+    """A fresh study with one running trial."""
+    study = http.post(
+        "/api/v1/studies", json={"name": "art", "space": BOX, "proposer": {"name": "random"}}
+    ).json()
+    return http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1}).json()["trials"][0]
 
 
 def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., ServerProcess]) -> None:
@@ -67,12 +76,7 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
 
 def test_interrupted_upload_is_never_served(live_server: ServerProcess) -> None:
     with httpx.Client(base_url=live_server.url, timeout=10) as http:
-        study = http.post(
-            "/api/v1/studies", json={"name": "art", "space": BOX, "proposer": {"name": "random"}}
-        ).json()
-        (trial,) = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1}).json()[
-            "trials"
-        ]
+        trial = one_trial(http)
     path = f"/api/v1/trials/{trial['id']}/artifacts/robot.png"
     # Declare 100 kB, send 10 kB, hang up: the upload never completes.
     with socket.create_connection(("127.0.0.1", live_server.port)) as sock:
@@ -96,12 +100,7 @@ def test_interrupted_upload_is_never_served(live_server: ServerProcess) -> None:
 
 def test_truncated_artifact_file_is_not_served(live_server: ServerProcess) -> None:
     with httpx.Client(base_url=live_server.url, timeout=10) as http:
-        study = http.post(
-            "/api/v1/studies", json={"name": "art", "space": BOX, "proposer": {"name": "random"}}
-        ).json()
-        (trial,) = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1}).json()[
-            "trials"
-        ]
+        trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/curve.json"
         http.put(path, content=b'{"curve": [1, 2, 3]}')
         (stored,) = list(live_server.artifact_dir.rglob("curve.json"))
@@ -113,12 +112,7 @@ def test_truncated_artifact_file_is_not_served(live_server: ServerProcess) -> No
 @pytest.mark.parametrize("name", ["..", "a/b", "..%2F..%2Fetc", ".hidden", "x" * 200])
 def test_artifact_names_cannot_escape(live_server: ServerProcess, name: str) -> None:
     with httpx.Client(base_url=live_server.url, timeout=10) as http:
-        study = http.post(
-            "/api/v1/studies", json={"name": "art", "space": BOX, "proposer": {"name": "random"}}
-        ).json()
-        (trial,) = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1}).json()[
-            "trials"
-        ]
+        trial = one_trial(http)
         response = http.put(f"/api/v1/trials/{trial['id']}/artifacts/{name}", content=b"x")
         assert response.status_code in (404, 405, 422)
     escaped = [p for p in live_server.workdir.rglob("*") if p.is_file() and p.read_bytes() == b"x"]
@@ -130,12 +124,7 @@ def test_oversized_artifact_is_413_and_not_stored(
 ) -> None:
     server = server_factory(AD_MAX_ARTIFACT_BYTES="1000")
     with httpx.Client(base_url=server.url, timeout=10) as http:
-        study = http.post(
-            "/api/v1/studies", json={"name": "art", "space": BOX, "proposer": {"name": "random"}}
-        ).json()
-        (trial,) = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1}).json()[
-            "trials"
-        ]
+        trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/big.bin"
         assert http.put(path, content=b"x" * 5000).status_code == 413
 
