@@ -22,6 +22,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 
@@ -116,14 +117,32 @@ def show_best(client: Client, study_id: int, outdir: Path) -> None:
     std = best.metrics.get("score_std")
     if std is not None and math.isfinite(std):
         print(f"  score spread over evaluation episodes: ± {std:.4f}")
-    print("  params:")
+    print("  searched params (the rest are fixed by the study file):")
+    searched = _searched_names(study)
     for key, value in best.params.items():
-        shown = f"{value:.4f}" if isinstance(value, float) else value
-        print(f"    {key} = {shown}")
+        if key in searched or key == "structure" or key.endswith(".joint.axis"):
+            print(f"    {key} = {_show(value)}")
     for name, label in (("robot.urdf", "URDF"), ("robot.png", "image"), ("curve.json", "curve")):
         if name in paths:
             print(f"  {label}: {paths[name].relative_to(ROOT)}")
     print(f"  dashboard: {client.dashboard_url(study_id)}")
+
+
+def _searched_names(study: Any) -> set[str]:
+    from adclient.decode import spec_layout
+    from adclient.design import DesignSpace
+
+    if isinstance(study.space, DesignSpace):
+        return set(spec_layout(study.space).names)
+    return {param.name for param in study.space.params}
+
+
+def _show(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.4f}"
+    if isinstance(value, list):
+        return "(" + ", ".join(_show(item) for item in value) + ")"
+    return str(value)
 
 
 def main() -> int:

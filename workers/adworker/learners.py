@@ -318,7 +318,9 @@ class SACLearner(StableBaselinesLearner):
     name: ClassVar[str] = "sac"
     algorithm: ClassVar[str] = "SAC"
     default_steps: ClassVar[int] = 2000
-    hyperparameters: ClassVar[dict[str, Any]] = dict(_OFF_POLICY)
+    # A fixed, small entropy weight: the automatic one keeps the policy too random to
+    # settle on a pose within this budget.
+    hyperparameters: ClassVar[dict[str, Any]] = {**_OFF_POLICY, "ent_coef": 0.01}
 
 
 class PPOLearner(StableBaselinesLearner):

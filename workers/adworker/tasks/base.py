@@ -86,10 +86,9 @@ class JointSpec:
 class Snapshot:
     """The state read once after each control step, as plain floats.
 
-    Per-link lists follow ``RobotEnv.geometry`` (the root first). Centre heights are
-    computed eagerly (the observation uses them); the extents (``top``, ``bottom``,
-    ``axis_z``) and full 3-D centres and axes only when a task asks, which keeps a
-    control step cheap.
+    Per-link lists follow ``RobotEnv.geometry`` (the root first). Everything past the
+    engine's raw answers (heights, extents, axes) is computed when first asked for, so
+    a control step pays only for what its task and observation use.
     """
 
     def __init__(
@@ -110,20 +109,30 @@ class Snapshot:
         self.geometry = geometry
         self._constants = constants
         self._axes: dict[int, tuple[float, float, float]] = {}
+
+    @functools.cached_property
+    def _rows(self) -> list[tuple[float, float, float, float]]:
         rows = []
-        centre_z = []
-        for pose, constant in zip(poses, constants, strict=True):
-            pz = pose[0][2]
+        for pose in self.poses:
             x, y, z, w = pose[1]
             # Third row of the rotation matrix: the world height of a local vector.
-            r0 = 2.0 * (x * z - y * w)
-            r1 = 2.0 * (y * z + x * w)
-            r2 = 1.0 - 2.0 * (x * x + y * y)
-            rows.append((pz, r0, r1, r2))
-            centre_z.append(pz + r0 * constant[0] + r1 * constant[1] + r2 * constant[2])
-        self._rows = rows
-        self.centre_z = centre_z
+            rows.append(
+                (
+                    pose[0][2],
+                    2.0 * (x * z - y * w),
+                    2.0 * (y * z + x * w),
+                    1.0 - 2.0 * (x * x + y * y),
+                )
+            )
+        return rows
+
+    @functools.cached_property
+    def centre_z(self) -> list[float]:
         """Height of each link's shape centre."""
+        return [
+            pz + r0 * c[0] + r1 * c[1] + r2 * c[2]
+            for (pz, r0, r1, r2), c in zip(self._rows, self._constants, strict=True)
+        ]
 
     @functools.cached_property
     def axis_z(self) -> list[float]:
@@ -464,8 +473,14 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     # ---------------------------------------------------------------- stepping
 
     def observation_size(self) -> int:
-        links = len(self.geometry) * (2 if self.reads_contacts else 1)
-        return 2 * len(self.joints) + 4 + links + self.task_observation_size()
+        """Joint positions and velocities; for a free base its tilt, height and the links'
+        heights; one ground-contact flag per link where contacts are read; task extras."""
+        size = 2 * len(self.joints) + self.task_observation_size()
+        if not self.fixed_base:
+            size += 4 + len(self.geometry)
+        if self.reads_contacts:
+            size += len(self.geometry)
+        return size
 
     def task_observation_size(self) -> int:
         return 0
@@ -525,11 +540,14 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
             for q, mid, inv in zip(snapshot.q, self._mid, self._inv_half, strict=True)
         ]
         values += [qd * inv for qd, inv in zip(snapshot.qd, self._inv_velocity, strict=True)]
-        x, y, z, w = snapshot.poses[0][1]
-        # World +z seen from the root frame: the body's tilt.
-        values += (2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
-        values.append(snapshot.poses[0][0][2])
-        values += snapshot.centre_z
+        if not self.fixed_base:
+            # A fixed base never moves: its pose and its links' heights (functions of the
+            # joint angles) would add nothing.
+            x, y, z, w = snapshot.poses[0][1]
+            # World +z seen from the root frame: the body's tilt.
+            values += (2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
+            values.append(snapshot.poses[0][0][2])
+            values += snapshot.centre_z
         if self.reads_contacts:
             values += snapshot.touching
         values += self.task_observation(snapshot)
@@ -584,9 +602,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.record.metric.append(metric)
         self._step_count += 1
         truncated = self._step_count >= self.episode_steps
-        info: dict[str, Any] = {"metric": metric}
-        if truncated:
-            info["score"] = self.record.score()
+        info: dict[str, Any] = {"score": self.record.score()} if truncated else {}
         return self._observe(snapshot), float(self.reward(snapshot, metric)), False, truncated, info
 
     # ------------------------------------------------------------ inspection
