@@ -27,6 +27,8 @@ from adclient.design import DesignSpace, Representation
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$"
 """Names of studies, params, metrics and artifacts: safe in URLs, file names and XML."""
+NO_NUL_PATTERN = r"^[^\x00]*$"
+"""Free text: anything but NUL, which PostgreSQL cannot store in a text column."""
 
 MAX_ASK = 64
 
@@ -194,8 +196,10 @@ class TellRequest(_Strict):
 
     value: float | None = None
     state: Literal["complete", "failed"] = "complete"
-    message: str | None = Field(default=None, max_length=10_000)
-    worker_id: str | None = Field(default=None, min_length=1, max_length=128)
+    message: str | None = Field(default=None, max_length=10_000, pattern=NO_NUL_PATTERN)
+    worker_id: str | None = Field(
+        default=None, min_length=1, max_length=128, pattern=NO_NUL_PATTERN
+    )
     metrics: dict[str, float] = Field(default_factory=dict, max_length=256)
 
     @model_validator(mode="after")
@@ -238,11 +242,11 @@ class TellRequest(_Strict):
 
 
 class LeaseRequest(_Strict):
-    worker_id: str = Field(min_length=1, max_length=128)
+    worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
 
 
 class HeartbeatRequest(_Strict):
-    worker_id: str = Field(min_length=1, max_length=128)
+    worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
 
 
 class HeartbeatResponse(BaseModel):

@@ -53,7 +53,8 @@ ReaderDep = Annotated[Principal, Depends(require(Role.reader))]
 WorkerDep = Annotated[Principal, Depends(require(Role.worker))]
 AdminDep = Annotated[Principal, Depends(require(Role.admin))]
 
-MAX_ID = 2**63 - 1
-"""Ids are 64-bit integers in every database: anything larger is a 422, not an overflow."""
+MAX_ID = 2**31 - 1
+"""Ids and trial numbers are INTEGER columns, 32-bit on PostgreSQL: anything larger is a
+422, not an overflow."""
 StudyId = Annotated[int, Path(ge=1, le=MAX_ID, description="A study's id")]
 TrialId = Annotated[int, Path(ge=1, le=MAX_ID, description="A trial's id")]
