@@ -9,6 +9,20 @@ A learner gets a built env, a step budget (environment control steps; the task
 config's ``train_steps`` overrides the learner's default) and a seed, and returns a
 deterministic policy plus its training curve. Evaluation is separate (see
 :func:`evaluate_policy`) and identical for every learner.
+
+Default budgets (control steps at 10 Hz; an episode is 32 steps), CPU time of one
+stand-up evaluation on one core (bench/evaluation.py has the measured figures):
+
+    fast   1,024   32 episodes                                       ~0.5-1 s
+    ddpg   2,500   [64, 64] nets, Ornstein-Uhlenbeck exploration     ~7 s
+    td3    2,500   as ddpg, twin critics, delayed actor              ~7 s
+    sac    2,000   [64, 64] nets, entropy weight 0.01                ~8 s
+    ppo   12,288   [64, 64] nets, rollouts of 1,024 steps            ~9 s
+
+Off-policy learners update once per step (batch 64, gamma 0.95: the horizon of a
+pose-holding task is short). Exploration must be correlated in time: a new random
+target every 0.1 s only shakes the joints, while Ornstein-Uhlenbeck noise holds a
+direction long enough to find a pose.
 """
 
 from __future__ import annotations
@@ -99,7 +113,7 @@ class ConstantTargetSearch(Learner):
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
     ) -> TrainResult:
-        joints = env.action_space.shape[0]
+        joints = env.joint_count
         episodes = max(1, steps // env.episode_steps)
         validate_seeds = 2 if episodes >= 8 else 0
         validate_count = max(1, episodes // 4 // validate_seeds) if validate_seeds else 0
@@ -273,7 +287,7 @@ class StableBaselinesLearner(Learner):
 def _action_noise(env: RobotEnv, kind: str = "normal", sigma: float = 0.3, **kwargs: Any) -> Any:
     from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 
-    joints = env.action_space.shape[0]
+    joints = env.joint_count
     mean, scale = np.zeros(joints), sigma * np.ones(joints)
     if kind == "ou":
         return OrnsteinUhlenbeckActionNoise(mean=mean, sigma=scale, **kwargs)
@@ -297,7 +311,7 @@ class DDPGLearner(StableBaselinesLearner):
 
     name: ClassVar[str] = "ddpg"
     algorithm: ClassVar[str] = "DDPG"
-    default_steps: ClassVar[int] = 3000
+    default_steps: ClassVar[int] = 2500
     hyperparameters: ClassVar[dict[str, Any]] = {
         **_OFF_POLICY,
         "action_noise": {"kind": "ou", "sigma": 0.5, "dt": 0.1},
@@ -307,7 +321,7 @@ class DDPGLearner(StableBaselinesLearner):
 class TD3Learner(StableBaselinesLearner):
     name: ClassVar[str] = "td3"
     algorithm: ClassVar[str] = "TD3"
-    default_steps: ClassVar[int] = 3000
+    default_steps: ClassVar[int] = 2500
     hyperparameters: ClassVar[dict[str, Any]] = {
         **_OFF_POLICY,
         "action_noise": {"kind": "ou", "sigma": 0.5, "dt": 0.1},

@@ -206,7 +206,7 @@ def episode_score(metric: list[float] | np.ndarray) -> float:
     return float(values[values.size // 2 :].mean())
 
 
-def _rpy_matrix(rpy: tuple[float, float, float]) -> np.ndarray:
+def _rpy_matrix(rpy: tuple[float, ...]) -> np.ndarray:
     roll, pitch, yaw = rpy
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
@@ -280,7 +280,7 @@ def _inverse_transform_points(
 class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     """A robot from a URDF in its own PyBullet DIRECT client; see the module docstring."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 30}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     task_name: ClassVar[str] = "robot"
     fixed_base: ClassVar[bool] = False
@@ -412,6 +412,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self._inv_half = [2.0 / (joint.upper - joint.lower) for joint in self.joints]
         self._inv_velocity = [1.0 / joint.velocity for joint in self.joints]
         self._efforts = [joint.effort for joint in self.joints]
+        self.joint_count = len(self.joints)
         self._geometry_arrays()
         self._place_robot()
         self._saved_state = pybullet.saveState(physicsClientId=cid)
@@ -619,7 +620,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
                 return k
         raise KeyError(f"{self.task_name}: the robot has no link named {name!r}")
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
             return None
         return self.render_image()
