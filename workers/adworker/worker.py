@@ -380,6 +380,9 @@ def _child_main(config: WorkerConfig, budget: Any, log_level: int) -> None:
 
     worker = Worker(config, claim=claim, unclaim=unclaim)
     worker.install_signal_handlers()
+    # Ctrl-C reaches the whole process group; the parent passes it on as SIGTERM, so
+    # a child that also took the SIGINT would count one keypress as two signals.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise SystemExit(worker.run())
 
 
