@@ -1,0 +1,200 @@
+"""What can be checked of docker/ without a container engine: the compose file parses and
+wires PostgreSQL, one server and scalable workers with health checks; the images install
+the right extras after a pinned CPU torch; every command and AD_* variable they use is
+one the real CLIs and settings know."""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+from pathlib import Path
+from typing import Any
+
+import pytest
+import typer
+import yaml
+from sqlalchemy.engine import make_url
+
+from adservice.settings import Settings
+
+REPO = Path(__file__).resolve().parents[1]
+DOCKER = REPO / "docker"
+IMAGES = {"adserver": "service.Dockerfile", "worker": "worker.Dockerfile"}
+EXTRAS = {"service.Dockerfile": "service", "worker.Dockerfile": "worker"}
+
+
+def cli(program: str) -> Any:
+    """The program's click command (typer builds it; typer may carry its own click)."""
+    if program == "adserver":
+        from adservice.cli import app
+    elif program == "adworker":
+        from adworker.cli import app
+    else:
+        raise AssertionError(f"{program!r} is not one of the project's programs")
+    return typer.main.get_command(app)
+
+
+def options(command: Any) -> set[str]:
+    names = {"--help"}
+    for param in command.params:
+        names.update(param.opts)
+        names.update(param.secondary_opts)
+    return names
+
+
+def envvars(command: Any) -> set[str]:
+    found: set[str] = set()
+    for param in command.params:
+        value = getattr(param, "envvar", None)
+        found.update([value] if isinstance(value, str) else value or [])
+    return found
+
+
+SETTINGS_VARIABLES = {f"AD_{name.upper()}" for name in Settings.model_fields}
+
+
+def check_command(argv: list[str]) -> None:
+    program, *args = argv
+    command = cli(program)
+    known = options(command)
+    for arg in args:
+        if arg.startswith("--"):
+            assert arg.split("=", 1)[0] in known, f"{program} has no option {arg}"
+
+
+def check_environment(program: str, env: dict[str, Any]) -> None:
+    known = envvars(cli(program)) | (SETTINGS_VARIABLES if program == "adserver" else set())
+    for name in env:
+        if name.startswith("AD_"):
+            assert name in known, f"{program} reads no {name} (knows {sorted(known)})"
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict[str, Any]:
+    document = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    assert isinstance(document, dict)
+    return document
+
+
+def dockerfile(name: str) -> str:
+    return (DOCKER / name).read_text()
+
+
+def instructions(text: str) -> list[tuple[str, str]]:
+    """(INSTRUCTION, arguments) with continuation lines joined and comments dropped."""
+    joined = re.sub(r"\\\n", " ", text)
+    lines = [line.strip() for line in joined.splitlines()]
+    return [
+        (line.split(None, 1)[0].upper(), line.split(None, 1)[1] if " " in line else "")
+        for line in lines
+        if line and not line.startswith("#")
+    ]
+
+
+def exec_form(arguments: str) -> list[str]:
+    value = json.loads(arguments)
+    assert isinstance(value, list) and all(isinstance(part, str) for part in value)
+    return value
+
+
+def test_compose_has_postgres_one_server_and_scalable_workers(compose: dict[str, Any]) -> None:
+    services = compose["services"]
+    assert set(services) == {"postgres", "adserver", "worker"}
+    assert services["postgres"]["image"].startswith("postgres:")
+    assert "pg_isready" in " ".join(services["postgres"]["healthcheck"]["test"])
+    assert "/healthz" in " ".join(services["adserver"]["healthcheck"]["test"])
+    assert services["adserver"]["depends_on"]["postgres"]["condition"] == "service_healthy"
+    assert services["worker"]["depends_on"]["adserver"]["condition"] == "service_healthy"
+    # `--scale worker=N` needs workers without a fixed name or host port.
+    assert "container_name" not in services["worker"] and "ports" not in services["worker"]
+    for service, image in IMAGES.items():
+        build = services[service]["build"]
+        assert (DOCKER / build["context"] / build["dockerfile"]).resolve() == DOCKER / image
+    assert set(compose["volumes"]) >= {"pgdata", "artifacts"}
+
+
+def test_server_talks_to_the_postgres_service_with_auth_on(compose: dict[str, Any]) -> None:
+    postgres = compose["services"]["postgres"]["environment"]
+    server = compose["services"]["adserver"]["environment"]
+    url = make_url(re.sub(r"\$\{(\w+):-([^}]*)\}", r"\2", server["AD_DATABASE_URL"]))
+    assert url.drivername == "postgresql+psycopg"
+    assert (url.host, url.port) == ("postgres", 5432)
+    assert url.username == postgres["POSTGRES_USER"]
+    assert url.database == postgres["POSTGRES_DB"]
+    assert str(url.password) == re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", postgres["POSTGRES_PASSWORD"])
+    assert str(server["AD_AUTH"]).lower() == "true"
+    assert Settings.model_validate({"auth": server["AD_AUTH"]}).auth is True
+    workers = compose["services"]["worker"]["environment"]
+    assert workers["AD_SERVER_URL"] == f"http://adserver:{server['AD_PORT']}"
+    assert "AD_TOKEN" in workers
+
+
+@pytest.mark.parametrize("service", ["adserver", "worker"])
+def test_compose_commands_and_variables_match_the_clis(
+    compose: dict[str, Any], service: str
+) -> None:
+    spec = compose["services"][service]
+    command = spec["command"]
+    argv = command if isinstance(command, list) else shlex.split(command)
+    check_command(argv)
+    check_environment(argv[0], spec["environment"])
+
+
+@pytest.mark.parametrize("image", list(EXTRAS))
+def test_image_installs_cpu_torch_first_then_its_extra(image: str) -> None:
+    steps = instructions(dockerfile(image))
+    assert steps[0] == ("FROM", "python:3.11-slim")
+    runs = [arguments for kind, arguments in steps if kind == "RUN"]
+    torch = next(i for i, run in enumerate(runs) if "torch" in run)
+    assert "torch==2.13.0" in runs[torch] and "/whl/cpu" in runs[torch]
+    package = next(i for i, run in enumerate(runs) if f'".[{EXTRAS[image]}]"' in run)
+    assert torch < package
+    assert ("USER", "root") not in steps and any(kind == "USER" for kind, _ in steps)
+
+
+@pytest.mark.parametrize("image", list(EXTRAS))
+def test_image_command_and_environment_match_the_cli(image: str) -> None:
+    steps = instructions(dockerfile(image))
+    (command,) = [exec_form(arguments) for kind, arguments in steps if kind == "CMD"]
+    check_command(command)
+    env: dict[str, str] = {}
+    for kind, arguments in steps:
+        if kind == "ENV":
+            env |= dict(pair.split("=", 1) for pair in shlex.split(arguments))
+    check_environment(command[0], env)
+    for kind, arguments in steps:
+        if kind == "HEALTHCHECK":
+            assert "/healthz" in arguments
+
+
+@pytest.mark.parametrize("image", list(EXTRAS))
+def test_image_copies_only_what_exists_and_is_not_ignored(image: str) -> None:
+    steps = instructions(dockerfile(image))
+    ignore = (DOCKER / f"{image}.dockerignore").read_text().splitlines()
+    allowed = {line[1:] for line in ignore if line.startswith("!")}
+    for kind, arguments in steps:
+        if kind == "COPY":
+            *sources, _target = arguments.split()
+            for source in sources:
+                assert (REPO / source).exists(), source
+                assert source in allowed, f"{source} is excluded by the .dockerignore"
+
+
+def test_the_server_image_finds_its_migrations() -> None:
+    """The server looks for migrations beside its package source (``adservice.db``), so
+    its image installs the project editable and copies ``migrations/`` beside it."""
+    from adservice.db import MIGRATIONS_DIR
+
+    assert MIGRATIONS_DIR == REPO / "migrations"
+    runs = [a for kind, a in instructions(dockerfile("service.Dockerfile")) if kind == "RUN"]
+    assert any('pip install -e ".[service]"' in run for run in runs)
+    copies = [a.split() for k, a in instructions(dockerfile("service.Dockerfile")) if k == "COPY"]
+    assert ["migrations", "migrations"] in copies
+
+
+def test_readme_explains_scaling_out() -> None:
+    readme = (REPO / "README.md").read_text()
+    section = readme.split("## Scaling out", 1)[1]
+    for needed in ("--scale worker=", "AD_DATABASE_URL", "token create --role worker"):
+        assert needed in section
