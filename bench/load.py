@@ -1,0 +1,272 @@
+"""Load: 32 simulated workers run a 10,000-trial managed study against one server, on a
+SQLite file and on PostgreSQL, in the same run, side by side.
+
+Each worker is a thread with its own HTTP connection doing what ``adworker`` does, minus
+the physics: lease a job, send a heartbeat, compute a cheap score, tell it. The threads
+are spread over a few client processes so the clients' own interpreter lock does not set
+the pace. The server is a real ``adserver`` process; PostgreSQL is a throwaway cluster
+(Debian's package, installed if missing; default durability: fsync and synchronous
+commit on) started for the run.
+
+Reported per database: trials per second, the 50th/99th-percentile latency of lease,
+heartbeat and tell, non-2xx answers, and, read back from the server afterwards, trials
+lost (acknowledged tells not stored as told, or trials never told), duplicated (a trial
+leased twice or a trial number used twice) and stuck (not finished at the end).
+
+Run: ``.venv/bin/python bench/load.py [--workers 32] [--trials 10000]
+[--databases sqlite,postgresql] [--json FILE]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tests.postgres import PostgresCluster
+from tests.servers import ServerProcess
+
+ENDPOINTS = ("lease", "heartbeat", "tell")
+SPACE = {
+    "type": "box",
+    "params": [{"name": "x", "low": -2.0, "high": 2.0}, {"name": "y", "low": -2.0, "high": 2.0}],
+}
+
+
+def score(params: dict[str, float]) -> float:
+    """The simulated evaluation: a cheap smooth function (no physics)."""
+    return -((params["x"] - 0.5) ** 2) - (params["y"] + 0.25) ** 2
+
+
+@dataclass
+class ClientResult:
+    latencies: dict[str, list[float]] = field(default_factory=lambda: {e: [] for e in ENDPOINTS})
+    leased: list[int] = field(default_factory=list)
+    told: dict[int, float] = field(default_factory=dict)
+    errors: Counter[str] = field(default_factory=Counter)
+
+    def merge(self, other: ClientResult) -> None:
+        for endpoint in ENDPOINTS:
+            self.latencies[endpoint].extend(other.latencies[endpoint])
+        self.leased.extend(other.leased)
+        self.told.update(other.told)
+        self.errors.update(other.errors)
+
+
+def run_clients(url: str, study_id: int, worker_names: list[str], deadline: float) -> ClientResult:
+    """One client process: a thread per simulated worker; returns what they saw."""
+    result = ClientResult()
+    guard = threading.Lock()
+
+    def worker(name: str) -> None:
+        mine = ClientResult()
+        with httpx.Client(base_url=url, timeout=60) as http:
+            while time.time() < deadline:
+                started = time.perf_counter()
+                leased = http.post("/api/v1/jobs/lease", json={"worker_id": name})
+                mine.latencies["lease"].append(time.perf_counter() - started)
+                if leased.status_code == 204:
+                    state = http.get(f"/api/v1/studies/{study_id}").json()["state"]
+                    if state != "running":
+                        break
+                    time.sleep(0.2)  # others still hold the last trials: one may come back
+                    continue
+                if leased.status_code != 200:
+                    mine.errors[f"lease {leased.status_code}"] += 1
+                    time.sleep(0.1)
+                    continue
+                job = leased.json()
+                trial_id = job["trial_id"]
+                mine.leased.append(trial_id)
+                started = time.perf_counter()
+                beat = http.post(f"/api/v1/trials/{trial_id}/heartbeat", json={"worker_id": name})
+                mine.latencies["heartbeat"].append(time.perf_counter() - started)
+                if beat.status_code != 200:
+                    mine.errors[f"heartbeat {beat.status_code}"] += 1
+                value = score(job["params"])
+                started = time.perf_counter()
+                told = http.post(
+                    f"/api/v1/trials/{trial_id}/tell", json={"value": value, "worker_id": name}
+                )
+                mine.latencies["tell"].append(time.perf_counter() - started)
+                if told.status_code == 200:
+                    mine.told[trial_id] = value
+                else:
+                    mine.errors[f"tell {told.status_code}"] += 1
+        with guard:
+            result.merge(mine)
+
+    threads = [threading.Thread(target=worker, args=(name,)) for name in worker_names]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return result
+
+
+def percentile_ms(values: list[float], q: float) -> float:
+    return round(float(np.percentile(values, q)) * 1000, 1) if values else math.nan
+
+
+def run_load(
+    database_url: str, workdir: Path, *, workers: int, trials: int, processes: int, limit_s: float
+) -> dict[str, Any]:
+    server = ServerProcess(
+        database_url=database_url, workdir=workdir, env={"AD_LEASE_SECONDS": "60"}
+    ).start()
+    try:
+        with httpx.Client(base_url=server.url, timeout=60) as http:
+            created = http.post(
+                "/api/v1/studies",
+                json={
+                    "name": "load",
+                    "space": SPACE,
+                    "proposer": {"name": "random", "seed": 1},
+                    "task": {"name": "noop"},
+                    "max_trials": trials,
+                },
+            )
+            created.raise_for_status()
+            study_id = created.json()["id"]
+        names = [f"sim-{i:02d}" for i in range(workers)]
+        groups = [names[i::processes] for i in range(processes)]
+        deadline = time.time() + limit_s
+        started = time.perf_counter()
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=processes, mp_context=context) as pool:
+            parts = [
+                pool.submit(run_clients, server.url, study_id, group, deadline) for group in groups
+            ]
+            seen = ClientResult()
+            for part in parts:
+                seen.merge(part.result())
+        elapsed = time.perf_counter() - started
+        with httpx.Client(base_url=server.url, timeout=120) as http:
+            stored = http.get(
+                f"/api/v1/studies/{study_id}/trials", params={"limit": trials + 1000}
+            ).json()
+            study = http.get(f"/api/v1/studies/{study_id}").json()
+    finally:
+        server.stop()
+
+    by_id = {trial["id"]: trial for trial in stored}
+    lease_counts = Counter(seen.leased)
+    number_counts = Counter(trial["number"] for trial in stored)
+    lost_tells = sum(
+        1
+        for trial_id, value in seen.told.items()
+        if by_id.get(trial_id, {}).get("state") != "complete" or by_id[trial_id]["value"] != value
+    )
+    never_told = sum(1 for trial in stored if trial["id"] not in seen.told)
+    duplicated = sum(n - 1 for n in lease_counts.values() if n > 1) + sum(
+        n - 1 for n in number_counts.values() if n > 1
+    )
+    stuck = sum(1 for trial in stored if trial["state"] not in ("complete", "failed"))
+    complete = sum(1 for trial in stored if trial["state"] == "complete")
+    return {
+        "trials": trials,
+        "workers": workers,
+        "client_processes": processes,
+        "seconds": round(elapsed, 1),
+        "trials_per_s": round(complete / elapsed, 1),
+        "latency_ms": {
+            endpoint: {
+                "p50": percentile_ms(seen.latencies[endpoint], 50),
+                "p99": percentile_ms(seen.latencies[endpoint], 99),
+                "n": len(seen.latencies[endpoint]),
+            }
+            for endpoint in ENDPOINTS
+        },
+        "errors": dict(seen.errors),
+        "stored": len(stored),
+        "complete": complete,
+        "study_state": study["state"],
+        "lost": lost_tells + never_told,
+        "duplicated": duplicated,
+        "stuck": stuck,
+    }
+
+
+def print_table(results: dict[str, dict[str, Any]]) -> None:
+    names = list(results)
+    rows = [
+        ("trials stored / complete", lambda r: f"{r['stored']} / {r['complete']}"),
+        ("wall time (s)", lambda r: r["seconds"]),
+        ("throughput (trials/s)", lambda r: r["trials_per_s"]),
+        *[
+            (
+                f"{endpoint} p50 / p99 (ms)",
+                lambda r, e=endpoint: f"{r['latency_ms'][e]['p50']} / {r['latency_ms'][e]['p99']}",
+            )
+            for endpoint in ENDPOINTS
+        ],
+        ("non-2xx answers", lambda r: sum(r["errors"].values())),
+        ("lost / duplicated / stuck", lambda r: f"{r['lost']} / {r['duplicated']} / {r['stuck']}"),
+        ("study state", lambda r: r["study_state"]),
+    ]
+    table = [
+        ["", *names],
+        *([label, *(str(cell(results[n])) for n in names)] for label, cell in rows),
+    ]
+    widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
+    for index, row in enumerate(table):
+        print("| " + " | ".join(f"{text:{widths[i]}}" for i, text in enumerate(row)) + " |")
+        if index == 0:
+            print("|" + "|".join("-" * (width + 2) for width in widths) + "|")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--workers", type=int, default=32)
+    parser.add_argument("--trials", type=int, default=10_000)
+    parser.add_argument("--processes", type=int, default=4, help="client processes")
+    parser.add_argument("--databases", default="sqlite,postgresql")
+    parser.add_argument("--limit", type=float, default=1800.0, help="seconds per database")
+    parser.add_argument("--json", type=Path, help="also write the figures here")
+    args = parser.parse_args()
+
+    results: dict[str, dict[str, Any]] = {}
+    with tempfile.TemporaryDirectory(prefix="ad-load-") as tmp:
+        for database in args.databases.split(","):
+            workdir = Path(tmp) / database
+            workdir.mkdir()
+            print(f"{database}: {args.workers} workers, {args.trials} trials ...", flush=True)
+            run = dict(
+                workers=args.workers,
+                trials=args.trials,
+                processes=args.processes,
+                limit_s=args.limit,
+            )
+            if database == "sqlite":
+                results[database] = run_load(f"sqlite:///{workdir / 'load.db'}", workdir, **run)
+            elif database == "postgresql":
+                with PostgresCluster.start(durable=True) as cluster:
+                    results[database] = run_load(cluster.create_database("load"), workdir, **run)
+            else:
+                parser.error(f"unknown database {database!r}")
+            print(json.dumps(results[database]), flush=True)
+    print()
+    print_table(results)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    failed = any(r["lost"] or r["duplicated"] or r["stuck"] for r in results.values())
+    sys.exit(1 if failed else 0)
+
+
+if __name__ == "__main__":
+    main()
