@@ -30,6 +30,7 @@ from tests.servers import free_port
 
 SUPERUSER = "postgres"
 UNPRIVILEGED_USER = "nobody"  # initdb and postgres refuse to run as root
+PREFIX = "activedesign-pg-"
 INSTALL_LOCK = Path(tempfile.gettempdir()) / "activedesign-postgresql-install.lock"
 
 
@@ -85,6 +86,26 @@ def ensure_installed() -> Path:
     return found
 
 
+def remove_stale_clusters(older_than_s: float = 600.0) -> None:
+    """Delete the folders of clusters whose server is gone (a test run that was killed
+    leaves its folder behind); a folder still being set up is younger than the limit."""
+    for folder in Path(tempfile.gettempdir()).glob(f"{PREFIX}*"):
+        pid_file = folder / "data" / "postmaster.pid"
+        try:
+            if pid_file.exists():
+                pid = int(pid_file.read_text().split()[0])
+                try:
+                    os.kill(pid, 0)
+                    continue  # running
+                except ProcessLookupError:
+                    pass
+            elif time.time() - folder.stat().st_mtime < older_than_s:
+                continue
+        except (OSError, ValueError, IndexError):
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _die_with_parent() -> None:
     """Runs in the child after it dropped privileges: SIGQUIT (PostgreSQL's immediate
     shutdown) when the process that started it dies, so a killed test run leaves no
@@ -108,7 +129,8 @@ class PostgresCluster:
         commit: what tests need (nothing survives the run anyway), not what a benchmark
         of a real deployment should measure."""
         bin_dir = ensure_installed()
-        root = Path(tempfile.mkdtemp(prefix="activedesign-pg-"))
+        remove_stale_clusters()
+        root = Path(tempfile.mkdtemp(prefix=PREFIX))
         as_user: dict[str, object] = {}
         if os.geteuid() == 0:
             account = pwd.getpwnam(UNPRIVILEGED_USER)
