@@ -55,6 +55,26 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+def _plain_text(value: Any, where: str) -> Any:
+    """Refuse strings that cannot be stored and sent back: NUL (PostgreSQL cannot store
+    it) and lone surrogates (not encodable as UTF-8), anywhere in a JSON value."""
+    if isinstance(value, str):
+        if "\x00" in value:
+            raise ValueError(f"{where}: text must not contain NUL")
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ValueError(f"{where}: text must be valid Unicode (no lone surrogates)") from None
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _plain_text(key, f"{where} key")
+            _plain_text(item, f"{where}.{key}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            _plain_text(item, f"{where}[{index}]")
+    return value
+
+
 def _finite(value: float, what: str) -> float:
     if not math.isfinite(value):
         raise ValueError(f"{what} must be a finite number, got {value!r}")
@@ -107,6 +127,11 @@ class ProposerConfig(_Strict):
     )
     options: dict[str, Any] = Field(default_factory=dict)
 
+    @field_validator("options")
+    @classmethod
+    def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
+        return _plain_text(options, "options")  # type: ignore[no-any-return]
+
 
 class TaskConfig(_Strict):
     """What a worker does with a design: the task, the learner and their budgets."""
@@ -119,6 +144,11 @@ class TaskConfig(_Strict):
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
     options: dict[str, Any] = Field(default_factory=dict)
 
+    @field_validator("options")
+    @classmethod
+    def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
+        return _plain_text(options, "options")  # type: ignore[no-any-return]
+
 
 class StudyCreate(_Strict):
     name: str = Field(pattern=NAME_PATTERN)
@@ -129,6 +159,11 @@ class StudyCreate(_Strict):
     max_trials: int | None = Field(default=None, ge=1, le=1_000_000)
     max_attempts: int = Field(default=3, ge=1, le=100)
     metadata: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("metadata")
+    @classmethod
+    def _metadata_text(cls, metadata: dict[str, Any]) -> dict[str, Any]:
+        return _plain_text(metadata, "metadata")  # type: ignore[no-any-return]
 
     @model_validator(mode="after")
     def _managed_needs_budget(self) -> StudyCreate:
@@ -212,6 +247,8 @@ class TellRequest(_Strict):
             raise ValueError("a failed trial carries no value")
         for key, metric in self.metrics.items():
             _finite(metric, f"metric {key!r}")
+        _plain_text(self.metrics, "metrics")
+        _plain_text(self.message, "message")
         return self
 
     @classmethod

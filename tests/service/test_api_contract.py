@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import json
 from typing import Any
 
 import pytest
@@ -214,3 +215,34 @@ def test_stop_study_refuses_asks(api: TestClient) -> None:
     stopped = api.post(f"/api/v1/studies/{study['id']}/stop")
     assert stopped.json()["state"] == "stopped"
     assert api.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1}).status_code == 409
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"metadata": {"note": "\ud800"}},
+        {"metadata": {"\ud800": 1}},
+        {"metadata": {"note": "a\x00b"}},
+        {"proposer": {"name": "random", "options": {"x": ["\udfff"]}}},
+    ],
+)
+def test_unstorable_text_is_422_not_500(api: TestClient, change: dict[str, Any]) -> None:
+    """Regression: a lone surrogate in metadata answered 500 (found by load testing)."""
+    body = json.dumps(copy.deepcopy(BOX_STUDY) | change)  # json escapes the surrogate
+    response = api.post(
+        "/api/v1/studies", content=body, headers={"Content-Type": "application/json"}
+    )
+    assert response.status_code == 422, response.text
+    assert api.get("/api/v1/studies").json() == []
+
+
+def test_unstorable_metric_name_is_422(api: TestClient) -> None:
+    study = create(api)
+    (trial,) = ask(api, study["id"])
+    body = json.dumps({"value": 1.0, "metrics": {"\ud800": 1.0}})
+    response = api.post(
+        f"/api/v1/trials/{trial['id']}/tell",
+        content=body,
+        headers={"Content-Type": "application/json"},
+    )
+    assert response.status_code == 422
