@@ -98,7 +98,7 @@ def quantiles(values: list[float], qs: tuple[float, ...] = (0.25, 0.5, 0.75)) ->
 CODE_REF = RESULTS / "code_ref"
 """The commit whose client/service/workers/examples every paper run uses (see ``snapshot``)."""
 SNAPSHOTS = REPO / "var" / "paper" / "code"
-SNAPSHOT_PARTS = ("client", "service", "workers", "examples")
+SNAPSHOT_PARTS = ("client", "service", "workers", "examples", "migrations", "alembic.ini")
 
 
 def code_ref() -> str:
