@@ -17,7 +17,7 @@ stand-up evaluation on one core (bench/evaluation.py has the measured figures):
     ddpg   2,500   [64, 64] nets, Ornstein-Uhlenbeck exploration     ~7 s
     td3    2,500   as ddpg, twin critics, delayed actor              ~7 s
     sac    2,000   [64, 64] nets, entropy weight 0.01                ~8 s
-    ppo   12,288   [64, 64] nets, rollouts of 1,024 steps            ~9 s
+    ppo   12,288   [64, 64] nets, rollouts of 512, 10 epochs         ~8 s
 
 Off-policy learners update once per step (batch 64, gamma 0.95: the horizon of a
 pose-holding task is short). Exploration must be correlated in time: a new random
@@ -341,11 +341,12 @@ class PPOLearner(StableBaselinesLearner):
     name: ClassVar[str] = "ppo"
     algorithm: ClassVar[str] = "PPO"
     default_steps: ClassVar[int] = 12288
+    # Short rollouts and large minibatches: 24 updates of 10 epochs within the budget.
     hyperparameters: ClassVar[dict[str, Any]] = {
         "learning_rate": 1e-3,
-        "n_steps": 1024,
-        "batch_size": 64,
-        "n_epochs": 5,
+        "n_steps": 512,
+        "batch_size": 128,
+        "n_epochs": 10,
         "gamma": 0.95,
         "gae_lambda": 0.9,
     }
