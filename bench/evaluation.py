@@ -268,7 +268,7 @@ def report(results: dict[str, Any]) -> str:
         "Command: `.venv/bin/python bench/evaluation.py"
         + (" --quick" if results.get("quick") else "")
         + " --write`"
-        + f" ({results['date']}, load average {results['load_start']:.1f} at start on"
+        + f" (last run {results['date']}, load average {results['load_start']:.1f} at start on"
         f" {os.cpu_count()} cores shared with other engineers' work)."
     )
     lines.append("")
@@ -348,7 +348,7 @@ def report(results: dict[str, Any]) -> str:
         "- Training dominates every RL evaluation; decode, URDF, env build, evaluation"
         " (3 episodes) and rendering (TinyRenderer, 320x240) take 0.1 to 0.3 s together.",
         "- Harness overhead is the Python around the engine calls (turning the state into"
-        " the snapshot, observation, metric, reward, bookkeeping): 10 to 20 us per control"
+        " the snapshot, observation, metric, reward, bookkeeping): 10 to 30 us per control"
         " step. It is largest in relative terms for diagonal-gesture, whose fixed-base arm"
         " without ground contact costs the engine only about 4 us per physics step.",
         "- Arch vs along-links: the along-links chain can only roll its cylinders, so every"
