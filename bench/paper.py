@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -77,18 +78,25 @@ class Cell:
     learner: str
     seed: int
     budget: int
+    tag: str = ""
+    """Names an extra measurement (its own results file), e.g. ``b30`` for longer budgets."""
+
+    @property
+    def label(self) -> str:
+        return f"{self.method}-{self.tag}" if self.tag else self.method
 
     @property
     def key(self) -> str:
-        return f"{self.task}|{self.method}|{self.learner}|{self.seed}"
+        return f"{self.task}|{self.label}|{self.learner}|{self.seed}"
 
     @property
     def name(self) -> str:
-        return f"paper-{self.task}-{self.method}-{self.learner}-s{self.seed}"
+        return f"paper-{self.task}-{self.label}-{self.learner}-s{self.seed}"
 
 
-def results_path(learner: str, quick: bool) -> Path:
-    return (QUICK if quick else RESULTS) / f"paper-{learner}.jsonl"
+def results_path(learner: str, quick: bool, tag: str = "") -> Path:
+    suffix = f"-{tag}" if tag else ""
+    return (QUICK if quick else RESULTS) / f"paper-{learner}{suffix}.jsonl"
 
 
 def grid(
@@ -98,6 +106,7 @@ def grid(
     seeds: int,
     model_budget: int,
     baseline_budget: int,
+    tag: str = "",
 ) -> list[Cell]:
     """Seed-major order, so a partial run has every method at the first seeds."""
     cells = []
@@ -109,7 +118,7 @@ def grid(
                     continue
                 proposer = METHODS[method][0]
                 budget = model_budget if proposer == "qei" else baseline_budget
-                cells.append(Cell(task, method, learner, seed, budget))
+                cells.append(Cell(task, method, learner, seed, budget, tag))
     return cells
 
 
@@ -252,6 +261,7 @@ def run_cell(
         "key": cell.key,
         "task": cell.task,
         "method": cell.method,
+        "tag": cell.tag,
         "proposer": METHODS[cell.method][0],
         "encoding": METHODS[cell.method][1],
         "learner": cell.learner,
@@ -279,7 +289,7 @@ def run_cell(
             record["png_error"] = str(error)
         else:
             png_dir.mkdir(parents=True, exist_ok=True)
-            path = png_dir / f"{cell.task}-{cell.method}-s{cell.seed}.png"
+            path = png_dir / f"{cell.task}-{cell.label}-s{cell.seed}.png"
             path.write_bytes(data)
             record["png"] = str(path.relative_to(REPO))
     return record
@@ -323,8 +333,8 @@ def run(args: argparse.Namespace) -> int:
     if args.quick:
         seeds = args.seeds or 1
         model_budget = baseline_budget = 5
-    cells = grid(args.tasks, args.methods, learner, seeds, model_budget, baseline_budget)
-    path = results_path(learner, args.quick)
+    cells = grid(args.tasks, args.methods, learner, seeds, model_budget, baseline_budget, args.tag)
+    path = results_path(learner, args.quick, args.tag)
     done = {record["key"] for record in read_jsonl(path)}
     todo = [cell for cell in cells if cell.key not in done]
     console.print(
@@ -392,6 +402,12 @@ def main(argv: list[str] | None = None) -> int:
         "--baseline-budget", type=int, default=BASELINE_BUDGET, help="other methods' evaluations"
     )
     parser.add_argument("--train-steps", type=int, help="override the learner's step budget")
+    parser.add_argument(
+        "--tag",
+        default="",
+        help="an extra measurement beside the grid (own results file; methods shown as "
+        "METHOD-TAG), e.g. --tag b30 --budget 30 --methods qei",
+    )
     parser.add_argument("--workers", type=int, default=2, help="adworker --concurrency")
     parser.add_argument("--quick", action="store_true", help="smoke run: 1 seed, 5 evaluations")
     parser.add_argument("--report", action="store_true", help="only rewrite tables and plots")
@@ -402,6 +418,8 @@ def main(argv: list[str] | None = None) -> int:
     for method in args.methods:
         if method not in METHODS:
             parser.error(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    if args.tag and not re.fullmatch(r"[a-z0-9]+", args.tag):
+        parser.error("--tag: lower-case letters and digits only")
     if args.report:
         from rich.console import Console
 
