@@ -238,6 +238,7 @@ def plot(problem: Problem, runs: dict[str, list[Run]], path: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--functions", nargs="+", default=list(PROBLEMS), choices=list(PROBLEMS))
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
     parser.add_argument("--no-write", action="store_true", help="print only")
@@ -250,7 +251,7 @@ def main() -> None:
         runs: dict[str, list[Run]] = {}
         for method in args.methods:
             runs[method] = []
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 run = run_method(method, problem, seed)
                 runs[method].append(run)
                 print(
@@ -268,10 +269,11 @@ def main() -> None:
             report.append("")
     elapsed = time.perf_counter() - started
     command = "`.venv/bin/python bench/efficiency.py`"
-    if args.seeds != 10 or args.functions != list(PROBLEMS) or args.methods != METHODS:
+    if len(sys.argv) > 1:
         command = f"`.venv/bin/python bench/efficiency.py {' '.join(sys.argv[1:])}`"
     report.append(
-        f"{args.seeds} seeds (0-{args.seeds - 1}); run with {command} on 2 shared CPU cores, "
+        f"{args.seeds} seeds ({args.first_seed}-{args.first_seed + args.seeds - 1}); "
+        f"run with {command} on 2 shared CPU cores, "
         f"{elapsed / 60:.1f} min in all. Ask times are in-process (no HTTP)."
     )
     if not args.no_write:

@@ -15,7 +15,9 @@ Decisions worth knowing:
   the GP cannot resolve the last per-cent of a function with a wide range (on
   Branin qei then missed the 1% target in 2 of 3 runs; with the low floor it
   reached it in 23-28 evaluations). ``options["noise"]`` may choose ``"inferred"``,
-  ``"floor"`` or ``"fixed"`` (1e-6, as Optuna's deterministic GP).
+  ``"floor"`` or ``"fixed"`` (1e-6, as Optuna's deterministic GP);
+  ``options["kernel"]`` ``"rbf"`` (BoTorch's default, dimension-scaled prior),
+  ``"matern"`` (same prior) or ``"matern-gamma"`` (BoTorch's older Gamma priors).
 
 - Failed trials are *excluded* from the GP (a crashed simulation says nothing
   about the score surface), and enter the acquisition as pending points, so that
@@ -283,20 +285,37 @@ class QLogEIProposer:
                 noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
             )
             likelihood = likelihood.to(**tkw)
+        kernel = str(options.get("kernel", "rbf"))
+        covar_module = None
+        if kernel == "matern":
+            from botorch.models.utils.gpytorch_modules import (
+                get_covar_module_with_dim_scaled_prior,
+            )
+
+            covar_module = get_covar_module_with_dim_scaled_prior(
+                ard_num_dims=dim, use_rbf_kernel=False
+            ).to(**tkw)
+        elif kernel == "matern-gamma":
+            from botorch.models.utils.gpytorch_modules import get_matern_kernel_with_gamma_prior
+
+            covar_module = get_matern_kernel_with_gamma_prior(ard_num_dims=dim).to(**tkw)
         model = SingleTaskGP(
             train_X,
             train_Y,
             train_Yvar=train_Yvar,
             likelihood=likelihood,
+            covar_module=covar_module,
             input_transform=Normalize(d=dim, bounds=bounds_t),
             outcome_transform=Standardize(m=1),
         )
         mll = ExactMarginalLogLikelihood(model.likelihood, model)
 
         data_key = hashlib.sha256(
-            b"".join([X.tobytes(), y.tobytes(), bounds.tobytes(), noise_mode.encode()])
+            b"".join(
+                [X.tobytes(), y.tobytes(), bounds.tobytes(), f"{noise_mode}/{kernel}".encode()]
+            )
         ).hexdigest()
-        study_key = (bounds.tobytes(), request.seed, request.n_initial, noise_mode)
+        study_key = (bounds.tobytes(), request.seed, request.n_initial, noise_mode, kernel)
         use_warm = bool(options.get("warm_start", True))
 
         started = time.perf_counter()
