@@ -11,7 +11,11 @@ Methods, all seeded with the run's seed:
   (qei: 2 Sobol points, then qLogEI; tpe: Optuna's TPE, multivariate, after 10
   Sobol points; nelder-mead: SciPy's, replayed).
 - ``gp-optuna``: Optuna's own GPSampler in a plain Optuna loop, defaults except
-  ``deterministic_objective=True`` (the functions are noise-free, as qei is told).
+  ``deterministic_objective=True`` (the functions are noise-free, as qei is told):
+  10 random start-up trials.
+- ``gp-optuna-qei-start``: the same GPSampler, but started from qei's own two Sobol
+  points (enqueued, ``n_startup_trials=2``): the two GP methods from one start, so
+  the start's share of the difference shows.
 
 A run stops once it reaches the target (best-so-far cannot get worse, so the curve
 is carried flat to the budget in the plot); unreached runs count as "more than the
@@ -41,6 +45,7 @@ sys.path.insert(0, str(ROOT))
 
 from adservice.proposers import get_proposer  # noqa: E402
 from adservice.proposers.base import ProposalRequest, empty_history  # noqa: E402
+from adservice.proposers.simple import sobol_points  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
 
 
@@ -91,7 +96,7 @@ PROBLEMS = {
     "branin": Problem("Branin", branin, np.array([[-5.0, 0.0], [10.0, 15.0]]), 0.397887, 60),
     "hartmann6": Problem("Hartmann6", hartmann6, np.array([[0.0] * 6, [1.0] * 6]), -3.32237, 120),
 }
-METHODS = ["qei", "gp-optuna", "tpe", "nelder-mead", "random"]
+METHODS = ["qei", "gp-optuna", "gp-optuna-qei-start", "tpe", "nelder-mead", "random"]
 
 
 @dataclass
@@ -136,7 +141,7 @@ def run_proposer(name: str, problem: Problem, seed: int) -> Run:
     return run
 
 
-def run_gp_optuna(problem: Problem, seed: int) -> Run:
+def run_gp_optuna(problem: Problem, seed: int, *, qei_start: bool = False) -> Run:
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -149,8 +154,16 @@ def run_gp_optuna(problem: Problem, seed: int) -> Run:
     }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sampler = optuna.samplers.GPSampler(seed=seed, deterministic_objective=True)
+        n_startup = 2 if qei_start else 10
+        sampler = optuna.samplers.GPSampler(
+            seed=seed, deterministic_objective=True, n_startup_trials=n_startup
+        )
         study = optuna.create_study(direction="minimize", sampler=sampler)
+        if qei_start:
+            low, high = problem.bounds
+            for unit in sobol_points(dim, seed, 0, n_startup):
+                vector = low + unit * (high - low)
+                study.enqueue_trial({f"x{i}": float(vector[i]) for i in range(dim)})
         run = Run()
         for _ in range(problem.budget):
             started = time.perf_counter()
@@ -166,8 +179,8 @@ def run_gp_optuna(problem: Problem, seed: int) -> Run:
 
 
 def run_method(method: str, problem: Problem, seed: int) -> Run:
-    if method == "gp-optuna":
-        return run_gp_optuna(problem, seed)
+    if method.startswith("gp-optuna"):
+        return run_gp_optuna(problem, seed, qei_start=method == "gp-optuna-qei-start")
     return run_proposer(method, problem, seed)
 
 
