@@ -348,6 +348,7 @@ class QLogEIProposer:
         with manual_seed(seed):
             sampler = SobolQMCNormalSampler(sample_shape=torch.Size([mc_samples]), seed=seed)
             pending_t = torch.as_tensor(X_pending, **tkw) if len(X_pending) else None
+            acqf: qLogExpectedImprovement | qLogNoisyExpectedImprovement
             if request.noisy:
                 acqf = qLogNoisyExpectedImprovement(
                     model=model,
@@ -381,7 +382,7 @@ class QLogEIProposer:
         rows_np = rows.detach().cpu().numpy().astype(np.float64).reshape(q, dim)
         if not np.all(np.isfinite(rows_np)):
             raise FloatingPointError("non-finite candidates from the acquisition optimiser")
-        acq_value = float(value.detach().cpu().reshape(-1)[0])
+        acq_value = float(value.detach().cpu().reshape(-1)[0]) if value is not None else np.nan
         extra = {
             "method": method,
             "log_acq_value": acq_value if np.isfinite(acq_value) else None,

@@ -37,7 +37,7 @@ class TPEProposer:
 
     def propose(self, request: ProposalRequest) -> Proposal:
         import optuna
-        from optuna.distributions import FloatDistribution
+        from optuna.distributions import BaseDistribution, FloatDistribution
         from optuna.trial import TrialState, create_trial
 
         options = request.options
@@ -62,7 +62,7 @@ class TPEProposer:
             return Proposal(candidates=np.array(rows), info=info)
 
         names = _param_names(dim)
-        distributions = {
+        distributions: dict[str, BaseDistribution] = {
             name: FloatDistribution(float(bounds[0, i]), float(bounds[1, i]))
             for i, name in enumerate(names)
         }
