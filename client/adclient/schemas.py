@@ -130,7 +130,7 @@ class ProposerConfig(_Strict):
     @field_validator("options")
     @classmethod
     def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
-        return _plain_text(options, "options")  # type: ignore[no-any-return]
+        return _plain_text(options, "options")
 
 
 class TaskConfig(_Strict):
@@ -147,7 +147,7 @@ class TaskConfig(_Strict):
     @field_validator("options")
     @classmethod
     def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
-        return _plain_text(options, "options")  # type: ignore[no-any-return]
+        return _plain_text(options, "options")
 
 
 class StudyCreate(_Strict):
@@ -163,7 +163,7 @@ class StudyCreate(_Strict):
     @field_validator("metadata")
     @classmethod
     def _metadata_text(cls, metadata: dict[str, Any]) -> dict[str, Any]:
-        return _plain_text(metadata, "metadata")  # type: ignore[no-any-return]
+        return _plain_text(metadata, "metadata")
 
     @model_validator(mode="after")
     def _managed_needs_budget(self) -> StudyCreate:

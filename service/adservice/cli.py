@@ -33,7 +33,7 @@ def is_loopback(host: str) -> bool:
 
 
 def _settings(database_url: str | None) -> Settings:
-    return Settings(**({"database_url": database_url} if database_url else {}))
+    return Settings(database_url=database_url) if database_url else Settings()
 
 
 @app.callback(invoke_without_command=True)

@@ -7,27 +7,29 @@ from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow
 
 
 def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
-    return Study(
-        id=row.id,
-        name=row.name,
-        direction=row.direction,
-        state=row.state,
-        managed=row.task is not None,
-        space=row.space,
-        proposer=row.proposer,
-        task=row.task,
-        max_trials=row.max_trials,
-        max_attempts=row.max_attempts,
-        n_trials=row.n_trials,
-        n_queued=counts.get("queued", 0),
-        n_running=counts.get("running", 0),
-        n_complete=row.n_complete,
-        n_failed=row.n_failed,
-        best_value=row.best_value,
-        best_trial_id=row.best_trial_id,
-        metadata=row.metadata_,
-        created_at=row.created_at,
-        updated_at=row.updated_at,
+    return Study.model_validate(
+        {
+            "id": row.id,
+            "name": row.name,
+            "direction": row.direction,
+            "state": row.state,
+            "managed": row.task is not None,
+            "space": row.space,
+            "proposer": row.proposer,
+            "task": row.task,
+            "max_trials": row.max_trials,
+            "max_attempts": row.max_attempts,
+            "n_trials": row.n_trials,
+            "n_queued": counts.get("queued", 0),
+            "n_running": counts.get("running", 0),
+            "n_complete": row.n_complete,
+            "n_failed": row.n_failed,
+            "best_value": row.best_value,
+            "best_trial_id": row.best_trial_id,
+            "metadata": row.metadata_,
+            "created_at": row.created_at,
+            "updated_at": row.updated_at,
+        }
     )
 
 

@@ -43,12 +43,13 @@ class StudyConfig:
 
     @classmethod
     def from_row(cls, row: StudyRow) -> StudyConfig:
+        representation: Representation | None = None
+        design_space: DesignSpace | None = None
         if row.representation is not None:
             representation = Representation.model_validate(row.representation)
             bounds = np.asarray(representation.bounds, dtype=np.float64)
             design_space = DesignSpace.model_validate(row.space)
         else:
-            representation = design_space = None
             params = row.space["params"]
             bounds = np.array([[p["low"] for p in params], [p["high"] for p in params]])
         return cls(
@@ -218,15 +219,17 @@ def lease_job(
         return None
     config = study_config(db, trial.study_id)
     assert config.task is not None and trial.lease_expires_at is not None
-    return Job(
-        trial_id=trial.id,
-        study_id=trial.study_id,
-        number=trial.number,
-        attempt=trial.attempts,
-        vector=trial.vector,
-        params=trial.params,
-        task=config.task,
-        space=config.space,
-        representation=config.representation,
-        lease_expires_at=trial.lease_expires_at,
+    return Job.model_validate(
+        {
+            "trial_id": trial.id,
+            "study_id": trial.study_id,
+            "number": trial.number,
+            "attempt": trial.attempts,
+            "vector": trial.vector,
+            "params": trial.params,
+            "task": config.task,
+            "space": config.space,
+            "representation": config.representation,
+            "lease_expires_at": trial.lease_expires_at,
+        }
     )

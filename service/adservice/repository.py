@@ -11,7 +11,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import sqlalchemy as sa
@@ -95,10 +95,13 @@ def stop_study(session: Session, *, study_id: int) -> StudyRow:
     if study.state != "running":
         return study
     now = utcnow()
-    dropped = session.execute(
-        sa.update(TrialRow)
-        .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
-        .values(state=TrialState.failed, message="study stopped", finished_at=now)
+    dropped = cast(
+        sa.CursorResult[Any],
+        session.execute(
+            sa.update(TrialRow)
+            .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
+            .values(state=TrialState.failed, message="study stopped", finished_at=now)
+        ),
     ).rowcount
     study.n_failed += dropped or 0
     study.state = "stopped"
@@ -142,9 +145,9 @@ def study_history(session: Session, *, study_id: int, dim: int) -> History:
 # --- trials ---------------------------------------------------------------------------
 
 
-_studies = StudyRow.__table__
-_trials = TrialRow.__table__
-_workers = WorkerRow.__table__
+_studies = cast(sa.Table, StudyRow.__table__)
+_trials = cast(sa.Table, TrialRow.__table__)
+_workers = cast(sa.Table, WorkerRow.__table__)
 
 # Hot-path statements, built once: ask and tell run these on every request.
 _RESERVE = (
@@ -214,16 +217,13 @@ def insert_trials(
         }
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
-    trials = TrialRow.__table__
-    ids = (
-        session.connection()
-        .execute(sa.insert(trials).returning(trials.c.id, sort_by_parameter_order=True), values)
-        .scalars()
-        .all()
-    )
+    ids = session.connection().execute(_INSERT_TRIALS, values).scalars().all()
     if worker_id:
         _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
-    return [Trial(id=trial_id, **row) for trial_id, row in zip(ids, values, strict=True)]
+    return [
+        Trial.model_validate({"id": trial_id, **row})
+        for trial_id, row in zip(ids, values, strict=True)
+    ]
 
 
 def check_room(study: StudyRow, *, count: int) -> None:
