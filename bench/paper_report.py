@@ -241,7 +241,7 @@ def goals(studies: list[Study], learner: str) -> list[str]:
         ok = s["early"] >= math.ceil(0.9 * s["n"])
         lines.append(
             f"- {task}, qei seeds reaching the target within 15: {s['early']}/{s['n']} "
-            f"(goal >= 9/10): {'met' if ok else 'missed'}"
+            f"(goal >= 9/10 of the seeds): {'met' if ok else 'missed'}"
         )
         longer = groups.get((task, "qei-b30"))
         for method, factor in (("nelder-mead", 3), ("tpe", 2), ("random", 2)):
@@ -313,6 +313,49 @@ def sensitivity(studies: list[Study], best_known: dict[str, Any], learner: str) 
             early = sum(1 for c in counts if c <= EARLY)
             cells.append(f"{_count(quantiles(counts, (0.5,))[0], budget)} ({early}/{len(counts)})")
         lines.append(f"| {TASK_LABELS[key[0]]} | {key[1]} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def ranking(studies: list[Study], best_known: dict[str, Any], learner: str) -> dict[str, list]:
+    """Per task, methods ordered by median best score within 15 evaluations (relative to
+    the learner's best known): every method has a value there, censored or not."""
+    out: dict[str, list] = {}
+    for (task, method), group in grouped(studies).items():
+        if method not in ("qei", "nelder-mead", "tpe", "random"):
+            continue
+        entry = best_known.get(task, {}).get(learner)
+        if not entry:
+            continue
+        value = float(np.nanmedian([s.best_within(EARLY) for s in group])) / entry["score"]
+        out.setdefault(task, []).append((method, value))
+    return {task: sorted(rows, key=lambda r: -r[1]) for task, rows in out.items()}
+
+
+def ranking_agreement(
+    studies: dict[str, list[Study]], best_known: dict[str, Any], other: str
+) -> list[str]:
+    from scipy.stats import kendalltau
+
+    fast = ranking(studies["fast"], best_known, "fast")
+    rl = ranking(studies[other], best_known, other)
+    lines = [
+        f"| task | fast learner: best by 15 / best known | {other}: best by 15 / best known "
+        "| Kendall tau |",
+        "| --- | --- | --- | ---: |",
+    ]
+    for task in TASKS:
+        if task not in fast or task not in rl:
+            continue
+        a, b = dict(fast[task]), dict(rl[task])
+        common = [m for m in a if m in b]
+        tau = kendalltau([a[m] for m in common], [b[m] for m in common]).statistic
+        lines.append(
+            f"| {TASK_LABELS[task]} | "
+            + " > ".join(f"{m} {v:.3f}" for m, v in fast[task])
+            + " | "
+            + " > ".join(f"{m} {v:.3f}" for m, v in rl[task])
+            + f" | {tau:.2f} |"
+        )
     return lines
 
 
@@ -549,6 +592,17 @@ def generated_block(
                 *pictures,
                 "",
             ]
+    for other in sorted(k for k in studies if k != "fast"):
+        if "fast" not in studies:
+            break
+        agreement = ranking_agreement(studies, best_known, other)
+        text = (
+            f"Ranking of the methods, fast learner vs {other}: median best score within 15 "
+            "evaluations relative to that learner's best known (a measure every study has, "
+            "censored or not; ties in a task's ranking make tau smaller):"
+        )
+        doc += [f"### Ranking agreement, fast vs {other}", "", text, "", *agreement, ""]
+        summary += [text, "", *agreement, ""]
     if quick:
         doc.insert(0, "**Quick (smoke) run: 1 seed, 5 evaluations; not results.**\n")
     return doc, summary
