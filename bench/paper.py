@@ -127,7 +127,9 @@ def _structures(task: str) -> int:
     return 2 if structures == "all" else len(structures)
 
 
-def study_create(cell: Cell, train_steps: int | None) -> dict[str, Any]:
+def study_create(
+    cell: Cell, train_steps: int | None, space: dict[str, Any] | None = None
+) -> dict[str, Any]:
     body = study_body(cell.task)
     proposer, encoding = METHODS[cell.method]
     body["name"] = cell.name
@@ -137,6 +139,7 @@ def study_create(cell: Cell, train_steps: int | None) -> dict[str, Any]:
         body["task"]["train_steps"] = train_steps
     if encoding != "fused":
         body["space"]["encoding"] = encoding
+    body["space"].update(space or {})
     body["max_trials"] = cell.budget
     body["metadata"] = {**body.get("metadata", {}), "bench": "paper", "cell": cell.key}
     return body
@@ -220,6 +223,7 @@ def run_cell(
     bar: Any,
     png_dir: Path,
     code: str,
+    space: dict[str, Any],
 ) -> dict[str, Any]:
     """Create the study, wait for its budget to be spent, and gather what the table needs."""
     from adclient.client import study_finished
@@ -262,6 +266,7 @@ def run_cell(
         "task": cell.task,
         "method": cell.method,
         "tag": cell.tag,
+        "space": space,
         "proposer": METHODS[cell.method][0],
         "encoding": METHODS[cell.method][1],
         "learner": cell.learner,
@@ -360,8 +365,8 @@ def run(args: argparse.Namespace) -> int:
         bar = progress.add_task("", total=1)
         warm_up(client, service, learner, progress, bar)
         for cell in todo:
-            body = study_create(cell, args.train_steps)
-            record = run_cell(client, service, cell, body, progress, bar, png_dir, code)
+            body = study_create(cell, args.train_steps, args.space)
+            record = run_cell(client, service, cell, body, progress, bar, png_dir, code, args.space)
             append_jsonl(path, record)
             progress.advance(overall)
     console.print(f"ran {len(todo)} studies in {time.perf_counter() - started:.0f} s")
@@ -373,6 +378,15 @@ def report(console: Any, *, quick: bool) -> int:
 
     write_report(console, quick=quick)
     return 0
+
+
+def _space_override(text: str) -> tuple[str, Any]:
+    import yaml
+
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return key, yaml.safe_load(value)
 
 
 def _interrupt_on_sigterm() -> None:
@@ -408,6 +422,15 @@ def main(argv: list[str] | None = None) -> int:
         help="an extra measurement beside the grid (own results file; methods shown as "
         "METHOD-TAG), e.g. --tag b30 --budget 30 --methods qei",
     )
+    parser.add_argument(
+        "--space",
+        type=_space_override,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="with --tag only: set a space option (YAML value), e.g. --tag d30 "
+        "--space embedding_max_dim=30; repeatable",
+    )
     parser.add_argument("--workers", type=int, default=2, help="adworker --concurrency")
     parser.add_argument("--quick", action="store_true", help="smoke run: 1 seed, 5 evaluations")
     parser.add_argument("--report", action="store_true", help="only rewrite tables and plots")
@@ -420,6 +443,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     if args.tag and not re.fullmatch(r"[a-z0-9]+", args.tag):
         parser.error("--tag: lower-case letters and digits only")
+    if args.space and not args.tag:
+        parser.error("--space changes the study: name the measurement with --tag")
+    args.space = dict(args.space)
     if args.report:
         from rich.console import Console
 

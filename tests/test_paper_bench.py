@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from bench.paper import METHODS, grid
+import pytest
+from bench.paper import METHODS, Cell, grid, main, study_create
 from bench.paper_report import Study, _ratio, summarise
 from bench.paperlib import append_jsonl, quantiles, read_jsonl
 
@@ -83,3 +84,19 @@ def test_jsonl_skips_a_line_cut_short(tmp_path: Path) -> None:
     append_jsonl(path, {"key": "c"})  # the next record starts a line of its own
     assert read_jsonl(path) == [{"key": "a"}, {"key": "c"}]
     assert read_jsonl(tmp_path / "missing.jsonl") == []
+
+
+def test_space_override_reaches_the_study_body_and_needs_a_tag(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    cell = Cell("lift-highest", "qei", "fast", 3, 15, "d30")
+    body = study_create(cell, None, {"embedding_max_dim": 30})
+    assert body["space"]["embedding_max_dim"] == 30
+    assert body["proposer"]["seed"] == body["task"]["seed"] == 3
+    assert "embedding_max_dim" not in study_create(cell, None)["space"]
+    with pytest.raises(SystemExit):
+        main(["--space", "embedding_max_dim=30"])
+    assert "--tag" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--tag", "x", "--space", "embedding_max_dim"])
+    assert "KEY=VALUE" in capsys.readouterr().err
