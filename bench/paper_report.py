@@ -53,6 +53,8 @@ COLOURS = {
     "qei-onehot": "tab:purple",
     "qei-b30": "tab:cyan",
 }
+EXTRA_COLOURS = ["tab:olive", "tab:brown", "tab:pink", "tab:orange"]
+"""For other tagged measurements (dotted lines), in order of appearance."""
 GOAL_MEDIAN = {"stand-up": 5, "diagonal-gesture": 7}
 EARLY = 15
 
@@ -360,6 +362,7 @@ def ranking_agreement(
 
 
 def fusion_comparison(studies: list[Study]) -> list[str]:
+    """Fused (the default, then any tagged variant of its space options) vs one-hot."""
     groups = grouped(studies)
     lines = []
     for task in TASKS:
@@ -368,26 +371,31 @@ def fusion_comparison(studies: list[Study]) -> list[str]:
             continue
         from scipy.stats import mannwhitneyu
 
-        f_best = [s.best_within(EARLY) for s in fused]
-        p_best = [s.best_within(EARLY) for s in plain]
-        test = mannwhitneyu(f_best, p_best, alternative="two-sided")
-        f, p = summarise(fused), summarise(plain)
-        lines.append(
-            f"| {TASK_LABELS[task]} | fused (qei) | {f['n']} "
-            f"| {_count(f['median'], f['budget'])} [{_count(f['q1'], f['budget'])}, "
-            f"{_count(f['q3'], f['budget'])}] | {f['early']}/{f['n']} "
-            f"| {np.median(f_best):.4f} [{np.percentile(f_best, 25):.4f}, "
-            f"{np.percentile(f_best, 75):.4f}] | {_structures(fused)} |"
+        variants = [("fused (qei)", fused)]
+        for (other_task, method), group in sorted(groups.items()):
+            space = group[0].record.get("space")
+            if other_task == task and group[0].record.get("encoding") == "fused" and space:
+                options = ", ".join(f"{k}={v}" for k, v in sorted(space.items()))
+                variants.append((f"fused, {options} ({method})", group))
+        variants.append(("one-hot (qei)", plain))
+        for label, group in variants:
+            summary = summarise(group)
+            best = [s.best_within(EARLY) for s in group]
+            budget = summary["budget"]
+            lines.append(
+                f"| {TASK_LABELS[task]} | {label} | {summary['n']} "
+                f"| {_count(summary['median'], budget)} [{_count(summary['q1'], budget)}, "
+                f"{_count(summary['q3'], budget)}] | {summary['early']}/{summary['n']} "
+                f"| {np.median(best):.4f} [{np.percentile(best, 25):.4f}, "
+                f"{np.percentile(best, 75):.4f}] | {_structures(group)} |"
+            )
+        test = mannwhitneyu(
+            [s.best_within(EARLY) for s in fused],
+            [s.best_within(EARLY) for s in plain],
+            alternative="two-sided",
         )
         lines.append(
-            f"| {TASK_LABELS[task]} | one-hot (qei) | {p['n']} "
-            f"| {_count(p['median'], p['budget'])} [{_count(p['q1'], p['budget'])}, "
-            f"{_count(p['q3'], p['budget'])}] | {p['early']}/{p['n']} "
-            f"| {np.median(p_best):.4f} [{np.percentile(p_best, 25):.4f}, "
-            f"{np.percentile(p_best, 75):.4f}] | {_structures(plain)} |"
-        )
-        lines.append(
-            f"| | fused vs one-hot | | | | Mann-Whitney U on best by 15, two-sided: "
+            f"| | fused (qei) vs one-hot | | | | Mann-Whitney U on best by 15, two-sided: "
             f"p = {test.pvalue:.3f} | |"
         )
     if lines:
@@ -429,6 +437,7 @@ def plot_best_so_far(
         figure, axes = plt.subplots(figsize=(6.4, 4.0), dpi=110)
         length = max(s.budget for k in keys for s in groups[k])
         x = np.arange(1, length + 1)
+        extras = iter(EXTRA_COLOURS * 4)
         for key in keys:
             curves = np.array([s.best_so_far(length) for s in groups[key]])
             with np.errstate(all="ignore"):
@@ -440,13 +449,14 @@ def plot_best_so_far(
                     low = np.nanpercentile(curves, 25, axis=0)
                     high = np.nanpercentile(curves, 75, axis=0)
             budget = max(s.budget for s in groups[key])
-            colour = COLOURS.get(key[1])
+            colour = COLOURS.get(key[1]) or next(extras)
+            style = "--" if key[1].endswith("onehot") else "-" if key[1] in COLOURS else ":"
             axes.plot(
                 x[:budget],
                 median[:budget],
                 color=colour,
                 label=f"{key[1]} (n={len(groups[key])})",
-                linestyle="--" if key[1].endswith("onehot") else "-",
+                linestyle=style,
             )
             axes.fill_between(x[:budget], low[:budget], high[:budget], color=colour, alpha=0.15)
         entry = best_known.get(task, {}).get(learner)
