@@ -406,6 +406,17 @@ class Client:
         ).json()
         return HeartbeatResponse.model_validate(data)
 
+    def release(self, trial: TrialRef, worker_id: str) -> Trial:
+        """Give a leased trial back to the queue at once (a worker leaving mid-job);
+        raises :class:`Conflict` when this worker does not hold the lease."""
+        data = self.request(
+            "POST",
+            f"{API}/trials/{trial_id_of(trial)}/release",
+            json_body={"worker_id": worker_id},
+            idempotent=False,
+        ).json()
+        return Trial.model_validate(data)
+
     def workers(self, study_id: int) -> list[WorkerInfo]:
         """The workers that worked on a study, with their current leases."""
         data = self._get_json(f"{API}/studies/{int(study_id)}/workers")

@@ -513,6 +513,22 @@ def heartbeat(session: Session, *, trial_id: int, worker_id: str, lease_seconds:
     return trial
 
 
+def release_lease(session: Session, *, trial_id: int, worker_id: str) -> TrialRow:
+    """Give a held trial back to the queue now (a worker shutting down mid-job), so it
+    need not wait for the lease to expire. The attempt is not counted against
+    ``max_attempts``: the design did not fail, the worker left."""
+    trial = get_trial(session, trial_id=trial_id, for_update=True)
+    if trial.state != TrialState.running or trial.worker_id != worker_id:
+        raise LeaseLostError(f"worker {worker_id!r} does not hold the lease of trial {trial_id}")
+    now = utcnow()
+    trial.state = TrialState.queued
+    trial.worker_id = None
+    trial.lease_expires_at = None
+    trial.attempts -= 1
+    _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=None)
+    return trial
+
+
 def _touch_worker(
     session: Session, *, worker_id: str, now: datetime, current_trial_id: int | None
 ) -> None:

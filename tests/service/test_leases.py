@@ -68,6 +68,29 @@ def test_only_the_holder_may_tell_or_heartbeat(api: TestClient) -> None:
     assert api.get(trial_url).json()["state"] == "running"
 
 
+def test_the_holder_releases_a_trial_back_to_the_queue_without_spending_an_attempt(
+    api: TestClient,
+) -> None:
+    study = managed(api, max_trials=1, max_attempts=1)
+    job = lease(api, "leaving")
+    assert job is not None
+    trial_url = f"/api/v1/trials/{job['trial_id']}"
+    refused = api.post(f"{trial_url}/release", json={"worker_id": "other"})
+    assert refused.status_code == 409 and refused.json()["error"] == "lease_lost"
+    released = api.post(f"{trial_url}/release", json={"worker_id": "leaving"})
+    assert released.status_code == 200, released.text
+    assert released.json()["state"] == "queued" and released.json()["attempts"] == 0
+    assert api.post(f"{trial_url}/release", json={"worker_id": "leaving"}).status_code == 409
+    again = lease(api, "staying")  # at once, not after the lease would have expired
+    assert again is not None and again["trial_id"] == job["trial_id"] and again["attempt"] == 1
+    late = api.post(f"{trial_url}/tell", json={"value": 1.0, "worker_id": "leaving"})
+    assert late.status_code == 409
+    ok = api.post(f"{trial_url}/tell", json={"value": 2.0, "worker_id": "staying"})
+    assert ok.status_code == 200 and ok.json()["attempts"] == 1
+    workers = api.get(f"/api/v1/studies/{study['id']}/workers").json()
+    assert [w["worker_id"] for w in workers] == ["staying"]  # the leaver holds nothing
+
+
 @pytest.fixture
 def short_lease_api(settings: Settings) -> Any:
     quick = settings.model_copy(update={"lease_seconds": 0.3, "sweep_seconds": 60.0})

@@ -175,6 +175,28 @@ def test_sigterm_mid_job_finishes_and_reports_it_then_exits(server_factory, work
         assert client.study_info(study.id).n_complete == 1  # it took no second job
 
 
+def test_second_sigterm_abandons_the_job_and_gives_the_lease_back(server_factory, workers):
+    server = server_factory(AD_LEASE_SECONDS="600")  # only a release can requeue it soon
+    with Client(server.url) as client:
+        study = stand_up_study(client, max_trials=1, learner="fast", train_steps=32 * 512)
+        leaving = workers(server, "leaving")
+        trial = wait_for(lambda: running_trial(client, study.id, "leaving"), "a lease")
+        leaving.signal(signal.SIGTERM)
+        wait_for(lambda: "finishing the current job" in leaving.log(), "the first SIGTERM")
+        leaving.signal(signal.SIGTERM)  # a second one, seen apart from the first
+        assert leaving.wait() == 0, leaving.log()
+        assert "lease given back" in leaving.log()
+        queued = client.get_trial(trial)
+        assert queued.state == "queued" and queued.attempts == 0, leaving.log()
+        staying = workers(server, "staying")
+        final = study.wait(poll=0.2, timeout=PATIENCE)
+        assert final.n_complete == 1, staying.log()
+        finished = client.get_trial(trial)
+        assert finished.worker_id == "staying" and finished.attempts == 1
+        staying.signal(signal.SIGTERM)
+        assert staying.wait() == 0
+
+
 def test_evaluation_error_becomes_a_failed_tell_and_the_worker_goes_on(server_factory, workers):
     server = server_factory()
     with Client(server.url) as client:

@@ -14,8 +14,9 @@ runs N of them in child processes (:func:`run_pool`). The rules it keeps:
 - An exception inside the evaluation (a bad design, a physics or training failure)
   becomes a ``failed`` tell carrying the error; the worker goes on.
 - SIGTERM/SIGINT: stop leasing, finish the current job, report it, exit 0. A second
-  one abandons the current job (unreported; its lease expires and the server hands
-  it to another worker) and exits at once.
+  one abandons the current job, gives its lease back (the server queues the trial for
+  another worker at once, without counting the attempt; if that call fails the lease
+  simply expires) and exits.
 """
 
 from __future__ import annotations
@@ -267,13 +268,14 @@ class Worker:
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
                 outcome = "abandoned"
+                unreported = True
             except Exception as exc:
                 message = _failure_message(exc)
                 log.error("%s: evaluation failed: %s", label, message.splitlines()[0])
                 self.rates.jobs += 1
                 self.rates.failed += 1
                 outcome = "failed"
-                self._report(
+                unreported = not self._report(
                     job,
                     label,
                     state="failed",
@@ -287,7 +289,7 @@ class Worker:
                 self.rates.busy_seconds += busy
                 outcome = "complete"
                 self._upload(job, heartbeat, label, evaluation.artifacts)
-                self._report(
+                unreported = not self._report(
                     job,
                     label,
                     value=evaluation.value,
@@ -306,9 +308,20 @@ class Worker:
                     timings,
                     self.rates.line(),
                 )
+        if unreported and self.abandon.is_set() and not heartbeat.lost.is_set():
+            self._release(job, label)
         if not self.config.keep_files:
             shutil.rmtree(jobdir, ignore_errors=True)
         return outcome
+
+    def _release(self, job: Job, label: str) -> None:
+        """Hand the lease back so the trial is queued now, not when the lease expires."""
+        try:
+            self.client.release(job.trial_id, self.config.worker_id)
+        except ApiError as exc:
+            log.warning("%s: lease not given back (%s); it will expire", label, exc)
+        else:
+            log.info("%s: lease given back; the trial is queued for another worker", label)
 
     def _upload(self, job: Job, heartbeat: Heartbeat, label: str, artifacts: list[Any]) -> None:
         for artifact in artifacts:
@@ -323,31 +336,32 @@ class Worker:
             except ApiError as exc:
                 log.warning("%s: artifact %s not stored (%s)", label, artifact.name, exc)
 
-    def _report(self, job: Job, label: str, **tell: Any) -> None:
+    def _report(self, job: Job, label: str, **tell: Any) -> bool:
+        """Tell the result; False only when shutting down before it was told."""
         deadline = time.monotonic() + TELL_PATIENCE
         pause = 1.0
         while True:
             if self.abandon.is_set():
                 log.warning("%s: shutting down before the result was reported", label)
-                return
+                return False
             try:
                 self.client.tell(job.trial_id, **tell)
-                return
+                return True
             except (Unauthorized, Forbidden) as exc:
                 raise AuthError(str(exc)) from exc
             except (Conflict, NotFound) as exc:
                 log.warning("%s: result not accepted (%s)", label, exc)
-                return
+                return True
             except Unavailable as exc:
                 if time.monotonic() > deadline:
                     log.error("%s: result lost, the server stayed away: %s", label, exc)
-                    return
+                    return True
                 log.warning("%s: tell failed (%s); retrying in %.0f s", label, exc, pause)
                 self.abandon.wait(pause)
                 pause = min(pause * 2, MAX_IDLE_BACKOFF)
             except ApiError as exc:
                 log.error("%s: result refused: %s", label, exc)
-                return
+                return True
 
 
 def _failure_message(exc: BaseException) -> str:

@@ -1,4 +1,4 @@
-"""Trials: read, tell, heartbeat, and the URDF of a trial's design."""
+"""Trials: read, tell, heartbeat, release, and the URDF of a trial's design."""
 
 from __future__ import annotations
 
@@ -40,6 +40,15 @@ def heartbeat(
         )
     assert row.lease_expires_at is not None
     return HeartbeatResponse(trial_id=row.id, lease_expires_at=row.lease_expires_at)
+
+
+@router.post("/{trial_id}/release")
+def release(trial_id: TrialId, body: HeartbeatRequest, db: DatabaseDep, _: WorkerDep) -> Trial:
+    """The lease holder gives the trial back to the queue (409 if it does not hold it)."""
+    with db.write() as session:
+        return trial_schema(
+            repository.release_lease(session, trial_id=trial_id, worker_id=body.worker_id)
+        )
 
 
 @router.get("/{trial_id}/urdf", response_class=Response)
