@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import copy
 import json
+from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 from fastapi.testclient import TestClient
 
 from tests.service.conftest import BOX_STUDY
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def create(api: TestClient, **changes: Any) -> dict[str, Any]:
@@ -106,6 +110,48 @@ def test_trial_paging_and_ordering(api: TestClient) -> None:
     )
     assert page.headers["X-Total-Count"] == "10"
     assert [t["value"] for t in page.json()] == [8.0, 7.0, 6.0]
+
+
+def test_trials_sort_by_a_param_and_by_duration(api: TestClient) -> None:
+    study = create(api)
+    trials = ask(api, study["id"], count=6)
+    for trial in trials[:4]:
+        api.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": 1.0})
+    url = f"/api/v1/studies/{study['id']}/trials"
+    by_x = api.get(url, params={"order_by": "param:x"}).json()
+    xs = [t["params"]["x"] for t in by_x]
+    assert xs == sorted(xs) and len(xs) == 6
+    by_y = api.get(url, params={"order_by": "param:y", "desc": True}).json()
+    assert [t["params"]["y"] for t in by_y] == sorted(
+        (t["params"]["y"] for t in by_y), reverse=True
+    )
+    missing = api.get(url, params={"order_by": "param:nope"})  # no such param: by number
+    assert [t["number"] for t in missing.json()] == list(range(6))
+    by_duration = api.get(url, params={"order_by": "duration", "desc": True}).json()
+    assert [t["state"] for t in by_duration[4:]] == ["running", "running"]  # nulls last
+    for bad in ("param:", "param:x y", "param:../x", "params", "duration;"):
+        refused = api.get(url, params={"order_by": bad})
+        assert refused.status_code == 422, bad
+        assert refused.json()["detail"].startswith("query.order_by: ")
+        assert "param:NAME" in refused.json()["detail"]
+
+
+def test_trials_sort_by_text_and_list_params_of_a_design(api: TestClient) -> None:
+    body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
+    body["proposer"] = {"name": "random", "seed": 1}
+    created = api.post("/api/v1/studies", json=body)
+    assert created.status_code == 201, created.text
+    study_id = created.json()["id"]
+    ask(api, study_id, count=8)
+    url = f"/api/v1/studies/{study_id}/trials"
+    structures = [
+        t["params"]["structure"]
+        for t in api.get(url, params={"order_by": "param:structure"}).json()
+    ]
+    assert structures == sorted(structures)
+    for name in ("b.joint.axis", "c.joint.axis_theta", "root"):  # a list, a number, text
+        listed = api.get(url, params={"order_by": f"param:{name}", "desc": True})
+        assert listed.status_code == 200 and len(listed.json()) == 8, listed.text
 
 
 def test_max_trials_bounds_asks(api: TestClient) -> None:

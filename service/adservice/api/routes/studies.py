@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+import re
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Response
+from pydantic import AfterValidator
 
 from adclient.schemas import (
     AskRequest,
@@ -21,8 +23,25 @@ from adservice.convert import study_schema, trial_schema, worker_schema
 
 router = APIRouter(prefix="/api/v1/studies", tags=["studies"])
 
-TrialOrder = Literal[
-    "number", "value", "state", "created_at", "finished_at", "worker_id", "attempts"
+TRIAL_ORDER = re.compile(
+    r"(number|value|state|created_at|finished_at|worker_id|attempts|duration"
+    r"|param:[A-Za-z0-9][A-Za-z0-9_.\-]{0,127})"
+)
+
+
+def _trial_order(value: str) -> str:
+    if not TRIAL_ORDER.fullmatch(value):
+        raise ValueError(
+            "expected number, value, state, created_at, finished_at, worker_id, attempts, "
+            "duration, or param:NAME with a param's name"
+        )
+    return value
+
+
+TrialOrder = Annotated[
+    str,
+    Query(description="a column, `duration` (finish minus start), or `param:NAME`"),
+    AfterValidator(_trial_order),
 ]
 
 
