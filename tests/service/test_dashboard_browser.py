@@ -300,8 +300,19 @@ def test_study_page_draws_the_study_and_follows_it_live(
         browser.wait_for(f"{first_eight} === '{','.join(map(str, ranked))}'")
         browser.evaluate("document.querySelector('th[data-sort=\"value\"]').click()")
         browser.wait_for(f"{first_eight} === '{','.join(map(str, ranked[::-1]))}'")
+        # ... and by a param picked in the toolbar: ascending, then reversed.
+        trials = http.get(f"/api/v1/studies/{study_id}/trials").raise_for_status().json()
+        by_x = [t["number"] for t in sorted(trials, key=lambda t: t["params"]["x"])]
+        picker = "document.querySelector('[data-sort-param]')"
+        browser.wait_for(f"[...{picker}.options].some(option => option.value === 'x')")
+        browser.evaluate(f"{picker}.value = 'x'; {picker}.dispatchEvent(new Event('change'))")
+        every_number = f"{TABLE_NUMBERS}.join(',')"
+        browser.wait_for(f"{every_number} === '{','.join(map(str, by_x))}'")
+        browser.evaluate("document.querySelector('[data-sort-direction]').click()")
+        browser.wait_for(f"{every_number} === '{','.join(map(str, by_x[::-1]))}'")
         browser.evaluate("document.querySelector('th[data-sort=\"value\"]').click()")
         browser.wait_for(f"{TABLE_NUMBERS}[0] === {best['number']}")
+        assert browser.evaluate(f"{picker}.value") == ""
 
         # Live: a better trial is told; the same document shows it without a reload.
         held = seeded["held"]

@@ -212,7 +212,7 @@ const TABLE_COLUMNS = [
   { key: 'value', label: 'Score', sort: 'value' },
   { key: 'worker', label: 'Worker', sort: 'worker_id' },
   { key: 'attempts', label: 'Attempts', sort: 'attempts' },
-  { key: 'duration', label: 'Duration', sort: null },
+  { key: 'duration', label: 'Duration', sort: 'duration' },
   { key: 'finished', label: 'Finished', sort: 'finished_at' },
   { key: 'params', label: 'Params', sort: null },
   { key: 'files', label: 'Files', sort: null },
@@ -302,6 +302,8 @@ class StudyPage {
             <option>queued</option><option>failed</option></select></label>
           <label>Rows <select data-page-size><option selected>25</option><option>50</option>
             <option>100</option><option>200</option></select></label>
+          <label>Sort by param <select data-sort-param><option value="">—</option></select></label>
+          <button data-sort-direction title="Reverse the param order" disabled>▲</button>
           <span class="spacer"></span>
           <button data-page="first" title="First page">«</button>
           <button data-page="prev" title="Previous page">‹</button>
@@ -375,6 +377,18 @@ class StudyPage {
     });
     this.$('filter').addEventListener('change', (event) => {
       this.table.state = event.target.value;
+      this.table.offset = 0;
+      this.refreshTable();
+    });
+    this.$('sort-param').addEventListener('change', (event) => {
+      const name = event.target.value;
+      this.table.orderBy = name ? `param:${name}` : 'number';
+      this.table.desc = !name;
+      this.table.offset = 0;
+      this.refreshTable();
+    });
+    this.$('sort-direction').addEventListener('click', () => {
+      this.table.desc = !this.table.desc;
       this.table.offset = 0;
       this.refreshTable();
     });
@@ -682,6 +696,23 @@ class StudyPage {
     }
   }
 
+  /** The params one can sort the table by (searched ones first), and the current one. */
+  renderSortParam(searched) {
+    const select = this.$('sort-param');
+    const names = Object.keys(this.series?.params ?? {});
+    const ordered = [...names.filter((n) => searched.has(n)), ...names.filter((n) => !searched.has(n))];
+    const current = this.table.orderBy.startsWith('param:') ? this.table.orderBy.slice(6) : '';
+    const signature = ordered.join('\n');
+    if (select.dataset.names !== signature) {
+      select.dataset.names = signature;
+      select.innerHTML = ['<option value="">—</option>', ...ordered.map((n) => `<option>${esc(n)}</option>`)].join('');
+    }
+    select.value = current;
+    const direction = this.$('sort-direction');
+    direction.disabled = !current;
+    direction.textContent = current && this.table.desc ? '▼' : '▲';
+  }
+
   renderTable() {
     const { offset, limit, orderBy, desc } = this.table;
     const searched = new Set(this.correlations.map((c) => c.name));
@@ -715,6 +746,7 @@ class StudyPage {
       .join('');
     const tbody = this.$('trials').tBodies[0];
     tbody.innerHTML = body || `<tr><td colspan="${TABLE_COLUMNS.length}" class="meta">No trials</td></tr>`;
+    this.renderSortParam(searched);
     for (const head of this.$('trials').querySelectorAll('th[data-sort]')) {
       const active = head.dataset.sort === orderBy;
       head.classList.toggle('sorted', active);
