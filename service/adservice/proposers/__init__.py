@@ -1,44 +1,45 @@
 """Proposer registry: a study names its proposer; the service looks it up here.
 
-Model-based proposers are imported on first use, so importing the registry (to list
-or validate names) does not pull in torch or Optuna.
+Proposer modules are imported on first use, and none imports torch or Optuna at
+import time, so listing names or checking a study's options stays light.
 """
 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
 
-from adservice.proposers.base import Proposal, ProposalRequest, Proposer
-from adservice.proposers.simple import RandomProposer, SobolProposer
+from adservice.proposers.base import Proposal, ProposalRequest, Proposer, ProposerOptions
 
-
-def _lazy(module: str, attribute: str) -> Callable[[], Proposer]:
-    def factory() -> Proposer:
-        proposer_class = getattr(importlib.import_module(module), attribute)
-        return proposer_class()
-
-    return factory
-
-
-_FACTORIES: dict[str, Callable[[], Proposer]] = {
-    RandomProposer.name: RandomProposer,
-    SobolProposer.name: SobolProposer,
-    "qei": _lazy("adservice.proposers.qei", "QLogEIProposer"),
-    "nelder-mead": _lazy("adservice.proposers.neldermead", "NelderMeadProposer"),
-    "tpe": _lazy("adservice.proposers.tpe", "TPEProposer"),
+_CLASSES: dict[str, tuple[str, str]] = {
+    "random": ("adservice.proposers.simple", "RandomProposer"),
+    "sobol": ("adservice.proposers.simple", "SobolProposer"),
+    "qei": ("adservice.proposers.qei", "QLogEIProposer"),
+    "nelder-mead": ("adservice.proposers.neldermead", "NelderMeadProposer"),
+    "tpe": ("adservice.proposers.tpe", "TPEProposer"),
 }
 
 DEFAULT_PROPOSER = "qei"
 
 
 def available() -> list[str]:
-    return sorted(_FACTORIES)
+    return sorted(_CLASSES)
+
+
+def proposer_class(name: str) -> type[Proposer]:
+    """The class of the proposer named ``name``; KeyError for an unknown name."""
+    module, attribute = _CLASSES[name]
+    proposer: type[Proposer] = getattr(importlib.import_module(module), attribute)
+    return proposer
 
 
 def get_proposer(name: str) -> Proposer:
     """The proposer named ``name``; KeyError for an unknown name."""
-    return _FACTORIES[name]()
+    return proposer_class(name)()
+
+
+def options_model(name: str) -> type[ProposerOptions]:
+    """What the proposer named ``name`` accepts as ``options``; KeyError if unknown."""
+    return proposer_class(name).options_model
 
 
 __all__ = [
@@ -46,6 +47,9 @@ __all__ = [
     "Proposal",
     "ProposalRequest",
     "Proposer",
+    "ProposerOptions",
     "available",
     "get_proposer",
+    "options_model",
+    "proposer_class",
 ]

@@ -6,6 +6,12 @@ better*), calls :meth:`Proposer.propose` in a worker thread, and stores the
 candidates as new trials. Proposers are stateless between calls: anything they
 need (a Nelder-Mead simplex, a TPE history) is rebuilt from the request, so a
 restarted or second server proposes exactly the same thing.
+
+Each proposer declares the ``options`` it takes as a :class:`ProposerOptions` model,
+which the service checks when a study is created (unknown keys, wrong types and
+unknown choices are refused there) and the proposer parses its options with. The
+model lives in the proposer's module, which must stay cheap to import: torch,
+BoTorch and Optuna are imported inside ``propose``.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict
 
 FloatArray = NDArray[np.float64]
 
@@ -55,11 +62,23 @@ class Proposal:
     info: list[dict[str, Any]]
 
 
+class ProposerOptions(BaseModel):
+    """Base of every proposer's options: no unknown keys, no NaN or infinity."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+
+class NoOptions(ProposerOptions):
+    """For proposers that take no options: any key is an error."""
+
+
 class Proposer(Protocol):
     name: ClassVar[str]
     needs_history: ClassVar[bool]
     """False when the proposer uses only bounds, count, seed and n_issued, so the
     service can skip loading the history (the hot path of cheap proposers)."""
+    options_model: ClassVar[type[ProposerOptions]]
+    """What ``ProposalRequest.options`` may hold."""
 
     def propose(self, request: ProposalRequest) -> Proposal: ...
 

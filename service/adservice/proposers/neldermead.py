@@ -13,9 +13,9 @@ Details:
 
 - The search runs in the unit box (bounds clipped by SciPy's bounded variant). The
   start is point 0 of the study's scrambled Sobol sequence (so the seed matters);
-  the initial simplex adds ``initial_step`` (option, default 0.1 of each side) along
-  each axis, mirrored inward at the upper bound. ``n_initial`` is not used: the
-  simplex is the initial design.
+  the initial simplex adds ``initial_step`` (option, default 0.1 of each side, at
+  most 0.5) along each axis, mirrored inward at the upper bound. ``n_initial`` is
+  not used: the simplex is the initial design.
 - Values: the objective is ``-y`` (y is oriented to be maximised). A failed trial
   counts as ``+inf`` (worse than anything), a fixed value, so replays stay stable.
   A point told more than once uses its first value, also for stability.
@@ -44,9 +44,10 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+from pydantic import Field
 from scipy.optimize import minimize
 
-from adservice.proposers.base import Proposal, ProposalRequest
+from adservice.proposers.base import Proposal, ProposalRequest, ProposerOptions
 from adservice.proposers.simple import scale_to_bounds, sobol_points
 
 _MATCH_TOL = 1e-9
@@ -135,18 +136,31 @@ def replay(
     return _Outcome(point=None, restart=_MAX_RESTARTS)
 
 
+class NelderMeadOptions(ProposerOptions):
+    initial_step: float = Field(
+        default=0.1,
+        gt=0.0,
+        le=0.5,
+        description="Initial simplex step, a fraction of each side of the box (at most "
+        "0.5, so the step inward from any start stays inside the box)",
+    )
+    adaptive: bool = Field(default=False, description="SciPy's dimension-adapted parameters")
+
+
 class NelderMeadProposer:
     """Nelder-Mead through ask/tell; speculates with lies while simplex points are pending."""
 
     name: ClassVar[str] = "nelder-mead"
     needs_history: ClassVar[bool] = True
+    options_model: ClassVar[type[ProposerOptions]] = NelderMeadOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
+        options = NelderMeadOptions.model_validate(request.options)
         dim = request.dim
         bounds = np.asarray(request.bounds, dtype=np.float64)
         span = bounds[1] - bounds[0]
-        step = float(request.options.get("initial_step", 0.1))
-        adaptive = bool(request.options.get("adaptive", False))
+        step = options.initial_step
+        adaptive = options.adaptive
 
         known = _History(dim)
         X = np.asarray(request.X, dtype=np.float64).reshape(-1, dim)

@@ -36,7 +36,8 @@ Decisions worth knowing:
   ``(seed, n_issued)``, under a process-wide lock so concurrent asks cannot
   disturb each other's random streams.
 - Speed: restarts and raw samples grow with d and q (``options`` may override
-  ``num_restarts``, ``raw_samples``, ``maxiter``). Fitted hyperparameters are kept
+  ``num_restarts``, ``raw_samples``, ``maxiter``; with only ``raw_samples`` given,
+  the restarts are at most that many). Fitted hyperparameters are kept
   in two small in-process LRU caches: by a digest of the exact training data (an
   identical request re-uses the exact fit, so it gives bit-identical candidates),
   and by the study's identity ``(bounds, seed, n_initial, noisy)`` (the next ask of
@@ -51,6 +52,8 @@ Decisions worth knowing:
   overrides). These are small matrices; on a shared two-core machine two torch
   threads competing with other processes made asks 5 to 20 times slower, and the
   server already runs each ask in its own thread.
+- ``QEIOptions`` lists every option. Importing this module does not import torch
+  (the service checks a new study's options with it); ``propose`` does.
 """
 
 from __future__ import annotations
@@ -61,13 +64,16 @@ import threading
 import time
 import warnings
 from collections import OrderedDict
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
-import torch
+from pydantic import Field, model_validator
 
-from adservice.proposers.base import Proposal, ProposalRequest
+from adservice.proposers.base import Proposal, ProposalRequest, ProposerOptions
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
+
+if TYPE_CHECKING:
+    import torch
 
 _LOCK = threading.Lock()
 _CACHE_SIZE = 256
@@ -119,13 +125,51 @@ def default_sizes(dim: int, q: int) -> tuple[int, int]:
     return num_restarts, raw_samples
 
 
+class QEIOptions(ProposerOptions):
+    """qei's options; see the module docstring for what each choice does."""
+
+    noise: Literal["inferred", "floor", "fixed"] | None = Field(
+        default=None, description="Default: inferred for a noisy study, else floor"
+    )
+    kernel: Literal["rbf", "matern", "matern-gamma"] = "rbf"
+    num_restarts: int | None = Field(
+        default=None, ge=1, le=128, description="Default: grows with d and q (4 to 24)"
+    )
+    raw_samples: int | None = Field(
+        default=None, ge=1, le=16_384, description="Default: grows with d and q (160 to 2048)"
+    )
+    maxiter: int = Field(default=100, ge=1, le=10_000)
+    mc_samples: int | None = Field(
+        default=None, ge=1, le=4096, description="Default: 128, or 256 for a batch"
+    )
+    warm_start: bool = True
+    device: Literal["cpu", "cuda"] | None = Field(
+        default=None, description="Default: cuda when available"
+    )
+
+    @model_validator(mode="after")
+    def _enough_raw_samples(self) -> QEIOptions:
+        if (
+            self.num_restarts is not None
+            and self.raw_samples is not None
+            and self.raw_samples < self.num_restarts
+        ):
+            raise ValueError(
+                f"raw_samples ({self.raw_samples}) must be >= num_restarts "
+                f"({self.num_restarts}): each restart starts from one raw sample"
+            )
+        return self
+
+
 class QLogEIProposer:
     """Sobol start, then a GP with batch log expected improvement (noisy variant on request)."""
 
     name: ClassVar[str] = "qei"
     needs_history: ClassVar[bool] = True
+    options_model: ClassVar[type[ProposerOptions]] = QEIOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
+        options = QEIOptions.model_validate(request.options)
         count = request.count
         bounds = np.asarray(request.bounds, dtype=np.float64)
         candidates = np.empty((count, request.dim), dtype=np.float64)
@@ -145,7 +189,9 @@ class QLogEIProposer:
             return Proposal(candidates=candidates, info=info)
 
         q = count - n_sobol
-        model_rows, model_info = self._model_batch(request, bounds, q, candidates[:n_sobol])
+        model_rows, model_info = self._model_batch(
+            request, bounds, q, candidates[:n_sobol], options
+        )
         candidates[n_sobol:] = model_rows
         info[n_sobol:] = model_info
         return Proposal(candidates=np.clip(candidates, bounds[0], bounds[1]), info=info)
@@ -174,6 +220,7 @@ class QLogEIProposer:
         bounds: np.ndarray,
         q: int,
         issued_now: np.ndarray,
+        options: QEIOptions,
     ) -> tuple[np.ndarray, list[dict[str, Any]]]:
         first = request.count - q
         X = np.asarray(request.X, dtype=np.float64).reshape(-1, request.dim)
@@ -201,7 +248,6 @@ class QLogEIProposer:
         X_pending = X_pending[np.all(np.isfinite(X_pending), axis=1)]
         X_pending = np.clip(X_pending, bounds[0], bounds[1])
 
-        options = dict(request.options)
         import botorch  # noqa: F401  (an import error is a broken install, not a fallback)
 
         cpu_started = time.thread_time()
@@ -245,8 +291,9 @@ class QLogEIProposer:
         y: np.ndarray,
         X_pending: np.ndarray,
         q: int,
-        options: dict[str, Any],
+        options: QEIOptions,
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        import torch
         from botorch.acquisition.logei import (
             qLogExpectedImprovement,
             qLogNoisyExpectedImprovement,
@@ -262,7 +309,7 @@ class QLogEIProposer:
 
         if torch.get_num_threads() != _TORCH_THREADS:
             torch.set_num_threads(_TORCH_THREADS)
-        device_name = options.get("device") or ("cuda" if torch.cuda.is_available() else "cpu")
+        device_name = options.device or ("cuda" if torch.cuda.is_available() else "cpu")
         device = torch.device(device_name)
         tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
         dim = request.dim
@@ -271,7 +318,7 @@ class QLogEIProposer:
         bounds_t = torch.as_tensor(bounds, **tkw)
         train_X = torch.as_tensor(X, **tkw)
         train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
-        noise_mode = str(options.get("noise", "inferred" if request.noisy else "floor"))
+        noise_mode = options.noise or ("inferred" if request.noisy else "floor")
         train_Yvar = None
         likelihood = None
         if noise_mode == "fixed":
@@ -285,7 +332,7 @@ class QLogEIProposer:
                 noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
             )
             likelihood = likelihood.to(**tkw)
-        kernel = str(options.get("kernel", "rbf"))
+        kernel = options.kernel
         covar_module = None
         if kernel == "matern":
             from botorch.models.utils.gpytorch_modules import (
@@ -316,7 +363,7 @@ class QLogEIProposer:
             )
         ).hexdigest()
         study_key = (bounds.tobytes(), request.seed, request.n_initial, noise_mode, kernel)
-        use_warm = bool(options.get("warm_start", True))
+        use_warm = options.warm_start
 
         started = time.perf_counter()
         exact = _lru_get(_FITS_BY_DATA, data_key) if use_warm else None
@@ -340,9 +387,12 @@ class QLogEIProposer:
         fit_seconds = time.perf_counter() - started
 
         default_restarts, default_raw = default_sizes(dim, q)
-        num_restarts = int(options.get("num_restarts", default_restarts))
-        raw_samples = int(options.get("raw_samples", default_raw))
-        mc_samples = int(options.get("mc_samples", 128 if q == 1 else 256))
+        if options.num_restarts is not None:
+            num_restarts = options.num_restarts
+        else:
+            num_restarts = min(default_restarts, options.raw_samples or default_restarts)
+        raw_samples = options.raw_samples or max(default_raw, num_restarts)
+        mc_samples = options.mc_samples or (128 if q == 1 else 256)
         started = time.perf_counter()
         # prune_baseline draws its sampler seed from the global stream: seed that too.
         with manual_seed(seed):
@@ -373,7 +423,7 @@ class QLogEIProposer:
                 options={
                     "batch_limit": num_restarts,
                     "init_batch_limit": max(raw_samples, 1),
-                    "maxiter": int(options.get("maxiter", 100)),
+                    "maxiter": options.maxiter,
                     "seed": seed,
                 },
                 retry_on_optimization_warning=False,

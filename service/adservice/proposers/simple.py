@@ -7,7 +7,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.stats import qmc
 
-from adservice.proposers.base import Proposal, ProposalRequest
+from adservice.proposers.base import NoOptions, Proposal, ProposalRequest, ProposerOptions
 
 
 def scale_to_bounds(unit: np.ndarray, bounds: np.ndarray) -> np.ndarray:
@@ -19,8 +19,10 @@ class RandomProposer:
 
     name: ClassVar[str] = "random"
     needs_history: ClassVar[bool] = False
+    options_model: ClassVar[type[ProposerOptions]] = NoOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
+        NoOptions.model_validate(request.options)
         rows = [
             np.random.default_rng([request.seed, request.n_issued + i]).random(request.dim)
             for i in range(request.count)
@@ -50,8 +52,10 @@ class SobolProposer:
 
     name: ClassVar[str] = "sobol"
     needs_history: ClassVar[bool] = False
+    options_model: ClassVar[type[ProposerOptions]] = NoOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
+        NoOptions.model_validate(request.options)
         unit = sobol_points(request.dim, request.seed, request.n_issued, request.count)
         return Proposal(
             candidates=scale_to_bounds(unit, request.bounds),

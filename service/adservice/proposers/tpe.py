@@ -20,8 +20,9 @@ import warnings
 from typing import Any, ClassVar
 
 import numpy as np
+from pydantic import Field
 
-from adservice.proposers.base import Proposal, ProposalRequest
+from adservice.proposers.base import Proposal, ProposalRequest, ProposerOptions
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 
 
@@ -29,21 +30,29 @@ def _param_names(dim: int) -> list[str]:
     return [f"x{i:03d}" for i in range(dim)]
 
 
+class TPEOptions(ProposerOptions):
+    n_startup_trials: int = Field(default=10, ge=0, le=1000)
+    multivariate: bool = True
+    constant_liar: bool = True
+    n_ei_candidates: int = Field(default=24, ge=1, le=10_000)
+
+
 class TPEProposer:
     """Sobol start, then Optuna's (multivariate, constant-liar) TPE."""
 
     name: ClassVar[str] = "tpe"
     needs_history: ClassVar[bool] = True
+    options_model: ClassVar[type[ProposerOptions]] = TPEOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
         import optuna
         from optuna.distributions import BaseDistribution, FloatDistribution
         from optuna.trial import TrialState, create_trial
 
-        options = request.options
+        options = TPEOptions.model_validate(request.options)
         dim = request.dim
         bounds = np.asarray(request.bounds, dtype=np.float64)
-        n_startup = max(request.n_initial, int(options.get("n_startup_trials", 10)))
+        n_startup = max(request.n_initial, options.n_startup_trials)
         n_sobol = min(max(n_startup - request.n_issued, 0), request.count)
         rows: list[np.ndarray] = []
         info: list[dict[str, Any]] = []
@@ -77,9 +86,9 @@ class TPEProposer:
             sampler = optuna.samplers.TPESampler(
                 seed=derived_seed(request.seed, request.n_issued),
                 n_startup_trials=0,
-                multivariate=bool(options.get("multivariate", True)),
-                constant_liar=bool(options.get("constant_liar", True)),
-                n_ei_candidates=int(options.get("n_ei_candidates", 24)),
+                multivariate=options.multivariate,
+                constant_liar=options.constant_liar,
+                n_ei_candidates=options.n_ei_candidates,
             )
             study = optuna.create_study(direction="maximize", sampler=sampler)
             X = np.asarray(request.X, dtype=np.float64).reshape(-1, dim)
