@@ -133,9 +133,10 @@ def install_error_handlers(app: FastAPI) -> None:
     async def domain_error(_request: Request, error: DomainError) -> JSONResponse:
         status = _status_for(error)
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
-        return JSONResponse(
-            {"error": error.code, "detail": error.detail}, status_code=status, headers=headers
-        )
+        body: dict[str, Any] = {"error": error.code, "detail": error.detail}
+        if error.problems:
+            body["problems"] = error.problems
+        return JSONResponse(body, status_code=status, headers=headers)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_request: Request, error: RequestValidationError) -> JSONResponse:

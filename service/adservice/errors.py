@@ -6,9 +6,11 @@ from __future__ import annotations
 class DomainError(Exception):
     code = "error"
 
-    def __init__(self, detail: str) -> None:
+    def __init__(self, detail: str, *, problems: list[str] | None = None) -> None:
         super().__init__(detail)
         self.detail = detail
+        self.problems = problems
+        """Each invalid field, named (``ErrorBody.problems``)."""
 
 
 class NotFoundError(DomainError):
@@ -23,8 +25,20 @@ class LeaseLostError(ConflictError):
     code = "lease_lost"
 
 
+class StudyConfigError(ConflictError):
+    """A stored study's settings cannot be used (stored before they were checked)."""
+
+    code = "invalid_study"
+
+
 class InvalidError(DomainError):
+    """A request naming a bad value; its answer always lists ``problems`` (the detail
+    alone when none are given), as request validation's answers do."""
+
     code = "invalid"
+
+    def __init__(self, detail: str, *, problems: list[str] | None = None) -> None:
+        super().__init__(detail, problems=problems or [detail])
 
 
 class TooLargeError(DomainError):

@@ -10,22 +10,49 @@ pending.
 
 from __future__ import annotations
 
+import logging
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from adclient.design import DesignSpace, Representation
 from adclient.schemas import Job, ProposerConfig, StudyCreate, TaskConfig, Trial
 from adservice import repository
 from adservice.db import Database
-from adservice.errors import ConflictError, InvalidError
+from adservice.errors import ConflictError, InvalidError, StudyConfigError
 from adservice.locks import StudyLocks
 from adservice.models import StudyRow
-from adservice.proposers import Proposal, ProposalRequest, available, get_proposer
+from adservice.proposers import Proposal, ProposalRequest, available, get_proposer, options_model
 from adservice.proposers.base import empty_history
 from adservice.repository import History
+
+log = logging.getLogger("adservice")
+
+
+def check_proposer(config: ProposerConfig) -> None:
+    """A known proposer and options it declares; InvalidError naming each problem."""
+    if config.name not in available():
+        raise InvalidError(
+            f"proposer.name: unknown proposer {config.name!r}; "
+            f"choose one of {', '.join(available())}"
+        )
+    model = options_model(config.name)
+    try:
+        model.model_validate(config.options)
+    except ValidationError as error:
+        known = ", ".join(model.model_fields) or "none"
+        problems = []
+        for item in error.errors():
+            where = ".".join(["proposer.options", *(str(part) for part in item["loc"])])
+            message = str(item["msg"]).removeprefix("Value error, ")
+            if item["type"] == "extra_forbidden":
+                message = f"unknown option of {config.name} (its options: {known})"
+            problems.append(f"{where}: {message}")
+        raise InvalidError("; ".join(problems), problems=problems) from None
 
 
 @dataclass(frozen=True)
@@ -40,9 +67,19 @@ class StudyConfig:
     design_space: DesignSpace | None
     representation: Representation | None
     bounds: np.ndarray
+    proposer_error: InvalidError | None = None
+    """Why the stored proposer settings cannot be used (a study stored before they were
+    checked at creation): asking such a study answers 409 naming the problem."""
 
     @classmethod
     def from_row(cls, row: StudyRow) -> StudyConfig:
+        proposer = ProposerConfig.model_validate(row.proposer)
+        try:
+            check_proposer(proposer)
+            proposer_error = None
+        except InvalidError as error:
+            proposer_error = error
+            log.warning("study %d cannot propose: %s", row.id, error.detail)
         representation: Representation | None = None
         design_space: DesignSpace | None = None
         if row.representation is not None:
@@ -55,12 +92,13 @@ class StudyConfig:
         return cls(
             study_id=row.id,
             maximize=row.direction == "maximize",
-            proposer=ProposerConfig.model_validate(row.proposer),
+            proposer=proposer,
             task=TaskConfig.model_validate(row.task) if row.task else None,
             space=row.space,
             design_space=design_space,
             representation=representation,
             bounds=bounds,
+            proposer_error=proposer_error,
         )
 
     @property
@@ -87,18 +125,49 @@ def study_config(db: Database, study_id: int) -> StudyConfig:
 
 
 def create_study(db: Database, *, body: StudyCreate) -> StudyRow:
-    if body.proposer.name not in available():
-        raise InvalidError(
-            f"proposer.name: unknown proposer {body.proposer.name!r}; "
-            f"choose one of {', '.join(available())}"
-        )
+    """Check what the schema cannot (the proposer and its options, the representation's
+    numbers), then store the study; InvalidError, with nothing stored, otherwise."""
+    check_proposer(body.proposer)
     representation = None
     if isinstance(body.space, DesignSpace):
         from adservice.representation import build_representation
 
         representation = build_representation(body.space).model_dump(mode="json")
+        _check_finite(body.space, representation)
     with db.write() as session:
         return repository.create_study(session, body=body, representation=representation)
+
+
+def _non_finite(value: Any, where: str) -> str | None:
+    """The path of the first NaN or infinite number in a JSON value, if any."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else where
+    if isinstance(value, dict):
+        items: Any = value.items()
+    elif isinstance(value, list):
+        items = enumerate(value)
+    else:
+        return None
+    for key, item in items:
+        found = _non_finite(item, f"{where}.{key}")
+        if found is not None:
+            return found
+    return None
+
+
+def _check_finite(space: DesignSpace, representation: dict[str, Any]) -> None:
+    """A representation that overflowed cannot decode designs (and PostgreSQL refuses
+    to store NaN); the one setting known to do it is a huge ``fusion_margin``."""
+    where = _non_finite(representation, "representation")
+    if where is None:
+        return
+    if space.fusion_margin > 0:
+        raise InvalidError(
+            f"space.design.fusion_margin: {space.fusion_margin:g} is too large: the fused "
+            f"distances overflow ({where} is not a finite number); the distances it "
+            "separates are between normalised spec vectors, a few units at most"
+        )
+    raise InvalidError(f"space.design: the search representation overflows ({where})")
 
 
 def _request(
@@ -159,6 +228,12 @@ def propose_trials(
     lease_seconds: float = 60.0,
 ) -> list[Trial]:
     config = study_config(db, study_id)
+    if config.proposer_error is not None:
+        raise StudyConfigError(
+            f"study {study_id} cannot propose: its proposer settings were stored before "
+            f"they were checked and are invalid: {config.proposer_error.detail}",
+            problems=config.proposer_error.problems,
+        )
     proposer = get_proposer(config.proposer.name)
     if not proposer.needs_history:
         return _record(
