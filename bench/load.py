@@ -137,7 +137,7 @@ def run_load(
                     "name": "load",
                     "space": SPACE,
                     "proposer": {"name": "random", "seed": 1},
-                    "task": {"name": "noop"},
+                    "task": {"name": "noop", "external": True},
                     "max_trials": trials,
                 },
             )

@@ -235,7 +235,7 @@ class DesignSpace(_Strict):
         "one-hot structure + spec vector",
     )
     fusion_solver: Literal["osqp", "exact"] = "osqp"
-    fusion_margin: float = Field(default=0.0, ge=0.0)
+    fusion_margin: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)
     reference_per_structure: int = Field(default=16, ge=2, le=256)
     reference_seed: int = Field(default=0, ge=0, le=2**31 - 1)
     embedding_mass: float = Field(

@@ -10,13 +10,15 @@ from __future__ import annotations
 import math
 from datetime import datetime
 from enum import StrEnum
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
     GetJsonSchemaHandler,
+    ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -31,6 +33,17 @@ NO_NUL_PATTERN = r"^[^\x00]*$"
 """Free text: anything but NUL, which PostgreSQL cannot store in a text column."""
 
 MAX_ASK = 64
+
+TaskName = Literal["stand-up", "diagonal-gesture", "lift-highest"]
+"""The built-in tasks. The worker's registry (``adworker.tasks.TASKS``) has exactly
+these; a test keeps the two equal. Listed here so the service can check a new study's
+task without importing the worker."""
+LearnerName = Literal["fast", "ddpg", "td3", "sac", "ppo"]
+"""The built-in learners (``adworker.learners.LEARNERS``, kept equal by a test)."""
+TASK_NAMES: tuple[str, ...] = get_args(TaskName)
+LEARNER_NAMES: tuple[str, ...] = get_args(LearnerName)
+TUNABLE_LEARNERS: tuple[str, ...] = ("ddpg", "td3", "sac", "ppo")
+"""The learners whose hyperparameters ``task.options.learner_kwargs`` may override."""
 
 
 class Direction(StrEnum):
@@ -55,9 +68,14 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
-def _plain_text(value: Any, where: str) -> Any:
+def _plain_text(value: Any, where: str, *, finite: bool = False) -> Any:
     """Refuse strings that cannot be stored and sent back: NUL (PostgreSQL cannot store
-    it) and lone surrogates (not encodable as UTF-8), anywhere in a JSON value."""
+    it) and lone surrogates (not encodable as UTF-8), anywhere in a JSON value. With
+    ``finite``, refuse NaN and infinite numbers too (not JSON: PostgreSQL refuses them,
+    answers drop them); new studies are checked so, while studies already stored keep
+    loading."""
+    if finite and isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{where}: numbers must be finite, got {value!r}")
     if isinstance(value, str):
         if "\x00" in value:
             raise ValueError(f"{where}: text must not contain NUL")
@@ -68,10 +86,10 @@ def _plain_text(value: Any, where: str) -> Any:
     elif isinstance(value, dict):
         for key, item in value.items():
             _plain_text(key, f"{where} key")
-            _plain_text(item, f"{where}.{key}")
+            _plain_text(item, f"{where}.{key}", finite=finite)
     elif isinstance(value, list):
         for index, item in enumerate(value):
-            _plain_text(item, f"{where}[{index}]")
+            _plain_text(item, f"{where}[{index}]", finite=finite)
     return value
 
 
@@ -134,8 +152,17 @@ class ProposerConfig(_Strict):
 
 
 class TaskConfig(_Strict):
-    """What a worker does with a design: the task, the learner and their budgets."""
+    """What a worker does with a design: the task, the learner and their budgets.
 
+    This is the form a study keeps and a job carries. A new study gives its task as
+    :class:`NewTaskConfig`, which checks more; studies stored before those checks still
+    load through this one (a mistake in them fails each trial in the worker)."""
+
+    external: bool = Field(
+        default=False,
+        description="Run by workers of your own (SDK lease/tell), not adworker: the name, "
+        "learner and options are theirs, unchecked, and any space is allowed",
+    )
     name: str = Field(pattern=NAME_PATTERN)
     learner: str = Field(default="fast", pattern=NAME_PATTERN)
     train_steps: int | None = Field(default=None, ge=0, le=10_000_000)
@@ -150,12 +177,124 @@ class TaskConfig(_Strict):
         return _plain_text(options, "options")
 
 
+class TaskOptions(_Strict):
+    """``task.options`` every task understands: simulator settings (defaults as in
+    ``adworker.tasks.base``) and the learner's overrides. Validated when a study is
+    created; the study keeps the mapping as given."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    episode_steps: int | None = Field(default=None, ge=2, le=100_000)
+    frame_skip: int = Field(default=12, ge=1, le=1000)
+    time_step: float = Field(default=1.0 / 120.0, gt=0.0, le=1.0)
+    init_noise: float = Field(default=0.05, ge=0.0, le=math.pi)
+    rolling_friction: float = Field(default=0.02, ge=0.0, le=1000.0)
+    spinning_friction: float = Field(default=0.0, ge=0.0, le=1000.0)
+    learner_kwargs: dict[str, Any] | None = Field(
+        default=None,
+        description="Overrides of an SB3 learner's constructor arguments (not for fast)",
+    )
+
+    def link_names(self) -> list[tuple[str, str]]:
+        """(option, link name) for each link the task will look up in the robot."""
+        return []
+
+
+class StandUpOptions(TaskOptions):
+    lifted_link: str = Field(default="b", min_length=1, max_length=64)
+    feet_links: list[Annotated[str, Field(min_length=1, max_length=64)]] = Field(
+        default_factory=lambda: ["a", "c"], max_length=32
+    )
+
+    def link_names(self) -> list[tuple[str, str]]:
+        return [("lifted_link", self.lifted_link)] + [
+            (f"feet_links[{index}]", name) for index, name in enumerate(self.feet_links)
+        ]
+
+
+class DiagonalGestureOptions(TaskOptions):
+    distal_link: str | None = Field(default=None, min_length=1, max_length=64)
+
+    def link_names(self) -> list[tuple[str, str]]:
+        return [("distal_link", self.distal_link)] if self.distal_link is not None else []
+
+
+TASK_OPTIONS: dict[str, type[TaskOptions]] = {
+    "stand-up": StandUpOptions,
+    "diagonal-gesture": DiagonalGestureOptions,
+    "lift-highest": TaskOptions,
+}
+"""The options model of each built-in task."""
+
+
+def _option_problems(error: ValidationError, model: type[BaseModel], owner: str) -> str:
+    """An options model's errors as one message, each naming its option."""
+    problems = []
+    for item in error.errors():
+        message = str(item["msg"]).removeprefix("Value error, ")
+        if item["type"] == "extra_forbidden":
+            message = f"unknown option of {owner} (its options: {', '.join(model.model_fields)})"
+        problems.append(".".join(str(part) for part in item["loc"]) + ": " + message)
+    return "; ".join(problems)
+
+
+class NewTaskConfig(TaskConfig):
+    """A new study's task: a built-in task and learner (``TaskName``, ``LearnerName``)
+    and options they understand, unless the task is ``external``."""
+
+    episode_steps: int | None = Field(default=None, ge=2, le=100_000)
+
+    @field_validator("name")
+    @classmethod
+    def _built_in_task(cls, name: str, info: ValidationInfo) -> str:
+        if name not in TASK_NAMES and not info.data.get("external"):
+            raise ValueError(
+                f"unknown task {name!r}; the built-in tasks are {', '.join(TASK_NAMES)} "
+                "(a task that workers of your own run, not adworker, needs external: true)"
+            )
+        return name
+
+    @field_validator("learner")
+    @classmethod
+    def _built_in_learner(cls, learner: str, info: ValidationInfo) -> str:
+        if learner not in LEARNER_NAMES and not info.data.get("external"):
+            raise ValueError(
+                f"unknown learner {learner!r}; the built-in learners are {', '.join(LEARNER_NAMES)}"
+            )
+        return learner
+
+    @field_validator("options")
+    @classmethod
+    def _known_options(cls, options: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        _plain_text(options, "options", finite=True)
+        task, learner = info.data.get("name"), info.data.get("learner")
+        if info.data.get("external") or task not in TASK_OPTIONS:
+            return options  # the task's own, or the name's error says what is wrong
+        model = TASK_OPTIONS[task]
+        try:
+            parsed = model.model_validate(options)
+        except ValidationError as error:
+            raise ValueError(_option_problems(error, model, f"task {task!r}")) from None
+        if parsed.learner_kwargs is not None and learner not in TUNABLE_LEARNERS:
+            raise ValueError(
+                f"learner_kwargs: learner {learner!r} takes none "
+                f"(only {', '.join(TUNABLE_LEARNERS)} do)"
+            )
+        return options
+
+    def links_looked_up(self) -> list[tuple[str, str]]:
+        """(option, link name) for each link a built-in task looks up in the robot."""
+        if self.external:
+            return []
+        return TASK_OPTIONS[self.name].model_validate(self.options).link_names()
+
+
 class StudyCreate(_Strict):
     name: str = Field(pattern=NAME_PATTERN)
     direction: Direction = Direction.maximize
     space: Space
     proposer: ProposerConfig = Field(default_factory=ProposerConfig)
-    task: TaskConfig | None = None
+    task: NewTaskConfig | None = None
     max_trials: int | None = Field(default=None, ge=1, le=1_000_000)
     max_attempts: int = Field(default=3, ge=1, le=100)
     metadata: dict[str, Any] = Field(default_factory=dict)
@@ -163,12 +302,60 @@ class StudyCreate(_Strict):
     @field_validator("metadata")
     @classmethod
     def _metadata_text(cls, metadata: dict[str, Any]) -> dict[str, Any]:
-        return _plain_text(metadata, "metadata")
+        return _plain_text(metadata, "metadata", finite=True)
+
+    @field_validator("proposer")
+    @classmethod
+    def _proposer_numbers(cls, proposer: ProposerConfig) -> ProposerConfig:
+        _plain_text(proposer.options, "options", finite=True)
+        return proposer
+
+    @field_validator("space")
+    @classmethod
+    def _searchable_widths(cls, space: BoxSpace | DesignSpace) -> BoxSpace | DesignSpace:
+        """Each searched range's width must be a number too (high - low of two huge
+        bounds overflows, and every proposed value would then be the upper bound)."""
+        if isinstance(space, BoxSpace):
+            ranges = [(f"param {p.name!r}", p.low, p.high) for p in space.params]
+        else:
+            names, bounds = space.spec_slots()
+            ranges = [
+                (f"spec {name!r}", low, high)
+                for name, (low, high) in zip(names, bounds, strict=True)
+            ]
+        for what, low, high in ranges:
+            if not math.isfinite(high - low):
+                raise ValueError(
+                    f"{what}: the width high - low ({high} - {low}) overflows; "
+                    "choose bounds closer together"
+                )
+        return space
 
     @model_validator(mode="after")
-    def _managed_needs_budget(self) -> StudyCreate:
-        if self.task is not None and self.max_trials is None:
+    def _managed_study(self) -> StudyCreate:
+        if self.task is None:
+            return self
+        if self.max_trials is None:
             raise ValueError("max_trials is required for a study with a task (a managed study)")
+        if self.task.external:
+            return self
+        if not isinstance(self.space, DesignSpace):
+            raise ValueError(
+                f"task {self.task.name!r} builds a robot: it needs a design space "
+                f"(space.type: design), not {self.space.type!r}"
+            )
+        for option, link in self.task.links_looked_up():
+            missing = [
+                index
+                for index, edges in enumerate(self.space.tree_structures())
+                if link not in {name for edge in edges for name in edge}
+            ]
+            if missing:
+                raise ValueError(
+                    f"task {self.task.name!r} looks up link {link!r} (task.options.{option}), "
+                    f"but structures[{missing[0]}] has no link of that name; name the "
+                    f"instances accordingly or set task.options.{option}"
+                )
         return self
 
 

@@ -173,7 +173,7 @@ def test_stop_ends_the_study(client: Client) -> None:
 
 
 def test_worker_calls_lease_heartbeat_artifacts_tell(client: Client) -> None:
-    study = box_study(client, "managed", task={"name": "stand-up"}, max_trials=1)
+    study = box_study(client, "managed", task={"name": "stand-up", "external": True}, max_trials=1)
     # the other studies of this module run unmanaged: leasing must leave them alone
     job = client.lease("sdk-worker")
     assert job is not None and job.study_id == study.id

@@ -15,7 +15,14 @@ import yaml
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from adclient.design import Bound, DesignSpace, JointType, PartInstance, PartType
-from adclient.schemas import BoxParam, BoxSpace, ProposerConfig, StudyCreate, TaskConfig
+from adclient.schemas import (
+    BoxParam,
+    BoxSpace,
+    NewTaskConfig,
+    ProposerConfig,
+    StudyCreate,
+    TaskOptions,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = (ROOT / "docs" / "study-file.md").read_text(encoding="utf-8")
@@ -29,7 +36,8 @@ TABLES: dict[str, type[BaseModel]] = {
     "JointType": JointType,
     "PartInstance": PartInstance,
     "ProposerConfig": ProposerConfig,
-    "TaskConfig": TaskConfig,
+    "NewTaskConfig": NewTaskConfig,
+    "TaskOptions": TaskOptions,
 }
 """Each model's field table follows a ``<!-- fields: Name -->`` marker in the doc."""
 
@@ -102,7 +110,7 @@ def test_field_table_lists_every_field_with_its_default_and_range(model_name: st
         else:
             literal = re.match(r"`([^`]*)`", default_cell)
             assert literal, f"{where}: default {default_cell!r} is not a `literal`"
-            annotation = field.annotation
+            annotation: Any = field.annotation
             if field.metadata:
                 annotation = Annotated[(annotation, *field.metadata)]
             adapter = TypeAdapter(annotation)
@@ -139,8 +147,12 @@ def _names(cell: str) -> set[str]:
 def test_proposer_names_and_options_match_the_registry() -> None:
     proposers = pytest.importorskip("adservice.proposers")
     assert _names(_table("ProposerConfig")["name"][0]) == set(proposers.available())
-    listed = set(re.findall(r"^\| `([a-z-]+)` \| ", DOC.split("## Proposer", 1)[1], re.M))
-    assert set(proposers.available()) <= listed
+    section = DOC.split("## Proposer", 1)[1].split("\n## ", 1)[0]
+    rows = dict(re.findall(r"^\| `([a-z-]+)` \| (.*)$", section, re.M))
+    assert set(proposers.available()) <= set(rows)
+    for name in proposers.available():
+        documented = _names(rows[name].rsplit(" | ", 1)[1])
+        assert set(proposers.options_model(name).model_fields) <= documented, name
 
 
 def test_task_and_learner_names_and_budgets_match_the_worker() -> None:
@@ -148,7 +160,7 @@ def test_task_and_learner_names_and_budgets_match_the_worker() -> None:
     from adworker.learners import LEARNERS
     from adworker.tasks import TASKS
 
-    rows = _table("TaskConfig")
+    rows = _table("NewTaskConfig")
     assert _names(rows["name"][0]) == set(TASKS)
     assert _names(rows["learner"][0]) == set(LEARNERS)
     budgets = rows["train_steps"][2]

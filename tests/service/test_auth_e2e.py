@@ -16,7 +16,7 @@ BOX_STUDY = {
     "name": "secured",
     "space": {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
     "proposer": {"name": "random"},
-    "task": {"name": "noop"},
+    "task": {"name": "noop", "external": True},
     "max_trials": 5,
 }
 

@@ -25,7 +25,7 @@ def test_concurrent_leases_and_tells_lose_and_duplicate_nothing(live_server: Ser
                 "name": "managed",
                 "space": BOX,
                 "proposer": {"name": "random"},
-                "task": {"name": "noop"},
+                "task": {"name": "noop", "external": True},
                 "max_trials": n_trials,
             },
         ).json()

@@ -39,7 +39,7 @@ MANAGED_BOX = {
         "params": [{"name": name, "low": 0.0, "high": 1.0} for name in PARAMS],
     },
     "proposer": {"name": "random", "seed": 11},
-    "task": {"name": "noop"},
+    "task": {"name": "noop", "external": True},
     "max_trials": 40,
 }
 

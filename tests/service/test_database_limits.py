@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from tests.service.conftest import BOX_STUDY
 
 TOO_BIG = 2**31
-MANAGED = copy.deepcopy(BOX_STUDY) | {"task": {"name": "noop"}, "max_trials": 3}
+MANAGED = copy.deepcopy(BOX_STUDY) | {"task": {"name": "noop", "external": True}, "max_trials": 3}
 
 
 def test_ids_past_32_bits_are_422_not_an_overflow(api: TestClient) -> None:

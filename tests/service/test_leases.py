@@ -16,7 +16,7 @@ from tests.service.conftest import BOX_STUDY
 
 def managed(api: TestClient, max_trials: int = 4, max_attempts: int = 3) -> dict[str, Any]:
     body = copy.deepcopy(BOX_STUDY) | {
-        "task": {"name": "noop"},
+        "task": {"name": "noop", "external": True},
         "max_trials": max_trials,
         "max_attempts": max_attempts,
     }

@@ -61,7 +61,7 @@ def test_workers_across_two_servers_lose_and_duplicate_nothing(
                 "name": "shared",
                 "space": BOX,
                 "proposer": {"name": "random", "seed": 5},
-                "task": {"name": "noop"},
+                "task": {"name": "noop", "external": True},
                 "max_trials": n_trials,
             },
         )

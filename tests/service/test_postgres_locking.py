@@ -49,7 +49,7 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
             "name": "race",
             "space": {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
             "proposer": {"name": "random"},
-            "task": {"name": "noop"},
+            "task": {"name": "noop", "external": True},
             "max_trials": 2,
             "max_attempts": 1,
         }
