@@ -200,14 +200,14 @@ def test_second_sigterm_abandons_the_job_and_gives_the_lease_back(server_factory
 def test_evaluation_error_becomes_a_failed_tell_and_the_worker_goes_on(server_factory, workers):
     server = server_factory()
     with Client(server.url) as client:
-        # One control step per episode is too short to score its second half.
-        study = stand_up_study(client, max_trials=2, learner="fast", episode_steps=1)
+        # A task of other workers (creation checks the rest): adworker cannot run it.
+        study = stand_up_study(client, max_trials=2, name="stand-up-v2", external=True)
         worker = workers(server, "careful", "--max-jobs", "2")
         assert worker.wait() == 0, worker.log()
         trials = study.trials
         assert [trial.state for trial in trials] == ["failed", "failed"]
-        assert all("episode_steps" in (trial.message or "") for trial in trials)
-        assert all(trial.message.startswith("ValueError") for trial in trials)
+        assert all("'stand-up-v2'" in (trial.message or "") for trial in trials)
+        assert all(trial.message.startswith("UnknownTask") for trial in trials)
 
 
 def test_refused_token_stops_the_worker_with_a_clear_message(server_factory, workers):
