@@ -34,7 +34,7 @@ PARAM_ORDER_PREFIX = "param:"
 """``order_by="param:NAME"`` sorts by a param's value (numbers by value, then text)."""
 
 
-def _trial_order(session: Session, order_by: str) -> sa.ColumnElement[Any]:
+def _trial_order(session: Session, order_by: str) -> sa.SQLColumnExpression[Any]:
     """The sort key for ``order_by``: a column, ``duration`` (seconds from start to
     finish) or ``param:NAME``; each database spells the last two its own way. Names are
     checked by the route (a param name's pattern keeps the JSON path literal safe)."""
