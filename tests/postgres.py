@@ -88,10 +88,14 @@ def ensure_installed() -> Path:
 
 def remove_stale_clusters(older_than_s: float = 600.0) -> None:
     """Delete the folders of clusters whose server is gone (a test run that was killed
-    leaves its folder behind); a folder still being set up is younger than the limit."""
+    leaves its folder behind). A folder younger than the limit is never touched: another
+    test process may be setting it up, and initdb's bootstrap backend leaves a
+    ``postmaster.pid`` naming a process that has already exited."""
     for folder in Path(tempfile.gettempdir()).glob(f"{PREFIX}*"):
         pid_file = folder / "data" / "postmaster.pid"
         try:
+            if time.time() - folder.stat().st_mtime < older_than_s:
+                continue
             if pid_file.exists():
                 pid = int(pid_file.read_text().split()[0])
                 try:
@@ -99,8 +103,6 @@ def remove_stale_clusters(older_than_s: float = 600.0) -> None:
                     continue  # running
                 except ProcessLookupError:
                     pass
-            elif time.time() - folder.stat().st_mtime < older_than_s:
-                continue
         except (OSError, ValueError, IndexError):
             continue
         shutil.rmtree(folder, ignore_errors=True)
