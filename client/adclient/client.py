@@ -387,11 +387,13 @@ class Client:
 
     # -- workers ---------------------------------------------------------------------
 
-    def lease(self, worker_id: str) -> Job | None:
-        """Lease the next job of a managed study, or ``None`` when there is no work."""
-        response = self.request(
-            "POST", f"{API}/jobs/lease", json_body={"worker_id": worker_id}, idempotent=False
-        )
+    def lease(self, worker_id: str, tasks: Iterable[str] | None = None) -> Job | None:
+        """Lease the next job of a managed study (of one of ``tasks``, when given: the
+        tasks this worker can run), or ``None`` when there is no work."""
+        body: dict[str, Any] = {"worker_id": worker_id}
+        if tasks is not None:
+            body["tasks"] = list(tasks)
+        response = self.request("POST", f"{API}/jobs/lease", json_body=body, idempotent=False)
         if response.status_code == 204 or not response.content:
             return None
         return Job.model_validate(response.json())

@@ -467,6 +467,12 @@ class TellRequest(_Strict):
 
 class LeaseRequest(_Strict):
     worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
+    tasks: list[Annotated[str, Field(pattern=NAME_PATTERN)]] | None = Field(
+        default=None,
+        max_length=256,
+        description="lease only trials of studies whose task has one of these names "
+        "(the tasks this worker can run); none: any task",
+    )
 
 
 class HeartbeatRequest(_Strict):

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -265,18 +265,23 @@ def propose_trials(
 
 
 def lease_job(
-    db: Database, locks: StudyLocks, *, worker_id: str, lease_seconds: float
+    db: Database,
+    locks: StudyLocks,
+    *,
+    worker_id: str,
+    lease_seconds: float,
+    tasks: Sequence[str] | None = None,
 ) -> Job | None:
     """A queued trial if there is one, else a freshly proposed one from a managed study
-    with room; None when there is no work."""
+    with room; None when there is no work (of ``tasks``, when given)."""
     with db.write() as session:
         row = repository.lease_queued_trial(
-            session, worker_id=worker_id, lease_seconds=lease_seconds
+            session, worker_id=worker_id, lease_seconds=lease_seconds, tasks=tasks
         )
         trial = Trial.model_validate(row, from_attributes=True) if row else None
     if trial is None:
         with db.read() as session:
-            candidates = repository.studies_wanting_trials(session)
+            candidates = repository.studies_wanting_trials(session, tasks=tasks)
         for study_id in candidates:
             try:
                 (trial,) = propose_trials(

@@ -476,10 +476,18 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
     return len(expired)
 
 
+def _task_among(tasks: Sequence[str] | None) -> list[sa.ColumnElement[bool]]:
+    """Managed studies, and with ``tasks`` only those whose task has one of these names."""
+    where: list[sa.ColumnElement[bool]] = [StudyRow.task.is_not(None)]
+    if tasks is not None:
+        where.append(StudyRow.task["name"].as_string().in_(list(tasks)))
+    return where
+
+
 def lease_queued_trial(
-    session: Session, *, worker_id: str, lease_seconds: float
+    session: Session, *, worker_id: str, lease_seconds: float, tasks: Sequence[str] | None = None
 ) -> TrialRow | None:
-    """Lease the oldest queued trial of a running managed study, if any."""
+    """Lease the oldest queued trial of a running managed study (of one of ``tasks``)."""
     now = utcnow()
     expire_leases(session, now=now)
     query = (
@@ -488,7 +496,7 @@ def lease_queued_trial(
         .where(
             TrialRow.state == TrialState.queued,
             StudyRow.state == "running",
-            StudyRow.task.is_not(None),
+            *_task_among(tasks),
         )
         .order_by(TrialRow.id)
         .limit(1)
@@ -509,13 +517,13 @@ def lease_queued_trial(
     return trial
 
 
-def studies_wanting_trials(session: Session) -> list[int]:
-    """Running managed studies with room for another trial, oldest first."""
+def studies_wanting_trials(session: Session, *, tasks: Sequence[str] | None = None) -> list[int]:
+    """Running managed studies (of one of ``tasks``) with room for a trial, oldest first."""
     query = (
         sa.select(StudyRow.id)
         .where(
             StudyRow.state == "running",
-            StudyRow.task.is_not(None),
+            *_task_among(tasks),
             StudyRow.n_trials < StudyRow.max_trials,
         )
         .order_by(StudyRow.id)

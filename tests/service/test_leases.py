@@ -14,9 +14,11 @@ from adservice.settings import Settings
 from tests.service.conftest import BOX_STUDY
 
 
-def managed(api: TestClient, max_trials: int = 4, max_attempts: int = 3) -> dict[str, Any]:
+def managed(
+    api: TestClient, max_trials: int = 4, max_attempts: int = 3, task: str = "noop"
+) -> dict[str, Any]:
     body = copy.deepcopy(BOX_STUDY) | {
-        "task": {"name": "noop", "external": True},
+        "task": {"name": task, "external": True},
         "max_trials": max_trials,
         "max_attempts": max_attempts,
     }
@@ -25,8 +27,11 @@ def managed(api: TestClient, max_trials: int = 4, max_attempts: int = 3) -> dict
     return response.json()
 
 
-def lease(api: TestClient, worker: str) -> dict[str, Any] | None:
-    response = api.post("/api/v1/jobs/lease", json={"worker_id": worker})
+def lease(api: TestClient, worker: str, tasks: list[str] | None = None) -> dict[str, Any] | None:
+    body: dict[str, Any] = {"worker_id": worker}
+    if tasks is not None:
+        body["tasks"] = tasks
+    response = api.post("/api/v1/jobs/lease", json=body)
     assert response.status_code in (200, 204), response.text
     return response.json() if response.status_code == 200 else None
 
@@ -53,6 +58,26 @@ def test_lease_carries_the_job_and_trials_are_distinct(api: TestClient) -> None:
     assert told.status_code == 200 and told.json()["metrics"] == {"steps": 10.0}
     workers = api.get(f"/api/v1/studies/{study['id']}/workers").json()
     assert {w["worker_id"]: w["jobs_done"] for w in workers} == {"w1": 1, "w2": 0}
+
+
+def test_a_worker_leases_only_the_tasks_it_names(api: TestClient) -> None:
+    welding = managed(api, max_trials=2, task="welding")
+    painting = managed(api, max_trials=1, task="painting")
+    assert lease(api, "w1", tasks=[]) is None
+    assert lease(api, "w1", tasks=["stand-up"]) is None
+    first = lease(api, "painter", tasks=["painting", "stand-up"])
+    assert first is not None and first["study_id"] == painting["id"]
+    assert lease(api, "painter", tasks=["painting"]) is None  # its study is full
+    released = api.post(
+        f"/api/v1/trials/{first['trial_id']}/release", json={"worker_id": "painter"}
+    )
+    assert released.status_code == 200  # a queued painting trial, older than any welding one
+    welder = lease(api, "welder", tasks=["welding"])
+    assert welder is not None and welder["study_id"] == welding["id"]
+    anyone = lease(api, "anyone")  # no list: any task, the queued trial first
+    assert anyone is not None and anyone["trial_id"] == first["trial_id"]
+    refused = api.post("/api/v1/jobs/lease", json={"worker_id": "w", "tasks": ["bad name!"]})
+    assert refused.status_code == 422 and "tasks" in refused.json()["detail"]
 
 
 def test_only_the_holder_may_tell_or_heartbeat(api: TestClient) -> None:

@@ -200,14 +200,25 @@ def test_second_sigterm_abandons_the_job_and_gives_the_lease_back(server_factory
 def test_evaluation_error_becomes_a_failed_tell_and_the_worker_goes_on(server_factory, workers):
     server = server_factory()
     with Client(server.url) as client:
-        # A task of other workers (creation checks the rest): adworker cannot run it.
-        study = stand_up_study(client, max_trials=2, name="stand-up-v2", external=True)
+        # external: creation leaves the learner to the workers, and adworker has no such one.
+        study = stand_up_study(client, max_trials=2, learner="dreamer", external=True)
         worker = workers(server, "careful", "--max-jobs", "2")
         assert worker.wait() == 0, worker.log()
         trials = study.trials
         assert [trial.state for trial in trials] == ["failed", "failed"]
-        assert all("'stand-up-v2'" in (trial.message or "") for trial in trials)
-        assert all(trial.message.startswith("UnknownTask") for trial in trials)
+        assert all("'dreamer'" in (trial.message or "") for trial in trials)
+        assert all(trial.message.startswith("UnknownLearner") for trial in trials)
+
+
+def test_adworker_leaves_tasks_it_does_not_have_to_other_workers(server_factory, workers):
+    server = server_factory()
+    with Client(server.url) as client:
+        theirs = stand_up_study(client, max_trials=2, name="stand-up-v2", external=True)
+        ours = stand_up_study(client, max_trials=1, learner="fast", train_steps=256)
+        worker = workers(server, "choosy", "--max-jobs", "1")
+        assert worker.wait() == 0, worker.log()
+        assert client.study_info(ours.id).n_complete == 1
+        assert client.study_info(theirs.id).n_trials == 0  # never proposed for adworker
 
 
 def test_refused_token_stops_the_worker_with_a_clear_message(server_factory, workers):

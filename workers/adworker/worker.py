@@ -39,7 +39,7 @@ from typing import Any
 
 from adclient.client import Client
 from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized, Unavailable
-from adclient.schemas import Job
+from adclient.schemas import TASK_NAMES, Job
 
 log = logging.getLogger("adworker")
 
@@ -195,7 +195,7 @@ class Worker:
                     log.info("the pool's job budget is spent")
                     break
                 try:
-                    job = self.client.lease(config.worker_id)
+                    job = self.client.lease(config.worker_id, tasks=TASK_NAMES)
                 except (Unauthorized, Forbidden) as exc:
                     raise AuthError(str(exc)) from exc
                 except ApiError as exc:

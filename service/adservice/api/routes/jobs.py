@@ -16,7 +16,11 @@ def lease(
     body: LeaseRequest, db: DatabaseDep, locks: LocksDep, settings: SettingsDep, _: WorkerDep
 ) -> Response | Job:
     job = proposing.lease_job(
-        db, locks, worker_id=body.worker_id, lease_seconds=settings.lease_seconds
+        db,
+        locks,
+        worker_id=body.worker_id,
+        lease_seconds=settings.lease_seconds,
+        tasks=body.tasks,
     )
     if job is None:
         return Response(status_code=204)
