@@ -337,14 +337,17 @@ def report(results: dict[str, Any]) -> str:
                 f" [min {row['min']:.3f}, max {row['max']:.3f}]  {scores}"
             )
         lines += ["```", ""]
+    loads = [row["load"] for row in results.get("timing", []) if "load" in row]
+    load_range = f"{min(loads):.1f} to {max(loads):.1f}" if loads else "unrecorded"
     lines += [
         "Notes:",
         "",
         "- The machine has 2 cores shared with the other engineers' tests and benchmarks"
-        " (load average 3 to 7 during these runs), so wall time includes waiting for a"
-        " core; CPU time is the evaluation's own cost on one core. Each worker process uses"
-        " one core (torch and BLAS on one thread), so two workers run two evaluations at"
-        " once on two cores at about the CPU-time figure each.",
+        f" (load average {load_range} during these timings): under load, wall time"
+        " includes waiting for a core; CPU time is the evaluation's own cost on one core."
+        " Each worker process uses one core (torch and BLAS on one thread), so two"
+        " workers run two evaluations at once on two cores at about the CPU-time figure"
+        " each.",
         "- Training dominates every RL evaluation; decode, URDF, env build, evaluation"
         " (3 episodes) and rendering (TinyRenderer, 320x240) take 0.1 to 0.3 s together.",
         "- Harness overhead is the Python around the engine calls (turning the state into"
