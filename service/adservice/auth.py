@@ -14,11 +14,12 @@ import hashlib
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
 from fastapi import Request
+from starlette.concurrency import run_in_threadpool
 
 from adservice import repository
 from adservice.errors import ForbiddenError, UnauthorizedError
@@ -75,32 +76,52 @@ class TokenCache:
             self._entries[digest] = (time.monotonic() + CACHE_SECONDS, principal)
 
 
-def authenticate(request: Request) -> Principal:
-    state = request.app.state
-    if not state.settings.auth:
-        return LOOPBACK_ADMIN
+def _token_digest(request: Request) -> str:
     header = request.headers.get("authorization", "")
     scheme, _, token = header.partition(" ")
     if scheme.lower() != "bearer" or not token:
         raise UnauthorizedError("a bearer token is required (Authorization: Bearer <token>)")
-    digest = token_digest(token.strip())
-    cache: TokenCache = state.tokens
-    known, principal = cache.get(digest)
-    if not known:
-        with state.db.read() as session:
-            row = repository.find_token(session, digest=digest)
-            principal = Principal(role=Role(row.role), token_id=row.id) if row else None
-        cache.put(digest, principal)
+    return token_digest(token.strip())
+
+
+def _admit(principal: Principal | None) -> Principal:
     if principal is None:
         raise UnauthorizedError("unknown or revoked token")
     return principal
 
 
-def require(role: Role) -> Callable[[Request], Principal]:
-    """A dependency that admits callers holding ``role`` or a higher one."""
+def authenticate_cached(request: Request) -> Principal | None:
+    """The caller when that needs no database read (auth off, or the token cached);
+    None when it does."""
+    state = request.app.state
+    if not state.settings.auth:
+        return LOOPBACK_ADMIN
+    cache: TokenCache = state.tokens
+    known, principal = cache.get(_token_digest(request))
+    return _admit(principal) if known else None
 
-    def dependency(request: Request) -> Principal:
-        principal = authenticate(request)
+
+def authenticate(request: Request) -> Principal:
+    principal = authenticate_cached(request)
+    if principal is not None:
+        return principal
+    digest = _token_digest(request)
+    state = request.app.state
+    with state.db.read() as session:
+        row = repository.find_token(session, digest=digest)
+        found = Principal(role=Role(row.role), token_id=row.id) if row else None
+    state.tokens.put(digest, found)
+    return _admit(found)
+
+
+def require(role: Role) -> Callable[[Request], Awaitable[Principal]]:
+    """A dependency that admits callers holding ``role`` or a higher one (async: only a
+    token missing from the cache costs a database read, in the thread pool)."""
+
+    async def dependency(request: Request) -> Principal:
+        principal = authenticate_cached(request)
+        if principal is None:
+            principal = await run_in_threadpool(authenticate, request)
         if RANK[principal.role] < RANK[role]:
             raise ForbiddenError(
                 f"this needs the {role} role; the token's role is {principal.role}"

@@ -8,14 +8,17 @@ instead of spinning on "database is locked". PostgreSQL needs neither.
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import sqlalchemy as sa
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
+
+T = TypeVar("T")
 
 MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
 
@@ -86,6 +89,33 @@ class Database:
             session.begin(),
         ):
             yield session
+
+    @contextmanager
+    def write_connection(self) -> Iterator[sa.Connection]:
+        """A Core write transaction, as :meth:`write` but without the ORM session's
+        bookkeeping: for the hot paths (a tell, a cheap ask) that only run prebuilt
+        statements."""
+        if self._write_lock is None:
+            with self._write_engine.begin() as connection:
+                yield connection
+            return
+        with self._write_lock, self._write_engine.begin() as connection:
+            yield connection
+
+    @property
+    def writes_inline(self) -> bool:
+        """Whether a short write may run on the event loop itself: on SQLite writes take
+        turns on one lock anyway, and a hop to the thread pool costs more than the write;
+        elsewhere a write can wait on another transaction's row lock, so it must not
+        hold up the loop."""
+        return self._write_lock is not None
+
+    async def run(self, work: Callable[[], T]) -> T:
+        """``work`` (short, database-bound) on the loop where writes run inline, else in
+        the thread pool."""
+        if self.writes_inline:
+            return work()
+        return await run_in_threadpool(work)
 
     def dispose(self) -> None:
         self.engine.dispose()

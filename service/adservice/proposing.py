@@ -201,13 +201,14 @@ def _record(
     lease_seconds: float,
 ) -> list[Trial]:
     """Reserve trial numbers and store what ``propose(first_number)`` returns, in one
-    write transaction."""
-    with db.write() as session:
-        first = repository.reserve_numbers(session, study_id=config.study_id, count=count)
+    write transaction (a bare connection unless a worker's lease is recorded too)."""
+    transaction = db.write() if worker_id else db.write_connection()
+    with transaction as handle:
+        first = repository.reserve_numbers(handle, study_id=config.study_id, count=count)
         proposal = propose(first)
         candidates = np.clip(proposal.candidates, config.bounds[0], config.bounds[1])
         return repository.insert_trials(
-            session,
+            handle,
             study_id=config.study_id,
             first_number=first,
             vectors=candidates.tolist(),
@@ -216,6 +217,15 @@ def _record(
             worker_id=worker_id,
             lease_seconds=lease_seconds,
         )
+
+
+def proposes_instantly(db: Database, study_id: int) -> bool:
+    """Whether an ask of this study is only a few short writes: its configuration is
+    cached (no read needed) and its proposer needs no history (random, sobol)."""
+    config = db.study_configs.get(study_id)
+    if config is None or config.proposer_error is not None:
+        return False
+    return not get_proposer(config.proposer.name).needs_history
 
 
 def propose_trials(

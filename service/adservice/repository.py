@@ -186,16 +186,16 @@ _RESERVE = (
 )
 
 
-def reserve_numbers(session: Session, *, study_id: int, count: int) -> int:
+def reserve_numbers(handle: Session | sa.Connection, *, study_id: int, count: int) -> int:
     """Claim the next ``count`` trial numbers of a running study with room; returns the
     first. One conditional UPDATE: it checks, reserves and (on PostgreSQL) row-locks."""
     reserved = (
-        session.connection()
+        _connection(handle)
         .execute(_RESERVE, {"sid": study_id, "count": count, "now": utcnow()})
         .scalar_one_or_none()
     )
     if reserved is None:
-        check_room(get_study(session, study_id=study_id), count=count)
+        check_room(get_study(_session(handle), study_id=study_id), count=count)
         raise ConflictError(f"study {study_id} takes no new trials")  # changed meanwhile
     return int(reserved) - count
 
@@ -204,7 +204,7 @@ _INSERT_TRIALS = sa.insert(_trials).returning(_trials.c.id, sort_by_parameter_or
 
 
 def insert_trials(
-    session: Session,
+    handle: Session | sa.Connection,
     *,
     study_id: int,
     first_number: int,
@@ -215,7 +215,7 @@ def insert_trials(
     lease_seconds: float = 60.0,
 ) -> list[Trial]:
     """New trials numbered from ``first_number`` (see :func:`reserve_numbers`), in state
-    ``running`` and leased to ``worker_id`` when given."""
+    ``running`` and leased to ``worker_id`` when given (that needs a session)."""
     now = utcnow()
     values = [
         {
@@ -238,9 +238,10 @@ def insert_trials(
         }
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
-    ids = session.connection().execute(_INSERT_TRIALS, values).scalars().all()
+    ids = _connection(handle).execute(_INSERT_TRIALS, values).scalars().all()
     if worker_id:
-        _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
+        assert isinstance(handle, Session), "a lease records its worker through a session"
+        _touch_worker(handle, worker_id=worker_id, now=now, current_trial_id=ids[0])
     return [
         Trial.model_validate({"id": trial_id, **row})
         for trial_id, row in zip(ids, values, strict=True)
@@ -378,13 +379,23 @@ _COUNT = {complete: _count_statement(complete=complete) for complete in (False, 
 _WORKER_COUNT = {complete: _worker_statement(complete=complete) for complete in (False, True)}
 
 
-def tell_trial(session: Session, *, trial_id: int, body: TellRequest) -> Trial:
+def _connection(handle: Session | sa.Connection) -> sa.Connection:
+    return handle if isinstance(handle, sa.Connection) else handle.connection()
+
+
+def _session(handle: Session | sa.Connection) -> Session:
+    """An ORM session inside ``handle``'s transaction, for a hot path's rare slow branch."""
+    return handle if isinstance(handle, Session) else Session(bind=handle)
+
+
+def tell_trial(handle: Session | sa.Connection, *, trial_id: int, body: TellRequest) -> Trial:
     """Finish a trial. Repeating an identical tell is harmless; a contradicting one is
     a conflict; a worker that no longer holds the lease is told so.
 
     The common case is two conditional UPDATEs (trial, then study counters and best);
-    only a tell that changes nothing takes the slow path that finds out why."""
-    connection = session.connection()
+    only a tell that changes nothing takes the slow path that finds out why. Takes a
+    session or, on the hot path, a bare connection (``Database.write_connection``)."""
+    connection = _connection(handle)
     now = utcnow()
     complete = body.state == "complete"
     finished = connection.execute(
@@ -400,7 +411,7 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest) -> Trial:
         },
     ).one_or_none()
     if finished is None:
-        return _explain_refused_tell(session, trial_id=trial_id, body=body)
+        return _explain_refused_tell(_session(handle), trial_id=trial_id, body=body)
     connection.execute(
         _COUNT[complete],
         {"sid": finished.study_id, "tid": trial_id, "value": body.value, "now": now},

@@ -1,4 +1,8 @@
-"""Dependency aliases shared by the routers."""
+"""Dependency aliases shared by the routers.
+
+Dependencies that only read ``app.state`` are ``async def``: FastAPI runs a sync
+dependency in its thread pool, and a hop there per dependency per request cost more
+than the hot routes' own work."""
 
 from __future__ import annotations
 
@@ -15,22 +19,22 @@ from adservice.locks import StudyLocks
 from adservice.settings import Settings
 
 
-def get_app_settings(request: Request) -> Settings:
+async def get_app_settings(request: Request) -> Settings:
     settings: Settings = request.app.state.settings
     return settings
 
 
-def get_database(request: Request) -> Database:
+async def get_database(request: Request) -> Database:
     db: Database = request.app.state.db
     return db
 
 
-def get_locks(request: Request) -> StudyLocks:
+async def get_locks(request: Request) -> StudyLocks:
     locks: StudyLocks = request.app.state.locks
     return locks
 
 
-def get_artifact_store(request: Request) -> ArtifactStore:
+async def get_artifact_store(request: Request) -> ArtifactStore:
     store: ArtifactStore = request.app.state.artifacts
     return store
 

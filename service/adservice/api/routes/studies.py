@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Response
 from pydantic import AfterValidator
+from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import (
     AskRequest,
@@ -19,6 +20,7 @@ from adclient.schemas import (
 )
 from adservice import proposing, repository
 from adservice.api.deps import AdminDep, DatabaseDep, LocksDep, ReaderDep, SessionDep, StudyId
+from adservice.api.responses import model_response
 from adservice.convert import study_schema, trial_schema, worker_schema
 
 router = APIRouter(prefix="/api/v1/studies", tags=["studies"])
@@ -65,12 +67,18 @@ def get_study(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Study:
     return study_schema(row, counts[study_id])
 
 
-@router.post("/{study_id}/ask")
-def ask(
+@router.post("/{study_id}/ask", response_model=AskResponse)
+async def ask(
     study_id: StudyId, body: AskRequest, db: DatabaseDep, locks: LocksDep, _: AdminDep
-) -> AskResponse:
-    trials = proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
-    return AskResponse(trials=trials)
+) -> Response:
+    def propose() -> list[Trial]:
+        return proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
+
+    if proposing.proposes_instantly(db, study_id):
+        trials = await db.run(propose)
+    else:
+        trials = await run_in_threadpool(propose)  # model fitting: off the loop
+    return model_response(AskResponse(trials=trials))
 
 
 @router.post("/{study_id}/stop")

@@ -7,6 +7,7 @@ from fastapi import APIRouter, Response
 from adclient.schemas import HeartbeatRequest, HeartbeatResponse, TellRequest, Trial
 from adservice import repository, robots
 from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, SettingsDep, TrialId, WorkerDep
+from adservice.api.responses import model_response
 from adservice.auth import Role
 from adservice.convert import trial_schema
 from adservice.errors import ForbiddenError
@@ -19,12 +20,18 @@ def get_trial(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> Trial:
     return trial_schema(repository.get_trial(session, trial_id=trial_id))
 
 
-@router.post("/{trial_id}/tell")
-def tell(trial_id: TrialId, body: TellRequest, db: DatabaseDep, caller: WorkerDep) -> Trial:
+@router.post("/{trial_id}/tell", response_model=Trial)
+async def tell(
+    trial_id: TrialId, body: TellRequest, db: DatabaseDep, caller: WorkerDep
+) -> Response:
     if caller.role == Role.worker and body.worker_id is None:
         raise ForbiddenError("a worker token tells only the trials it holds: give worker_id")
-    with db.write() as session:
-        return repository.tell_trial(session, trial_id=trial_id, body=body)
+
+    def write() -> Trial:
+        with db.write_connection() as connection:
+            return repository.tell_trial(connection, trial_id=trial_id, body=body)
+
+    return model_response(await db.run(write))
 
 
 @router.post("/{trial_id}/heartbeat")
