@@ -227,15 +227,21 @@ TASK_OPTIONS: dict[str, type[TaskOptions]] = {
 """The options model of each built-in task."""
 
 
-def _option_problems(error: ValidationError, model: type[BaseModel], owner: str) -> str:
-    """An options model's errors as one message, each naming its option."""
+def option_problems(
+    error: ValidationError, model: type[BaseModel], owner: str, prefix: str = ""
+) -> list[str]:
+    """An options model's errors, each naming its option (after ``prefix``); an unknown
+    key lists the options ``owner`` has. Shared by task options here and the service's
+    check of proposer options."""
+    known = ", ".join(model.model_fields) or "none"
     problems = []
     for item in error.errors():
         message = str(item["msg"]).removeprefix("Value error, ")
         if item["type"] == "extra_forbidden":
-            message = f"unknown option of {owner} (its options: {', '.join(model.model_fields)})"
-        problems.append(".".join(str(part) for part in item["loc"]) + ": " + message)
-    return "; ".join(problems)
+            message = f"unknown option of {owner} (its options: {known})"
+        where = ".".join([*filter(None, [prefix]), *(str(part) for part in item["loc"])])
+        problems.append(f"{where}: {message}")
+    return problems
 
 
 class NewTaskConfig(TaskConfig):
@@ -274,7 +280,7 @@ class NewTaskConfig(TaskConfig):
         try:
             parsed = model.model_validate(options)
         except ValidationError as error:
-            raise ValueError(_option_problems(error, model, f"task {task!r}")) from None
+            raise ValueError("; ".join(option_problems(error, model, f"task {task!r}"))) from None
         if parsed.learner_kwargs is not None and learner not in TUNABLE_LEARNERS:
             raise ValueError(
                 f"learner_kwargs: learner {learner!r} takes none "
@@ -477,6 +483,10 @@ class LeaseRequest(_Strict):
 
 class HeartbeatRequest(_Strict):
     worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
+
+
+class ReleaseRequest(HeartbeatRequest):
+    """The lease holder giving a trial back to the queue (``POST /trials/{id}/release``)."""
 
 
 class HeartbeatResponse(BaseModel):

@@ -20,7 +20,14 @@ import numpy as np
 from pydantic import ValidationError
 
 from adclient.design import DesignSpace, Representation
-from adclient.schemas import Job, ProposerConfig, StudyCreate, TaskConfig, Trial
+from adclient.schemas import (
+    Job,
+    ProposerConfig,
+    StudyCreate,
+    TaskConfig,
+    Trial,
+    option_problems,
+)
 from adservice import repository
 from adservice.db import Database
 from adservice.errors import ConflictError, InvalidError, StudyConfigError
@@ -44,14 +51,7 @@ def check_proposer(config: ProposerConfig) -> None:
     try:
         model.model_validate(config.options)
     except ValidationError as error:
-        known = ", ".join(model.model_fields) or "none"
-        problems = []
-        for item in error.errors():
-            where = ".".join(["proposer.options", *(str(part) for part in item["loc"])])
-            message = str(item["msg"]).removeprefix("Value error, ")
-            if item["type"] == "extra_forbidden":
-                message = f"unknown option of {config.name} (its options: {known})"
-            problems.append(f"{where}: {message}")
+        problems = option_problems(error, model, config.name, prefix="proposer.options")
         raise InvalidError("; ".join(problems), problems=problems) from None
 
 

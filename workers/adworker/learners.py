@@ -355,7 +355,6 @@ class PPOLearner(StableBaselinesLearner):
 LEARNERS: dict[str, type[Learner]] = {
     cls.name: cls for cls in (ConstantTargetSearch, DDPGLearner, TD3Learner, SACLearner, PPOLearner)
 }
-DEFAULT_LEARNER = "ddpg"
 
 
 def get_learner(name: str, overrides: dict[str, Any] | None = None) -> Learner:

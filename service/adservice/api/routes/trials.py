@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Response
 
-from adclient.schemas import HeartbeatRequest, HeartbeatResponse, TellRequest, Trial
+from adclient.schemas import HeartbeatRequest, HeartbeatResponse, ReleaseRequest, TellRequest, Trial
 from adservice import repository, robots
 from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, SettingsDep, TrialId, WorkerDep
 from adservice.api.responses import model_response
@@ -50,7 +50,7 @@ def heartbeat(
 
 
 @router.post("/{trial_id}/release")
-def release(trial_id: TrialId, body: HeartbeatRequest, db: DatabaseDep, _: WorkerDep) -> Trial:
+def release(trial_id: TrialId, body: ReleaseRequest, db: DatabaseDep, _: WorkerDep) -> Trial:
     """The lease holder gives the trial back to the queue (409 if it does not hold it)."""
     with db.write() as session:
         return trial_schema(
