@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 import tempfile
 import time
@@ -50,6 +49,7 @@ from bench.paperlib import (
     TARGET_FRACTION,
     TASKS,
     append_jsonl,
+    interrupt_on_sigterm,
     read_jsonl,
     study_body,
     use_snapshot,
@@ -374,17 +374,8 @@ def _means(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return {k: {"mean": float(np.mean(v)), "values": v} for k, v in grouped.items()}
 
 
-def _interrupt_on_sigterm() -> None:
-    """SIGTERM (kill PID) unwinds like Ctrl-C, so pools, workers and the server stop too."""
-
-    def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, handler)
-
-
 def main(argv: list[str] | None = None) -> int:
-    _interrupt_on_sigterm()
+    interrupt_on_sigterm()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--quick", action="store_true", help="smoke run: tiny plan, files under var/paper/quick"

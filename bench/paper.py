@@ -50,6 +50,7 @@ from bench.paperlib import (
     RESULTS,
     TASKS,
     append_jsonl,
+    interrupt_on_sigterm,
     read_jsonl,
     study_body,
     use_snapshot,
@@ -389,17 +390,8 @@ def _space_override(text: str) -> tuple[str, Any]:
     return key, yaml.safe_load(value)
 
 
-def _interrupt_on_sigterm() -> None:
-    """SIGTERM (kill PID) unwinds like Ctrl-C, so pools, workers and the server stop too."""
-
-    def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, handler)
-
-
 def main(argv: list[str] | None = None) -> int:
-    _interrupt_on_sigterm()
+    interrupt_on_sigterm()
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )

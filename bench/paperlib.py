@@ -166,3 +166,13 @@ def use_snapshot(quick: bool = False) -> tuple[str, Path]:
     )
     os.environ["PAPER_CODE_ROOT"] = str(root)
     return sha, root
+
+
+def interrupt_on_sigterm() -> None:
+    """SIGTERM (kill PID) unwinds like Ctrl-C, so pools, workers and the server stop too."""
+    import signal
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
