@@ -101,3 +101,14 @@ class ServerProcess:
     def restart(self) -> ServerProcess:
         self.stop()
         return self.start()
+
+
+def make_token(server: ServerProcess, role: str) -> str:
+    """A new API token of ``role``, made as an operator would: ``adserver token create``."""
+    done = subprocess.run(
+        [str(ADSERVER), "token", "create", "--role", role, "--database-url", server.database_url],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return done.stdout.strip().splitlines()[-1]

@@ -31,12 +31,6 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     process.stop()
 
 
-@pytest.fixture
-def client(server: ServerProcess) -> Iterator[Client]:
-    with Client(server.url, retries=2, backoff=0.05) as api:
-        yield api
-
-
 def run(server_url: str, *args: str, env: dict[str, str] | None = None) -> Result:
     """Invoke the CLI in-process; wide columns so rich tables do not wrap the values."""
     runner = CliRunner()

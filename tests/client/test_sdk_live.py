@@ -31,12 +31,6 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     process.stop()
 
 
-@pytest.fixture
-def client(server: ServerProcess) -> Iterator[Client]:
-    with Client(server.url, retries=2, backoff=0.05) as api:
-        yield api
-
-
 def box_study(client: Client, name: str, **fields: object) -> StudyHandle:
     return client.create_study(name=name, space=BOX, proposer=RANDOM, **fields)
 

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import httpx
 import pytest
 
-from tests.servers import ADSERVER, ServerProcess
+from tests.servers import ADSERVER, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 
@@ -19,16 +19,6 @@ BOX_STUDY = {
     "task": {"name": "noop", "external": True},
     "max_trials": 5,
 }
-
-
-def make_token(server: ServerProcess, role: str) -> str:
-    done = subprocess.run(
-        [str(ADSERVER), "token", "create", "--role", role, "--database-url", server.database_url],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return done.stdout.strip().splitlines()[-1]
 
 
 @pytest.fixture

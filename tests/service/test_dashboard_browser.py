@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import io
 import json
-import subprocess
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -24,7 +23,7 @@ from PIL import Image
 from adclient.schemas import TellRequest
 from adservice import repository
 from adservice.db import Database
-from tests.servers import ADSERVER, ServerProcess
+from tests.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium, find_or_install_chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
@@ -467,16 +466,6 @@ def test_ten_thousand_trials_render_and_update(
         record_property(name, value)
     with capsys.disabled():
         print(f"\ndashboard with {count} trials: {json.dumps(timings)}")
-
-
-def make_token(server: ServerProcess, role: str) -> str:
-    done = subprocess.run(
-        [str(ADSERVER), "token", "create", "--role", role, "--database-url", server.database_url],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return done.stdout.strip().splitlines()[-1]
 
 
 def test_page_sends_a_stored_token_when_auth_is_on(
