@@ -3,7 +3,9 @@
 The *spec vector* x holds the free specs of a space (``spec_layout``), each
 normalised to [0, 1] by its bounds; slots a structure does not use (absent
 instances, the root's joint) hold ``PAD``. An ``identity`` representation searches x
-itself; a ``fused`` one searches the MDS embedding of the fused distances and maps
+itself; a ``mixed`` one (the default for several structures) searches a structure
+index followed by x, and decodes both by identity (the index is rounded); a
+``fused`` one (the preprint's) searches the MDS embedding of the fused distances and maps
 back through the nearest reference design (structure) and that structure's affine
 map (specs); a ``onehot`` one (the plain encoding, ``encoding: onehot``) searches one
 coordinate per structure followed by x, and decodes the largest coordinate's
@@ -160,9 +162,24 @@ def structure_of(representation: Representation, vector: Sequence[float] | np.nd
         return 0
     if representation.kind == "onehot":
         return int(np.argmax(v[: len(representation.structures)]))
+    if representation.kind == "mixed":
+        return structure_index_of(v[0], len(representation.structures))
     refs = np.asarray(representation.ref_coords, dtype=np.float64)
     nearest = int(np.argmin(((refs - v) ** 2).sum(axis=1)))
     return int(representation.ref_structure[nearest])
+
+
+def structure_index_of(value: float, count: int) -> int:
+    """The structure a mixed vector's first coordinate names: rounded, kept in range."""
+    return int(min(max(math.floor(float(value) + 0.5), 0), count - 1))
+
+
+def mixed_bounds(structure_count: int, spec_count: int) -> list[list[float]]:
+    """The search box of a mixed representation: the structure index, then [0, 1] specs."""
+    return [
+        [-0.5] + [0.0] * spec_count,
+        [structure_count - 0.5] + [1.0] * spec_count,
+    ]
 
 
 def spec_vector(representation: Representation, vector: Sequence[float]) -> tuple[int, np.ndarray]:
@@ -173,6 +190,8 @@ def spec_vector(representation: Representation, vector: Sequence[float]) -> tupl
     if representation.kind == "onehot":
         count = len(representation.structures)
         return structure_of(representation, v), np.clip(v[count:], 0.0, 1.0)
+    if representation.kind == "mixed":
+        return structure_of(representation, v), np.clip(v[1:], 0.0, 1.0)
     structure = structure_of(representation, v)
     matrix = np.asarray(representation.affine[structure], dtype=np.float64)
     return structure, np.clip(np.append(v, 1.0) @ matrix, 0.0, 1.0)
@@ -298,7 +317,8 @@ def encode(
 ) -> list[float]:
     """A search vector for a design, or for a mapping of spec key -> value.
 
-    Identity representations: exact (``decode(encode(d))`` gives ``d`` back). Fused
+    Identity and mixed representations: exact (``decode(encode(d))`` gives ``d``
+    back; a mixed vector's unused slots hold ``PAD``). Fused
     ones: a vector that decodes to the design's structure and, among those tried
     (the structure's reference designs and the least-squares inverse of its affine
     map), to the specs nearest the design's; exact for reference designs up to the
@@ -338,6 +358,8 @@ def encode(
         onehot = np.zeros(len(layout.structures))
         onehot[structure] = 1.0
         return [*onehot.tolist(), *x.tolist()]
+    if representation.kind == "mixed":
+        return [float(structure), *x.tolist()]
     return _encode_fused(representation, structure, x, used).tolist()
 
 

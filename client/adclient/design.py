@@ -213,12 +213,17 @@ class DesignSpace(_Strict):
     ``reference_seed``, and the embedding's ``embedding_mass`` and
     ``embedding_max_dim``.
 
-    ``encoding`` says how a space with several structures is searched: ``fused`` (the
-    default, DESIGN.md section 2) or ``onehot``, the plain encoding a user would build
-    without fusion: one [0, 1] coordinate per structure (the largest names the
-    structure) followed by the normalised spec vector. Single-structure spaces search
-    the spec vector either way. ``onehot`` exists so the benchmark can show what the
-    fusion earns (bench/paper.py).
+    ``encoding`` says how a space with several structures is searched:
+    - ``mixed`` (the default, DESIGN.md section 2a): a structure index followed by the
+      normalised spec vector, decoded by identity; the fused geometry places the
+      structures, and the proposer relates them through a structure kernel;
+    - ``fused``: the preprint's encoding (DESIGN.md section 2), the MDS embedding of the
+      fused distances decoded by nearest reference and an affine map; kept so the
+      benchmarks can compare it (bench/paper.py);
+    - ``onehot``: the plain encoding a user would build without fusion: one [0, 1]
+      coordinate per structure (the largest names the structure) followed by the
+      normalised spec vector.
+    Single-structure spaces search the spec vector either way.
     """
 
     type: Literal["design"]
@@ -229,10 +234,11 @@ class DesignSpace(_Strict):
         description="Candidate trees as edge lists, or 'all' trees over the instances"
     )
     max_structures: int = Field(default=64, ge=1, le=1000)
-    encoding: Literal["fused", "onehot"] = Field(
-        default="fused",
-        description="Search vector of a multi-structure space: fused MDS embedding, or "
-        "one-hot structure + spec vector",
+    encoding: Literal["mixed", "fused", "onehot"] = Field(
+        default="mixed",
+        description="Search vector of a multi-structure space: structure index + spec "
+        "vector (mixed), the preprint's fused MDS embedding (fused), or one-hot "
+        "structure + spec vector (onehot)",
     )
     fusion_solver: Literal["osqp", "exact"] = "osqp"
     fusion_margin: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)
@@ -525,6 +531,10 @@ class Representation(BaseModel):
     fused distances, decoded by nearest reference design plus an affine map.
     ``onehot``: several structures, plain encoding: one [0, 1] coordinate per
     structure (the largest wins, ties to the first), then the normalised spec vector.
+    ``mixed``: several structures; the vector is the structure index (searched in
+    [-0.5, S - 0.5] and rounded, so every structure owns an equal share) followed by
+    the normalised spec vector, decoded by identity. ``structure_coords`` (S x k)
+    places the structures in the fused geometry (the proposer's structure kernel).
 
     ``affine[s]`` is a ``(dim + 1) x p`` matrix: the normalised spec vector of
     structure ``s`` at search vector ``v`` is ``[v, 1] @ affine[s]``, clipped to
@@ -532,7 +542,7 @@ class Representation(BaseModel):
     designs' coordinates and structure indices.
     """
 
-    kind: Literal["identity", "fused", "onehot"]
+    kind: Literal["identity", "mixed", "fused", "onehot"]
     spec_names: list[str]
     spec_low: list[float]
     spec_high: list[float]
@@ -541,4 +551,5 @@ class Representation(BaseModel):
     ref_coords: list[list[float]] = Field(default_factory=list)
     ref_structure: list[int] = Field(default_factory=list)
     affine: list[list[list[float]]] = Field(default_factory=list)
+    structure_coords: list[list[float]] = Field(default_factory=list)
     info: dict[str, float | int | str] = Field(default_factory=dict)

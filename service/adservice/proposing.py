@@ -34,7 +34,7 @@ from adservice.errors import ConflictError, InvalidError, StudyConfigError
 from adservice.locks import StudyLocks
 from adservice.models import StudyRow
 from adservice.proposers import Proposal, ProposalRequest, available, get_proposer, options_model
-from adservice.proposers.base import empty_history
+from adservice.proposers.base import SearchStructure, empty_history
 from adservice.repository import History
 
 log = logging.getLogger("adservice")
@@ -67,6 +67,8 @@ class StudyConfig:
     design_space: DesignSpace | None
     representation: Representation | None
     bounds: np.ndarray
+    search: SearchStructure | None = None
+    """What a design vector's coordinates mean, for proposers that model them."""
     proposer_error: InvalidError | None = None
     """Why the stored proposer settings cannot be used (a study stored before they were
     checked at creation): asking such a study answers 409 naming the problem."""
@@ -82,10 +84,14 @@ class StudyConfig:
             log.warning("study %d cannot propose: %s", row.id, error.detail)
         representation: Representation | None = None
         design_space: DesignSpace | None = None
+        search: SearchStructure | None = None
         if row.representation is not None:
+            from adservice.representation import search_structure
+
             representation = Representation.model_validate(row.representation)
             bounds = np.asarray(representation.bounds, dtype=np.float64)
             design_space = DesignSpace.model_validate(row.space)
+            search = search_structure(design_space, representation)
         else:
             params = row.space["params"]
             bounds = np.array([[p["low"] for p in params], [p["high"] for p in params]])
@@ -98,6 +104,7 @@ class StudyConfig:
             design_space=design_space,
             representation=representation,
             bounds=bounds,
+            search=search,
             proposer_error=proposer_error,
         )
 
@@ -188,6 +195,7 @@ def _request(
         n_initial=config.proposer.n_initial,
         noisy=noisy if noisy is not None else config.task is not None,
         options=config.proposer.options,
+        structure=config.search,
     )
 
 

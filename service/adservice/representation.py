@@ -18,8 +18,18 @@ by the margin per level) is the optimum (Kruskal's primary approach to ties; de 
 against the exact one (relative objective gap and largest order violation), and
 replaced by it when the check fails (``fusion_fallback`` in the diagnostics).
 
-``build_representation`` then embeds the fused distances by classical MDS and fits
-the decoder tables (see ``adclient.decode``). The embedding keeps the leading
+``build_representation`` gives a multi-structure space the ``mixed`` representation
+by default (DESIGN.md section 2a): specs are searched in their own normalised
+coordinates beside a structure index, and the fusion only places the structures.
+The structures' distance is the energy distance between their reference designs
+under the fused distances, sqrt(2 E f(a, b) - E f(a, a') - E f(b, b')) (zero only for
+identical clouds), floored at ``STRUCTURE_DISTANCE_FLOOR`` of the largest so that no
+two structures coincide (a structure kernel on coincident points could not reach
+its one-hot limit), and embedded by classical MDS with every positive dimension.
+
+For the preprint's ``fused`` encoding, ``build_representation`` embeds the fused
+distances of the reference designs themselves by classical MDS and fits the decoder
+tables (see ``adclient.decode``). The embedding keeps the leading
 positive eigenvalues holding ``embedding_mass`` of the positive mass, at most
 ``embedding_max_dim`` of them. Fused distances are far from Euclidean (pooled ties
 spread the spectrum), and without a cap "nearly all of the mass" means nearly one
@@ -33,10 +43,11 @@ its structure 84% of the time, against 99% with all 137).
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import osqp
@@ -46,9 +57,16 @@ from scipy.spatial.distance import pdist, squareform
 from scipy.stats import qmc
 from threadpoolctl import threadpool_limits
 
-from adclient.decode import PAD, identity_representation, onehot_representation, spec_layout
-from adclient.design import DesignSpace, Representation
+from adclient.decode import (
+    PAD,
+    identity_representation,
+    mixed_bounds,
+    onehot_representation,
+    spec_layout,
+)
+from adclient.design import Bound, DesignSpace, Representation
 from adclient.similarity import similarity_matrix
+from adservice.proposers.base import AxisColumns, SearchStructure
 
 Solver = Literal["osqp", "exact"]
 
@@ -61,9 +79,12 @@ MAX_REFERENCES = 512
 MAX_STRUCTURE_DIMS = 8
 """Embedding dimensions granted to telling structures apart, by default (see above)."""
 LEVEL_DECIMALS = 12
+"""Similarities equal to this many decimals are one level (ties)."""
 RHO = 5.0
 """OSQP's ADMM step size, fixed, for distances scaled to at most 1 (tuned on bench/fusion.py)."""
-"""Similarities equal to this many decimals are one level (ties)."""
+STRUCTURE_DISTANCE_FLOOR = 0.05
+"""Smallest distance between two structures of a mixed representation, as a fraction
+of the largest."""
 
 
 @dataclass(frozen=True)
@@ -450,15 +471,11 @@ def reference_specs(space: DesignSpace) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack(blocks), np.concatenate(labels)
 
 
-def build_representation(space: DesignSpace) -> Representation:
-    """The study's representation: identity for one structure, else the fused one (or
-    the plain one-hot encoding when the space asks for ``encoding: onehot``)."""
+def fused_references(space: DesignSpace) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """The reference designs' fused distances (M x M), their structure indices, and
+    the diagnostics of the fusion."""
     layout = spec_layout(space)
     structures = layout.structures
-    if len(structures) == 1:
-        return identity_representation(space)
-    if space.encoding == "onehot":
-        return onehot_representation(space)
     started = time.perf_counter()
     X, labels = reference_specs(space)
     part_of = {instance.name: instance.part for instance in space.instances}
@@ -467,6 +484,98 @@ def build_representation(space: DesignSpace) -> Representation:
     D = squareform(pdist(X)) if layout.size else np.zeros((len(X), len(X)))
     G = G_structures[np.ix_(labels, labels)]
     F, info = fuse(D, G, space.fusion_margin, space.fusion_solver)
+    info.update(
+        {
+            "n_structures": len(structures),
+            "n_references": len(X),
+            "spec_dim": layout.size,
+            "similarity_seconds": similarity_seconds,
+        }
+    )
+    return F, labels, info
+
+
+def structure_distances(F: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Energy distances between the structures' reference clouds under the fused
+    distances F, floored (see the module docstring) and scaled to a largest of 1."""
+    mean = np.zeros((count, count))
+    for a in range(count):
+        rows = labels == a
+        for b in range(a, count):
+            mean[a, b] = mean[b, a] = float(F[np.ix_(rows, labels == b)].mean())
+    within = np.diag(mean)
+    energy = 2.0 * mean - within[:, None] - within[None, :]
+    distance = np.sqrt(np.maximum(energy, 0.0))
+    np.fill_diagonal(distance, 0.0)
+    largest = float(distance.max())
+    if largest <= 0.0:  # every structure alike: all equally far apart
+        distance = 1.0 - np.eye(count)
+    else:
+        distance /= largest
+    floor = STRUCTURE_DISTANCE_FLOOR * (1.0 - np.eye(count))
+    return np.maximum(distance, floor)
+
+
+def structure_embedding(distance: np.ndarray) -> np.ndarray:
+    """Coordinates (S x k) for structures at the given distances, by classical MDS with
+    every positive dimension; if dropping the negative part brought two structures
+    closer than half the floor, a small identity block keeps them apart."""
+    coords, _ = classical_mds(distance, mass=1.0)
+    count = len(distance)
+    embedded = squareform(pdist(coords))
+    closest = float(np.where(np.eye(count, dtype=bool), np.inf, embedded).min())
+    if closest < 0.5 * STRUCTURE_DISTANCE_FLOOR:
+        coords = np.hstack([coords, STRUCTURE_DISTANCE_FLOOR / np.sqrt(2.0) * np.eye(count)])
+    return coords
+
+
+def mixed_representation(space: DesignSpace) -> Representation:
+    """Structure index + normalised specs, decoded by identity; the fusion places the
+    structures (``structure_coords``) for the proposer's structure kernel."""
+    layout = spec_layout(space)
+    structures = layout.structures
+    started = time.perf_counter()
+    F, labels, info = fused_references(space)
+    distance = structure_distances(F, labels, len(structures))
+    coords = structure_embedding(distance)
+    info.update(
+        {
+            "dim": 1 + layout.size,
+            "structure_dim": int(coords.shape[1]),
+            "structure_distance_min": float((distance + np.eye(len(distance))).min()),
+            "structure_distance_median": float(
+                np.median(distance[np.triu_indices(len(distance), 1)])
+            ),
+            "build_seconds": time.perf_counter() - started,
+        }
+    )
+    return Representation(
+        kind="mixed",
+        spec_names=layout.names,
+        spec_low=layout.low.tolist(),
+        spec_high=layout.high.tolist(),
+        structures=structures,
+        bounds=mixed_bounds(len(structures), layout.size),
+        structure_coords=coords.tolist(),
+        info=info,
+    )
+
+
+def build_representation(space: DesignSpace) -> Representation:
+    """The study's representation: identity for one structure, else the one its
+    ``encoding`` names: ``mixed`` (the default), ``fused`` (the preprint's) or
+    ``onehot``."""
+    layout = spec_layout(space)
+    structures = layout.structures
+    if len(structures) == 1:
+        return identity_representation(space)
+    if space.encoding == "onehot":
+        return onehot_representation(space)
+    if space.encoding == "mixed":
+        return mixed_representation(space)
+    started = time.perf_counter()
+    F, labels, info = fused_references(space)
+    X, _ = reference_specs(space)
     max_dim = space.embedding_max_dim or max(
         1, layout.size + min(len(structures) - 1, MAX_STRUCTURE_DIMS)
     )
@@ -489,10 +598,6 @@ def build_representation(space: DesignSpace) -> Representation:
     upper = np.triu_indices(len(X), 1)
     info.update(
         {
-            "n_structures": len(structures),
-            "n_references": len(X),
-            "spec_dim": layout.size,
-            "similarity_seconds": similarity_seconds,
             "embedding_stress": float(
                 np.linalg.norm(embedded[upper] - F[upper])
                 / max(float(np.linalg.norm(F[upper])), 1e-300)
@@ -511,4 +616,45 @@ def build_representation(space: DesignSpace) -> Representation:
         ref_structure=labels.astype(int).tolist(),
         affine=[matrix.tolist() for matrix in affine],
         info=info,
+    )
+
+
+def search_structure(space: DesignSpace, representation: Representation) -> SearchStructure | None:
+    """What the proposer needs to model a design vector (``SearchStructure``), for
+    the identity and mixed representations; None for the fused and one-hot ones,
+    which the proposer treats as plain boxes."""
+    if representation.kind not in ("identity", "mixed"):
+        return None
+    layout = spec_layout(space)
+    used = np.array([layout.used_slots(structure) for structure in layout.structures])
+    if representation.kind == "mixed":
+        coords = np.asarray(representation.structure_coords, dtype=np.float64)
+    else:
+        coords = np.zeros((1, 1))
+    column = {name: k for k, name in enumerate(layout.names)}
+    axes = []
+    for instance in space.instances:
+        theta_key = f"{instance.name}.joint.axis_theta"
+        phi_key = f"{instance.name}.joint.axis_phi"
+        if theta_key not in column and phi_key not in column:
+            continue
+        lower = space.joint_spec(instance.name, "lower")
+        upper = space.joint_spec(instance.name, "upper")
+        symmetric = not isinstance(lower, Bound) and not isinstance(upper, Bound)
+        axes.append(
+            AxisColumns(
+                theta=column.get(theta_key, -1),
+                phi=column.get(phi_key, -1),
+                theta_fixed=layout.fixed.get(theta_key, 0.0),
+                phi_fixed=layout.fixed.get(phi_key, 0.0),
+                sign_invariant=symmetric and math.isclose(float(lower), -float(upper)),
+            )
+        )
+    return SearchStructure(
+        structure_coords=coords,
+        used=used,
+        spec_low=layout.low,
+        spec_high=layout.high,
+        axes=tuple(axes),
+        pad=PAD,
     )

@@ -1,4 +1,5 @@
-"""Decode/encode: exact round trips for single-structure spaces, own structures for fused ones."""
+"""Decode/encode: exact round trips for single-structure and mixed spaces, own structures for
+fused ones."""
 
 from __future__ import annotations
 
@@ -157,7 +158,7 @@ representation_module = pytest.importorskip("adservice.representation")
 def test_fused_reference_designs_decode_to_their_structure(
     body: dict[str, Any], data: st.DataObject
 ) -> None:
-    space = DesignSpace.model_validate(body)
+    space = DesignSpace.model_validate({**body, "encoding": "fused"})
     representation = representation_module.build_representation(space)
     assert representation.kind == "fused"
     coords = np.asarray(representation.ref_coords)
@@ -181,6 +182,33 @@ def test_fused_reference_designs_decode_to_their_structure(
         if key in layout.names:
             k = layout.names.index(key)
             assert layout.low[k] - 1e-12 <= link.length <= layout.high[k] + 1e-12
+
+
+@settings(max_examples=10, deadline=None)
+@given(multi_structure_spaces(), st.data())
+def test_mixed_vectors_decode_by_identity(body: dict[str, Any], data: st.DataObject) -> None:
+    """The default for several structures: any vector in the box is a design whose
+    specs are the vector's own (no map, no clipping), and encoding it is exact."""
+    space = DesignSpace.model_validate(body)
+    representation = representation_module.build_representation(space)
+    assert representation.kind == "mixed"
+    layout = spec_layout(space)
+    count = len(space.tree_structures())
+    low, high = np.asarray(representation.bounds)
+    assert low[0] == -0.5 and high[0] == count - 0.5
+    vector = [data.draw(st.floats(lo, hi)) for lo, hi in zip(low, high, strict=True)]
+    design = decode(space, representation, vector)
+    assert design.structure_index == min(max(math.floor(vector[0] + 0.5), 0), count - 1)
+    values = design_params(design)
+    used = layout.used_slots(space.tree_structures()[design.structure_index])
+    for k, key in enumerate(layout.names):
+        if used[k]:
+            expected = layout.low[k] + vector[1 + k] * (layout.high[k] - layout.low[k])
+            assert values[key] == pytest.approx(expected, rel=1e-12, abs=1e-12)
+    again = encode(space, representation, design)
+    assert again[0] == design.structure_index
+    np.testing.assert_allclose(np.asarray(again[1:])[used], np.asarray(vector[1:])[used], atol=1e-9)
+    assert decode(space, representation, again) == design
 
 
 def _close(a: Any, b: Any) -> bool:

@@ -61,5 +61,5 @@ def test_qei_with_only_raw_samples_starts_no_more_restarts_than_samples() -> Non
     back to Sobol points."""
     proposal = get_proposer("qei").propose(request({"raw_samples": 3}, count=1))
     (info,) = proposal.info
-    assert info["method"] == "qLogEI", info
+    assert info["method"] == "LogEI", info
     assert (info["num_restarts"], info["raw_samples"]) == (3, 3)

@@ -185,19 +185,25 @@ def test_qei_uses_the_model_after_the_initial_design() -> None:
     X, y = history(8)
     proposal = qei_propose(X=X, y=y, count=1)
     (entry,) = proposal.info
-    assert entry["method"] == "qLogEI"
+    assert entry["method"] == "LogEI"
     assert entry["n_train"] == 8
     noisy = qei_propose(X=X, y=y, count=1, noisy=True)
-    assert noisy.info[0]["method"] == "qLogNEI"
+    assert noisy.info[0]["method"] == "LogEI"
+    mc = qei_propose(X=X, y=y, count=2, options={"acquisition": "mc"})
+    assert [entry["method"] for entry in mc.info] == ["qLogEI"] * 2
+    mc_noisy = qei_propose(X=X, y=y, count=1, noisy=True, options={"acquisition": "mc"})
+    assert mc_noisy.info[0]["method"] == "qLogNEI"
 
 
 def test_qei_batch_of_four_gives_four_distinct_candidates() -> None:
     X, y = history(10)
     proposal = qei_propose(X=X, y=y, count=4)
-    assert [entry["method"] for entry in proposal.info] == ["qLogEI"] * 4
+    assert [entry["method"] for entry in proposal.info] == ["LogEI"] + ["LogEI-believer"] * 3
     assert min_pairwise_distance(proposal.candidates) > 1e-3
     noisy = qei_propose(X=X, y=y, count=4, noisy=True)
     assert min_pairwise_distance(noisy.candidates) > 1e-3
+    mc = qei_propose(X=X, y=y, count=4, options={"acquisition": "mc"})
+    assert min_pairwise_distance(mc.candidates) > 1e-3
 
 
 @pytest.mark.parametrize("noisy", [False, True])
@@ -221,7 +227,7 @@ def test_qei_first_trials_of_a_batch_are_pending_for_the_rest() -> None:
     X, y = history(2)
     proposal = qei_propose(X=X, y=y, count=3, n_initial=3, n_issued=2)
     methods = [entry["method"] for entry in proposal.info]
-    assert methods == ["sobol-initial", "qLogEI", "qLogEI"]
+    assert methods == ["sobol-initial", "LogEI-believer", "LogEI-believer"]
     assert min_pairwise_distance(proposal.candidates) > 1e-3
 
 
@@ -230,7 +236,7 @@ def test_qei_failed_trials_are_left_out_of_the_model_and_counted_as_pending() ->
     failed = history(3, seed=5)[0]
     proposal = qei_propose(X=X, y=y, failed=failed)
     (entry,) = proposal.info
-    assert entry["method"] == "qLogEI"
+    assert entry["method"] == "LogEI-believer"
     assert entry["n_train"] == 10
     assert entry["n_pending"] == 3
 
@@ -264,7 +270,7 @@ def test_qei_fits_through_some_duplicate_points_and_notes_them() -> None:
     X = np.vstack([X, X[:3]])
     y = np.concatenate([y, y[:3] + 0.01])
     (entry,) = qei_propose(X=X, y=y).info
-    assert entry["method"] == "qLogEI"
+    assert entry["method"] == "LogEI"
     assert entry["duplicate_points"] == 3
 
 
@@ -272,7 +278,7 @@ def test_qei_ignores_non_finite_observations() -> None:
     X, y = history(8)
     y[2] = np.nan
     (entry,) = qei_propose(X=X, y=y).info
-    assert entry["method"] == "qLogEI"
+    assert entry["method"] == "LogEI"
     assert entry["n_train"] == 7
     assert entry["n_dropped"] == 1
 
@@ -294,16 +300,21 @@ def test_qei_warm_start_and_cache_keep_results_identical() -> None:
     assert qei_propose(X=X2, y=y2, seed=21).info[0]["fit"] == "warm"
 
 
-def test_qei_noisy_proposals_are_seeded_too() -> None:
-    """qLogNEI prunes its baseline with a sampler of its own: that must be seeded as well."""
+@pytest.mark.parametrize("acquisition", ["analytic", "mc"])
+def test_qei_noisy_proposals_are_seeded_too(acquisition: str) -> None:
+    """qLogNEI prunes its baseline with a sampler of its own, and the raw samples of the
+    acquisition optimiser are random: both must be seeded."""
     X, y = history(9)
     pending = history(1, seed=8)[0]
+    options = {"acquisition": acquisition}
     clear_caches()
-    first = qei_propose(X=X, y=y, seed=3, count=2, noisy=True, pending=pending)
+    first = qei_propose(X=X, y=y, seed=3, count=2, noisy=True, pending=pending, options=options)
     clear_caches()
-    again = qei_propose(X=X, y=y, seed=3, count=2, noisy=True, pending=pending)
+    again = qei_propose(X=X, y=y, seed=3, count=2, noisy=True, pending=pending, options=options)
     np.testing.assert_array_equal(first.candidates, again.candidates)
-    other_seed = qei_propose(X=X, y=y, seed=4, count=2, noisy=True, pending=pending)
+    other_seed = qei_propose(
+        X=X, y=y, seed=4, count=2, noisy=True, pending=pending, options=options
+    )
     assert not np.array_equal(first.candidates, other_seed.candidates)
 
 
@@ -439,8 +450,8 @@ def test_qei_through_http_spreads_batches_and_reports_its_method(
             http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 4}).json()["trials"]
             for _ in range(2)
         ]
-    for batch in batches:
-        assert [t["info"]["method"] for t in batch] == ["qLogEI"] * 4
+    assert [t["info"]["method"] for t in batches[0]] == ["LogEI"] + ["LogEI-believer"] * 3
+    assert [t["info"]["method"] for t in batches[1]] == ["LogEI-believer"] * 4
     assert batches[1][0]["info"]["n_pending"] == 4
     vectors = np.array([t["vector"] for batch in batches for t in batch])
     assert min_pairwise_distance(vectors) > 1e-3

@@ -14,13 +14,15 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from scipy.spatial.distance import pdist, squareform
 
-from adclient.decode import decode, encode, spec_layout
+from adclient.decode import decode, encode, mixed_bounds, spec_layout
 from adclient.design import DesignSpace, Representation
 from adclient.schemas import StudyCreate
 from adclient.urdf import design_to_urdf
 from adservice.representation import (
     GAP_TOLERANCE,
+    STRUCTURE_DISTANCE_FLOOR,
     VIOLATION_TOLERANCE,
     build_representation,
     check_pairs,
@@ -30,6 +32,9 @@ from adservice.representation import (
     fuse_distances,
     fusion_check,
     pair_problem,
+    search_structure,
+    structure_distances,
+    structure_embedding,
 )
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -191,8 +196,59 @@ def test_single_structure_examples_are_identity(name: str, dim: int) -> None:
 
 @pytest.fixture(scope="module")
 def multi() -> tuple[DesignSpace, Representation]:
-    space = example_space("multi-structure")
+    """The preprint's fused encoding of the multi-structure example."""
+    space = example_space("multi-structure").model_copy(update={"encoding": "fused"})
     return space, build_representation(space)
+
+
+def test_multi_structure_default_is_mixed_with_structures_placed_apart() -> None:
+    space = example_space("multi-structure")
+    representation = build_representation(space)
+    assert representation.kind == "mixed"
+    count = len(space.tree_structures())
+    assert representation.bounds == mixed_bounds(count, len(representation.spec_names))
+    coords = np.asarray(representation.structure_coords)
+    assert coords.shape[0] == count
+    distance = squareform(pdist(coords))
+    largest = distance.max()
+    off = distance[~np.eye(count, dtype=bool)]
+    # every structure apart from every other (the one-hot limit needs it), none further
+    # than the scaled largest (up to the negative eigenvalues MDS drops)
+    assert off.min() >= 0.5 * STRUCTURE_DISTANCE_FLOOR * largest
+    assert largest <= 1.0 + 1e-9
+    # the fusion orders them: the chain of 4 is nearer the chain of 5 than the tripod is
+    chain4, tripod, chain5 = 2, 1, 5
+    assert distance[chain4, chain5] < distance[tripod, chain5]
+    assert build_representation(space).structure_coords == representation.structure_coords
+
+
+def test_structure_distances_are_floored_and_scaled() -> None:
+    labels = np.array([0, 0, 1, 1, 2, 2])
+    points = np.array([[0.0], [0.1], [0.0], [0.1], [5.0], [5.1]])
+    F = np.abs(points - points.T)
+    distance = structure_distances(F, labels, 3)
+    assert distance.max() == pytest.approx(1.0)
+    # structures 0 and 1 have identical clouds: only the floor keeps them apart
+    assert distance[0, 1] == pytest.approx(STRUCTURE_DISTANCE_FLOOR)
+    coords = structure_embedding(distance)
+    embedded = squareform(pdist(coords))
+    assert embedded[0, 1] >= 0.5 * STRUCTURE_DISTANCE_FLOOR
+
+
+def test_search_structure_of_the_multi_structure_example() -> None:
+    space = example_space("multi-structure")
+    representation = build_representation(space)
+    search = search_structure(space, representation)
+    assert search is not None
+    assert search.n_structures == 6 and search.spec_dim == len(representation.spec_names)
+    # joints b..e each have a searched axis, with symmetric limits: sign-invariant
+    assert len(search.axes) == 4 and all(axis.sign_invariant for axis in search.axes)
+    # the chain of 3 uses the joints of b and c only
+    names = representation.spec_names
+    used = {names[k].split(".")[0] for k in np.flatnonzero(search.used[0])}
+    assert used == {"b", "c"}
+    fused = build_representation(space.model_copy(update={"encoding": "fused"}))
+    assert search_structure(space, fused) is None
 
 
 def test_multi_structure_representation(multi: tuple[DesignSpace, Representation]) -> None:
@@ -251,4 +307,6 @@ def test_all_trees_space_builds_quickly_enough_to_use() -> None:
     space = DesignSpace.model_validate(body)
     representation = build_representation(space)
     assert len(representation.structures) == 16
-    assert sorted(set(representation.ref_structure)) == list(range(16))
+    assert np.asarray(representation.structure_coords).shape[0] == 16
+    fused = build_representation(space.model_copy(update={"encoding": "fused"}))
+    assert sorted(set(fused.ref_structure)) == list(range(16))

@@ -185,7 +185,7 @@ def test_declared_proposer_options_are_accepted_and_used(http: httpx.Client) -> 
             )
             assert told.status_code == 200, told.text
         last = asked.json()["trials"][0]["info"]
-        assert last["method"] in {"tpe", "nelder-mead", "qLogEI"}, (name, last)
+        assert last["method"] in {"tpe", "nelder-mead", "LogEI"}, (name, last)
 
 
 def test_unknown_proposer_has_a_problems_list(http: httpx.Client) -> None:

@@ -27,6 +27,79 @@ FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
+class AxisColumns:
+    """A joint axis searched as two angles (``adclient.design``'s convention).
+
+    ``theta``/``phi``: the spec-vector columns holding the normalised angles, or -1
+    when that angle is fixed (``theta_fixed``/``phi_fixed`` radians). The model sees
+    the unit axis instead of the angles, which have a pole and a wrap-around;
+    ``sign_invariant`` axes (a joint whose limits are symmetric, so axis -u with angle
+    -q is the same joint as u with q) are seen as the line through u.
+    """
+
+    theta: int
+    phi: int
+    theta_fixed: float = 0.0
+    phi_fixed: float = 0.0
+    sign_invariant: bool = False
+
+
+@dataclass(frozen=True)
+class SearchStructure:
+    """What a design vector means, for proposers that model it (qei).
+
+    With several structures a vector is ``[structure index, spec vector]`` (the
+    ``mixed`` representation: the index is searched in [-0.5, S - 0.5] and rounded),
+    with one it is the spec vector alone. Spec values are normalised to [0, 1];
+    ``used[s]`` marks the slots structure s uses, the others are ``pad`` whatever a
+    vector holds there. ``structure_coords`` (S x k) place the structures in the
+    fused geometry; ``spec_low``/``spec_high`` are the slots' physical ranges.
+    """
+
+    structure_coords: FloatArray
+    used: NDArray[np.bool_]
+    spec_low: FloatArray
+    spec_high: FloatArray
+    axes: tuple[AxisColumns, ...] = ()
+    pad: float = 0.5
+
+    @property
+    def n_structures(self) -> int:
+        return int(self.structure_coords.shape[0])
+
+    @property
+    def spec_dim(self) -> int:
+        return int(self.used.shape[1])
+
+
+def model_inputs(X: np.ndarray, bounds: np.ndarray, search: SearchStructure | None) -> np.ndarray:
+    """Search vectors (n x d) -> model inputs ``[structure index, u]``: ``u`` the spec
+    vector (already in [0, 1]) or the box coordinates scaled to the unit box, the
+    index 0 for a single structure; unused slots at the pad value."""
+    X = np.asarray(X, dtype=np.float64).reshape(-1, bounds.shape[1])
+    if search is None:
+        unit = (X - bounds[0]) / (bounds[1] - bounds[0])
+        return np.column_stack([np.zeros(len(X)), unit])
+    if search.n_structures > 1:
+        index = np.clip(np.floor(X[:, 0] + 0.5), 0, search.n_structures - 1)
+        specs = np.clip(X[:, 1:], 0.0, 1.0)
+    else:
+        index = np.zeros(len(X))
+        specs = np.clip(X, 0.0, 1.0)
+    used = search.used[index.astype(np.int64)]
+    return np.column_stack([index, np.where(used, specs, search.pad)])
+
+
+def search_vectors(Z: np.ndarray, bounds: np.ndarray, search: SearchStructure | None) -> np.ndarray:
+    """Model inputs -> search vectors (the inverse of ``model_inputs`` on canonical points)."""
+    if search is None:
+        return bounds[0] + Z[:, 1:] * (bounds[1] - bounds[0])
+    if search.n_structures > 1:
+        return Z.copy()
+    return Z[:, 1:].copy()
+
+
+@dataclass(frozen=True)
 class ProposalRequest:
     """A study's history, as arrays.
 
@@ -34,6 +107,7 @@ class ProposalRequest:
     failed: vectors of failed trials. pending: vectors of queued or running trials.
     bounds: (2, d) search box. n_issued: how many trials the study has created so
     far (a position in a space-filling sequence). seed: the study's seed.
+    structure: what the coordinates of a design vector mean (None: a plain box).
     """
 
     bounds: FloatArray
@@ -47,6 +121,7 @@ class ProposalRequest:
     n_initial: int = 2
     noisy: bool = False
     options: dict[str, Any] = field(default_factory=dict)
+    structure: SearchStructure | None = None
 
     @property
     def dim(self) -> int:

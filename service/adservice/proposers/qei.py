@@ -69,7 +69,14 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from adservice.proposers.base import Proposal, ProposalRequest, ProposerOptions
+from adservice.proposers.base import (
+    Proposal,
+    ProposalRequest,
+    ProposerOptions,
+    SearchStructure,
+    model_inputs,
+    search_vectors,
+)
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 
 if TYPE_CHECKING:
@@ -107,10 +114,6 @@ def _lru_get(cache: OrderedDict, key: Any) -> Any:
     return value
 
 
-def _to_unit(x: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-    return (x - bounds[0]) / (bounds[1] - bounds[0])
-
-
 def _n_distinct(unit: np.ndarray) -> int:
     if len(unit) == 0:
         return 0
@@ -118,10 +121,10 @@ def _n_distinct(unit: np.ndarray) -> int:
     return len(np.unique(keys, axis=0))
 
 
-def default_sizes(dim: int, q: int) -> tuple[int, int]:
-    """(num_restarts, raw_samples) for a d-dimensional, q-point joint optimisation."""
-    num_restarts = min(4 + dim // 2 + 2 * (q - 1), 24)
-    raw_samples = min(128 + 32 * dim * q, 2048)
+def default_sizes(dim: int) -> tuple[int, int]:
+    """(num_restarts, raw_samples) for one candidate over d continuous coordinates."""
+    num_restarts = min(4 + dim // 2, 12)
+    raw_samples = min(256 + 32 * dim, 2048)
     return num_restarts, raw_samples
 
 
@@ -141,6 +144,11 @@ class QEIOptions(ProposerOptions):
     maxiter: int = Field(default=100, ge=1, le=10_000)
     mc_samples: int | None = Field(
         default=None, ge=1, le=4096, description="Default: 128, or 256 for a batch"
+    )
+    acquisition: Literal["analytic", "mc"] = Field(
+        default="analytic",
+        description="analytic LogEI with pending points as Kriging believers, or "
+        "Monte Carlo qLogEI / qLogNEI with pending points",
     )
     warm_start: bool = True
     device: Literal["cpu", "cuda"] | None = Field(
@@ -228,7 +236,7 @@ class QLogEIProposer:
         usable = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
         X, y = X[usable], y[usable]
         n_dropped = int((~usable).sum())
-        unit_X = _to_unit(X, bounds)
+        unit_X = model_inputs(X, bounds, request.structure)
         n_distinct = _n_distinct(unit_X)
         if n_distinct < 2:
             return self._fallback(
@@ -269,18 +277,20 @@ class QLogEIProposer:
         )
         if len(y) > n_distinct:
             extra["duplicate_points"] = len(y) - n_distinct
+        methods = extra.pop("methods")
         infos: list[dict[str, Any]] = []
-        unit_rows = _to_unit(rows, bounds)
-        taken = [unit_X, _to_unit(X_pending, bounds)] if not request.noisy else []
+        unit_rows = model_inputs(rows, bounds, request.structure)
+        taken = [unit_X, model_inputs(X_pending, bounds, request.structure)]
+        taken = taken if not request.noisy else []
         sobol_rows, sobol_info = self._fallback(request, bounds, first, q, "duplicate candidate")
         for i in range(q):
             stack = np.concatenate([*taken, unit_rows[:i]], axis=0)
             if _nearest_distance(stack, unit_rows[i]) < _DUPLICATE_CANDIDATE_TOL:
                 rows[i] = sobol_rows[i]
-                unit_rows[i] = _to_unit(sobol_rows[i], bounds)
+                unit_rows[i] = model_inputs(sobol_rows[i], bounds, request.structure)[0]
                 infos.append({**sobol_info[i], **extra, "method": "sobol-fallback"})
             else:
-                infos.append({"proposer": self.name, **extra})
+                infos.append({"proposer": self.name, **extra, "method": methods[i]})
         return rows, infos
 
     def _optimise(
@@ -300,23 +310,25 @@ class QLogEIProposer:
         )
         from botorch.fit import fit_gpytorch_mll
         from botorch.models import SingleTaskGP
-        from botorch.models.transforms.input import Normalize
         from botorch.models.transforms.outcome import Standardize
-        from botorch.optim import optimize_acqf
         from botorch.sampling.normal import SobolQMCNormalSampler
         from botorch.utils.sampling import manual_seed
         from gpytorch.mlls import ExactMarginalLogLikelihood
+
+        from adservice.proposers.acquisition import MixedDomain, maximise
+        from adservice.proposers.gpmodel import design_kernel
 
         if torch.get_num_threads() != _TORCH_THREADS:
             torch.set_num_threads(_TORCH_THREADS)
         device_name = options.device or ("cuda" if torch.cuda.is_available() else "cpu")
         device = torch.device(device_name)
         tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
-        dim = request.dim
+        search = request.structure
         seed = derived_seed(request.seed, request.n_issued)
 
-        bounds_t = torch.as_tensor(bounds, **tkw)
-        train_X = torch.as_tensor(X, **tkw)
+        Z = model_inputs(X, bounds, search)
+        spec_dim = Z.shape[1] - 1
+        train_Z = torch.as_tensor(Z, **tkw)
         train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
         noise_mode = options.noise or ("inferred" if request.noisy else "floor")
         train_Yvar = None
@@ -333,36 +345,36 @@ class QLogEIProposer:
             )
             likelihood = likelihood.to(**tkw)
         kernel = options.kernel
-        covar_module = None
-        if kernel == "matern":
-            from botorch.models.utils.gpytorch_modules import (
-                get_covar_module_with_dim_scaled_prior,
-            )
-
-            covar_module = get_covar_module_with_dim_scaled_prior(
-                ard_num_dims=dim, use_rbf_kernel=False
-            ).to(**tkw)
-        elif kernel == "matern-gamma":
-            from botorch.models.utils.gpytorch_modules import get_matern_kernel_with_gamma_prior
-
-            covar_module = get_matern_kernel_with_gamma_prior(ard_num_dims=dim).to(**tkw)
         model = SingleTaskGP(
-            train_X,
+            train_Z,
             train_Y,
             train_Yvar=train_Yvar,
             likelihood=likelihood,
-            covar_module=covar_module,
-            input_transform=Normalize(d=dim, bounds=bounds_t),
+            covar_module=design_kernel(search, spec_dim, kernel=kernel, **tkw),
             outcome_transform=Standardize(m=1),
         )
         mll = ExactMarginalLogLikelihood(model.likelihood, model)
 
+        layout_key = _layout_key(search)
         data_key = hashlib.sha256(
             b"".join(
-                [X.tobytes(), y.tobytes(), bounds.tobytes(), f"{noise_mode}/{kernel}".encode()]
+                [
+                    X.tobytes(),
+                    y.tobytes(),
+                    bounds.tobytes(),
+                    layout_key,
+                    f"{noise_mode}/{kernel}".encode(),
+                ]
             )
         ).hexdigest()
-        study_key = (bounds.tobytes(), request.seed, request.n_initial, noise_mode, kernel)
+        study_key = (
+            bounds.tobytes(),
+            layout_key,
+            request.seed,
+            request.n_initial,
+            noise_mode,
+            kernel,
+        )
         use_warm = options.warm_start
 
         started = time.perf_counter()
@@ -386,64 +398,119 @@ class QLogEIProposer:
         model.eval()
         fit_seconds = time.perf_counter() - started
 
-        default_restarts, default_raw = default_sizes(dim, q)
+        default_restarts, default_raw = default_sizes(spec_dim)
         if options.num_restarts is not None:
             num_restarts = options.num_restarts
         else:
             num_restarts = min(default_restarts, options.raw_samples or default_restarts)
-        raw_samples = options.raw_samples or max(default_raw, num_restarts)
-        mc_samples = options.mc_samples or (128 if q == 1 else 256)
+        raw_count = options.raw_samples or max(default_raw, num_restarts)
+        mc_samples = options.mc_samples or 128
+        domain = MixedDomain(
+            used=search.used if search is not None else np.ones((1, spec_dim), dtype=bool),
+            pad=search.pad if search is not None else 0.5,
+        )
+        incumbents = Z[np.argsort(-y, kind="stable")]
+        pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
+        chosen: list[np.ndarray] = []
+        methods: list[str] = []
+        values: list[float] = []
+        switched = 0
         started = time.perf_counter()
-        # prune_baseline draws its sampler seed from the global stream: seed that too.
-        with manual_seed(seed):
-            sampler = SobolQMCNormalSampler(sample_shape=torch.Size([mc_samples]), seed=seed)
-            pending_t = torch.as_tensor(X_pending, **tkw) if len(X_pending) else None
-            acqf: qLogExpectedImprovement | qLogNoisyExpectedImprovement
-            if request.noisy:
-                acqf = qLogNoisyExpectedImprovement(
-                    model=model,
-                    X_baseline=train_X,
-                    sampler=sampler,
-                    X_pending=pending_t,
-                    prune_baseline=True,
+        for step in range(q):
+            step_seed = derived_seed(seed, step)
+            batch_pending = np.concatenate([pending_Z, *[z[None, :] for z in chosen]])
+            pending_t = torch.as_tensor(batch_pending, **tkw) if len(batch_pending) else None
+            acqf: Any
+            with manual_seed(step_seed):
+                if options.acquisition == "analytic":
+                    acqf, method = _analytic(model, train_Z, y, pending_t, request.noisy)
+                else:
+                    sampler = SobolQMCNormalSampler(
+                        sample_shape=torch.Size([mc_samples]), seed=step_seed
+                    )
+                    if request.noisy:
+                        acqf = qLogNoisyExpectedImprovement(
+                            model=model,
+                            X_baseline=train_Z,
+                            sampler=sampler,
+                            X_pending=pending_t,
+                            prune_baseline=True,
+                        )
+                        method = "qLogNEI"
+                    else:
+                        acqf = qLogExpectedImprovement(
+                            model=model, best_f=float(y.max()), sampler=sampler, X_pending=pending_t
+                        )
+                        method = "qLogEI"
+                optimum = maximise(
+                    acqf,
+                    domain,
+                    raw_count=raw_count,
+                    num_restarts=num_restarts,
+                    maxiter=options.maxiter,
+                    seed=step_seed,
+                    incumbents=incumbents,
+                    tkw=tkw,
                 )
-                method = "qLogNEI"
-            else:
-                acqf = qLogExpectedImprovement(
-                    model=model, best_f=float(y.max()), sampler=sampler, X_pending=pending_t
-                )
-                method = "qLogEI"
-
-            rows, value = optimize_acqf(
-                acq_function=acqf,
-                bounds=bounds_t,
-                q=q,
-                num_restarts=num_restarts,
-                raw_samples=raw_samples,
-                options={
-                    "batch_limit": num_restarts,
-                    "init_batch_limit": max(raw_samples, 1),
-                    "maxiter": options.maxiter,
-                    "seed": seed,
-                },
-                retry_on_optimization_warning=False,
-            )
+            chosen.append(optimum.z)
+            methods.append(method)
+            values.append(optimum.value)
+            switched += optimum.structures_switched
         acq_seconds = time.perf_counter() - started
-        rows_np = rows.detach().cpu().numpy().astype(np.float64).reshape(q, dim)
+        rows_np = search_vectors(np.array(chosen), bounds, search)
         if not np.all(np.isfinite(rows_np)):
             raise FloatingPointError("non-finite candidates from the acquisition optimiser")
-        acq_value = float(value.detach().cpu().reshape(-1)[0]) if value is not None else np.nan
-        extra = {
-            "method": method,
-            "log_acq_value": acq_value if np.isfinite(acq_value) else None,
+        extra: dict[str, Any] = {
+            "methods": methods,
+            "log_acq_value": values[0] if np.isfinite(values[0]) else None,
             "fit": fit_source,
             "fit_seconds": round(fit_seconds, 4),
             "acq_seconds": round(acq_seconds, 4),
             "num_restarts": num_restarts,
-            "raw_samples": raw_samples,
+            "raw_samples": raw_count,
             "device": device.type,
         }
+        if search is not None and search.n_structures > 1:
+            extra["structure_lengthscale"] = _structure_lengthscale(model)
+            extra["structures_switched"] = switched
         return rows_np, extra
+
+
+def _analytic(
+    model: Any, train_Z: torch.Tensor, y: np.ndarray, pending: torch.Tensor | None, noisy: bool
+) -> tuple[Any, str]:
+    """Analytic LogEI, with pending points as Kriging believers (``gpmodel.Posterior``)
+    and, for a noisy study, the best posterior mean at the observed points as the
+    incumbent. A believed value above the incumbent becomes the incumbent: otherwise
+    the model would see a sure improvement at (and next to) a pending point."""
+    from adservice.proposers.gpmodel import Posterior, log_expected_improvement
+
+    posterior = Posterior(model)
+    best_f = float(posterior.mean_sigma(train_Z)[0].max()) if noisy else float(y.max())
+    if pending is not None:
+        posterior = Posterior(model, believers=pending)
+        best_f = max(best_f, float(posterior.beliefs.max()))
+    method = "LogEI" if pending is None else "LogEI-believer"
+    return log_expected_improvement(posterior, best_f), method
+
+
+def _layout_key(search: SearchStructure | None) -> bytes:
+    """What distinguishes one study's model layout from another's in the fit caches."""
+    if search is None:
+        return b"box"
+    axes = repr(
+        [(a.theta, a.phi, a.theta_fixed, a.phi_fixed, a.sign_invariant) for a in search.axes]
+    )
+    return b"".join([search.structure_coords.tobytes(), search.used.tobytes(), axes.encode()])
+
+
+def _structure_lengthscale(model: Any) -> float | None:
+    from adservice.proposers.gpmodel import StructureKernel
+
+    for module in model.covar_module.modules():
+        if isinstance(module, StructureKernel):
+            return round(float(module.lengthscale.detach().cpu().reshape(-1)[0]), 6)
+    return None
 
 
 def _nearest_distance(points: np.ndarray, point: np.ndarray) -> float:

@@ -1,0 +1,279 @@
+"""The Gaussian process of the qei proposer: a structure kernel and a spec kernel.
+
+Imported only when a proposal is computed (it imports torch and gpytorch).
+
+The model's input is ``z = [structure index, u]`` (``base.model_inputs``), with
+every slot a structure does not use at the pad value, so such slots are constant
+within a structure and never act as noise dimensions.
+
+- ``SpecKernel`` sees ``u`` through features: plain specs as they are, and each
+  joint axis given by two angles as its unit vector (halved, so its distances lie
+  in [0, 1] like a spec's), or, for a sign-invariant axis, as the line through it
+  (the outer product u u^T, whose distance sqrt(2 - 2 (u.v)^2) / sqrt(2) ignores the
+  sign). One length scale per spec and one per axis (ARD over groups), with
+  BoTorch's dimension-scaled log-normal prior (Hvarfner et al., 2024).
+- ``StructureKernel`` is an RBF over the structures' coordinates in the fused
+  geometry (``adservice.representation``), with one learned length scale: as it
+  shrinks to 0 the kernel becomes the identity (every structure unrelated: the
+  one-hot encoding's assumption), as it grows every structure looks alike.
+- ``design_kernel`` combines them as ``a Ks + b Kx + c Ks Kx``: a structure main
+  effect, a spec main effect shared by every structure, and their interaction (a
+  spec response of each structure's own), each weight fitted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import torch
+from gpytorch.constraints import GreaterThan
+from gpytorch.kernels import AdditiveKernel, Kernel, ProductKernel, ScaleKernel
+from gpytorch.priors import GammaPrior, LogNormalPrior
+
+from adservice.proposers.base import SearchStructure
+
+STRUCTURE_LENGTHSCALE_PRIOR = (math.log(0.5), 1.0)
+"""(loc, scale) of the structure length scale's log-normal prior: structure distances
+are scaled to a largest of 1 and a smallest of 0.05, so this spans unrelated to alike."""
+WEIGHT_PRIOR = (math.log(1.0 / 3.0), 1.0)
+"""(loc, scale) of each component weight's log-normal prior (outcomes are standardised)."""
+
+
+class SpecFeatures:
+    """u -> the spec kernel's features, and which length-scale group each one has."""
+
+    def __init__(self, search: SearchStructure | None, spec_dim: int, **tkw: object) -> None:
+        axes = search.axes if search is not None else ()
+        on_axis = {column for axis in axes for column in (axis.theta, axis.phi) if column >= 0}
+        self.plain = [k for k in range(spec_dim) if k not in on_axis]
+        self.axes = axes
+        self.tkw = tkw
+        if search is not None:
+            self.low = torch.as_tensor(search.spec_low, **tkw)  # type: ignore[arg-type]
+            self.width = torch.as_tensor(search.spec_high - search.spec_low, **tkw)  # type: ignore[arg-type]
+        groups = list(range(len(self.plain)))
+        for number, axis in enumerate(axes):
+            groups += [len(self.plain) + number] * (6 if axis.sign_invariant else 3)
+        self.n_groups = len(self.plain) + len(axes)
+        self.group_index = torch.as_tensor(groups, dtype=torch.long)
+
+    def _angle(self, u: torch.Tensor, column: int, fixed: float) -> torch.Tensor:
+        if column < 0:
+            return torch.full_like(u[..., 0], fixed)
+        return self.low[column] + u[..., column] * self.width[column]
+
+    def __call__(self, u: torch.Tensor) -> torch.Tensor:
+        parts = [u[..., self.plain]]
+        for axis in self.axes:
+            theta = self._angle(u, axis.theta, axis.theta_fixed)
+            phi = self._angle(u, axis.phi, axis.phi_fixed)
+            x = torch.sin(theta) * torch.cos(phi)
+            y = torch.sin(theta) * torch.sin(phi)
+            z = torch.cos(theta)
+            if axis.sign_invariant:
+                root2 = math.sqrt(2.0)
+                line = [x * x, y * y, z * z, root2 * x * y, root2 * x * z, root2 * y * z]
+                parts.append(torch.stack(line, dim=-1) / root2)
+            else:
+                parts.append(torch.stack([x, y, z], dim=-1) / 2.0)
+        return torch.cat(parts, dim=-1)
+
+
+class SpecKernel(Kernel):
+    """RBF or Matern-5/2 over the spec features, one length scale per group."""
+
+    has_lengthscale = True
+
+    def __init__(self, features: SpecFeatures, *, rbf: bool, gamma_prior: bool = False) -> None:
+        d = features.n_groups
+        prior: LogNormalPrior | GammaPrior
+        if gamma_prior:  # BoTorch's older default, kept as an option
+            prior = GammaPrior(3.0, 6.0)
+            constraint = GreaterThan(1e-4)
+        else:
+            prior = LogNormalPrior(
+                loc=math.sqrt(2.0) + 0.5 * math.log(max(d, 1)), scale=math.sqrt(3.0)
+            )
+            constraint = GreaterThan(2.5e-2, transform=None, initial_value=prior.mode)
+        super().__init__(ard_num_dims=d, lengthscale_prior=prior, lengthscale_constraint=constraint)
+        # one length scale per group, not per input column: gpytorch's input-width check
+        # would compare the groups with the columns
+        self.ard_num_dims = None
+        self.features = features
+        self.rbf = rbf
+
+    def embed(self, x: torch.Tensor) -> torch.Tensor:
+        """Features divided by their length scales: the kernel is a function of the
+        distance between two embeddings."""
+        scale = self.lengthscale[..., self.features.group_index.to(x.device)]
+        return self.features(x[..., 1:]) / scale
+
+    def from_embeddings(
+        self, e1: torch.Tensor, e2: torch.Tensor, diag: bool = False
+    ) -> torch.Tensor:
+        if self.rbf:
+            return torch.exp(-0.5 * self.covar_dist(e1, e2, diag=diag, square_dist=True))
+        distance = self.covar_dist(e1, e2, diag=diag)
+        root5 = math.sqrt(5.0) * distance
+        return (1.0 + root5 + root5**2 / 3.0) * torch.exp(-root5)
+
+    def forward(
+        self, x1: torch.Tensor, x2: torch.Tensor, diag: bool = False, **params: object
+    ) -> torch.Tensor:
+        return self.from_embeddings(self.embed(x1), self.embed(x2), diag=diag)
+
+
+class StructureKernel(Kernel):
+    """RBF over the structures' fused-geometry coordinates, indexed by z[..., 0]."""
+
+    has_lengthscale = True
+
+    def __init__(self, coords: torch.Tensor) -> None:
+        loc, scale = STRUCTURE_LENGTHSCALE_PRIOR
+        prior = LogNormalPrior(loc=loc, scale=scale)
+        super().__init__(
+            lengthscale_prior=prior,
+            lengthscale_constraint=GreaterThan(1e-3, transform=None, initial_value=prior.mode),
+        )
+        self.register_buffer("coords", coords)
+
+    def embed(self, x: torch.Tensor) -> torch.Tensor:
+        index = x[..., 0].round().clamp(0, self.coords.shape[0] - 1).long()
+        return self.coords[index] / self.lengthscale
+
+    def from_embeddings(
+        self, e1: torch.Tensor, e2: torch.Tensor, diag: bool = False
+    ) -> torch.Tensor:
+        return torch.exp(-0.5 * self.covar_dist(e1, e2, diag=diag, square_dist=True))
+
+    def forward(
+        self, x1: torch.Tensor, x2: torch.Tensor, diag: bool = False, **params: object
+    ) -> torch.Tensor:
+        return self.from_embeddings(self.embed(x1), self.embed(x2), diag=diag)
+
+
+def _weighted(kernel: Kernel) -> ScaleKernel:
+    loc, scale = WEIGHT_PRIOR
+    prior = LogNormalPrior(loc=loc, scale=scale)
+    return ScaleKernel(
+        kernel,
+        outputscale_prior=prior,
+        outputscale_constraint=GreaterThan(1e-6, transform=None, initial_value=prior.mode),
+    )
+
+
+def design_kernel(
+    search: SearchStructure | None, spec_dim: int, *, kernel: str, **tkw: object
+) -> Kernel:
+    """The model's covariance (see the module docstring); a spec kernel alone for a
+    single structure or a box."""
+    features = SpecFeatures(search, spec_dim, **tkw)
+    spec: Kernel = SpecKernel(features, rbf=kernel == "rbf", gamma_prior=kernel == "matern-gamma")
+    if kernel == "matern-gamma":
+        spec = ScaleKernel(spec, outputscale_prior=GammaPrior(2.0, 0.15))
+    if search is None or search.n_structures == 1:
+        return spec.to(**tkw)
+    structure = StructureKernel(torch.as_tensor(search.structure_coords, **tkw))  # type: ignore[arg-type]
+    combined = _weighted(structure) + _weighted(spec) + _weighted(ProductKernel(structure, spec))
+    return combined.to(**tkw)
+
+
+Embeddings = dict[int, torch.Tensor]
+"""Each leaf kernel's embedding of some points, by the leaf's id."""
+
+
+def embeddings(kernel: Kernel, x: torch.Tensor) -> Embeddings:
+    """The embeddings of x under every leaf kernel of ``design_kernel``'s kernel."""
+    return {
+        id(leaf): leaf.embed(x)
+        for leaf in kernel.modules()
+        if isinstance(leaf, SpecKernel | StructureKernel)
+    }
+
+
+def dense_covariance(
+    kernel: Kernel, e1: Embeddings, e2: Embeddings, *, diag: bool = False
+) -> torch.Tensor:
+    """The covariance of two embedded point sets, computed directly: the acquisition is
+    evaluated hundreds of times per ask, and gpytorch's lazy kernel machinery (and
+    computing a shared leaf twice, or re-embedding the training points) costs more
+    than these small matrices."""
+    leaves: dict[int, torch.Tensor] = {}
+
+    def walk(node: Kernel) -> torch.Tensor:
+        if isinstance(node, SpecKernel | StructureKernel):
+            key = id(node)
+            if key not in leaves:
+                leaves[key] = node.from_embeddings(e1[key], e2[key], diag=diag)
+            return leaves[key]
+        if isinstance(node, ScaleKernel):
+            return node.outputscale * walk(node.base_kernel)
+        if isinstance(node, ProductKernel | AdditiveKernel):
+            parts = [walk(part) for part in node.kernels]
+            result = parts[0]
+            for part in parts[1:]:
+                result = result * part if isinstance(node, ProductKernel) else result + part
+            return result
+        raise TypeError(f"no direct covariance for {type(node).__name__}")
+
+    return walk(kernel)
+
+
+class Posterior:
+    """The fitted GP's posterior at new points, in the outcome's own scale, from one
+    Cholesky factor; ``believers`` are pending points added as observations of the
+    model's own mean there (Kriging believer), which keeps the mean and takes the
+    variance away near them; ``beliefs`` holds those means."""
+
+    def __init__(self, model: object, believers: torch.Tensor | None = None) -> None:
+        with torch.no_grad():
+            self.kernel: Kernel = model.covar_module  # type: ignore[attr-defined]
+            train = model.train_inputs[0]  # type: ignore[attr-defined]
+            targets = model.train_targets  # type: ignore[attr-defined]
+            self.constant = model.mean_module.constant.reshape(())  # type: ignore[attr-defined]
+            transform = model.outcome_transform  # type: ignore[attr-defined]
+            self.offset = transform.means.reshape(())
+            self.scale = transform.stdvs.reshape(())
+            noise = model.likelihood.noise.reshape(-1)  # type: ignore[attr-defined]
+            noise = noise.expand(len(train)) if noise.numel() == 1 else noise
+            self._factor(train, targets, noise)
+            self.beliefs = torch.zeros(0, dtype=train.dtype, device=train.device)
+            if believers is not None and len(believers):
+                beliefs = self.beliefs = self.mean_sigma(believers)[0]
+                extra_noise = noise.min().expand(len(believers))
+                self._factor(
+                    torch.cat([train, believers]),
+                    torch.cat([targets, (beliefs - self.offset) / self.scale]),
+                    torch.cat([noise, extra_noise]),
+                )
+
+    def _factor(self, points: torch.Tensor, targets: torch.Tensor, noise: torch.Tensor) -> None:
+        self.embedded = embeddings(self.kernel, points)
+        K = dense_covariance(self.kernel, self.embedded, self.embedded) + torch.diag(noise)
+        self.cholesky = torch.linalg.cholesky(K)
+        residual = (targets - self.constant).unsqueeze(-1)
+        self.alpha = torch.cholesky_solve(residual, self.cholesky).squeeze(-1)
+
+    def mean_sigma(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and standard deviation at the rows of X (b x D)."""
+        embedded = embeddings(self.kernel, X)
+        cross = dense_covariance(self.kernel, embedded, self.embedded)
+        mean = self.constant + cross @ self.alpha
+        solved = torch.linalg.solve_triangular(self.cholesky, cross.T, upper=False)
+        prior = dense_covariance(self.kernel, embedded, embedded, diag=True)
+        variance = (prior - (solved**2).sum(0)).clamp_min(1e-12)
+        return self.offset + self.scale * mean, self.scale * variance.sqrt()
+
+
+def log_expected_improvement(
+    posterior: Posterior, best_f: float
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """Analytic LogEI (Ament et al., 2023) on ``posterior``: b x 1 x D -> b."""
+    from botorch.acquisition.analytic import _log_ei_helper
+
+    def acquisition(Z: torch.Tensor) -> torch.Tensor:
+        mean, sigma = posterior.mean_sigma(Z.squeeze(-2))
+        return _log_ei_helper((mean - best_f) / sigma) + sigma.log()
+
+    return acquisition
