@@ -194,7 +194,7 @@ class QLogEIProposer:
                     "sobol_index": request.n_issued + i,
                 }
         if n_sobol == count:
-            return Proposal(candidates=candidates, info=info)
+            return Proposal(candidates=_canonical(candidates, bounds, request), info=info)
 
         q = count - n_sobol
         model_rows, model_info = self._model_batch(
@@ -202,7 +202,7 @@ class QLogEIProposer:
         )
         candidates[n_sobol:] = model_rows
         info[n_sobol:] = model_info
-        return Proposal(candidates=np.clip(candidates, bounds[0], bounds[1]), info=info)
+        return Proposal(candidates=_canonical(candidates, bounds, request), info=info)
 
     # -- the model phase -------------------------------------------------------------
 
@@ -472,8 +472,20 @@ class QLogEIProposer:
         }
         if search is not None and search.n_structures > 1:
             extra["structure_lengthscale"] = _structure_lengthscale(model)
+            extra["structure_correlation"] = _structure_correlation(model, search, tkw)
             extra["structures_switched"] = switched
         return rows_np, extra
+
+
+def _canonical(candidates: np.ndarray, bounds: np.ndarray, request: ProposalRequest) -> np.ndarray:
+    """Candidates in the box; for a design space, as the designs they stand for: an
+    integral structure index and unused slots at the pad (Sobol points included)."""
+    candidates = np.clip(candidates, bounds[0], bounds[1])
+    if request.structure is None:
+        return candidates
+    return search_vectors(
+        model_inputs(candidates, bounds, request.structure), bounds, request.structure
+    )
 
 
 def _analytic(
@@ -492,6 +504,24 @@ def _analytic(
         best_f = max(best_f, float(posterior.beliefs.max()))
     method = "LogEI" if pending is None else "LogEI-believer"
     return log_expected_improvement(posterior, best_f), method
+
+
+def _structure_correlation(model: Any, search: SearchStructure, tkw: dict[str, Any]) -> float:
+    """How alike the fitted model holds the structures: the mean correlation between
+    two structures' designs with the same specs (all at the pad value); 0 is the
+    one-hot encoding's assumption, 1 a structure-blind model."""
+    import torch
+
+    from adservice.proposers.gpmodel import dense_covariance, embeddings
+
+    count = search.n_structures
+    Z = np.column_stack([np.arange(count), np.full((count, search.spec_dim), search.pad)])
+    with torch.no_grad():
+        embedded = embeddings(model.covar_module, torch.as_tensor(Z, **tkw))
+        K = dense_covariance(model.covar_module, embedded, embedded).cpu().numpy()
+    scale = np.sqrt(np.diag(K))
+    correlation = K / np.outer(scale, scale)
+    return round(float(correlation[~np.eye(count, dtype=bool)].mean()), 6)
 
 
 def _layout_key(search: SearchStructure | None) -> bytes:

@@ -1,0 +1,405 @@
+"""Synthetic design-space objectives: the service's proposers against Optuna's, 30 evaluations.
+
+Each objective scores a decoded robot design (tree + specs) in [0, 1], so every method
+optimises the identical function of the design:
+
+- ``tree-similarity`` (8 trees of 3 to 5 links, 13 specs): the score falls with the
+  tree's edit distance (edges added or removed) to a target tree, times how well the
+  lengths and joint axes match targets. Structure similarity matters strongly.
+- ``specs-only`` (the same space): only specs every tree has count (the lengths of a
+  and b, the axis of b); the tree does not matter at all.
+- ``unused-specs`` (the same space): the best trees are the ones with limb e, and
+  then e's length and axis decide; the other trees only get a weaker score from b.
+  The specs that matter are unused by half of the trees.
+- ``interaction`` (4 trees of 4 links, lengths, radii and axes: 14 specs): every tree
+  has its own optimal lengths and axes and its own ceiling; nothing carries over.
+
+Methods:
+- ``qei``: the service's default (the ``mixed`` encoding), ``qei-fused`` (the
+  preprint's encoding), ``qei-onehot``: a real ``adserver`` on a SQLite file, plain
+  ask/tell over HTTP, one trial at a time, proposer defaults.
+- ``gp-optuna``, ``tpe-optuna``, ``random-optuna``: Optuna's GPSampler, TPESampler and
+  RandomSampler in-process with their defaults (GPSampler: deterministic_objective),
+  the structure as a categorical and every spec as a float in its physical range.
+
+Every method and seed (0..N-1) gets the same budget. The report gives the median
+best score by 30 (and by 15) with its IQR, and the ratio of each method's median to
+GPSampler's, objective by objective. Results append to
+bench/results/design_suite.jsonl (a rerun resumes).
+
+Run: ``.venv/bin/python bench/design_suite.py`` (10 seeds, all objectives, the
+default methods, writes bench/RESULTS.md); ``--seeds 2 --no-write`` while developing;
+``--report`` to rewrite the report from the stored results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tests.servers import ServerProcess  # noqa: E402
+
+from adclient.decode import axis_from_angles, build_design, spec_layout  # noqa: E402
+from adclient.design import Design, DesignSpace  # noqa: E402
+from bench.proposer_results import write_subsection  # noqa: E402
+
+RESULTS_PATH = ROOT / "bench" / "results" / "design_suite.jsonl"
+BUDGET = 30
+PI = math.pi
+
+LIMBS5_STRUCTURES = [
+    [["a", "b"], ["b", "c"]],
+    [["a", "b"], ["b", "c"], ["c", "d"]],
+    [["a", "b"], ["b", "c"], ["c", "d"], ["d", "e"]],
+    [["a", "b"], ["b", "c"], ["b", "d"]],
+    [["a", "b"], ["a", "c"], ["a", "d"]],
+    [["a", "b"], ["b", "c"], ["c", "e"]],
+    [["a", "b"], ["b", "c"], ["b", "d"], ["b", "e"]],
+    [["a", "b"], ["b", "c"], ["c", "d"], ["c", "e"]],
+]
+ARMS4_STRUCTURES = [
+    [["a", "b"], ["b", "c"], ["c", "d"]],
+    [["a", "b"], ["a", "c"], ["a", "d"]],
+    [["a", "b"], ["b", "c"], ["b", "d"]],
+    [["a", "b"], ["a", "c"], ["c", "d"]],
+]
+
+
+def limbs5_space() -> dict[str, Any]:
+    return {
+        "type": "design",
+        "parts": {"link": {"length": {"low": 0.1, "high": 0.5}, "radius": 0.04, "mass": 1.0}},
+        "instances": [{"name": name, "part": "link"} for name in "abcde"],
+        "structures": LIMBS5_STRUCTURES,
+    }
+
+
+def arms4_space() -> dict[str, Any]:
+    return {
+        "type": "design",
+        "parts": {
+            "link": {
+                "length": {"low": 0.1, "high": 0.5},
+                "radius": {"low": 0.02, "high": 0.08},
+                "mass": 1.0,
+            }
+        },
+        "instances": [{"name": name, "part": "link"} for name in "abcd"],
+        "structures": ARMS4_STRUCTURES,
+    }
+
+
+def _unit(rng: np.random.Generator) -> np.ndarray:
+    v = rng.normal(size=3)
+    return v / np.linalg.norm(v)
+
+
+def _alignment(design: Design, targets: dict[str, np.ndarray]) -> float:
+    """Mean squared cosine between each joint's axis and its target (sign-free)."""
+    values = [
+        float(np.dot(joint.axis, targets[joint.child])) ** 2
+        for joint in design.joints
+        if joint.child in targets
+    ]
+    return float(np.mean(values)) if values else 0.0
+
+
+def _lengths(design: Design) -> dict[str, float]:
+    return {link.name: link.length for link in design.links}
+
+
+def tree_similarity() -> Callable[[Design], float]:
+    rng = np.random.default_rng(101)
+    target_edges = {tuple(edge) for edge in LIMBS5_STRUCTURES[2]}
+    axes = {name: _unit(rng) for name in "bcde"}
+    lengths = {name: float(rng.uniform(0.15, 0.45)) for name in "abcde"}
+
+    def score(design: Design) -> float:
+        edges = set(design.edges())
+        structure = math.exp(-len(edges ^ target_edges) / 2.0)
+        own = _lengths(design)
+        fit = math.exp(-sum((own[k] - lengths[k]) ** 2 for k in own) / 0.05)
+        return structure * fit * (0.3 + 0.7 * _alignment(design, axes))
+
+    return score
+
+
+def specs_only() -> Callable[[Design], float]:
+    rng = np.random.default_rng(202)
+    axis_b = _unit(rng)
+
+    def score(design: Design) -> float:
+        own = _lengths(design)
+        fit = math.exp(-((own["a"] - 0.35) ** 2 + (own["b"] - 0.2) ** 2) / 0.02)
+        return fit * (0.2 + 0.8 * _alignment(design, {"b": axis_b}))
+
+    return score
+
+
+def unused_specs() -> Callable[[Design], float]:
+    rng = np.random.default_rng(303)
+    axis_b, axis_e = _unit(rng), _unit(rng)
+
+    def score(design: Design) -> float:
+        own = _lengths(design)
+        if "e" in own:
+            fit = math.exp(-((own["e"] - 0.42) ** 2) / 0.01)
+            return 0.3 + 0.7 * fit * _alignment(design, {"e": axis_e})
+        return 0.5 * _alignment(design, {"b": axis_b})
+
+    return score
+
+
+def interaction() -> Callable[[Design], float]:
+    rng = np.random.default_rng(404)
+    ceilings = [1.0, 0.9, 0.8, 0.7]
+    per_tree = [
+        (
+            {name: float(rng.uniform(0.15, 0.45)) for name in "abcd"},
+            {name: float(rng.uniform(0.03, 0.07)) for name in "abcd"},
+            {name: _unit(rng) for name in "bcd"},
+        )
+        for _ in ARMS4_STRUCTURES
+    ]
+
+    def score(design: Design) -> float:
+        lengths, radii, axes = per_tree[design.structure_index]
+        misfit = sum((link.length - lengths[link.name]) ** 2 for link in design.links) / 0.04
+        misfit += sum((link.radius - radii[link.name]) ** 2 for link in design.links) / 0.001
+        fit = math.exp(-misfit)
+        return ceilings[design.structure_index] * fit * (0.3 + 0.7 * _alignment(design, axes))
+
+    return score
+
+
+@dataclass(frozen=True)
+class Objective:
+    name: str
+    space: dict[str, Any]
+    score: Callable[[Design], float]
+
+
+OBJECTIVES = {
+    "tree-similarity": Objective("tree-similarity", limbs5_space(), tree_similarity()),
+    "specs-only": Objective("specs-only", limbs5_space(), specs_only()),
+    "unused-specs": Objective("unused-specs", limbs5_space(), unused_specs()),
+    "interaction": Objective("interaction", arms4_space(), interaction()),
+}
+SERVICE_METHODS = {"qei": None, "qei-fused": "fused", "qei-onehot": "onehot"}
+OPTUNA_METHODS = ("gp-optuna", "tpe-optuna", "random-optuna")
+DEFAULT_METHODS = ["qei", "gp-optuna", "tpe-optuna", "random-optuna", "qei-onehot", "qei-fused"]
+
+
+def design_from_params(space: DesignSpace, params: dict[str, Any]) -> Design:
+    """The design a trial's readable params (``design_params``) or Optuna params name."""
+    layout = spec_layout(space)
+    values = {key: float(params[key]) for key in layout.names if key in params}
+    return build_design(space, layout, int(params["structure_index"]), values)
+
+
+def run_service(http: httpx.Client, objective: Objective, method: str, seed: int) -> dict:
+    space = dict(objective.space)
+    encoding = SERVICE_METHODS[method]
+    if encoding is not None:
+        space["encoding"] = encoding
+    parsed = DesignSpace.model_validate(space)
+    created = http.post(
+        "/api/v1/studies",
+        json={
+            "name": f"{objective.name}-{method}-{seed}-{time.time_ns()}",
+            "direction": "maximize",
+            "space": space,
+            "proposer": {"name": "qei", "seed": seed},
+            "max_trials": BUDGET,
+        },
+    )
+    created.raise_for_status()
+    study_id = created.json()["id"]
+    values, asks = [], []
+    for _ in range(BUDGET):
+        started = time.perf_counter()
+        asked = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 1})
+        asks.append(time.perf_counter() - started)
+        asked.raise_for_status()
+        (trial,) = asked.json()["trials"]
+        value = objective.score(design_from_params(parsed, trial["params"]))
+        told = http.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": value})
+        told.raise_for_status()
+        values.append(value)
+    return {"values": values, "ask_seconds": asks}
+
+
+def run_optuna(objective: Objective, method: str, seed: int) -> dict:
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    space = DesignSpace.model_validate(objective.space)
+    layout = spec_layout(space)
+    sampler: optuna.samplers.BaseSampler
+    if method == "gp-optuna":
+        sampler = optuna.samplers.GPSampler(seed=seed, deterministic_objective=True)
+    elif method == "tpe-optuna":
+        sampler = optuna.samplers.TPESampler(seed=seed)
+    else:
+        sampler = optuna.samplers.RandomSampler(seed=seed)
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    values, asks = [], []
+    count = len(layout.structures)
+    for _ in range(BUDGET):
+        started = time.perf_counter()
+        trial = study.ask()
+        params: dict[str, Any] = {
+            "structure_index": trial.suggest_categorical("structure_index", list(range(count)))
+        }
+        for k, key in enumerate(layout.names):
+            params[key] = trial.suggest_float(key, float(layout.low[k]), float(layout.high[k]))
+        asks.append(time.perf_counter() - started)
+        value = objective.score(design_from_params(space, params))
+        study.tell(trial, value)
+        values.append(value)
+    return {"values": values, "ask_seconds": asks}
+
+
+def read_results() -> list[dict]:
+    if not RESULTS_PATH.exists():
+        return []
+    return [json.loads(line) for line in RESULTS_PATH.read_text().splitlines() if line.strip()]
+
+
+def best_by(values: list[float], n: int) -> float:
+    return float(max(values[:n]))
+
+
+def mann_whitney(a: list[float], b: list[float]) -> float:
+    from scipy.stats import mannwhitneyu
+
+    if len(a) < 2 or len(b) < 2 or (len(set(a)) == 1 and set(a) == set(b)):
+        return 1.0
+    return float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
+
+
+def report(records: list[dict]) -> str:
+    methods = [m for m in DEFAULT_METHODS if any(r["method"] == m for r in records)]
+    lines = [
+        f"Median best score by {BUDGET} evaluations [IQR] over seeds (higher is better), "
+        "by 15 in brackets below; ratio = median best by 30 over GPSampler's; p: two-sided "
+        "Mann-Whitney U of qei against GPSampler on best by 30.",
+        "",
+        "| objective | seeds | " + " | ".join(methods) + " | qei / GP | p |",
+        "| --- | --- | " + " | ".join("---" for _ in methods) + " | --- | --- |",
+    ]
+    verdicts = []
+    for name in OBJECTIVES:
+        rows = {
+            m: [r for r in records if r["objective"] == name and r["method"] == m] for m in methods
+        }
+        if not rows.get("qei"):
+            continue
+        cells, medians = [], {}
+        for m in methods:
+            best = [best_by(r["values"], BUDGET) for r in rows[m]]
+            early = [best_by(r["values"], 15) for r in rows[m]]
+            if not best:
+                cells.append("-")
+                continue
+            q1, q2, q3 = np.percentile(best, [25, 50, 75])
+            medians[m] = q2
+            cells.append(f"{q2:.3f} [{q1:.3f}, {q3:.3f}] ({np.median(early):.3f})")
+        seeds = min(len(rows[m]) for m in methods if rows[m])
+        gp = medians.get("gp-optuna")
+        ratio = f"{medians['qei'] / gp:.2f}" if gp else "-"
+        p = (
+            mann_whitney(
+                [best_by(r["values"], BUDGET) for r in rows["qei"]],
+                [best_by(r["values"], BUDGET) for r in rows.get("gp-optuna", [])],
+            )
+            if gp
+            else float("nan")
+        )
+        lines.append(f"| {name} | {seeds} | " + " | ".join(cells) + f" | {ratio} | {p:.3f} |")
+        if gp:
+            verdicts.append(
+                f"- {name}: qei {medians['qei']:.3f} vs GPSampler {gp:.3f}: "
+                + ("at or above" if medians["qei"] >= gp else "**below**")
+            )
+    ask = {
+        m: np.median([s for r in records if r["method"] == m for s in r["ask_seconds"]])
+        for m in methods
+    }
+    lines += [
+        "",
+        "Median seconds per ask (qei through HTTP on a loopback adserver; Optuna in-process): "
+        + ", ".join(f"{m} {ask[m]:.3f}" for m in methods)
+        + ".",
+        "",
+        *verdicts,
+    ]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--objectives", nargs="+", default=list(OBJECTIVES))
+    parser.add_argument("--methods", nargs="+", default=DEFAULT_METHODS)
+    parser.add_argument("--no-write", action="store_true")
+    parser.add_argument("--report", action="store_true", help="only rewrite the report")
+    args = parser.parse_args()
+    warnings.filterwarnings("ignore")
+    if not args.report:
+        done = {(r["objective"], r["method"], r["seed"]) for r in read_results()}
+        todo = [
+            (objective, method, seed)
+            for objective in args.objectives
+            for seed in range(args.seeds)
+            for method in args.methods
+            if (objective, method, seed) not in done
+        ]
+        RESULTS_PATH.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory() as workdir:
+            server = ServerProcess(
+                database_url=f"sqlite:///{workdir}/suite.db", workdir=Path(workdir)
+            ).start()
+            try:
+                with httpx.Client(base_url=server.url, timeout=300) as http:
+                    for number, (name, method, seed) in enumerate(todo, start=1):
+                        objective = OBJECTIVES[name]
+                        started = time.perf_counter()
+                        if method in SERVICE_METHODS:
+                            result = run_service(http, objective, method, seed)
+                        else:
+                            result = run_optuna(objective, method, seed)
+                        record = {"objective": name, "method": method, "seed": seed, **result}
+                        with RESULTS_PATH.open("a") as out:
+                            out.write(json.dumps(record) + "\n")
+                        print(
+                            f"[{number}/{len(todo)}] {name} {method} seed {seed}: best "
+                            f"{max(result['values']):.3f} in {time.perf_counter() - started:.1f} s",
+                            flush=True,
+                        )
+            finally:
+                server.stop()
+    text = report(read_results())
+    print(text)
+    if not args.no_write:
+        write_subsection("### Design-space suite (bench/design_suite.py)", text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
