@@ -54,7 +54,7 @@ sys.path.insert(0, str(ROOT))
 
 from tests.servers import ServerProcess  # noqa: E402
 
-from adclient.decode import axis_from_angles, build_design, spec_layout  # noqa: E402
+from adclient.decode import build_design, spec_layout  # noqa: E402
 from adclient.design import Design, DesignSpace  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
 

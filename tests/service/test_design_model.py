@@ -143,11 +143,27 @@ def test_the_fitted_model_relates_structures_as_the_data_does(multi: Any) -> Non
     assert alike["structure_correlation"] > 0.6, alike
 
 
-def test_design_kernel_is_a_spec_kernel_alone_for_one_structure() -> None:
+def test_one_structure_has_a_spec_kernel_alone_and_several_a_weighted_sum() -> None:
     _, _, search = example("stand-up")
-    kernel = design_kernel(search, search.spec_dim, kernel="rbf", **TKW)
-    assert type(kernel).__name__ == "SpecKernel"
-    assert type(design_kernel(None, 3, kernel="matern", **TKW)).__name__ == "SpecKernel"
+    single = design_kernel(search, search.spec_dim, kernel="rbf", **TKW)
+    assert single.structure is None
+    assert design_kernel(None, 3, kernel="matern", **TKW).structure is None
+    _, _, multi_search = example("multi-structure")
+    kernel = design_kernel(multi_search, multi_search.spec_dim, kernel="rbf", **TKW)
+    assert kernel.structure is not None
+    # the sum a Ks + b Kx + c Ks Kx, each part from the kernels themselves
+    z = torch.as_tensor(
+        np.column_stack(
+            [np.arange(6) % 6, np.random.default_rng(0).random((6, multi_search.spec_dim))]
+        ),
+        **TKW,
+    )
+    kernel.weights = torch.tensor([0.2, 0.3, 0.5], **TKW)
+    with torch.no_grad():
+        Ks = kernel.structure(z, z).to_dense()
+        Kx = kernel.spec(z, z).to_dense()
+        K = kernel(z, z).to_dense()
+    torch.testing.assert_close(K, 0.2 * Ks + 0.3 * Kx + 0.5 * Ks * Kx)
 
 
 # -- joint axes -------------------------------------------------------------------------

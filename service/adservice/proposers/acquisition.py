@@ -4,8 +4,9 @@ the specs continuous (model inputs ``z = [structure index, u]``, see ``gpmodel``
 1. Raw samples: scrambled Sobol spec vectors, dealt round-robin to the structures,
    plus the best observed designs and small perturbations of them (the local
    search of Optuna's GPSampler); every point canonical (unused slots at the pad).
-2. Starts: the best raw samples; with at most ``ENUMERATE_LIMIT`` structures, also
-   the best raw sample of every structure, so each structure is optimised.
+2. Starts: the best raw samples; with at most ``ENUMERATE_LIMIT`` structures, the
+   best raw sample of every structure and the best few overall, so each structure
+   is optimised.
 3. Continuous step: L-BFGS-B on the used specs of every start at once, the
    structure fixed (unused slots are pinned by equal bounds).
 4. Discrete step: each optimised point tries every structure with its specs; a
@@ -23,6 +24,7 @@ import numpy as np
 import torch
 from scipy.optimize import minimize
 from scipy.stats import qmc
+from threadpoolctl import threadpool_limits
 
 ENUMERATE_LIMIT = 16
 """With this many structures or fewer, every structure gets a start of its own."""
@@ -96,34 +98,35 @@ def raw_samples(domain: MixedDomain, count: int, seed: int, incumbents: np.ndarr
 def _local(
     acqf: Acquisition, domain: MixedDomain, starts: np.ndarray, maxiter: int, tkw: dict
 ) -> tuple[np.ndarray, np.ndarray]:
-    """L-BFGS-B on every start's used specs at once; (points, values)."""
+    """L-BFGS-B on every start's used specs at once (the others stay at the pad, out of
+    the optimiser's vector); (points, values)."""
     b, p = starts.shape[0], starts.shape[1] - 1
-    if p == 0:
-        return starts, _evaluate(acqf, starts, tkw)
     used = domain.used[starts[:, 0].astype(np.int64)]
-    low = np.where(used, 0.0, domain.pad).ravel()
-    high = np.where(used, 1.0, domain.pad).ravel()
-    index = torch.as_tensor(starts[:, :1], **tkw)
+    if p == 0 or not used.any():
+        return starts, _evaluate(acqf, starts, tkw)
+    full = torch.as_tensor(starts, **tkw)
+    mask = torch.as_tensor(np.column_stack([np.zeros(b, dtype=bool), used]), device=full.device)
 
-    def objective(flat: np.ndarray) -> tuple[float, np.ndarray]:
-        u = torch.as_tensor(flat.reshape(b, p), **tkw).requires_grad_(True)
-        values = acqf(torch.cat([index, u], dim=-1).unsqueeze(1))
-        loss = -values.sum()
+    def objective(free: np.ndarray) -> tuple[float, np.ndarray]:
+        values_t = torch.as_tensor(free, **tkw).requires_grad_(True)
+        points = full.masked_scatter(mask, values_t)
+        loss = -acqf(points.unsqueeze(1)).sum()
         if not torch.isfinite(loss):
-            return 1e10, np.zeros_like(flat)
-        (gradient,) = torch.autograd.grad(loss, u)
-        return float(loss.item()), gradient.detach().cpu().numpy().ravel().astype(np.float64)
+            return 1e10, np.zeros_like(free)
+        (gradient,) = torch.autograd.grad(loss, values_t)
+        return float(loss.item()), gradient.detach().cpu().numpy().astype(np.float64)
 
-    result = minimize(
-        objective,
-        np.clip(starts[:, 1:].ravel(), low, high),
-        jac=True,
-        method="L-BFGS-B",
-        bounds=list(zip(low, high, strict=True)),
-        options={"maxiter": maxiter},
-    )
-    points = np.column_stack([starts[:, 0], np.clip(result.x.reshape(b, p), 0.0, 1.0)])
-    points = domain.canonical(points)
+    with threadpool_limits(limits=1):  # BLAS threads inside L-BFGS-B only contend here
+        result = minimize(
+            objective,
+            np.clip(starts[:, 1:][used], 0.0, 1.0),
+            jac=True,
+            method="L-BFGS-B",
+            bounds=[(0.0, 1.0)] * int(used.sum()),
+            options={"maxiter": maxiter},
+        )
+    points = starts.copy()
+    points[:, 1:][used] = np.clip(result.x, 0.0, 1.0)
     return points, _evaluate(acqf, points, tkw)
 
 
@@ -142,9 +145,10 @@ def maximise(
     raw = raw_samples(domain, raw_count, seed, incumbents)
     values = _evaluate(acqf, raw, tkw)
     order = np.argsort(-values, kind="stable")
-    chosen = list(order[:num_restarts])
     S = domain.n_structures
-    if 1 < S <= ENUMERATE_LIMIT:
+    enumerate_all = 1 < S <= ENUMERATE_LIMIT
+    chosen = list(order[: max(num_restarts - S, 2) if enumerate_all else num_restarts])
+    if enumerate_all:
         structure = raw[:, 0].astype(np.int64)
         for s in range(S):
             members = order[structure[order] == s]

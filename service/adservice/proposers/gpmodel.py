@@ -16,7 +16,7 @@ within a structure and never act as noise dimensions.
   geometry (``adservice.representation``), with one learned length scale: as it
   shrinks to 0 the kernel becomes the identity (every structure unrelated: the
   one-hot encoding's assumption), as it grows every structure looks alike.
-- ``design_kernel`` combines them as ``a Ks + b Kx + c Ks Kx``: a structure main
+- ``DesignKernel`` combines them as ``a Ks + b Kx + c Ks Kx``: a structure main
   effect, a spec main effect shared by every structure, and their interaction (a
   spec response of each structure's own), each weight fitted.
 """
@@ -28,8 +28,8 @@ from collections.abc import Callable
 
 import torch
 from gpytorch.constraints import GreaterThan
-from gpytorch.kernels import AdditiveKernel, Kernel, ProductKernel, ScaleKernel
-from gpytorch.priors import GammaPrior, LogNormalPrior
+from gpytorch.kernels import Kernel
+from gpytorch.priors import LogNormalPrior
 
 from adservice.proposers.base import SearchStructure
 
@@ -85,17 +85,10 @@ class SpecKernel(Kernel):
 
     has_lengthscale = True
 
-    def __init__(self, features: SpecFeatures, *, rbf: bool, gamma_prior: bool = False) -> None:
+    def __init__(self, features: SpecFeatures, *, rbf: bool) -> None:
         d = features.n_groups
-        prior: LogNormalPrior | GammaPrior
-        if gamma_prior:  # BoTorch's older default, kept as an option
-            prior = GammaPrior(3.0, 6.0)
-            constraint = GreaterThan(1e-4)
-        else:
-            prior = LogNormalPrior(
-                loc=math.sqrt(2.0) + 0.5 * math.log(max(d, 1)), scale=math.sqrt(3.0)
-            )
-            constraint = GreaterThan(2.5e-2, transform=None, initial_value=prior.mode)
+        prior = LogNormalPrior(loc=math.sqrt(2.0) + 0.5 * math.log(max(d, 1)), scale=math.sqrt(3.0))
+        constraint = GreaterThan(2.5e-2, transform=None, initial_value=prior.mode)
         super().__init__(ard_num_dims=d, lengthscale_prior=prior, lengthscale_constraint=constraint)
         # one length scale per group, not per input column: gpytorch's input-width check
         # would compare the groups with the columns
@@ -153,71 +146,79 @@ class StructureKernel(Kernel):
         return self.from_embeddings(self.embed(x1), self.embed(x2), diag=diag)
 
 
-def _weighted(kernel: Kernel) -> ScaleKernel:
-    loc, scale = WEIGHT_PRIOR
-    prior = LogNormalPrior(loc=loc, scale=scale)
-    return ScaleKernel(
-        kernel,
-        outputscale_prior=prior,
-        outputscale_constraint=GreaterThan(1e-6, transform=None, initial_value=prior.mode),
-    )
+class DesignKernel(Kernel):
+    """``a Ks + b Kx + c Ks Kx`` with several structures, ``Kx`` alone otherwise.
+
+    One kernel object, computed directly: gpytorch's sums, products and scalings of
+    kernels each evaluate lazily and compute a shared part twice, which made the fit
+    and the acquisition several times slower. ``embed`` and ``from_embeddings`` let
+    the posterior embed the training points once.
+    """
+
+    def __init__(self, spec: SpecKernel, structure: StructureKernel | None) -> None:
+        super().__init__()
+        self.spec = spec
+        self.structure = structure
+        if structure is not None:
+            loc, scale = WEIGHT_PRIOR
+            self.register_parameter("raw_weights", torch.nn.Parameter(torch.zeros(3)))
+            self.register_constraint(
+                "raw_weights", GreaterThan(1e-6, transform=None, initial_value=1.0 / 3.0)
+            )
+            self.register_prior(
+                "weights_prior",
+                LogNormalPrior(loc=loc, scale=scale),
+                lambda module: module.weights,
+                lambda module, value: module._set_weights(value),
+            )
+            self.weights = torch.full((3,), 1.0 / 3.0)
+
+    @property
+    def weights(self) -> torch.Tensor:
+        return self.raw_weights_constraint.transform(self.raw_weights)
+
+    @weights.setter
+    def weights(self, value: torch.Tensor) -> None:
+        self._set_weights(value)
+
+    def _set_weights(self, value: torch.Tensor) -> None:
+        value = torch.as_tensor(value).to(self.raw_weights)
+        self.initialize(raw_weights=self.raw_weights_constraint.inverse_transform(value))
+
+    def embed(self, x: torch.Tensor) -> Embedding:
+        return (
+            self.spec.embed(x),
+            self.structure.embed(x) if self.structure is not None else None,
+        )
+
+    def from_embeddings(self, e1: Embedding, e2: Embedding, diag: bool = False) -> torch.Tensor:
+        spec = self.spec.from_embeddings(e1[0], e2[0], diag=diag)
+        if self.structure is None:
+            return spec
+        assert e1[1] is not None and e2[1] is not None
+        structure = self.structure.from_embeddings(e1[1], e2[1], diag=diag)
+        a, b, c = self.weights
+        return a * structure + b * spec + c * structure * spec
+
+    def forward(
+        self, x1: torch.Tensor, x2: torch.Tensor, diag: bool = False, **params: object
+    ) -> torch.Tensor:
+        return self.from_embeddings(self.embed(x1), self.embed(x2), diag=diag)
+
+
+Embedding = tuple[torch.Tensor, torch.Tensor | None]
+"""A point set embedded by the spec kernel and by the structure kernel (if any)."""
 
 
 def design_kernel(
     search: SearchStructure | None, spec_dim: int, *, kernel: str, **tkw: object
-) -> Kernel:
-    """The model's covariance (see the module docstring); a spec kernel alone for a
-    single structure or a box."""
-    features = SpecFeatures(search, spec_dim, **tkw)
-    spec: Kernel = SpecKernel(features, rbf=kernel == "rbf", gamma_prior=kernel == "matern-gamma")
-    if kernel == "matern-gamma":
-        spec = ScaleKernel(spec, outputscale_prior=GammaPrior(2.0, 0.15))
-    if search is None or search.n_structures == 1:
-        return spec.to(**tkw)
-    structure = StructureKernel(torch.as_tensor(search.structure_coords, **tkw))  # type: ignore[arg-type]
-    combined = _weighted(structure) + _weighted(spec) + _weighted(ProductKernel(structure, spec))
-    return combined.to(**tkw)
-
-
-Embeddings = dict[int, torch.Tensor]
-"""Each leaf kernel's embedding of some points, by the leaf's id."""
-
-
-def embeddings(kernel: Kernel, x: torch.Tensor) -> Embeddings:
-    """The embeddings of x under every leaf kernel of ``design_kernel``'s kernel."""
-    return {
-        id(leaf): leaf.embed(x)
-        for leaf in kernel.modules()
-        if isinstance(leaf, SpecKernel | StructureKernel)
-    }
-
-
-def dense_covariance(
-    kernel: Kernel, e1: Embeddings, e2: Embeddings, *, diag: bool = False
-) -> torch.Tensor:
-    """The covariance of two embedded point sets, computed directly: the acquisition is
-    evaluated hundreds of times per ask, and gpytorch's lazy kernel machinery (and
-    computing a shared leaf twice, or re-embedding the training points) costs more
-    than these small matrices."""
-    leaves: dict[int, torch.Tensor] = {}
-
-    def walk(node: Kernel) -> torch.Tensor:
-        if isinstance(node, SpecKernel | StructureKernel):
-            key = id(node)
-            if key not in leaves:
-                leaves[key] = node.from_embeddings(e1[key], e2[key], diag=diag)
-            return leaves[key]
-        if isinstance(node, ScaleKernel):
-            return node.outputscale * walk(node.base_kernel)
-        if isinstance(node, ProductKernel | AdditiveKernel):
-            parts = [walk(part) for part in node.kernels]
-            result = parts[0]
-            for part in parts[1:]:
-                result = result * part if isinstance(node, ProductKernel) else result + part
-            return result
-        raise TypeError(f"no direct covariance for {type(node).__name__}")
-
-    return walk(kernel)
+) -> DesignKernel:
+    """The model's covariance (see the module docstring)."""
+    spec = SpecKernel(SpecFeatures(search, spec_dim, **tkw), rbf=kernel == "rbf")
+    structure = None
+    if search is not None and search.n_structures > 1:
+        structure = StructureKernel(torch.as_tensor(search.structure_coords, **tkw))  # type: ignore[arg-type]
+    return DesignKernel(spec, structure).to(**tkw)
 
 
 class Posterior:
@@ -228,7 +229,7 @@ class Posterior:
 
     def __init__(self, model: object, believers: torch.Tensor | None = None) -> None:
         with torch.no_grad():
-            self.kernel: Kernel = model.covar_module  # type: ignore[attr-defined]
+            self.kernel: DesignKernel = model.covar_module  # type: ignore[attr-defined]
             train = model.train_inputs[0]  # type: ignore[attr-defined]
             targets = model.train_targets  # type: ignore[attr-defined]
             self.constant = model.mean_module.constant.reshape(())  # type: ignore[attr-defined]
@@ -249,19 +250,19 @@ class Posterior:
                 )
 
     def _factor(self, points: torch.Tensor, targets: torch.Tensor, noise: torch.Tensor) -> None:
-        self.embedded = embeddings(self.kernel, points)
-        K = dense_covariance(self.kernel, self.embedded, self.embedded) + torch.diag(noise)
+        self.embedded = self.kernel.embed(points)
+        K = self.kernel.from_embeddings(self.embedded, self.embedded) + torch.diag(noise)
         self.cholesky = torch.linalg.cholesky(K)
         residual = (targets - self.constant).unsqueeze(-1)
         self.alpha = torch.cholesky_solve(residual, self.cholesky).squeeze(-1)
 
     def mean_sigma(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and standard deviation at the rows of X (b x D)."""
-        embedded = embeddings(self.kernel, X)
-        cross = dense_covariance(self.kernel, embedded, self.embedded)
+        embedded = self.kernel.embed(X)
+        cross = self.kernel.from_embeddings(embedded, self.embedded)
         mean = self.constant + cross @ self.alpha
         solved = torch.linalg.solve_triangular(self.cholesky, cross.T, upper=False)
-        prior = dense_covariance(self.kernel, embedded, embedded, diag=True)
+        prior = self.kernel.from_embeddings(embedded, embedded, diag=True)
         variance = (prior - (solved**2).sum(0)).clamp_min(1e-12)
         return self.offset + self.scale * mean, self.scale * variance.sqrt()
 

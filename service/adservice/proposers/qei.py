@@ -1,23 +1,38 @@
 """Batch log expected improvement on a Gaussian process: the default proposer.
 
-The method of the preprint (section 1 of DESIGN.md): the first ``n_initial`` trials
-of a study are points of its seeded scrambled Sobol sequence; after that a BoTorch
-``SingleTaskGP`` (inputs scaled to the unit box by the search bounds, outcomes
-standardised, hyperparameters fitted by maximum marginal likelihood) scores
-candidates with qLogEI, or qLogNEI when the study's scores are noisy, and
-``optimize_acqf`` returns a joint batch of ``count`` candidates.
+The method of the preprint (section 1 of DESIGN.md), with the model and acquisition
+of DESIGN.md section 2a: the first ``n_initial`` trials of a study are points of its
+seeded scrambled Sobol sequence; after that a BoTorch ``SingleTaskGP`` (outcomes
+standardised, hyperparameters fitted by maximum a posteriori marginal likelihood)
+with the covariance of ``gpmodel.design_kernel`` scores candidates with analytic
+LogEI, and ``acquisition.maximise`` finds the best one with the structure held
+discrete. A batch of ``count`` is chosen greedily: each candidate joins the pending
+points of the next.
+
+The model's input is ``[structure index, specs]`` (``base.model_inputs``): a box's
+coordinates scaled to the unit box, a design space's normalised specs with the
+slots a structure does not use at the pad value. With several structures (the
+``mixed`` representation) the kernel relates them through their places in the fused
+geometry; joint axes enter as unit vectors. The preprint's ``fused`` and the
+``onehot`` representations are searched as plain boxes.
 
 Decisions worth knowing:
 
+- Acquisition (``options["acquisition"]``): ``analytic`` (default) is LogEI on the
+  posterior computed directly (``gpmodel.Posterior``), with pending points as
+  Kriging believers (the model conditioned on its own mean there) and, for a noisy
+  study, the best posterior mean at the observed points as the incumbent. ``mc`` is
+  BoTorch's Monte Carlo qLogEI (qLogNEI when noisy) with the pending points, also
+  greedy; it costs several times more per ask.
 - Noise: a noisy study gets BoTorch's default inferred noise (LogNormal prior,
-  floor 1e-4 of the standardised variance) and qLogNEI. A noise-free study still
+  floor 1e-4 of the standardised variance). A noise-free study still
   infers its noise, but with no prior and a floor of 1e-6: with the 1e-4 floor
   the GP cannot resolve the last per-cent of a function with a wide range (on
   Branin qei then missed the 1% target in 2 of 3 runs; with the low floor it
   reached it in 23-28 evaluations). ``options["noise"]`` may choose ``"inferred"``,
   ``"floor"`` or ``"fixed"`` (1e-6, as Optuna's deterministic GP);
-  ``options["kernel"]`` ``"rbf"`` (BoTorch's default, dimension-scaled prior),
-  ``"matern"`` (same prior) or ``"matern-gamma"`` (BoTorch's older Gamma priors).
+  ``options["kernel"]`` ``"rbf"`` (BoTorch's default, dimension-scaled prior) or
+  ``"matern"`` (Matern-5/2, same prior) for the spec kernel.
 
 - Failed trials are *excluded* from the GP (a crashed simulation says nothing
   about the score surface), and enter the acquisition as pending points, so that
@@ -35,7 +50,7 @@ Decisions worth knowing:
   restarts and any random re-start of the fit are seeded from
   ``(seed, n_issued)``, under a process-wide lock so concurrent asks cannot
   disturb each other's random streams.
-- Speed: restarts and raw samples grow with d and q (``options`` may override
+- Speed: restarts and raw samples grow with d (``options`` may override
   ``num_restarts``, ``raw_samples``, ``maxiter``; with only ``raw_samples`` given,
   the restarts are at most that many). Fitted hyperparameters are kept
   in two small in-process LRU caches: by a digest of the exact training data (an
@@ -134,7 +149,7 @@ class QEIOptions(ProposerOptions):
     noise: Literal["inferred", "floor", "fixed"] | None = Field(
         default=None, description="Default: inferred for a noisy study, else floor"
     )
-    kernel: Literal["rbf", "matern", "matern-gamma"] = "rbf"
+    kernel: Literal["rbf", "matern"] = "rbf"
     num_restarts: int | None = Field(
         default=None, ge=1, le=128, description="Default: grows with d and q (4 to 24)"
     )
@@ -512,13 +527,11 @@ def _structure_correlation(model: Any, search: SearchStructure, tkw: dict[str, A
     one-hot encoding's assumption, 1 a structure-blind model."""
     import torch
 
-    from adservice.proposers.gpmodel import dense_covariance, embeddings
-
     count = search.n_structures
     Z = np.column_stack([np.arange(count), np.full((count, search.spec_dim), search.pad)])
     with torch.no_grad():
-        embedded = embeddings(model.covar_module, torch.as_tensor(Z, **tkw))
-        K = dense_covariance(model.covar_module, embedded, embedded).cpu().numpy()
+        points = torch.as_tensor(Z, **tkw)
+        K = model.covar_module(points, points).to_dense().cpu().numpy()
     scale = np.sqrt(np.diag(K))
     correlation = K / np.outer(scale, scale)
     return round(float(correlation[~np.eye(count, dtype=bool)].mean()), 6)
@@ -534,13 +547,9 @@ def _layout_key(search: SearchStructure | None) -> bytes:
     return b"".join([search.structure_coords.tobytes(), search.used.tobytes(), axes.encode()])
 
 
-def _structure_lengthscale(model: Any) -> float | None:
-    from adservice.proposers.gpmodel import StructureKernel
-
-    for module in model.covar_module.modules():
-        if isinstance(module, StructureKernel):
-            return round(float(module.lengthscale.detach().cpu().reshape(-1)[0]), 6)
-    return None
+def _structure_lengthscale(model: Any) -> float:
+    structure = model.covar_module.structure
+    return round(float(structure.lengthscale.detach().cpu().reshape(-1)[0]), 6)
 
 
 def _nearest_distance(points: np.ndarray, point: np.ndarray) -> float:
