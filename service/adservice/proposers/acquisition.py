@@ -2,11 +2,13 @@
 the specs continuous (model inputs ``z = [structure index, u]``, see ``gpmodel``).
 
 1. Raw samples: scrambled Sobol spec vectors, dealt round-robin to the structures,
-   plus the best observed designs and small perturbations of them (the local
-   search of Optuna's GPSampler); every point canonical (unused slots at the pad).
-2. Starts: the best raw samples; with at most ``ENUMERATE_LIMIT`` structures, the
-   best raw sample of every structure and the best few overall, so each structure
-   is optimised.
+   every point canonical (unused slots at the pad).
+2. Starts (as Optuna's GPSampler and BoTorch's initialiser choose them): the best
+   raw sample, the best observed designs (``INCUMBENTS``), and raw samples drawn
+   with probability proportional to their acquisition value (a roulette wheel on
+   exp(log EI - max)), so some starts explore other basins; with at most
+   ``ENUMERATE_LIMIT`` structures, also the best raw sample of every structure, so
+   each structure is optimised.
 3. Continuous step: L-BFGS-B on the used specs of every start at once, the
    structure fixed (unused slots are pinned by equal bounds).
 4. Discrete step: each optimised point tries every structure with its specs; a
@@ -29,10 +31,7 @@ from threadpoolctl import threadpool_limits
 ENUMERATE_LIMIT = 16
 """With this many structures or fewer, every structure gets a start of its own."""
 DISCRETE_ROUNDS = 2
-INCUMBENTS = 3
-PERTURBATIONS = 12
-"""Perturbed copies of each incumbent among the raw samples (half at each scale)."""
-PERTURBATION_SCALES = (0.02, 0.1)
+INCUMBENTS = 1
 _CHUNK = 1024
 
 
@@ -74,10 +73,9 @@ def _evaluate(acqf: Acquisition, Z: np.ndarray, tkw: dict) -> np.ndarray:
     return np.where(np.isfinite(out), out, -np.inf)
 
 
-def raw_samples(domain: MixedDomain, count: int, seed: int, incumbents: np.ndarray) -> np.ndarray:
-    """Sobol points dealt to the structures, plus incumbents and their perturbations."""
+def raw_samples(domain: MixedDomain, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Sobol spec vectors dealt round-robin to the structures, canonical."""
     p = domain.used.shape[1]
-    rng = np.random.default_rng(seed)
     if p:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # counts not a power of two
@@ -85,14 +83,27 @@ def raw_samples(domain: MixedDomain, count: int, seed: int, incumbents: np.ndarr
     else:
         specs = np.zeros((count, 0))
     index = (np.arange(count) + rng.integers(domain.n_structures)) % domain.n_structures
-    points = [np.column_stack([index, specs])]
-    for z in incumbents[:INCUMBENTS]:
-        for scale in PERTURBATION_SCALES:
-            noise = rng.normal(0.0, scale, size=(PERTURBATIONS // 2, p))
-            moved = np.clip(z[1:] + noise, 0.0, 1.0)
-            points.append(np.column_stack([np.full(len(moved), z[0]), moved]))
-        points.append(z[None, :])
-    return domain.canonical(np.concatenate(points, axis=0))
+    return domain.canonical(np.column_stack([index, specs]))
+
+
+def starts(
+    raw: np.ndarray, values: np.ndarray, count: int, rng: np.random.Generator, enumerate_all: bool
+) -> list[int]:
+    """Indices of the raw samples to start from (see the module docstring)."""
+    best = int(np.argmax(values))
+    chosen = [best]
+    if enumerate_all:
+        structure = raw[:, 0].astype(np.int64)
+        order = np.argsort(-values, kind="stable")
+        for s in np.unique(structure):
+            chosen.append(int(order[structure[order] == s][0]))
+    weights = np.exp(np.where(np.isfinite(values), values - values[best], -np.inf))
+    weights[chosen] = 0.0
+    extra = min(count - len(chosen), int(np.count_nonzero(weights > 0)))
+    if extra > 0:
+        picked = rng.choice(len(raw), size=extra, replace=False, p=weights / weights.sum())
+        chosen += [int(i) for i in picked]
+    return list(dict.fromkeys(chosen))
 
 
 def _local(
@@ -142,20 +153,13 @@ def maximise(
     tkw: dict,
 ) -> Optimum:
     """The best point found (see the module docstring)."""
-    raw = raw_samples(domain, raw_count, seed, incumbents)
-    values = _evaluate(acqf, raw, tkw)
-    order = np.argsort(-values, kind="stable")
+    rng = np.random.default_rng(seed)
     S = domain.n_structures
-    enumerate_all = 1 < S <= ENUMERATE_LIMIT
-    chosen = list(order[: max(num_restarts - S, 2) if enumerate_all else num_restarts])
-    if enumerate_all:
-        structure = raw[:, 0].astype(np.int64)
-        for s in range(S):
-            members = order[structure[order] == s]
-            if len(members):
-                chosen.append(members[0])
-    chosen = list(dict.fromkeys(int(i) for i in chosen))
-    points, values = _local(acqf, domain, raw[chosen], maxiter, tkw)
+    raw = raw_samples(domain, raw_count, rng)
+    values = _evaluate(acqf, raw, tkw)
+    chosen = starts(raw, values, num_restarts, rng, 1 < S <= ENUMERATE_LIMIT)
+    initial = np.concatenate([raw[chosen], domain.canonical(incumbents[:INCUMBENTS])])
+    points, values = _local(acqf, domain, initial, maxiter, tkw)
     switched = 0
     for _ in range(DISCRETE_ROUNDS if S > 1 else 0):
         variants = np.repeat(points, S, axis=0)
@@ -171,5 +175,5 @@ def maximise(
         points[better], values[better] = _local(acqf, domain, moved, maxiter, tkw)
     top = int(np.argmax(values))
     return Optimum(
-        z=points[top], value=float(values[top]), n_starts=len(chosen), structures_switched=switched
+        z=points[top], value=float(values[top]), n_starts=len(initial), structures_switched=switched
     )

@@ -31,8 +31,9 @@ Decisions worth knowing:
   Branin qei then missed the 1% target in 2 of 3 runs; with the low floor it
   reached it in 23-28 evaluations). ``options["noise"]`` may choose ``"inferred"``,
   ``"floor"`` or ``"fixed"`` (1e-6, as Optuna's deterministic GP);
-  ``options["kernel"]`` ``"rbf"`` (BoTorch's default, dimension-scaled prior) or
-  ``"matern"`` (Matern-5/2, same prior) for the spec kernel.
+  ``options["kernel"]`` ``"matern"`` (Matern-5/2, the default: on Hartmann6 it
+  reached the 1% target in 6 of 10 seeds where the RBF reached it in 4 of 9) or
+  ``"rbf"``, both with BoTorch's dimension-scaled length-scale prior.
 
 - Failed trials are *excluded* from the GP (a crashed simulation says nothing
   about the score surface), and enter the acquisition as pending points, so that
@@ -50,9 +51,10 @@ Decisions worth knowing:
   restarts and any random re-start of the fit are seeded from
   ``(seed, n_issued)``, under a process-wide lock so concurrent asks cannot
   disturb each other's random streams.
-- Speed: restarts and raw samples grow with d (``options`` may override
-  ``num_restarts``, ``raw_samples``, ``maxiter``; with only ``raw_samples`` given,
-  the restarts are at most that many). Fitted hyperparameters are kept
+- Acquisition optimisation: as GPSampler, 2048 Sobol points and 10 local searches
+  (L-BFGS-B) per candidate (``options`` may override ``num_restarts``,
+  ``raw_samples``, ``maxiter``; with only ``raw_samples`` given, the restarts are at
+  most that many); see ``acquisition``. Fitted hyperparameters are kept
   in two small in-process LRU caches: by a digest of the exact training data (an
   identical request re-uses the exact fit, so it gives bit-identical candidates),
   and by the study's identity ``(bounds, seed, n_initial, noisy)`` (the next ask of
@@ -136,11 +138,10 @@ def _n_distinct(unit: np.ndarray) -> int:
     return len(np.unique(keys, axis=0))
 
 
-def default_sizes(dim: int) -> tuple[int, int]:
-    """(num_restarts, raw_samples) for one candidate over d continuous coordinates."""
-    num_restarts = min(4 + dim // 2, 12)
-    raw_samples = min(256 + 32 * dim, 2048)
-    return num_restarts, raw_samples
+DEFAULT_RESTARTS = 10
+"""Local searches per candidate (GPSampler's n_local_search)."""
+DEFAULT_RAW_SAMPLES = 2048
+"""Sobol points the starts are chosen from (GPSampler's n_preliminary_samples)."""
 
 
 class QEIOptions(ProposerOptions):
@@ -149,16 +150,19 @@ class QEIOptions(ProposerOptions):
     noise: Literal["inferred", "floor", "fixed"] | None = Field(
         default=None, description="Default: inferred for a noisy study, else floor"
     )
-    kernel: Literal["rbf", "matern"] = "rbf"
+    kernel: Literal["rbf", "matern"] = "matern"
     num_restarts: int | None = Field(
-        default=None, ge=1, le=128, description="Default: grows with d and q (4 to 24)"
+        default=None, ge=1, le=128, description="Local searches per candidate. Default: 10"
     )
     raw_samples: int | None = Field(
-        default=None, ge=1, le=16_384, description="Default: grows with d and q (160 to 2048)"
+        default=None,
+        ge=1,
+        le=16_384,
+        description="Sobol points the starts come from. Default: 2048",
     )
     maxiter: int = Field(default=100, ge=1, le=10_000)
     mc_samples: int | None = Field(
-        default=None, ge=1, le=4096, description="Default: 128, or 256 for a batch"
+        default=None, ge=1, le=4096, description="acquisition: mc only. Default: 128"
     )
     acquisition: Literal["analytic", "mc"] = Field(
         default="analytic",
@@ -413,12 +417,11 @@ class QLogEIProposer:
         model.eval()
         fit_seconds = time.perf_counter() - started
 
-        default_restarts, default_raw = default_sizes(spec_dim)
         if options.num_restarts is not None:
             num_restarts = options.num_restarts
         else:
-            num_restarts = min(default_restarts, options.raw_samples or default_restarts)
-        raw_count = options.raw_samples or max(default_raw, num_restarts)
+            num_restarts = min(DEFAULT_RESTARTS, options.raw_samples or DEFAULT_RESTARTS)
+        raw_count = options.raw_samples or max(DEFAULT_RAW_SAMPLES, num_restarts)
         mc_samples = options.mc_samples or 128
         domain = MixedDomain(
             used=search.used if search is not None else np.ones((1, spec_dim), dtype=bool),
