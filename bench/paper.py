@@ -13,9 +13,11 @@ task's example study (``examples/*.yaml``) with its proposer, proposer seed, tas
 learner and budget replaced. Studies run one at a time, so each has both workers.
 
 Grid: tasks stand-up, diagonal-gesture, lift-highest (the multi-structure example:
-six candidate trees, fused representation); methods qei (the service's default),
-nelder-mead, tpe, random, plus ``qei-onehot`` on lift-highest (the same qei study on
-the plain encoding: ``encoding: onehot``, structure one-hot + specs); seeds 0..N-1
+six candidate trees); methods qei (the preprint's method: qei on the fused
+encoding, the default until issue 12), nelder-mead, tpe, random, plus ``qei-onehot``
+on lift-highest (the same qei study on the plain encoding: ``encoding: onehot``,
+structure one-hot + specs) and ``qei-mixed``, today's default, run from a later
+commit with ``--code`` (``bench/paper.py --methods qei-mixed --code HEAD``); seeds 0..N-1
 (the proposer's seed and the task's seed both = the seed). Budgets: 15 evaluations
 for qei (the preprint's setting and the goal's), 30 for the baselines so their
 evaluations-to-target can be counted past 15 (success within 15 is reported for
@@ -62,8 +64,12 @@ METHODS: dict[str, tuple[str, str]] = {
     "tpe": ("tpe", "fused"),
     "random": ("random", "fused"),
     "qei-onehot": ("qei", "onehot"),
+    "qei-mixed": ("qei", "mixed"),
 }
-"""Method -> (proposer, encoding). The encoding matters only for multi-structure tasks."""
+"""Method -> (proposer, encoding). The encoding matters only for multi-structure tasks.
+``qei-mixed`` is the current default (issue 12: the mixed encoding, the structure
+kernel, axis features and GPSampler-style acquisition), measured from a later commit
+(``--code``) whose tasks and learners are the pinned ones."""
 PLAIN_ONLY_MULTI = {"qei-onehot"}
 MODEL_BUDGET = 15
 BASELINE_BUDGET = 30
@@ -138,7 +144,7 @@ def study_create(
     body["task"] = {**body["task"], "learner": cell.learner, "seed": cell.seed}
     if train_steps is not None:
         body["task"]["train_steps"] = train_steps
-    if encoding != "fused":
+    if _structures(cell.task) > 1:
         body["space"]["encoding"] = encoding
     body["space"].update(space or {})
     body["max_trials"] = cell.budget
@@ -330,7 +336,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     console = Console()
-    code, _ = use_snapshot(quick=args.quick)
+    code, _ = use_snapshot(quick=args.quick, ref=args.code)
     from adclient.client import Client
 
     learner = args.learner
@@ -401,7 +407,10 @@ def main(argv: list[str] | None = None) -> int:
         "--tasks", type=lambda s: s.split(","), default=list(TASKS), help="comma-separated"
     )
     parser.add_argument(
-        "--methods", type=lambda s: s.split(","), default=list(METHODS), help="comma-separated"
+        "--methods",
+        type=lambda s: s.split(","),
+        default=[m for m in METHODS if m != "qei-mixed"],
+        help="comma-separated (qei-mixed needs --code)",
     )
     parser.add_argument("--budget", type=int, default=MODEL_BUDGET, help="qei's evaluations")
     parser.add_argument(
@@ -423,6 +432,11 @@ def main(argv: list[str] | None = None) -> int:
         help="with --tag only: set a space option (YAML value), e.g. --tag d30 "
         "--space embedding_max_dim=30; repeatable",
     )
+    parser.add_argument(
+        "--code",
+        help="run this commit instead of the pinned one (refused if workers/ differs), "
+        "e.g. --methods qei-mixed --code HEAD",
+    )
     parser.add_argument("--workers", type=int, default=2, help="adworker --concurrency")
     parser.add_argument("--quick", action="store_true", help="smoke run: 1 seed, 5 evaluations")
     parser.add_argument("--report", action="store_true", help="only rewrite tables and plots")
@@ -433,6 +447,8 @@ def main(argv: list[str] | None = None) -> int:
     for method in args.methods:
         if method not in METHODS:
             parser.error(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    if "qei-mixed" in args.methods and not args.code and not args.quick:
+        parser.error("qei-mixed needs --code: a commit with the mixed encoding, e.g. HEAD")
     if args.tag and not re.fullmatch(r"[a-z0-9]+", args.tag):
         parser.error("--tag: lower-case letters and digits only")
     if args.space and not args.tag:

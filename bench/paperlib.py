@@ -147,17 +147,28 @@ def snapshot_paths(root: Path) -> list[str]:
     return [str(root / "client"), str(root / "service"), str(root / "workers")]
 
 
-def use_snapshot(quick: bool = False) -> tuple[str, Path]:
-    """Put the pinned code first on this process's path (and its children's PYTHONPATH).
+def use_snapshot(quick: bool = False, ref: str | None = None) -> tuple[str, Path]:
+    """Put the pinned code (or the commit ``ref``) first on this process's path (and its
+    children's PYTHONPATH).
 
     Call before importing adclient/adservice/adworker. ``quick`` runs use the working
     tree as it is (smoke runs only).
     """
+    import subprocess
     import sys
 
     if quick:
         return "working-tree", REPO
     sha = code_ref()
+    if ref is not None:
+        newer = subprocess.run(
+            ["git", "rev-parse", ref], cwd=REPO, check=True, capture_output=True, text=True
+        ).stdout.strip()
+        # the tasks and learners must be those the best-known scores were measured with
+        changed = subprocess.run(["git", "diff", "--quiet", sha, newer, "--", "workers"], cwd=REPO)
+        if changed.returncode != 0:
+            raise SystemExit(f"workers/ differs between the pinned {sha[:12]} and {ref}")
+        sha = newer
     root = snapshot(sha)
     paths = snapshot_paths(root)
     sys.path[:0] = paths
