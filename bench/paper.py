@@ -336,10 +336,15 @@ def run(args: argparse.Namespace) -> int:
     )
 
     console = Console()
-    code, _ = use_snapshot(quick=args.quick, ref=args.code)
+    learner = args.learner
+    workers_checked = False
+    if args.code and learner == "fast":
+        # the fast learner's scores must be the pinned code's: re-score stored designs
+        check = subprocess.run([sys.executable, str(REPO / "bench" / "fast_scores_check.py")])
+        workers_checked = check.returncode == 0
+    code, _ = use_snapshot(quick=args.quick, ref=args.code, workers_checked=workers_checked)
     from adclient.client import Client
 
-    learner = args.learner
     seeds = args.seeds or DEFAULT_SEEDS.get(learner, RL_SEEDS)
     model_budget, baseline_budget = args.budget, args.baseline_budget
     if args.quick:
