@@ -640,14 +640,18 @@ def search_structure(space: DesignSpace, representation: Representation) -> Sear
             continue
         lower = space.joint_spec(instance.name, "lower")
         upper = space.joint_spec(instance.name, "upper")
-        symmetric = not isinstance(lower, Bound) and not isinstance(upper, Bound)
+        symmetric = (
+            not isinstance(lower, Bound)
+            and not isinstance(upper, Bound)
+            and math.isclose(lower, -upper)
+        )
         axes.append(
             AxisColumns(
                 theta=column.get(theta_key, -1),
                 phi=column.get(phi_key, -1),
                 theta_fixed=layout.fixed.get(theta_key, 0.0),
                 phi_fixed=layout.fixed.get(phi_key, 0.0),
-                sign_invariant=symmetric and math.isclose(float(lower), -float(upper)),
+                sign_invariant=symmetric,
             )
         )
     return SearchStructure(

@@ -10,7 +10,7 @@ the specs continuous (model inputs ``z = [structure index, u]``, see ``gpmodel``
    ``ENUMERATE_LIMIT`` structures, also the best raw sample of every structure, so
    each structure is optimised.
 3. Continuous step: L-BFGS-B on the used specs of every start at once, the
-   structure fixed (unused slots are pinned by equal bounds).
+   structure fixed (unused slots stay at the pad, out of the optimiser's vector).
 4. Discrete step: each optimised point tries every structure with its specs; a
    start that gains by switching is optimised again (``DISCRETE_ROUNDS`` times at
    most). This is what finds good structures among many (``structures: all``).
@@ -32,6 +32,7 @@ ENUMERATE_LIMIT = 16
 """With this many structures or fewer, every structure gets a start of its own."""
 DISCRETE_ROUNDS = 2
 INCUMBENTS = 1
+"""Best observed designs started from directly."""
 _CHUNK = 1024
 
 
@@ -59,7 +60,6 @@ Acquisition = Callable[[torch.Tensor], torch.Tensor]
 class Optimum:
     z: np.ndarray
     value: float
-    n_starts: int
     structures_switched: int
 
 
@@ -174,6 +174,4 @@ def maximise(
         moved = variants.reshape(len(points), S, -1)[better, best[better]]
         points[better], values[better] = _local(acqf, domain, moved, maxiter, tkw)
     top = int(np.argmax(values))
-    return Optimum(
-        z=points[top], value=float(values[top]), n_starts=len(initial), structures_switched=switched
-    )
+    return Optimum(z=points[top], value=float(values[top]), structures_switched=switched)
