@@ -31,7 +31,9 @@ from tests.servers import free_port
 SUPERUSER = "postgres"
 UNPRIVILEGED_USER = "nobody"  # initdb and postgres refuse to run as root
 PREFIX = "activedesign-pg-"
-INSTALL_LOCK = Path(tempfile.gettempdir()) / "activedesign-postgresql-install.lock"
+INSTALL_LOCK = Path(tempfile.gettempdir()) / "activedesign-apt-install.lock"
+"""Held around every apt-get the tests run (PostgreSQL here, Chromium in the browser
+fixture): two at once make apt's own lock fail the second."""
 
 
 class PostgresUnavailable(RuntimeError):

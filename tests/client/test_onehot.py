@@ -54,16 +54,20 @@ def test_onehot_needs_several_structures() -> None:
 
 @settings(max_examples=10, deadline=None)
 @given(single_structure_spaces())
-def test_encoding_defaults_to_fused(body: dict[str, Any]) -> None:
-    assert DesignSpace.model_validate(body).encoding == "fused"
+def test_encoding_defaults_to_mixed(body: dict[str, Any]) -> None:
+    assert DesignSpace.model_validate(body).encoding == "mixed"
 
 
 def test_service_builds_the_encoding_the_space_names() -> None:
     representation_module = pytest.importorskip("adservice.representation")
     body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())["space"]
-    fused = representation_module.build_representation(DesignSpace.model_validate(body))
+    mixed = representation_module.build_representation(DesignSpace.model_validate(body))
+    fused = representation_module.build_representation(
+        DesignSpace.model_validate({**body, "encoding": "fused"})
+    )
     plain = representation_module.build_representation(_onehot(body))
     single = yaml.safe_load((EXAMPLES / "stand-up.yaml").read_text())["space"]
+    assert mixed.kind == "mixed"
     assert fused.kind == "fused"
     assert plain.kind == "onehot"
     # 6 structures + 8 joint-axis specs (b..e, theta and phi each)

@@ -7,6 +7,7 @@ uncaught page exceptions and console errors so a test can assert there were none
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import shutil
@@ -17,6 +18,8 @@ from typing import Any
 
 import httpx
 from websockets.sync.client import ClientConnection, connect
+
+from tests.postgres import INSTALL_LOCK
 
 
 class PageError(AssertionError):
@@ -34,8 +37,13 @@ def find_or_install_chromium() -> str | None:
         return None
     sudo = [] if os.geteuid() == 0 or shutil.which("sudo") is None else ["sudo", "-n"]
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    subprocess.run([*sudo, apt, "update", "-qq"], check=True, env=env)
-    subprocess.run([*sudo, apt, "install", "-y", "-qq", "chromium"], check=True, env=env)
+    # one apt-get at a time: the PostgreSQL fixture of another test process may be
+    # installing too, and apt's own lock makes the second one fail (exit 100)
+    with INSTALL_LOCK.open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if shutil.which("chromium") is None:
+            subprocess.run([*sudo, apt, "update", "-qq"], check=True, env=env)
+            subprocess.run([*sudo, apt, "install", "-y", "-qq", "chromium"], check=True, env=env)
     found = shutil.which("chromium")
     if found is None:
         raise RuntimeError("apt-get installed chromium but no `chromium` is on PATH")

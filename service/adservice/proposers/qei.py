@@ -57,8 +57,10 @@ Decisions worth knowing:
   most that many); see ``acquisition``. Fitted hyperparameters are kept
   in two small in-process LRU caches: by a digest of the exact training data (an
   identical request re-uses the exact fit, so it gives bit-identical candidates),
-  and by the study's identity ``(bounds, seed, n_initial, noisy)`` (the next ask of
-  the same study warm-starts its fit from the previous optimum). A server that
+  and by the study's identity (bounds, layout, seed, n_initial, noise, kernel and its
+  first two observations: the next ask of the same study warm-starts its fit from the
+  previous optimum, and another study of the same box never does, since a fit
+  started from another function's optimum can stop in a worse local optimum). A server that
   restarts loses the caches; its next fit starts cold and converges to the same
   optimum up to the optimiser's tolerance, so candidates agree closely but are
   not guaranteed bit-identical to those of the server that warm-started. Set
@@ -393,6 +395,9 @@ class QLogEIProposer:
             request.n_initial,
             noise_mode,
             kernel,
+            # the first observations: two studies of one box and seed are not one study
+            X[:2].tobytes(),
+            y[:2].tobytes(),
         )
         use_warm = options.warm_start
 
