@@ -257,8 +257,8 @@ class QLogEIProposer:
         usable = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
         X, y = X[usable], y[usable]
         n_dropped = int((~usable).sum())
-        unit_X = model_inputs(X, bounds, request.structure)
-        n_distinct = _n_distinct(unit_X)
+        observed_Z = model_inputs(X, bounds, request.structure)
+        n_distinct = _n_distinct(observed_Z)
         if n_distinct < 2:
             return self._fallback(
                 request, bounds, first, q, f"fewer than 2 distinct observed points ({n_distinct})"
@@ -300,15 +300,15 @@ class QLogEIProposer:
             extra["duplicate_points"] = len(y) - n_distinct
         methods = extra.pop("methods")
         infos: list[dict[str, Any]] = []
-        unit_rows = model_inputs(rows, bounds, request.structure)
-        taken = [unit_X, model_inputs(X_pending, bounds, request.structure)]
+        rows_Z = model_inputs(rows, bounds, request.structure)
+        taken = [observed_Z, model_inputs(X_pending, bounds, request.structure)]
         taken = taken if not request.noisy else []
         sobol_rows, sobol_info = self._fallback(request, bounds, first, q, "duplicate candidate")
         for i in range(q):
-            stack = np.concatenate([*taken, unit_rows[:i]], axis=0)
-            if _nearest_distance(stack, unit_rows[i]) < _DUPLICATE_CANDIDATE_TOL:
+            stack = np.concatenate([*taken, rows_Z[:i]], axis=0)
+            if _nearest_distance(stack, rows_Z[i]) < _DUPLICATE_CANDIDATE_TOL:
                 rows[i] = sobol_rows[i]
-                unit_rows[i] = model_inputs(sobol_rows[i], bounds, request.structure)[0]
+                rows_Z[i] = model_inputs(sobol_rows[i], bounds, request.structure)[0]
                 infos.append({**sobol_info[i], **extra, "method": "sobol-fallback"})
             else:
                 infos.append({"proposer": self.name, **extra, "method": methods[i]})
