@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
+import numpy as np
 import torch
 from gpytorch.constraints import GreaterThan
 from gpytorch.kernels import Kernel
@@ -278,3 +280,38 @@ def log_expected_improvement(
         return _log_ei_helper((mean - best_f) / sigma) + sigma.log()
 
     return acquisition
+
+
+def analytic_acquisition(
+    model: Any, train_Z: torch.Tensor, y: np.ndarray, pending: torch.Tensor | None, noisy: bool
+) -> tuple[Any, str]:
+    """Analytic LogEI, with pending points as Kriging believers (``Posterior``)
+    and, for a noisy study, the best posterior mean at the observed points as the
+    incumbent. A believed value above the incumbent becomes the incumbent: otherwise
+    the model would see a sure improvement at (and next to) a pending point."""
+    posterior = Posterior(model)
+    best_f = float(posterior.mean_sigma(train_Z)[0].max()) if noisy else float(y.max())
+    if pending is not None:
+        posterior = Posterior(model, believers=pending)
+        best_f = max(best_f, float(posterior.beliefs.max()))
+    method = "LogEI" if pending is None else "LogEI-believer"
+    return log_expected_improvement(posterior, best_f), method
+
+
+def structure_correlation(model: Any, search: SearchStructure, tkw: dict[str, Any]) -> float:
+    """How alike the fitted model holds the structures: the mean correlation between
+    two structures' designs with the same specs (all at the pad value); 0 is the
+    one-hot encoding's assumption, 1 a structure-blind model."""
+    count = search.n_structures
+    Z = np.column_stack([np.arange(count), np.full((count, search.spec_dim), search.pad)])
+    with torch.no_grad():
+        points = torch.as_tensor(Z, **tkw)
+        K = model.covar_module(points, points).to_dense().cpu().numpy()
+    scale = np.sqrt(np.diag(K))
+    correlation = K / np.outer(scale, scale)
+    return round(float(correlation[~np.eye(count, dtype=bool)].mean()), 6)
+
+
+def structure_lengthscale(model: Any) -> float:
+    structure = model.covar_module.structure
+    return round(float(structure.lengthscale.detach().cpu().reshape(-1)[0]), 6)

@@ -337,7 +337,12 @@ class QLogEIProposer:
         from gpytorch.mlls import ExactMarginalLogLikelihood
 
         from adservice.proposers.acquisition import MixedDomain, maximise
-        from adservice.proposers.gpmodel import design_kernel
+        from adservice.proposers.gpmodel import (
+            analytic_acquisition,
+            design_kernel,
+            structure_correlation,
+            structure_lengthscale,
+        )
 
         if torch.get_num_threads() != _TORCH_THREADS:
             torch.set_num_threads(_TORCH_THREADS)
@@ -446,7 +451,7 @@ class QLogEIProposer:
             acqf: Any
             with manual_seed(step_seed):
                 if options.acquisition == "analytic":
-                    acqf, method = _analytic(model, train_Z, y, pending_t, request.noisy)
+                    acqf, method = analytic_acquisition(model, train_Z, y, pending_t, request.noisy)
                 else:
                     sampler = SobolQMCNormalSampler(
                         sample_shape=torch.Size([mc_samples]), seed=step_seed
@@ -494,8 +499,8 @@ class QLogEIProposer:
             "device": device.type,
         }
         if search is not None and search.n_structures > 1:
-            extra["structure_lengthscale"] = _structure_lengthscale(model)
-            extra["structure_correlation"] = _structure_correlation(model, search, tkw)
+            extra["structure_lengthscale"] = structure_lengthscale(model)
+            extra["structure_correlation"] = structure_correlation(model, search, tkw)
             extra["structures_switched"] = switched
         return rows_np, extra
 
@@ -511,40 +516,6 @@ def _canonical(candidates: np.ndarray, bounds: np.ndarray, request: ProposalRequ
     )
 
 
-def _analytic(
-    model: Any, train_Z: torch.Tensor, y: np.ndarray, pending: torch.Tensor | None, noisy: bool
-) -> tuple[Any, str]:
-    """Analytic LogEI, with pending points as Kriging believers (``gpmodel.Posterior``)
-    and, for a noisy study, the best posterior mean at the observed points as the
-    incumbent. A believed value above the incumbent becomes the incumbent: otherwise
-    the model would see a sure improvement at (and next to) a pending point."""
-    from adservice.proposers.gpmodel import Posterior, log_expected_improvement
-
-    posterior = Posterior(model)
-    best_f = float(posterior.mean_sigma(train_Z)[0].max()) if noisy else float(y.max())
-    if pending is not None:
-        posterior = Posterior(model, believers=pending)
-        best_f = max(best_f, float(posterior.beliefs.max()))
-    method = "LogEI" if pending is None else "LogEI-believer"
-    return log_expected_improvement(posterior, best_f), method
-
-
-def _structure_correlation(model: Any, search: SearchStructure, tkw: dict[str, Any]) -> float:
-    """How alike the fitted model holds the structures: the mean correlation between
-    two structures' designs with the same specs (all at the pad value); 0 is the
-    one-hot encoding's assumption, 1 a structure-blind model."""
-    import torch
-
-    count = search.n_structures
-    Z = np.column_stack([np.arange(count), np.full((count, search.spec_dim), search.pad)])
-    with torch.no_grad():
-        points = torch.as_tensor(Z, **tkw)
-        K = model.covar_module(points, points).to_dense().cpu().numpy()
-    scale = np.sqrt(np.diag(K))
-    correlation = K / np.outer(scale, scale)
-    return round(float(correlation[~np.eye(count, dtype=bool)].mean()), 6)
-
-
 def _layout_key(search: SearchStructure | None) -> bytes:
     """What distinguishes one study's model layout from another's in the fit caches."""
     if search is None:
@@ -553,11 +524,6 @@ def _layout_key(search: SearchStructure | None) -> bytes:
         [(a.theta, a.phi, a.theta_fixed, a.phi_fixed, a.sign_invariant) for a in search.axes]
     )
     return b"".join([search.structure_coords.tobytes(), search.used.tobytes(), axes.encode()])
-
-
-def _structure_lengthscale(model: Any) -> float:
-    structure = model.covar_module.structure
-    return round(float(structure.lengthscale.detach().cpu().reshape(-1)[0]), 6)
 
 
 def _nearest_distance(points: np.ndarray, point: np.ndarray) -> float:
