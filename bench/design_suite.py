@@ -297,11 +297,11 @@ def report(records: list[dict]) -> str:
     methods = [m for m in DEFAULT_METHODS if any(r["method"] == m for r in records)]
     lines = [
         f"Median best score by {BUDGET} evaluations [IQR] over seeds (higher is better), "
-        "by 15 in brackets below; ratio = median best by 30 over GPSampler's; p: two-sided "
-        "Mann-Whitney U of qei against GPSampler on best by 30.",
+        "median best by 15 in brackets, n seeds; qei / GP = qei's median best by 30 over "
+        "GPSampler's; p: two-sided Mann-Whitney U of qei against GPSampler on best by 30.",
         "",
-        "| objective | seeds | " + " | ".join(methods) + " | qei / GP | p |",
-        "| --- | --- | " + " | ".join("---" for _ in methods) + " | --- | --- |",
+        "| objective | " + " | ".join(methods) + " | qei / GP | p |",
+        "| --- | " + " | ".join("---" for _ in methods) + " | --- | --- |",
     ]
     verdicts = []
     for name in OBJECTIVES:
@@ -319,8 +319,7 @@ def report(records: list[dict]) -> str:
                 continue
             q1, q2, q3 = np.percentile(best, [25, 50, 75])
             medians[m] = q2
-            cells.append(f"{q2:.3f} [{q1:.3f}, {q3:.3f}] ({np.median(early):.3f})")
-        seeds = min(len(rows[m]) for m in methods if rows[m])
+            cells.append(f"{q2:.3f} [{q1:.3f}, {q3:.3f}] ({np.median(early):.3f}), n={len(best)}")
         gp = medians.get("gp-optuna")
         ratio = f"{medians['qei'] / gp:.2f}" if gp else "-"
         p = (
@@ -331,7 +330,7 @@ def report(records: list[dict]) -> str:
             if gp
             else float("nan")
         )
-        lines.append(f"| {name} | {seeds} | " + " | ".join(cells) + f" | {ratio} | {p:.3f} |")
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {ratio} | {p:.3f} |")
         if gp:
             verdicts.append(
                 f"- {name}: qei {medians['qei']:.3f} vs GPSampler {gp:.3f}: "
