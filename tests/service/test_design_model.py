@@ -328,3 +328,50 @@ def test_a_design_study_stores_designs_its_vectors_decode_to_exactly(
                 value = float(design.structure_index == 2) + 0.1 * round_number
                 told = http.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": value})
                 assert told.status_code == 200, told.text
+
+
+@pytest.mark.parametrize("noise", ["floor", "fixed"])
+def test_fit_map_reaches_botorchs_optimum(multi: Any, noise: str) -> None:
+    """The lean fit maximises the same posterior as BoTorch's fit_gpytorch_mll."""
+    from botorch.fit import fit_gpytorch_mll
+    from botorch.models import SingleTaskGP
+    from botorch.models.transforms.outcome import Standardize
+    from gpytorch.constraints import GreaterThan
+    from gpytorch.likelihoods import GaussianLikelihood
+    from gpytorch.mlls import ExactMarginalLogLikelihood
+
+    from adservice.proposers.gpmodel import fit_map
+
+    _, representation, search = multi
+    X = random_vectors(representation, 30, seed=2)
+    Z = torch.as_tensor(model_inputs(X, np.asarray(representation.bounds), search), **TKW)
+    y = torch.sin(3 * Z[:, 1:4].sum(-1, keepdim=True)) + 0.3 * (Z[:, :1] == 2)
+
+    def model() -> SingleTaskGP:
+        likelihood = (
+            GaussianLikelihood(noise_constraint=GreaterThan(1e-6, transform=None))
+            if noise == "floor"
+            else None
+        )
+        return SingleTaskGP(
+            Z,
+            y,
+            train_Yvar=None if noise == "floor" else torch.full_like(y, 1e-6),
+            likelihood=likelihood,
+            covar_module=design_kernel(search, search.spec_dim, kernel="matern", **TKW),
+            outcome_transform=Standardize(m=1),
+        ).to(**TKW)
+
+    def log_posterior(fitted: SingleTaskGP) -> float:
+        fitted.train()
+        mll = ExactMarginalLogLikelihood(fitted.likelihood, fitted)
+        with torch.no_grad():
+            value = mll(fitted(Z), fitted.train_targets)
+            for _, module, prior, closure, _ in fitted.named_priors():
+                value = value + prior.log_prob(closure(module)).sum() / len(y)
+        return float(value)
+
+    ours, theirs = model(), model()
+    fit_map(ours)
+    fit_gpytorch_mll(ExactMarginalLogLikelihood(theirs.likelihood, theirs))
+    assert log_posterior(ours) == pytest.approx(log_posterior(theirs), abs=1e-3)

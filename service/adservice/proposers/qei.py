@@ -3,7 +3,8 @@
 The method of the preprint (section 1 of DESIGN.md), with the model and acquisition
 of DESIGN.md section 2a: the first ``n_initial`` trials of a study are points of its
 seeded scrambled Sobol sequence; after that a BoTorch ``SingleTaskGP`` (outcomes
-standardised, hyperparameters fitted by maximum a posteriori marginal likelihood)
+standardised, hyperparameters fitted by maximum a posteriori marginal likelihood with
+``gpmodel.fit_map``)
 with the covariance of ``gpmodel.design_kernel`` scores candidates with analytic
 LogEI, and ``acquisition.maximise`` finds the best one with the structure held
 discrete. A batch of ``count`` is chosen greedily: each candidate joins the pending
@@ -329,17 +330,16 @@ class QLogEIProposer:
             qLogExpectedImprovement,
             qLogNoisyExpectedImprovement,
         )
-        from botorch.fit import fit_gpytorch_mll
         from botorch.models import SingleTaskGP
         from botorch.models.transforms.outcome import Standardize
         from botorch.sampling.normal import SobolQMCNormalSampler
         from botorch.utils.sampling import manual_seed
-        from gpytorch.mlls import ExactMarginalLogLikelihood
 
         from adservice.proposers.acquisition import MixedDomain, maximise
         from adservice.proposers.gpmodel import (
             analytic_acquisition,
             design_kernel,
+            fit_map,
             structure_correlation,
             structure_lengthscale,
         )
@@ -379,7 +379,6 @@ class QLogEIProposer:
             covar_module=design_kernel(search, spec_dim, kernel=kernel, **tkw),
             outcome_transform=Standardize(m=1),
         )
-        mll = ExactMarginalLogLikelihood(model.likelihood, model)
 
         layout_key = _layout_key(search)
         data_key = hashlib.sha256(
@@ -418,7 +417,7 @@ class QLogEIProposer:
                 model.load_state_dict(_to_device(previous, device), strict=False)
                 fit_source = "warm"
             with manual_seed(seed):
-                fit_gpytorch_mll(mll)
+                fit_map(model)
             params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
             if not all(torch.isfinite(p).all() for p in params.values()):
                 raise FloatingPointError("non-finite hyperparameters after the fit")
