@@ -23,6 +23,7 @@ within a structure and never act as noise dimensions.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from typing import Any
@@ -50,7 +51,6 @@ class SpecFeatures:
         on_axis = {column for axis in axes for column in (axis.theta, axis.phi) if column >= 0}
         self.plain = [k for k in range(spec_dim) if k not in on_axis]
         self.axes = axes
-        self.tkw = tkw
         if search is not None:
             self.low = torch.as_tensor(search.spec_low, **tkw)  # type: ignore[arg-type]
             self.width = torch.as_tensor(search.spec_high - search.spec_low, **tkw)  # type: ignore[arg-type]
@@ -173,7 +173,6 @@ class DesignKernel(Kernel):
                 lambda module: module.weights,
                 lambda module, value: module._set_weights(value),
             )
-            self.weights = torch.full((3,), 1.0 / 3.0)
 
     @property
     def weights(self) -> torch.Tensor:
@@ -225,33 +224,38 @@ def design_kernel(
 
 class Posterior:
     """The fitted GP's posterior at new points, in the outcome's own scale, from one
-    Cholesky factor; ``believers`` are pending points added as observations of the
-    model's own mean there (Kriging believer), which keeps the mean and takes the
-    variance away near them; ``beliefs`` holds those means."""
+    Cholesky factor. ``believing`` adds pending points as observations of the model's
+    own mean there (Kriging believer), which keeps the mean and takes the variance
+    away near them; ``beliefs`` holds those means."""
 
-    def __init__(self, model: object, believers: torch.Tensor | None = None) -> None:
+    def __init__(self, model: object) -> None:
         with torch.no_grad():
             self.kernel: DesignKernel = model.covar_module  # type: ignore[attr-defined]
-            train = model.train_inputs[0]  # type: ignore[attr-defined]
-            targets = model.train_targets  # type: ignore[attr-defined]
             self.constant = model.mean_module.constant.reshape(())  # type: ignore[attr-defined]
             transform = model.outcome_transform  # type: ignore[attr-defined]
             self.offset = transform.means.reshape(())
             self.scale = transform.stdvs.reshape(())
+            train = model.train_inputs[0]  # type: ignore[attr-defined]
             noise = model.likelihood.noise.reshape(-1)  # type: ignore[attr-defined]
             noise = noise.expand(len(train)) if noise.numel() == 1 else noise
-            self._factor(train, targets, noise)
-            self.beliefs = torch.zeros(0, dtype=train.dtype, device=train.device)
-            if believers is not None and len(believers):
-                beliefs = self.beliefs = self.mean_sigma(believers)[0]
-                extra_noise = noise.min().expand(len(believers))
-                self._factor(
-                    torch.cat([train, believers]),
-                    torch.cat([targets, (beliefs - self.offset) / self.scale]),
-                    torch.cat([noise, extra_noise]),
-                )
+            self._factor(train, model.train_targets, noise)  # type: ignore[attr-defined]
+        self.beliefs = torch.zeros(0, dtype=train.dtype, device=train.device)
+
+    def believing(self, pending: torch.Tensor) -> Posterior:
+        """This posterior with ``pending`` observed at its own mean."""
+        believer = copy.copy(self)
+        with torch.no_grad():
+            beliefs = self.mean_sigma(pending)[0]
+            believer._factor(
+                torch.cat([self.points, pending]),
+                torch.cat([self.targets, (beliefs - self.offset) / self.scale]),
+                torch.cat([self.noise, self.noise.min().expand(len(pending))]),
+            )
+        believer.beliefs = beliefs
+        return believer
 
     def _factor(self, points: torch.Tensor, targets: torch.Tensor, noise: torch.Tensor) -> None:
+        self.points, self.targets, self.noise = points, targets, noise
         self.embedded = self.kernel.embed(points)
         K = self.kernel.from_embeddings(self.embedded, self.embedded) + torch.diag(noise)
         self.cholesky = torch.linalg.cholesky(K)
@@ -282,20 +286,26 @@ def log_expected_improvement(
     return acquisition
 
 
-def analytic_acquisition(
-    model: Any, train_Z: torch.Tensor, y: np.ndarray, pending: torch.Tensor | None, noisy: bool
-) -> tuple[Any, str]:
-    """Analytic LogEI, with pending points as Kriging believers (``Posterior``)
-    and, for a noisy study, the best posterior mean at the observed points as the
-    incumbent. A believed value above the incumbent becomes the incumbent: otherwise
+class AnalyticLogEI:
+    """Analytic LogEI for the greedy steps of one ask: the posterior is factored once,
+    and each step adds its pending points as Kriging believers (``Posterior``). The
+    incumbent is the best observation or, for a noisy study, the best posterior mean
+    at the observed points; a believed value above it becomes the incumbent, otherwise
     the model would see a sure improvement at (and next to) a pending point."""
-    posterior = Posterior(model)
-    best_f = float(posterior.mean_sigma(train_Z)[0].max()) if noisy else float(y.max())
-    if pending is not None:
-        posterior = Posterior(model, believers=pending)
-        best_f = max(best_f, float(posterior.beliefs.max()))
-    method = "LogEI" if pending is None else "LogEI-believer"
-    return log_expected_improvement(posterior, best_f), method
+
+    def __init__(self, model: Any, train_Z: torch.Tensor, y: np.ndarray, noisy: bool) -> None:
+        self.posterior = Posterior(model)
+        with torch.no_grad():
+            best = self.posterior.mean_sigma(train_Z)[0].max() if noisy else y.max()
+        self.incumbent = float(best)
+
+    def step(self, pending: torch.Tensor | None) -> tuple[Callable, str]:
+        """The acquisition given these pending points, and its name."""
+        if pending is None:
+            return log_expected_improvement(self.posterior, self.incumbent), "LogEI"
+        believer = self.posterior.believing(pending)
+        incumbent = max(self.incumbent, float(believer.beliefs.max()))
+        return log_expected_improvement(believer, incumbent), "LogEI-believer"
 
 
 def structure_correlation(model: Any, search: SearchStructure, tkw: dict[str, Any]) -> float:

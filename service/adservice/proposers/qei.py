@@ -337,7 +337,7 @@ class QLogEIProposer:
 
         from adservice.proposers.acquisition import MixedDomain, maximise
         from adservice.proposers.gpmodel import (
-            analytic_acquisition,
+            AnalyticLogEI,
             design_kernel,
             fit_map,
             structure_correlation,
@@ -443,14 +443,19 @@ class QLogEIProposer:
         values: list[float] = []
         switched = 0
         started = time.perf_counter()
+        analytic = (
+            AnalyticLogEI(model, train_Z, y, request.noisy)
+            if options.acquisition == "analytic"
+            else None
+        )
         for step in range(q):
             step_seed = derived_seed(seed, step)
             batch_pending = np.concatenate([pending_Z, *[z[None, :] for z in chosen]])
             pending_t = torch.as_tensor(batch_pending, **tkw) if len(batch_pending) else None
             acqf: Any
             with manual_seed(step_seed):
-                if options.acquisition == "analytic":
-                    acqf, method = analytic_acquisition(model, train_Z, y, pending_t, request.noisy)
+                if analytic is not None:
+                    acqf, method = analytic.step(pending_t)
                 else:
                     sampler = SobolQMCNormalSampler(
                         sample_shape=torch.Size([mc_samples]), seed=step_seed
