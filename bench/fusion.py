@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from adclient.design import _pruefer_edges
 from adclient.similarity import similarity_matrix
-from adservice.representation import (
+from adservice.fusion import (
     GAP_TOLERANCE,
     VIOLATION_TOLERANCE,
     PairProblem,

@@ -20,18 +20,20 @@ from adclient.decode import decode, encode, mixed_bounds, spec_layout
 from adclient.design import DesignSpace, Representation
 from adclient.schemas import StudyCreate
 from adclient.urdf import design_to_urdf
-from adservice.representation import (
+from adservice.fusion import (
     GAP_TOLERANCE,
-    STRUCTURE_DISTANCE_FLOOR,
     VIOLATION_TOLERANCE,
-    build_representation,
     check_pairs,
-    classical_mds,
     exact_pairs,
     fuse,
     fuse_distances,
     fusion_check,
     pair_problem,
+)
+from adservice.representation import (
+    STRUCTURE_DISTANCE_FLOOR,
+    build_representation,
+    classical_mds,
     search_structure,
     structure_distances,
     structure_embedding,
