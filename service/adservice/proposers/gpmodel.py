@@ -331,9 +331,10 @@ def fit_map(model: Any, *, maxiter: int = 200) -> int:
     """Fit the hyperparameters by maximum a posteriori marginal likelihood, as BoTorch's
     ``fit_gpytorch_mll`` does (L-BFGS-B on the raw parameters, within their
     constraints' bounds, from their current values), with the likelihood computed
-    straight from ``DesignKernel.forward`` and one Cholesky factor. Same optimum; on
-    n = 50, d = 6 it takes 0.067 s of CPU where ``fit_gpytorch_mll`` takes 0.11 s,
-    most of the difference being gpytorch's lazy kernel and distribution objects.
+    straight from ``DesignKernel.forward`` and one Cholesky factor, without
+    gpytorch's lazy kernel and distribution objects. Same optimum (tested); the
+    median fit of ``bench/asklatency.py`` at n = 50, d = 6 fell from 0.087 s to
+    0.069 s (bench/RESULTS.md, issue 12).
     Returns the number of likelihood evaluations."""
     from botorch.optim.utils import get_parameters_and_bounds
     from scipy.optimize import minimize
