@@ -65,6 +65,11 @@ ExportFormat = Literal["json", "csv"]
 TrialRef = Trial | int
 
 
+CLIENT_HEADER = "X-Activedesign-Client"
+"""Sent with every request: a header a cross-site page cannot set without the server's
+leave, so the server accepts state changes only from clients that send it (or JSON)."""
+
+
 def trial_id_of(trial: TrialRef) -> int:
     """Accept a Trial or its id wherever a trial is named."""
     return trial.id if isinstance(trial, Trial) else int(trial)
@@ -111,7 +116,11 @@ class Client:
         self.retries = retries
         self.backoff = backoff
         self.max_backoff = max_backoff
-        headers = {"User-Agent": f"adclient/{__version__}", "Accept": "application/json"}
+        headers = {
+            "User-Agent": f"adclient/{__version__}",
+            "Accept": "application/json",
+            CLIENT_HEADER: __version__,
+        }
         if token:
             headers["Authorization"] = f"Bearer {token}"
         self._http = httpx.Client(
