@@ -103,10 +103,11 @@ class ServerProcess:
         return self.start()
 
 
-def make_token(server: ServerProcess, role: str) -> str:
+def make_token(server: ServerProcess, role: str, name: str = "") -> str:
     """A new API token of ``role``, made as an operator would: ``adserver token create``."""
     done = subprocess.run(
-        [str(ADSERVER), "token", "create", "--role", role, "--database-url", server.database_url],
+        [str(ADSERVER), "token", "create", "--role", role, "--database-url", server.database_url]
+        + (["--name", name] if name else []),
         capture_output=True,
         text=True,
         check=True,

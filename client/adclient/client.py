@@ -441,11 +441,17 @@ class Client:
         name: str,
         data: bytes,
         content_type: str = "application/octet-stream",
+        *,
+        worker_id: str | None = None,
     ) -> ArtifactInfo:
-        """Store ``data`` as the trial's artifact ``name`` (replacing one of that name)."""
+        """Store ``data`` as the trial's artifact ``name`` (replacing one of that name).
+
+        A worker uploads while it holds the trial's lease and names itself with
+        ``worker_id``; the owner of an asked trial names no worker."""
         response = self.request(
             "PUT",
             f"{API}/trials/{trial_id_of(trial)}/artifacts/{name}",
+            params={"worker_id": worker_id} if worker_id else None,
             content=bytes(data),
             headers={"Content-Type": content_type},
         )

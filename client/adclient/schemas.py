@@ -7,12 +7,14 @@ them). Fields may be added; the paths, names and codes of v1 stay.
 
 from __future__ import annotations
 
+import json
 import math
 from datetime import datetime
 from enum import StrEnum
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -33,6 +35,14 @@ NO_NUL_PATTERN = r"^[^\x00]*$"
 """Free text: anything but NUL, which PostgreSQL cannot store in a text column."""
 
 MAX_ASK = 64
+MAX_TRIAL_PAGE = 1000
+"""The most trials one ``GET /studies/{id}/trials`` answers (also its default page); the
+SDK pages through longer studies."""
+MAX_JSON_DEPTH = 32
+MAX_JSON_BYTES = 64 * 1024
+"""Bounds of every free JSON field (study metadata, proposer and task options): deep
+enough for any real configuration, far below what serialisers refuse (256 levels), and
+small enough that a listing of many studies stays cheap."""
 
 TaskName = Literal["stand-up", "diagonal-gesture", "lift-highest"]
 """The built-in tasks. The worker's registry (``adworker.tasks.TASKS``) has exactly
@@ -99,6 +109,72 @@ def _finite(value: float, what: str) -> float:
     return value
 
 
+def _json_depth(value: Any, limit: int) -> int:
+    """How deep objects and arrays nest in ``value``, counted no further than one past
+    ``limit`` (without recursion: a hostile value must not exhaust the stack)."""
+    deepest = 0
+    stack = [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            children = list(item.values())
+        elif isinstance(item, list):
+            children = item
+        else:
+            continue
+        deepest = max(deepest, depth)
+        if depth <= limit:
+            stack.extend((child, depth + 1) for child in children)
+    return deepest
+
+
+def _bounded_json(value: dict[str, Any]) -> dict[str, Any]:
+    """Refuse a free JSON object nested deeper than ``MAX_JSON_DEPTH`` or larger than
+    ``MAX_JSON_BYTES`` encoded: stored, it would cost every listing, or fail to serialise."""
+    if _json_depth(value, MAX_JSON_DEPTH) > MAX_JSON_DEPTH:
+        raise ValueError(f"objects and arrays nest deeper than {MAX_JSON_DEPTH} levels")
+    size = len(json.dumps(value, ensure_ascii=False, default=str).encode("utf-8", "surrogatepass"))
+    if size > MAX_JSON_BYTES:
+        raise ValueError(f"{size} bytes as JSON, more than the limit of {MAX_JSON_BYTES}")
+    return value
+
+
+CUT_JSON = "(nested too deep)"
+"""What an answer shows instead of nesting past ``MAX_JSON_DEPTH`` in a stored value."""
+
+
+def _cut_json(value: Any, levels: int) -> Any:
+    if isinstance(value, dict | list) and levels <= 0:
+        return CUT_JSON
+    if isinstance(value, dict):
+        return {key: _cut_json(item, levels - 1) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_cut_json(item, levels - 1) for item in value]
+    return value
+
+
+def _shown_json(value: dict[str, Any]) -> dict[str, Any]:
+    """A stored free JSON object as answers carry it: nesting past ``MAX_JSON_DEPTH``
+    (a row stored before the limit) is cut, so one such row cannot fail a listing."""
+    if _json_depth(value, MAX_JSON_DEPTH) <= MAX_JSON_DEPTH:
+        return value
+    cut: dict[str, Any] = _cut_json(value, MAX_JSON_DEPTH)
+    return cut
+
+
+JsonObject = Annotated[
+    dict[str, Any],
+    AfterValidator(_bounded_json),
+    Field(
+        description=f"A JSON object: at most {MAX_JSON_DEPTH} levels deep and "
+        f"{MAX_JSON_BYTES} bytes encoded"
+    ),
+]
+"""Every free JSON field of a request: the one place its limits are checked."""
+StoredJsonObject = Annotated[dict[str, Any], AfterValidator(_shown_json)]
+"""The same fields in answers, which must serialise whatever an older server stored."""
+
+
 class BoxParam(_Strict):
     name: str = Field(pattern=NAME_PATTERN)
     low: float
@@ -143,12 +219,18 @@ class ProposerConfig(_Strict):
         default=None,
         description="Model observation noise (qLogNEI). Default: true for managed studies.",
     )
-    options: dict[str, Any] = Field(default_factory=dict)
+    options: StoredJsonObject = Field(default_factory=dict)
 
     @field_validator("options")
     @classmethod
     def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
         return _plain_text(options, "options")
+
+
+class NewProposerConfig(ProposerConfig):
+    """A new study's proposer: its options are bounded (:data:`JsonObject`)."""
+
+    options: JsonObject = Field(default_factory=dict)
 
 
 class TaskConfig(_Strict):
@@ -169,7 +251,7 @@ class TaskConfig(_Strict):
     eval_episodes: int = Field(default=3, ge=1, le=100)
     episode_steps: int | None = Field(default=None, ge=1, le=100_000)
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
-    options: dict[str, Any] = Field(default_factory=dict)
+    options: StoredJsonObject = Field(default_factory=dict)
 
     @field_validator("options")
     @classmethod
@@ -249,6 +331,7 @@ class NewTaskConfig(TaskConfig):
     and options they understand, unless the task is ``external``."""
 
     episode_steps: int | None = Field(default=None, ge=2, le=100_000)
+    options: JsonObject = Field(default_factory=dict)
 
     @field_validator("name")
     @classmethod
@@ -299,16 +382,25 @@ class StudyCreate(_Strict):
     name: str = Field(pattern=NAME_PATTERN)
     direction: Direction = Direction.maximize
     space: Space
-    proposer: ProposerConfig = Field(default_factory=ProposerConfig)
+    proposer: NewProposerConfig = Field(default_factory=NewProposerConfig)
     task: NewTaskConfig | None = None
     max_trials: int | None = Field(default=None, ge=1, le=1_000_000)
     max_attempts: int = Field(default=3, ge=1, le=100)
-    metadata: dict[str, Any] = Field(default_factory=dict)
+    metadata: JsonObject = Field(default_factory=dict)
 
     @field_validator("metadata")
     @classmethod
     def _metadata_text(cls, metadata: dict[str, Any]) -> dict[str, Any]:
         return _plain_text(metadata, "metadata", finite=True)
+
+    @field_validator("proposer", "task", mode="before")
+    @classmethod
+    def _checked_as_new(cls, value: Any) -> Any:
+        """A ``ProposerConfig`` or ``TaskConfig`` built in Python is checked as a new
+        study's (``NewProposerConfig``, ``NewTaskConfig``)."""
+        if isinstance(value, ProposerConfig | TaskConfig):
+            return value.model_dump(exclude_unset=True)
+        return value
 
     @field_validator("proposer")
     @classmethod
@@ -383,9 +475,29 @@ class Study(BaseModel):
     n_failed: int
     best_value: float | None
     best_trial_id: int | None
-    metadata: dict[str, Any]
+    metadata: StoredJsonObject
+    created_by: str | None = Field(
+        default=None, description="the name of the token that created the study (auth on)"
+    )
     created_at: datetime
     updated_at: datetime
+
+
+class TrialColumns(BaseModel):
+    """A page of a study's trials as parallel columns, in order of number: the small
+    payload charts draw from (``GET /studies/{id}/series``)."""
+
+    number: list[int]
+    state: list[TrialState]
+    value: list[float | None]
+    params: dict[str, list[float | None]] = Field(
+        description="each param that has a number in some trial of the page: its values "
+        "(null where a trial has no number for it)"
+    )
+    next: int | None = Field(
+        default=None,
+        description="more trials follow: ask again with `after` set to this; null at the end",
+    )
 
 
 class AskRequest(_Strict):
@@ -485,8 +597,13 @@ class HeartbeatRequest(_Strict):
     worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
 
 
-class ReleaseRequest(HeartbeatRequest):
-    """The lease holder giving a trial back to the queue (``POST /trials/{id}/release``)."""
+class ReleaseRequest(_Strict):
+    """The lease holder giving a trial back to the queue (``POST /trials/{id}/release``);
+    an admin may name no worker, to take back a trial whatever holds it."""
+
+    worker_id: str | None = Field(
+        default=None, min_length=1, max_length=128, pattern=NO_NUL_PATTERN
+    )
 
 
 class HeartbeatResponse(BaseModel):
@@ -522,6 +639,25 @@ class WorkerInfo(BaseModel):
     current_trial_id: int | None
     jobs_done: int
     jobs_failed: int
+
+
+class SignInRequest(_Strict):
+    """The dashboard's sign-in: the token is sent once and never stored by the page."""
+
+    token: str = Field(min_length=1, max_length=256, pattern=NO_NUL_PATTERN)
+
+
+class SessionInfo(BaseModel):
+    """Who the caller is (``GET /api/v1/session``): what the dashboard shows and needs."""
+
+    auth: bool = Field(description="whether the server requires a token")
+    signed_in: bool
+    role: str | None = None
+    name: str | None = None
+    csrf_token: str | None = Field(
+        default=None,
+        description="with a sign-in cookie, send this in X-CSRF-Token on every change",
+    )
 
 
 class ErrorBody(BaseModel):

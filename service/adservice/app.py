@@ -15,14 +15,16 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.middleware.cors import CORSMiddleware
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from adclient import __version__
 from adclient.schemas import ErrorBody
 from adservice import repository
-from adservice.api.routes import artifacts, dashboard, health, jobs, studies, trials
+from adservice.api.routes import artifacts, dashboard, health, jobs, session, studies, trials
 from adservice.artifacts import ArtifactStore
-from adservice.auth import TokenCache
+from adservice.auth import Authentication, PrincipalCache
 from adservice.db import Database, upgrade_to_head
 from adservice.errors import (
     ConflictError,
@@ -34,6 +36,7 @@ from adservice.errors import (
     UnauthorizedError,
 )
 from adservice.locks import StudyLocks
+from adservice.security import RefuseSimpleCrossSiteChanges, SecurityHeaders
 from adservice.settings import Settings, get_settings
 
 log = logging.getLogger("adservice")
@@ -215,7 +218,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.db = db
         app.state.settings = settings
         app.state.locks = StudyLocks()
-        app.state.tokens = TokenCache()
+        app.state.principals = PrincipalCache()
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
         stop = threading.Event()
         sweeper = threading.Thread(
@@ -237,10 +240,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     install_error_handlers(app)
     document_error_bodies(app)
+    # Added last runs first: the host, then headers on every answer, CORS, the cross-site
+    # guard and the body limit, and who is calling before any route parses a body.
+    app.add_middleware(Authentication)
     app.add_middleware(
         BodySizeLimit, limit=settings.max_body_bytes, artifact_limit=settings.max_artifact_bytes
     )
-    for module in (health, studies, trials, jobs, artifacts, dashboard):
+    app.add_middleware(RefuseSimpleCrossSiteChanges)
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "PUT", "PATCH", "DELETE"],
+            allow_headers=["Authorization", "Content-Type", "X-Activedesign-Client"],
+            expose_headers=["X-Total-Count"],
+        )
+    app.add_middleware(SecurityHeaders)
+    if settings.allowed_hosts is not None:
+        app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.allowed_hosts)
+    for module in (health, session, studies, trials, jobs, artifacts, dashboard):
         app.include_router(module.router)
 
     @app.api_route(

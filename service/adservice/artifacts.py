@@ -2,6 +2,10 @@
 
 A file appears under its final name only once complete, and the database learns of it
 only after that, so a half-written or crashed upload is never served.
+
+Artifacts come from workers, so they are served inert: an image the dashboard shows is
+served inline only when its bytes are a raster image (the type decided here, never the
+uploader's), anything else as a download of a type that no browser runs.
 """
 
 from __future__ import annotations
@@ -13,6 +17,39 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 
 from adservice.errors import TooLargeError
+
+IMAGE_SIGNATURES: tuple[tuple[bytes, str], ...] = (
+    (b"\x89PNG\r\n\x1a\n", "image/png"),
+    (b"\xff\xd8\xff", "image/jpeg"),
+    (b"GIF87a", "image/gif"),
+    (b"GIF89a", "image/gif"),
+)
+DOWNLOAD_TYPES = frozenset(
+    {"application/json", "text/plain", "text/csv", "application/xml", "application/octet-stream"}
+)
+"""Declared types kept on a download (none of them runs script when downloaded)."""
+SNIFF_BYTES = 16
+INERT_HEADERS = {
+    "X-Content-Type-Options": "nosniff",
+    "Content-Security-Policy": "sandbox; default-src 'none'",
+    "Cross-Origin-Resource-Policy": "same-origin",
+}
+
+
+def image_type(head: bytes) -> str | None:
+    """The raster image type the first bytes show (RIFF WebP too), or None."""
+    if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        return "image/webp"
+    return next((kind for signature, kind in IMAGE_SIGNATURES if head.startswith(signature)), None)
+
+
+def served_type(head: bytes, declared: str) -> tuple[str, bool]:
+    """``(media type, inline)`` for an artifact whose file starts with ``head``."""
+    image = image_type(head)
+    if image is not None:
+        return image, True
+    base = declared.split(";")[0].strip().lower()
+    return (base if base in DOWNLOAD_TYPES else "application/octet-stream"), False
 
 
 class ArtifactStore:

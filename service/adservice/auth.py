@@ -1,130 +1,212 @@
-"""Bearer tokens with roles: reader < worker < admin.
+"""Who is calling, and what their role lets them do: reader < worker < user < admin.
 
 - reader: every GET, so the dashboard and read-only clients;
-- worker: also lease, heartbeat, tell (only the trials it holds) and upload artifacts;
-- admin: also create, ask and stop studies.
+- worker: also lease jobs, and heartbeat, release, upload artifacts for and tell the
+  trials its own token leased (a lease belongs to the token that took it);
+- user: also create studies, and ask, tell, stop the studies it created;
+- admin: everything, on every study; fails or releases any trial.
 
-Only a token's SHA-256 is stored. Auth is off only when the server binds to loopback
-and nobody turned it on (see ``adservice.cli``); then every caller is an admin.
+A caller proves who it is with ``Authorization: Bearer <token>`` or, in a browser, with
+the dashboard's session cookie (see ``adservice.api.routes.session``); a state change made
+with the cookie must also carry the session's CSRF token in ``X-CSRF-Token``. Only
+SHA-256 digests of tokens and session ids are stored. Auth is off only when the server
+binds to loopback and nobody turned it on (see ``adservice.cli``); then every caller is
+an admin, and a worker is known by the ``worker_id`` it sends.
+
+Authentication runs as middleware, before a route parses its body: a caller without a
+valid token learns 401, never anything about the body it sent.
 """
 
 from __future__ import annotations
 
 import hashlib
+import hmac
 import secrets
 import threading
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
-from enum import StrEnum
+from http.cookies import SimpleCookie
 
 from fastapi import Request
+from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from adservice import repository
+from adservice.db import Database
 from adservice.errors import ForbiddenError, UnauthorizedError
+from adservice.principals import OPEN_ADMIN, RANK, Principal, Role
 
 CACHE_SECONDS = 5.0
-"""How long a looked-up token is trusted before the database is asked again (a revoked
-token stops working within this time)."""
+"""How long a looked-up token or session is trusted before the database is asked again
+(a revoked token, or a signed-out session, stops working within this time)."""
 
-
-class Role(StrEnum):
-    reader = "reader"
-    worker = "worker"
-    admin = "admin"
-
-
-RANK = {Role.reader: 0, Role.worker: 1, Role.admin: 2}
-
-
-@dataclass(frozen=True)
-class Principal:
-    role: Role
-    token_id: int | None
-
-
-LOOPBACK_ADMIN = Principal(role=Role.admin, token_id=None)
+SESSION_COOKIE = "ad_session"
+CSRF_HEADER = "x-csrf-token"
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+PUBLIC_API_PATHS = frozenset({"/api/v1/session"})
+"""API paths that answer without a principal (signing in, asking whether one is needed)."""
 
 
 def new_token() -> str:
     return "adt_" + secrets.token_urlsafe(32)
 
 
-def token_digest(token: str) -> str:
-    return hashlib.sha256(token.encode()).hexdigest()
+def new_session_id() -> str:
+    return secrets.token_urlsafe(32)
 
 
-class TokenCache:
-    """Token digest -> principal (or None for unknown), for a few seconds."""
+def token_digest(secret: str) -> str:
+    """The SHA-256 of a token or session id: 256 random bits need no slow hash."""
+    return hashlib.sha256(secret.encode()).hexdigest()
+
+
+class PrincipalCache:
+    """Digest -> principal (or None for unknown), for a few seconds."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._entries: dict[str, tuple[float, Principal | None]] = {}
 
-    def get(self, digest: str) -> tuple[bool, Principal | None]:
+    def get(self, key: str) -> tuple[bool, Principal | None]:
         with self._lock:
-            entry = self._entries.get(digest)
+            entry = self._entries.get(key)
         if entry is None or entry[0] < time.monotonic():
             return False, None
         return True, entry[1]
 
-    def put(self, digest: str, principal: Principal | None) -> None:
+    def put(self, key: str, principal: Principal | None) -> None:
         with self._lock:
             if len(self._entries) > 10_000:
                 self._entries.clear()
-            self._entries[digest] = (time.monotonic() + CACHE_SECONDS, principal)
+            self._entries[key] = (time.monotonic() + CACHE_SECONDS, principal)
+
+    def forget(self, key: str) -> None:
+        with self._lock:
+            self._entries.pop(key, None)
 
 
-def _token_digest(request: Request) -> str:
-    header = request.headers.get("authorization", "")
-    scheme, _, token = header.partition(" ")
-    if scheme.lower() != "bearer" or not token:
+def _bearer(headers: dict[bytes, bytes]) -> str | None:
+    header = headers.get(b"authorization")
+    if header is None:
+        return None
+    scheme, _, token = header.decode("latin-1").partition(" ")
+    if scheme.lower() != "bearer" or not token.strip():
         raise UnauthorizedError("a bearer token is required (Authorization: Bearer <token>)")
-    return token_digest(token.strip())
+    return token.strip()
 
 
-def _admit(principal: Principal | None) -> Principal:
+def session_id_of(headers: dict[bytes, bytes]) -> str | None:
+    raw = headers.get(b"cookie")
+    if raw is None:
+        return None
+    cookie: SimpleCookie = SimpleCookie()
+    try:
+        cookie.load(raw.decode("latin-1"))
+    except Exception:  # a malformed cookie header is as good as none
+        return None
+    morsel = cookie.get(SESSION_COOKIE)
+    return morsel.value if morsel is not None and morsel.value else None
+
+
+def _look_up_token(db: Database, digest: str) -> Principal | None:
+    with db.read() as session:
+        row = repository.find_token(session, digest=digest)
+        return Principal(role=Role(row.role), token_id=row.id, name=row.name) if row else None
+
+
+def _look_up_session(db: Database, digest: str) -> Principal | None:
+    with db.read() as session:
+        found = repository.find_session(session, digest=digest)
+        if found is None:
+            return None
+        row, token = found
+        return Principal(
+            role=Role(token.role), token_id=token.id, name=token.name, csrf_token=row.csrf_token
+        )
+
+
+async def _resolve(
+    db: Database,
+    cache: PrincipalCache,
+    key: str,
+    look_up: Callable[[Database, str], Principal | None],
+    secret_digest: str,
+) -> Principal:
+    known, principal = cache.get(key)
+    if not known:
+        principal = await run_in_threadpool(look_up, db, secret_digest)
+        cache.put(key, principal)
     if principal is None:
-        raise UnauthorizedError("unknown or revoked token")
+        raise UnauthorizedError("unknown or revoked token, or an expired sign-in")
     return principal
 
 
-def authenticate_cached(request: Request) -> Principal | None:
-    """The caller when that needs no database read (auth off, or the token cached);
-    None when it does."""
-    state = request.app.state
-    if not state.settings.auth:
-        return LOOPBACK_ADMIN
-    cache: TokenCache = state.tokens
-    known, principal = cache.get(_token_digest(request))
-    return _admit(principal) if known else None
+async def authenticate(scope: Scope) -> Principal:
+    """The caller of an API request: from its bearer token, else its session cookie."""
+    app = scope["app"]
+    if not app.state.settings.auth:
+        return OPEN_ADMIN
+    headers = dict(scope["headers"])
+    db: Database = app.state.db
+    cache: PrincipalCache = app.state.principals
+    token = _bearer(headers)
+    if token is not None:
+        found = token_digest(token)
+        return await _resolve(db, cache, "t:" + found, _look_up_token, found)
+    session_id = session_id_of(headers)
+    if session_id is None:
+        raise UnauthorizedError(
+            "a bearer token is required (Authorization: Bearer <token>), or sign in"
+        )
+    session_digest = token_digest(session_id)
+    principal = await _resolve(db, cache, "s:" + session_digest, _look_up_session, session_digest)
+    if scope["method"] not in SAFE_METHODS:
+        sent = headers.get(CSRF_HEADER.encode(), b"").decode("latin-1")
+        assert principal.csrf_token is not None
+        if not hmac.compare_digest(sent, principal.csrf_token):
+            raise ForbiddenError(
+                "a change made with the sign-in cookie needs the session's CSRF token in "
+                "X-CSRF-Token (GET /api/v1/session gives it to the dashboard)"
+            )
+    return principal
 
 
-def authenticate(request: Request) -> Principal:
-    principal = authenticate_cached(request)
-    if principal is not None:
-        return principal
-    digest = _token_digest(request)
-    state = request.app.state
-    with state.db.read() as session:
-        row = repository.find_token(session, digest=digest)
-        found = Principal(role=Role(row.role), token_id=row.id) if row else None
-    state.tokens.put(digest, found)
-    return _admit(found)
+class Authentication:
+    """Pure ASGI middleware: every /api request but signing in carries a principal in
+    ``scope["state"]["principal"]``, or is answered 401/403 before its route runs."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        path = scope.get("path", "")
+        if scope["type"] != "http" or not path.startswith("/api/") or path in PUBLIC_API_PATHS:
+            await self.app(scope, receive, send)
+            return
+        try:
+            principal = await authenticate(scope)
+        except (UnauthorizedError, ForbiddenError) as error:
+            unauthorized = isinstance(error, UnauthorizedError)
+            response = JSONResponse(
+                {"error": error.code, "detail": error.detail},
+                status_code=401 if unauthorized else 403,
+                headers={"WWW-Authenticate": "Bearer"} if unauthorized else None,
+            )
+            await response(scope, receive, send)
+            return
+        scope.setdefault("state", {})["principal"] = principal
+        await self.app(scope, receive, send)
 
 
 def require(role: Role) -> Callable[[Request], Awaitable[Principal]]:
-    """A dependency that admits callers holding ``role`` or a higher one (async: only a
-    token missing from the cache costs a database read, in the thread pool)."""
+    """A dependency that admits callers holding ``role`` or a higher one."""
 
     async def dependency(request: Request) -> Principal:
-        principal = authenticate_cached(request)
-        if principal is None:
-            principal = await run_in_threadpool(authenticate, request)
+        principal: Principal = request.state.principal
         if RANK[principal.role] < RANK[role]:
             raise ForbiddenError(
-                f"this needs the {role} role; the token's role is {principal.role}"
+                f"this needs the {role} role or a higher one; the token's role is {principal.role}"
             )
         return principal
 

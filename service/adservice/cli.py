@@ -71,7 +71,7 @@ def serve(
 
 @tokens.command("create")
 def create_token(
-    role: str = typer.Option(..., "--role", help="reader, worker or admin."),
+    role: str = typer.Option(..., "--role", help="reader, worker, user or admin."),
     name: str = typer.Option("", "--name", help="A label to recognise the token by."),
     database_url: str | None = DATABASE_OPTION,
 ) -> None:
@@ -81,7 +81,9 @@ def create_token(
     from adservice.db import Database, upgrade_to_head
 
     if role not in Role.__members__:
-        typer.echo(f"adserver: unknown role {role!r}; choose reader, worker or admin", err=True)
+        typer.echo(
+            f"adserver: unknown role {role!r}; choose reader, worker, user or admin", err=True
+        )
         raise typer.Exit(2)
     settings = _settings(database_url)
     upgrade_to_head(settings.database_url)

@@ -58,6 +58,11 @@ class StudyRow(Base):
     best_value: Mapped[float | None] = mapped_column(sa.Double, nullable=True)
     best_trial_id: Mapped[int | None] = mapped_column(nullable=True)
     metadata_: Mapped[dict[str, Any]] = mapped_column("metadata", sa.JSON, default=dict)
+    owner_token_id: Mapped[int | None] = mapped_column(nullable=True)
+    """The token that created the study (None: created with auth off): a ``user`` token
+    manages only the studies it owns."""
+    created_by: Mapped[str | None] = mapped_column(sa.String(128), nullable=True)
+    """The creating token's name, kept for display after the token is revoked."""
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
@@ -87,6 +92,9 @@ class TrialRow(Base):
     finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    lease_token_id: Mapped[int | None] = mapped_column(nullable=True)
+    """The token that holds the lease (None with auth off, where ``worker_id`` alone
+    names the holder): only it may heartbeat, release, upload for or tell the trial."""
 
 
 class ArtifactRow(Base):
@@ -125,3 +133,16 @@ class TokenRow(Base):
     token_sha256: Mapped[str] = mapped_column(sa.String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+
+
+class SessionRow(Base):
+    """A dashboard sign-in: the browser holds a random id in an HttpOnly cookie, so the
+    bearer token itself never reaches a page script; only the id's SHA-256 is stored."""
+
+    __tablename__ = "sessions"
+
+    id_sha256: Mapped[str] = mapped_column(sa.String(64), primary_key=True)
+    token_id: Mapped[int] = mapped_column(sa.ForeignKey("tokens.id", ondelete="CASCADE"))
+    csrf_token: Mapped[str] = mapped_column(sa.String(64))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    expires_at: Mapped[datetime] = mapped_column(UTCDateTime)

@@ -33,6 +33,7 @@ from adservice.db import Database
 from adservice.errors import ConflictError, InvalidError, StudyConfigError
 from adservice.locks import StudyLocks
 from adservice.models import StudyRow
+from adservice.principals import Principal, check_manager
 from adservice.proposers import Proposal, ProposalRequest, available, get_proposer, options_model
 from adservice.proposers.base import SearchStructure, empty_history
 from adservice.repository import History
@@ -61,6 +62,8 @@ class StudyConfig:
 
     study_id: int
     maximize: bool
+    owner_token_id: int | None
+    owner_name: str | None
     proposer: ProposerConfig
     task: TaskConfig | None
     space: dict[str, Any]
@@ -98,6 +101,8 @@ class StudyConfig:
         return cls(
             study_id=row.id,
             maximize=row.direction == "maximize",
+            owner_token_id=row.owner_token_id,
+            owner_name=row.created_by,
             proposer=proposer,
             task=TaskConfig.model_validate(row.task) if row.task else None,
             space=row.space,
@@ -131,7 +136,7 @@ def study_config(db: Database, study_id: int) -> StudyConfig:
     return config
 
 
-def create_study(db: Database, *, body: StudyCreate) -> StudyRow:
+def create_study(db: Database, *, body: StudyCreate, owner: Principal) -> StudyRow:
     """Check what the schema cannot (the proposer and its options, the representation's
     numbers), then store the study; InvalidError, with nothing stored, otherwise."""
     check_proposer(body.proposer)
@@ -142,7 +147,9 @@ def create_study(db: Database, *, body: StudyCreate) -> StudyRow:
         representation = build_representation(body.space).model_dump(mode="json")
         _check_finite(body.space, representation)
     with db.write() as session:
-        return repository.create_study(session, body=body, representation=representation)
+        return repository.create_study(
+            session, body=body, representation=representation, owner=owner
+        )
 
 
 def _non_finite(value: Any, where: str) -> str | None:
@@ -206,6 +213,7 @@ def _record(
     count: int,
     propose: Callable[[int], Proposal],
     worker_id: str | None,
+    lease_token_id: int | None,
     lease_seconds: float,
 ) -> list[Trial]:
     """Reserve trial numbers and store what ``propose(first_number)`` returns, in one
@@ -223,6 +231,7 @@ def _record(
             params=[config.params(vector) for vector in candidates],
             infos=proposal.info,
             worker_id=worker_id,
+            lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
 
@@ -242,10 +251,21 @@ def propose_trials(
     *,
     study_id: int,
     count: int,
+    caller: Principal,
     worker_id: str | None = None,
     lease_seconds: float = 60.0,
 ) -> list[Trial]:
+    """New trials of a study: asked by its owner (``worker_id`` None), or proposed for a
+    worker's lease (any worker may lease from any managed study)."""
     config = study_config(db, study_id)
+    if worker_id is None:
+        check_manager(
+            caller,
+            study_id=study_id,
+            owner_token_id=config.owner_token_id,
+            owner_name=config.owner_name,
+        )
+    lease_token_id = caller.token_id if worker_id is not None else None
     if config.proposer_error is not None:
         raise StudyConfigError(
             f"study {study_id} cannot propose: its proposer settings were stored before "
@@ -262,6 +282,7 @@ def propose_trials(
                 _request(config, count=count, n_issued=first, history=None)
             ),
             worker_id=worker_id,
+            lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
     with locks.hold(db, study_id):
@@ -278,6 +299,7 @@ def propose_trials(
             count=count,
             propose=lambda _first: proposal,
             worker_id=worker_id,
+            lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
 
@@ -287,6 +309,7 @@ def lease_job(
     locks: StudyLocks,
     *,
     worker_id: str,
+    caller: Principal,
     lease_seconds: float,
     tasks: Sequence[str] | None = None,
 ) -> Job | None:
@@ -294,7 +317,11 @@ def lease_job(
     with room; None when there is no work (of ``tasks``, when given)."""
     with db.write() as session:
         row = repository.lease_queued_trial(
-            session, worker_id=worker_id, lease_seconds=lease_seconds, tasks=tasks
+            session,
+            worker_id=worker_id,
+            lease_token_id=caller.token_id,
+            lease_seconds=lease_seconds,
+            tasks=tasks,
         )
         trial = Trial.model_validate(row, from_attributes=True) if row else None
     if trial is None:
@@ -307,6 +334,7 @@ def lease_job(
                     locks,
                     study_id=study_id,
                     count=1,
+                    caller=caller,
                     worker_id=worker_id,
                     lease_seconds=lease_seconds,
                 )

@@ -18,8 +18,24 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from adclient.schemas import StudyCreate, TellRequest, Trial, TrialState
-from adservice.errors import ConflictError, LeaseLostError, NotFoundError
-from adservice.models import ArtifactRow, StudyRow, TokenRow, TrialRow, WorkerRow, utcnow
+from adservice import principals
+from adservice.errors import (
+    ConflictError,
+    ForbiddenError,
+    LeaseLostError,
+    NotFoundError,
+    TooLargeError,
+)
+from adservice.models import (
+    ArtifactRow,
+    SessionRow,
+    StudyRow,
+    TokenRow,
+    TrialRow,
+    WorkerRow,
+    utcnow,
+)
+from adservice.principals import Principal
 
 TRIAL_ORDERS = {
     "number": TrialRow.number,
@@ -62,9 +78,15 @@ def _locking(session: Session) -> bool:
 
 
 def create_study(
-    session: Session, *, body: StudyCreate, representation: dict[str, Any] | None
+    session: Session,
+    *,
+    body: StudyCreate,
+    representation: dict[str, Any] | None,
+    owner: Principal,
 ) -> StudyRow:
     row = StudyRow(
+        owner_token_id=owner.token_id,
+        created_by=owner.name or None,
         name=body.name,
         direction=body.direction.value,
         state="running",
@@ -110,9 +132,10 @@ def state_counts(session: Session, *, study_ids: Sequence[int]) -> dict[int, dic
     return counts
 
 
-def stop_study(session: Session, *, study_id: int) -> StudyRow:
+def stop_study(session: Session, *, study_id: int, caller: Principal) -> StudyRow:
     """Stop proposing and leasing; queued trials are dropped as failed."""
     study = get_study(session, study_id=study_id, for_update=True)
+    check_manager(study, caller)
     if study.state != "running":
         return study
     now = utcnow()
@@ -212,10 +235,12 @@ def insert_trials(
     params: Sequence[dict[str, Any]],
     infos: Sequence[dict[str, Any]],
     worker_id: str | None = None,
+    lease_token_id: int | None = None,
     lease_seconds: float = 60.0,
 ) -> list[Trial]:
     """New trials numbered from ``first_number`` (see :func:`reserve_numbers`), in state
-    ``running`` and leased to ``worker_id`` when given (that needs a session)."""
+    ``running`` and leased to ``worker_id`` (and its token) when given (that needs a
+    session)."""
     now = utcnow()
     values = [
         {
@@ -235,6 +260,7 @@ def insert_trials(
             "finished_at": None,
             "heartbeat_at": now if worker_id else None,
             "lease_expires_at": now + timedelta(seconds=lease_seconds) if worker_id else None,
+            "lease_token_id": lease_token_id if worker_id else None,
         }
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
@@ -275,16 +301,20 @@ def list_trials(
     *,
     study_id: int,
     state: TrialState | None = None,
+    after: int = 0,
     offset: int = 0,
     limit: int | None = None,
     order_by: str = "number",
     descending: bool = False,
 ) -> tuple[list[TrialRow], int]:
-    """A page of a study's trials and the total that match."""
+    """A page of a study's trials (those numbered ``after`` or more) and the total that
+    match."""
     get_study(session, study_id=study_id)
     where = [TrialRow.study_id == study_id]
     if state is not None:
         where.append(TrialRow.state == state.value)
+    if after:
+        where.append(TrialRow.number >= after)
     total = session.scalar(sa.select(sa.func.count()).select_from(TrialRow).where(*where)) or 0
     column = _trial_order(session, order_by)
     ordering = column.desc().nulls_last() if descending else column.asc().nulls_last()
@@ -311,12 +341,23 @@ def _same_tell(trial: TrialRow, body: TellRequest) -> bool:
     return trial.value == body.value or math.isclose(trial.value, body.value, rel_tol=1e-12)
 
 
-def _finish_statement(*, by_worker: bool) -> sa.Update:
-    holder = (
-        [_trials.c.state == TrialState.running.value, _trials.c.worker_id == sa.bindparam("wid")]
-        if by_worker
-        else [_trials.c.state.in_((TrialState.queued.value, TrialState.running.value))]
-    )
+def _finish_statement(*, by_worker: bool, checked: bool) -> sa.Update:
+    """Finish a trial the caller may finish: a worker the trial it holds (with auth on,
+    leased by its own token); otherwise a trial no worker holds (with auth on, of a study
+    the caller owns); ``checked=False`` for admins and with auth off."""
+    holder: list[sa.ColumnElement[bool]]
+    if by_worker:
+        holder = [
+            _trials.c.state == TrialState.running.value,
+            _trials.c.worker_id == sa.bindparam("wid"),
+        ]
+        if checked:
+            holder.append(_trials.c.lease_token_id == sa.bindparam("tok"))
+    else:
+        holder = [_trials.c.state.in_((TrialState.queued.value, TrialState.running.value))]
+        if checked:
+            owned = sa.select(_studies.c.id).where(_studies.c.owner_token_id == sa.bindparam("tok"))
+            holder += [_trials.c.worker_id.is_(None), _trials.c.study_id.in_(owned)]
     return (
         sa.update(_trials)
         .where(_trials.c.id == sa.bindparam("tid"), *holder)
@@ -374,7 +415,11 @@ def _worker_statement(*, complete: bool) -> sa.Update:
     )
 
 
-_FINISH = {by_worker: _finish_statement(by_worker=by_worker) for by_worker in (False, True)}
+_FINISH = {
+    (by_worker, checked): _finish_statement(by_worker=by_worker, checked=checked)
+    for by_worker in (False, True)
+    for checked in (False, True)
+}
 _COUNT = {complete: _count_statement(complete=complete) for complete in (False, True)}
 _WORKER_COUNT = {complete: _worker_statement(complete=complete) for complete in (False, True)}
 
@@ -388,7 +433,9 @@ def _session(handle: Session | sa.Connection) -> Session:
     return handle if isinstance(handle, Session) else Session(bind=handle)
 
 
-def tell_trial(handle: Session | sa.Connection, *, trial_id: int, body: TellRequest) -> Trial:
+def tell_trial(
+    handle: Session | sa.Connection, *, trial_id: int, body: TellRequest, caller: Principal
+) -> Trial:
     """Finish a trial. Repeating an identical tell is harmless; a contradicting one is
     a conflict; a worker that no longer holds the lease is told so.
 
@@ -399,10 +446,11 @@ def tell_trial(handle: Session | sa.Connection, *, trial_id: int, body: TellRequ
     now = utcnow()
     complete = body.state == "complete"
     finished = connection.execute(
-        _FINISH[body.worker_id is not None],
+        _FINISH[body.worker_id is not None, caller.checked],
         {
             "tid": trial_id,
             "wid": body.worker_id,
+            "tok": caller.token_id,
             "state": body.state,
             "value": body.value,
             "message": body.message,
@@ -411,7 +459,7 @@ def tell_trial(handle: Session | sa.Connection, *, trial_id: int, body: TellRequ
         },
     ).one_or_none()
     if finished is None:
-        return _explain_refused_tell(_session(handle), trial_id=trial_id, body=body)
+        return _explain_refused_tell(_session(handle), trial_id=trial_id, body=body, caller=caller)
     connection.execute(
         _COUNT[complete],
         {"sid": finished.study_id, "tid": trial_id, "value": body.value, "now": now},
@@ -423,8 +471,20 @@ def tell_trial(handle: Session | sa.Connection, *, trial_id: int, body: TellRequ
     return Trial.model_validate(dict(finished._mapping))
 
 
-def _explain_refused_tell(session: Session, *, trial_id: int, body: TellRequest) -> Trial:
+def _explain_refused_tell(
+    session: Session, *, trial_id: int, body: TellRequest, caller: Principal
+) -> Trial:
     trial = get_trial(session, trial_id=trial_id)
+    if body.worker_id is not None:
+        check_lease_token(trial, caller)
+    elif caller.checked:
+        if trial.worker_id is not None:
+            raise ForbiddenError(
+                f"trial {trial_id} is leased by worker {trial.worker_id!r}: only the token "
+                "that leased it, or an admin, may tell it"
+            )
+        study = get_study(session, study_id=trial.study_id)
+        check_manager(study, caller)
     if trial.state in (TrialState.complete, TrialState.failed):
         if _same_tell(trial, body):
             return Trial.model_validate(trial, from_attributes=True)
@@ -483,6 +543,7 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
         else:
             trial.state = TrialState.queued
             trial.worker_id = None
+            trial.lease_token_id = None
         study.updated_at = now
     return len(expired)
 
@@ -496,7 +557,12 @@ def _task_among(tasks: Sequence[str] | None) -> list[sa.ColumnElement[bool]]:
 
 
 def lease_queued_trial(
-    session: Session, *, worker_id: str, lease_seconds: float, tasks: Sequence[str] | None = None
+    session: Session,
+    *,
+    worker_id: str,
+    lease_token_id: int | None,
+    lease_seconds: float,
+    tasks: Sequence[str] | None = None,
 ) -> TrialRow | None:
     """Lease the oldest queued trial of a running managed study (of one of ``tasks``)."""
     now = utcnow()
@@ -520,6 +586,7 @@ def lease_queued_trial(
         return None
     trial.state = TrialState.running
     trial.worker_id = worker_id
+    trial.lease_token_id = lease_token_id
     trial.attempts += 1
     trial.started_at = now
     trial.heartbeat_at = now
@@ -542,10 +609,46 @@ def studies_wanting_trials(session: Session, *, tasks: Sequence[str] | None = No
     return list(session.scalars(query))
 
 
-def heartbeat(session: Session, *, trial_id: int, worker_id: str, lease_seconds: float) -> TrialRow:
+def check_lease_token(trial: TrialRow, caller: Principal) -> None:
+    """A trial's lease belongs to the token that took it: anyone else is forbidden."""
+    if (
+        caller.checked
+        and trial.lease_token_id is not None
+        and trial.lease_token_id != caller.token_id
+    ):
+        raise ForbiddenError(
+            f"trial {trial.id} is leased by another token: only the token that leased it, "
+            "or an admin, may act on it"
+        )
+
+
+def check_manager(study: StudyRow, caller: Principal) -> None:
+    """Asking, telling, stopping or deleting a study is for its owner (or an admin)."""
+    principals.check_manager(
+        caller, study_id=study.id, owner_token_id=study.owner_token_id, owner_name=study.created_by
+    )
+
+
+def held_trial(
+    session: Session, *, trial_id: int, worker_id: str | None, caller: Principal
+) -> TrialRow:
+    """The running trial ``worker_id`` holds under ``caller``'s token, locked for update;
+    403 for another token, 409 when the lease is lost. An admin may name no worker."""
     trial = get_trial(session, trial_id=trial_id, for_update=True)
-    if trial.state != TrialState.running or trial.worker_id != worker_id:
+    check_lease_token(trial, caller)
+    if worker_id is None and not caller.is_admin:
+        raise ForbiddenError(f"give the worker_id that holds trial {trial_id}")
+    if trial.state != TrialState.running or (
+        worker_id is not None and trial.worker_id != worker_id
+    ):
         raise LeaseLostError(f"worker {worker_id!r} does not hold the lease of trial {trial_id}")
+    return trial
+
+
+def heartbeat(
+    session: Session, *, trial_id: int, worker_id: str, lease_seconds: float, caller: Principal
+) -> TrialRow:
+    trial = held_trial(session, trial_id=trial_id, worker_id=worker_id, caller=caller)
     now = utcnow()
     trial.heartbeat_at = now
     trial.lease_expires_at = now + timedelta(seconds=lease_seconds)
@@ -553,19 +656,21 @@ def heartbeat(session: Session, *, trial_id: int, worker_id: str, lease_seconds:
     return trial
 
 
-def release_lease(session: Session, *, trial_id: int, worker_id: str) -> TrialRow:
-    """Give a held trial back to the queue now (a worker shutting down mid-job), so it
-    need not wait for the lease to expire. The attempt is not counted against
-    ``max_attempts``: the design did not fail, the worker left."""
-    trial = get_trial(session, trial_id=trial_id, for_update=True)
-    if trial.state != TrialState.running or trial.worker_id != worker_id:
-        raise LeaseLostError(f"worker {worker_id!r} does not hold the lease of trial {trial_id}")
-    now = utcnow()
+def release_lease(
+    session: Session, *, trial_id: int, worker_id: str | None, caller: Principal
+) -> TrialRow:
+    """Give a held trial back to the queue now (a worker shutting down mid-job, or an
+    admin naming no worker), so it need not wait for the lease to expire. The attempt is
+    not counted against ``max_attempts``: the design did not fail, the worker left."""
+    trial = held_trial(session, trial_id=trial_id, worker_id=worker_id, caller=caller)
+    holder = trial.worker_id
     trial.state = TrialState.queued
     trial.worker_id = None
+    trial.lease_token_id = None
     trial.lease_expires_at = None
     trial.attempts -= 1
-    _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=None)
+    if holder is not None:
+        _touch_worker(session, worker_id=holder, now=utcnow(), current_trial_id=None)
     return trial
 
 
@@ -593,6 +698,51 @@ def list_workers(session: Session, *, study_id: int | None = None) -> list[Worke
 # --- artifacts ------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class ArtifactQuota:
+    count: int
+    """Artifacts one trial may have."""
+    total_bytes: int
+    """Bytes all of one trial's artifacts may take."""
+
+
+def artifact_room(
+    session: Session,
+    *,
+    trial_id: int,
+    name: str,
+    worker_id: str | None,
+    caller: Principal,
+    quota: ArtifactQuota,
+) -> tuple[TrialRow, int]:
+    """The trial an upload may write to, and how many bytes it may write: only while the
+    trial runs, by its lease holder (or, for an asked trial, the study's owner), within
+    the trial's quota (``name``'s present file, which it would replace, not counted)."""
+    trial = get_trial(session, trial_id=trial_id, for_update=True)
+    if trial.state != TrialState.running:
+        raise ConflictError(
+            f"trial {trial_id} is {trial.state}: artifacts are uploaded while it runs"
+        )
+    if trial.worker_id is None:
+        check_manager(get_study(session, study_id=trial.study_id), caller)
+    else:
+        held_trial(session, trial_id=trial_id, worker_id=worker_id, caller=caller)
+    others = session.execute(
+        sa.select(sa.func.count(), sa.func.coalesce(sa.func.sum(ArtifactRow.size), 0)).where(
+            ArtifactRow.trial_id == trial_id, ArtifactRow.name != name
+        )
+    ).one()
+    if others[0] >= quota.count:
+        raise TooLargeError(f"trial {trial_id} already has {others[0]} artifacts, the most allowed")
+    room = quota.total_bytes - int(others[1])
+    if room <= 0:
+        raise TooLargeError(
+            f"trial {trial_id}'s artifacts already take {others[1]} bytes of its "
+            f"{quota.total_bytes}"
+        )
+    return trial, room
+
+
 def record_artifact(
     session: Session,
     *,
@@ -602,9 +752,17 @@ def record_artifact(
     size: int,
     sha256: str,
     path: str,
+    worker_id: str | None,
+    caller: Principal,
+    quota: ArtifactQuota,
 ) -> ArtifactRow:
-    """Record an artifact whose file is already complete on disk (last step of a PUT)."""
-    get_trial(session, trial_id=trial_id)
+    """Record an artifact whose file is already complete on disk (last step of a PUT),
+    checking again that the lease and the quota still allow it."""
+    _, room = artifact_room(
+        session, trial_id=trial_id, name=name, worker_id=worker_id, caller=caller, quota=quota
+    )
+    if size > room:
+        raise TooLargeError(f"trial {trial_id}'s artifacts would exceed {quota.total_bytes} bytes")
     row = session.scalars(
         sa.select(ArtifactRow).where(ArtifactRow.trial_id == trial_id, ArtifactRow.name == name)
     ).one_or_none()
@@ -641,27 +799,6 @@ def list_artifacts(session: Session, *, trial_id: int) -> list[ArtifactRow]:
     )
 
 
-def trial_columns(session: Session, *, study_id: int) -> dict[str, Any]:
-    """A study's trials as parallel columns; params of numbers only (what can be plotted)."""
-    get_study(session, study_id=study_id)
-    rows = session.execute(
-        sa.select(TrialRow.number, TrialRow.state, TrialRow.value, TrialRow.params)
-        .where(TrialRow.study_id == study_id)
-        .order_by(TrialRow.number)
-    ).all()
-    names: dict[str, None] = {}
-    for row in rows:
-        for key, value in row.params.items():
-            if isinstance(value, int | float) and not isinstance(value, bool):
-                names.setdefault(key, None)
-    return {
-        "number": [row.number for row in rows],
-        "state": [row.state for row in rows],
-        "value": [row.value for row in rows],
-        "params": {name: [row.params.get(name) for row in rows] for name in names},
-    }
-
-
 # --- tokens ---------------------------------------------------------------------------
 
 
@@ -689,3 +826,40 @@ def revoke_token(session: Session, *, token_id: int) -> TokenRow:
     if row.revoked_at is None:
         row.revoked_at = utcnow()
     return row
+
+
+# --- dashboard sessions -----------------------------------------------------------------
+
+
+def create_session(
+    session: Session, *, digest: str, token_id: int, csrf_token: str, expires_at: datetime
+) -> SessionRow:
+    row = SessionRow(
+        id_sha256=digest, token_id=token_id, csrf_token=csrf_token, expires_at=expires_at
+    )
+    session.add(row)
+    session.flush()
+    return row
+
+
+def find_session(session: Session, *, digest: str) -> tuple[SessionRow, TokenRow] | None:
+    """A live sign-in and its token (none once expired or once the token is revoked)."""
+    found = session.execute(
+        sa.select(SessionRow, TokenRow)
+        .join(TokenRow, TokenRow.id == SessionRow.token_id)
+        .where(
+            SessionRow.id_sha256 == digest,
+            SessionRow.expires_at > utcnow(),
+            TokenRow.revoked_at.is_(None),
+        )
+    ).one_or_none()
+    return None if found is None else (found[0], found[1])
+
+
+def delete_session(session: Session, *, digest: str) -> None:
+    """Sign out; expired sign-ins go with it."""
+    session.execute(
+        sa.delete(SessionRow).where(
+            sa.or_(SessionRow.id_sha256 == digest, SessionRow.expires_at <= utcnow())
+        )
+    )

@@ -19,6 +19,17 @@ class Settings(BaseSettings):
     """How often expired leases are returned to the queue in the background."""
     max_body_bytes: int = 1_000_000
     max_artifact_bytes: int = 16_000_000
+    max_artifacts_per_trial: int = 32
+    """How many artifacts one trial may have (a re-upload of a name replaces it)."""
+    max_trial_artifact_bytes: int = 64_000_000
+    """The bytes all artifacts of one trial may take together."""
+    session_hours: float = 12.0
+    """How long a dashboard sign-in lasts."""
+    cors_origins: list[str] = []
+    """Other web origins allowed to call the API from a browser; none by default."""
+    allowed_hosts: list[str] | None = None
+    """``Host`` headers served (DNS rebinding defence). None: ``adserver`` allows its bind
+    address, loopback names and the host of ``public_url``; "*" allows any."""
     public_url: str | None = None
     auth: bool | None = None
     """Require bearer tokens. None: decided by ``adserver`` from the bind address (off on

@@ -32,7 +32,9 @@ def client(server: ServerProcess, token: str | None = None) -> httpx.Client:
 
 
 def test_roles_gate_every_kind_of_call(secured: ServerProcess) -> None:
-    admin, worker, reader = (make_token(secured, role) for role in ("admin", "worker", "reader"))
+    admin, worker, reader, user = (
+        make_token(secured, role) for role in ("admin", "worker", "reader", "user")
+    )
     with client(secured) as anonymous:
         missing = anonymous.get("/api/v1/studies")
         assert missing.status_code == 401 and missing.headers["WWW-Authenticate"] == "Bearer"
@@ -41,13 +43,15 @@ def test_roles_gate_every_kind_of_call(secured: ServerProcess) -> None:
         assert forged.get("/api/v1/studies").status_code == 401
     with client(secured, reader) as as_reader:
         denied = as_reader.post("/api/v1/studies", json=BOX_STUDY)
-        assert denied.status_code == 403 and "admin" in denied.json()["detail"]
+        assert denied.status_code == 403 and "user role" in denied.json()["detail"]
         assert as_reader.post("/api/v1/jobs/lease", json={"worker_id": "r"}).status_code == 403
     with client(secured, worker) as as_worker:
         assert as_worker.post("/api/v1/studies", json=BOX_STUDY).status_code == 403
-    with client(secured, admin) as as_admin:
-        study = as_admin.post("/api/v1/studies", json=BOX_STUDY)
+    with client(secured, user) as as_user:
+        study = as_user.post("/api/v1/studies", json=BOX_STUDY)
         assert study.status_code == 201
+    with client(secured, admin) as as_admin:
+        assert as_admin.post("/api/v1/studies", json=BOX_STUDY).status_code == 201
     with client(secured, reader) as as_reader:
         assert as_reader.get(f"/api/v1/studies/{study.json()['id']}").status_code == 200
     with client(secured, worker) as as_worker:
@@ -57,6 +61,16 @@ def test_roles_gate_every_kind_of_call(secured: ServerProcess) -> None:
         assert anonymous_tell.status_code == 403 and "worker_id" in anonymous_tell.json()["detail"]
         assert as_worker.post(tell_url, json={"value": 1.0, "worker_id": "w2"}).status_code == 409
         assert as_worker.post(tell_url, json={"value": 1.0, "worker_id": "w1"}).status_code == 200
+
+
+def test_no_token_is_401_before_the_body_is_read(secured: ServerProcess) -> None:
+    """A caller without a token learns nothing about its body: 401, not 422."""
+    with client(secured) as anonymous:
+        for method, path in (("POST", "/api/v1/studies"), ("POST", "/api/v1/trials/1/tell")):
+            answer = anonymous.request(
+                method, path, content=b"{not json", headers={"Content-Type": "application/json"}
+            )
+            assert answer.status_code == 401, (path, answer.text)
 
 
 def test_revoked_token_stops_working(secured: ServerProcess) -> None:

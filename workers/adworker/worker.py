@@ -329,7 +329,11 @@ class Worker:
                 return
             try:
                 self.client.put_artifact(
-                    job.trial_id, artifact.name, artifact.data, artifact.content_type
+                    job.trial_id,
+                    artifact.name,
+                    artifact.data,
+                    artifact.content_type,
+                    worker_id=self.config.worker_id,
                 )
             except (Unauthorized, Forbidden) as exc:
                 raise AuthError(str(exc)) from exc

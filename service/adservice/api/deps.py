@@ -55,6 +55,7 @@ SessionDep = Annotated[Session, Depends(read_session)]
 
 ReaderDep = Annotated[Principal, Depends(require(Role.reader))]
 WorkerDep = Annotated[Principal, Depends(require(Role.worker))]
+UserDep = Annotated[Principal, Depends(require(Role.user))]
 AdminDep = Annotated[Principal, Depends(require(Role.admin))]
 
 MAX_ID = 2**31 - 1

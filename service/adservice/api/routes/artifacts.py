@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import APIRouter, Header, Request
+from fastapi import APIRouter, Header, Query, Request
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
@@ -21,10 +21,9 @@ from adservice.api.deps import (
     TrialId,
     WorkerDep,
 )
+from adservice.artifacts import INERT_HEADERS, SNIFF_BYTES, served_type
 from adservice.convert import artifact_schema
-from adservice.db import Database
 from adservice.errors import NotFoundError
-from adservice.models import TrialRow
 
 router = APIRouter(prefix="/api/v1/trials/{trial_id}/artifacts", tags=["artifacts"])
 
@@ -44,41 +43,56 @@ async def put_artifact(
     db: DatabaseDep,
     store: ArtifactStoreDep,
     settings: SettingsDep,
-    _: WorkerDep,
+    caller: WorkerDep,
     content_type: Annotated[str, Header(max_length=128)] = "application/octet-stream",
+    worker_id: Annotated[str | None, Query(min_length=1, max_length=128)] = None,
 ) -> ArtifactInfo:
-    trial = await run_in_threadpool(_trial, db, trial_id)
+    """Upload while holding the trial's lease (``worker_id`` names the holder), or, for a
+    trial asked from a study without workers, as the study's owner; within the trial's
+    quota. The body is stored as it comes; the type it is served with is decided from
+    its bytes when it is read back."""
+    quota = repository.ArtifactQuota(
+        count=settings.max_artifacts_per_trial, total_bytes=settings.max_trial_artifact_bytes
+    )
+
+    def room() -> tuple[int, int]:
+        with db.write() as session:
+            trial, left = repository.artifact_room(
+                session,
+                trial_id=trial_id,
+                name=name,
+                worker_id=worker_id,
+                caller=caller,
+                quota=quota,
+            )
+            return trial.study_id, left
+
+    study_id, left = await run_in_threadpool(room)
     path, size, sha256 = await store.write(
-        study_id=trial.study_id,
+        study_id=study_id,
         trial_id=trial_id,
         name=name,
         chunks=request.stream(),
-        limit=settings.max_artifact_bytes,
-    )
-    return await run_in_threadpool(
-        _record, db, trial_id, name, content_type, size, sha256, str(path)
+        limit=min(settings.max_artifact_bytes, left),
     )
 
+    def record() -> ArtifactInfo:
+        with db.write() as session:
+            row = repository.record_artifact(
+                session,
+                trial_id=trial_id,
+                name=name,
+                content_type=content_type,
+                size=size,
+                sha256=sha256,
+                path=str(path),
+                worker_id=worker_id,
+                caller=caller,
+                quota=quota,
+            )
+            return artifact_schema(row)
 
-def _trial(db: Database, trial_id: TrialId) -> TrialRow:
-    with db.read() as session:
-        return repository.get_trial(session, trial_id=trial_id)
-
-
-def _record(
-    db: Database, trial_id: TrialId, name: str, content_type: str, size: int, sha256: str, path: str
-) -> ArtifactInfo:
-    with db.write() as session:
-        row = repository.record_artifact(
-            session,
-            trial_id=trial_id,
-            name=name,
-            content_type=content_type,
-            size=size,
-            sha256=sha256,
-            path=path,
-        )
-        return artifact_schema(row)
+    return await run_in_threadpool(record)
 
 
 @router.get(
@@ -86,7 +100,9 @@ def _record(
     response_class=FileResponse,
     responses={
         200: {
-            "description": "The artifact's bytes, with the content type it was uploaded with",
+            "description": "The artifact's bytes: PNG, JPEG, GIF and WebP images inline, "
+            "anything else as a download (application/json, text/plain, text/csv, "
+            "application/xml or application/octet-stream), never a type a browser runs",
             "content": {"*/*": {"schema": {"type": "string", "format": "binary"}}},
         }
     },
@@ -98,4 +114,12 @@ def get_artifact(
     path = Path(row.path)
     if not path.is_file() or path.stat().st_size != row.size:
         raise NotFoundError(f"artifact {name!r} of trial {trial_id} is missing or incomplete")
-    return FileResponse(path, media_type=row.content_type)
+    with path.open("rb") as handle:
+        media_type, inline = served_type(handle.read(SNIFF_BYTES), row.content_type)
+    return FileResponse(
+        path,
+        media_type=media_type,
+        filename=name,
+        content_disposition_type="inline" if inline else "attachment",
+        headers=INERT_HEADERS,
+    )

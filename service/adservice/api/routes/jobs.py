@@ -13,12 +13,13 @@ router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 
 @router.post("/lease", response_model=Job, responses={204: {"description": "No work now"}})
 def lease(
-    body: LeaseRequest, db: DatabaseDep, locks: LocksDep, settings: SettingsDep, _: WorkerDep
+    body: LeaseRequest, db: DatabaseDep, locks: LocksDep, settings: SettingsDep, caller: WorkerDep
 ) -> Response | Job:
     job = proposing.lease_job(
         db,
         locks,
         worker_id=body.worker_id,
+        caller=caller,
         lease_seconds=settings.lease_seconds,
         tasks=body.tasks,
     )

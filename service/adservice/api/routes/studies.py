@@ -3,23 +3,33 @@
 from __future__ import annotations
 
 import re
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 from pydantic import AfterValidator
 from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import (
+    MAX_TRIAL_PAGE,
     AskRequest,
     AskResponse,
     Study,
     StudyCreate,
     Trial,
+    TrialColumns,
     TrialState,
     WorkerInfo,
 )
-from adservice import proposing, repository
-from adservice.api.deps import AdminDep, DatabaseDep, LocksDep, ReaderDep, SessionDep, StudyId
+from adservice import proposing, repository, views
+from adservice.api.deps import (
+    MAX_ID,
+    DatabaseDep,
+    LocksDep,
+    ReaderDep,
+    SessionDep,
+    StudyId,
+    UserDep,
+)
 from adservice.api.responses import model_response
 from adservice.convert import study_schema, trial_schema, worker_schema
 
@@ -48,8 +58,8 @@ TrialOrder = Annotated[
 
 
 @router.post("", status_code=201)
-def create_study(body: StudyCreate, db: DatabaseDep, _: AdminDep) -> Study:
-    row = proposing.create_study(db, body=body)
+def create_study(body: StudyCreate, db: DatabaseDep, caller: UserDep) -> Study:
+    row = proposing.create_study(db, body=body, owner=caller)
     return study_schema(row, {})
 
 
@@ -69,10 +79,12 @@ def get_study(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Study:
 
 @router.post("/{study_id}/ask", response_model=AskResponse)
 async def ask(
-    study_id: StudyId, body: AskRequest, db: DatabaseDep, locks: LocksDep, _: AdminDep
+    study_id: StudyId, body: AskRequest, db: DatabaseDep, locks: LocksDep, caller: UserDep
 ) -> Response:
     def propose() -> list[Trial]:
-        return proposing.propose_trials(db, locks, study_id=study_id, count=body.count)
+        return proposing.propose_trials(
+            db, locks, study_id=study_id, count=body.count, caller=caller
+        )
 
     if proposing.proposes_instantly(db, study_id):
         trials = await db.run(propose)
@@ -82,9 +94,9 @@ async def ask(
 
 
 @router.post("/{study_id}/stop")
-def stop_study(study_id: StudyId, db: DatabaseDep, _: AdminDep) -> Study:
+def stop_study(study_id: StudyId, db: DatabaseDep, caller: UserDep) -> Study:
     with db.write() as session:
-        row = repository.stop_study(session, study_id=study_id)
+        row = repository.stop_study(session, study_id=study_id, caller=caller)
         counts = repository.state_counts(session, study_ids=[study_id])
     return study_schema(row, counts[study_id])
 
@@ -96,16 +108,23 @@ def list_trials(
     response: Response,
     _: ReaderDep,
     state: TrialState | None = None,
-    offset: Annotated[int, Query(ge=0)] = 0,
-    limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
+    offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
+    limit: Annotated[int, Query(ge=1, le=MAX_TRIAL_PAGE)] = MAX_TRIAL_PAGE,
+    after: Annotated[
+        int, Query(ge=0, le=MAX_ID, description="only trials numbered `after` or more")
+    ] = 0,
     order_by: TrialOrder = "number",
     desc: bool = False,
 ) -> list[Trial]:
-    """Trials, optionally filtered and paged; the total that match is in ``X-Total-Count``."""
+    """Trials, optionally filtered, one page at a time (a bounded page keeps one request
+    cheap); the total that match is in ``X-Total-Count``. Page with ``offset``, or in
+    order of number with ``after`` (the last number seen plus one), which skips no trial
+    when others change state between pages."""
     rows, total = repository.list_trials(
         session,
         study_id=study_id,
         state=state,
+        after=after,
         offset=offset,
         limit=limit,
         order_by=order_by,
@@ -125,7 +144,17 @@ def study_workers(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[
     return [worker_schema(row) for row in repository.list_workers(session, study_id=study_id)]
 
 
-@router.get("/{study_id}/series")
-def study_series(study_id: StudyId, session: SessionDep, _: ReaderDep) -> dict[str, Any]:
-    """Every trial as columns (number, state, value, params): one small payload for charts."""
-    return repository.trial_columns(session, study_id=study_id)
+@router.get("/{study_id}/series", response_model=TrialColumns)
+def study_series(
+    study_id: StudyId,
+    session: SessionDep,
+    _: ReaderDep,
+    after: Annotated[
+        int, Query(ge=0, le=MAX_ID, description="only trials numbered `after` or more")
+    ] = 0,
+    limit: Annotated[int, Query(ge=1, le=views.SERIES_PAGE)] = views.SERIES_PAGE,
+) -> Response:
+    """The trials as columns (number, state, value, params), a page at a time: a page
+    ends after ``limit`` trials or about 250,000 param values, and ``next`` is where the
+    following one starts."""
+    return model_response(views.trial_columns(session, study_id=study_id, after=after, limit=limit))

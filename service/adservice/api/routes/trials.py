@@ -29,14 +29,18 @@ async def tell(
 
     def write() -> Trial:
         with db.write_connection() as connection:
-            return repository.tell_trial(connection, trial_id=trial_id, body=body)
+            return repository.tell_trial(connection, trial_id=trial_id, body=body, caller=caller)
 
     return model_response(await db.run(write))
 
 
 @router.post("/{trial_id}/heartbeat")
 def heartbeat(
-    trial_id: TrialId, body: HeartbeatRequest, db: DatabaseDep, settings: SettingsDep, _: WorkerDep
+    trial_id: TrialId,
+    body: HeartbeatRequest,
+    db: DatabaseDep,
+    settings: SettingsDep,
+    caller: WorkerDep,
 ) -> HeartbeatResponse:
     with db.write() as session:
         row = repository.heartbeat(
@@ -44,17 +48,21 @@ def heartbeat(
             trial_id=trial_id,
             worker_id=body.worker_id,
             lease_seconds=settings.lease_seconds,
+            caller=caller,
         )
     assert row.lease_expires_at is not None
     return HeartbeatResponse(trial_id=row.id, lease_expires_at=row.lease_expires_at)
 
 
 @router.post("/{trial_id}/release")
-def release(trial_id: TrialId, body: ReleaseRequest, db: DatabaseDep, _: WorkerDep) -> Trial:
-    """The lease holder gives the trial back to the queue (409 if it does not hold it)."""
+def release(trial_id: TrialId, body: ReleaseRequest, db: DatabaseDep, caller: WorkerDep) -> Trial:
+    """The lease holder gives the trial back to the queue (409 if it does not hold it, 403
+    for another token); an admin may name no worker."""
     with db.write() as session:
         return trial_schema(
-            repository.release_lease(session, trial_id=trial_id, worker_id=body.worker_id)
+            repository.release_lease(
+                session, trial_id=trial_id, worker_id=body.worker_id, caller=caller
+            )
         )
 
 

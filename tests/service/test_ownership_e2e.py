@@ -1,0 +1,232 @@
+"""Leases belong to tokens, studies to their creators, artifacts are inert: a real server
+with auth on, real tokens made by ``adserver token create``."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import httpx
+import pytest
+
+from tests.servers import ServerProcess, make_token
+
+pytestmark = pytest.mark.e2e
+
+MANAGED = {
+    "name": "managed",
+    "space": {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
+    "proposer": {"name": "random"},
+    "task": {"name": "noop", "external": True},
+    "max_trials": 20,
+}
+ASKED = {**MANAGED, "name": "asked", "task": None}
+PNG = b"\x89PNG\r\n\x1a\n" + bytes(64)
+SCRIPT_SVG = b'<svg xmlns="http://www.w3.org/2000/svg"><script>alert(1)</script></svg>'
+
+
+@pytest.fixture
+def secured(server_factory: Callable[..., ServerProcess]) -> ServerProcess:
+    return server_factory(AD_AUTH="true")
+
+
+def as_token(server: ServerProcess, token: str) -> httpx.Client:
+    return httpx.Client(
+        base_url=server.url,
+        headers={"Authorization": f"Bearer {token}", "X-Activedesign-Client": "test"},
+        timeout=30,
+    )
+
+
+def trial_state(api: httpx.Client, trial_id: int) -> dict:
+    answer = api.get(f"/api/v1/trials/{trial_id}")
+    assert answer.status_code == 200
+    return answer.json()
+
+
+def test_only_the_leasing_token_acts_on_a_trial(secured: ServerProcess) -> None:
+    admin = as_token(secured, make_token(secured, "admin"))
+    first = as_token(secured, make_token(secured, "worker"))
+    second = as_token(secured, make_token(secured, "worker"))
+    assert admin.post("/api/v1/studies", json=MANAGED).status_code == 201
+    job = first.post("/api/v1/jobs/lease", json={"worker_id": "a"}).json()
+    trial = f"/api/v1/trials/{job['trial_id']}"
+    before = trial_state(admin, job["trial_id"])
+
+    # The second token claims the first's worker id: refused on every route, nothing changes.
+    impostor = {"worker_id": "a"}
+    for path, body in (
+        ("/heartbeat", impostor),
+        ("/release", impostor),
+        ("/tell", {**impostor, "value": 9.0}),
+        ("/tell", {**impostor, "state": "failed"}),
+    ):
+        answer = second.post(trial + path, json=body)
+        assert answer.status_code == 403, (path, answer.text)
+        assert "another token" in answer.json()["detail"]
+    upload = second.put(trial + "/artifacts/robot.png?worker_id=a", content=PNG)
+    assert upload.status_code == 403
+    after = trial_state(admin, job["trial_id"])
+    assert after == before
+    assert admin.get(trial + "/artifacts").json() == []
+
+    # The holder still can do all of it.
+    assert first.post(trial + "/heartbeat", json={"worker_id": "a"}).status_code == 200
+    stored = first.put(trial + "/artifacts/robot.png?worker_id=a", content=PNG)
+    assert stored.status_code == 201
+    told = first.post(trial + "/tell", json={"worker_id": "a", "value": 0.5})
+    assert told.status_code == 200 and told.json()["value"] == 0.5
+    # ... and after the tell, artifacts are refused: the trial is finished.
+    late = first.put(trial + "/artifacts/late.json?worker_id=a", content=b"{}")
+    assert late.status_code == 409 and "complete" in late.json()["detail"]
+
+
+def test_an_admin_releases_or_fails_any_trial(secured: ServerProcess) -> None:
+    admin = as_token(secured, make_token(secured, "admin"))
+    worker = as_token(secured, make_token(secured, "worker"))
+    admin.post("/api/v1/studies", json=MANAGED)
+    held = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+    released = admin.post(f"/api/v1/trials/{held['trial_id']}/release", json={})
+    assert released.status_code == 200 and released.json()["state"] == "queued"
+    # A worker must name itself to release.
+    again = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+    assert again["trial_id"] == held["trial_id"]
+    unnamed = worker.post(f"/api/v1/trials/{again['trial_id']}/release", json={})
+    assert unnamed.status_code == 403
+    failed = admin.post(
+        f"/api/v1/trials/{again['trial_id']}/tell", json={"state": "failed", "message": "bad"}
+    )
+    assert failed.status_code == 200 and failed.json()["state"] == "failed"
+    late = worker.post(
+        f"/api/v1/trials/{again['trial_id']}/tell", json={"worker_id": "w", "value": 1}
+    )
+    assert late.status_code == 409
+
+
+def test_users_manage_only_their_own_studies(secured: ServerProcess) -> None:
+    alice = as_token(secured, make_token(secured, "user", name="alice"))
+    bob = as_token(secured, make_token(secured, "user", name="bob"))
+    admin = as_token(secured, make_token(secured, "admin"))
+    reader = as_token(secured, make_token(secured, "reader"))
+    study = alice.post("/api/v1/studies", json=ASKED).json()
+    assert study["created_by"] == "alice"
+    url = f"/api/v1/studies/{study['id']}"
+    (trial,) = alice.post(url + "/ask", json={"count": 1}).json()["trials"]
+
+    for api in (bob, reader):
+        assert api.get(url).status_code == 200  # everyone with a token reads
+        assert api.get(url + "/trials").status_code == 200
+    for path, body in ((url + "/ask", {"count": 1}), (url + "/stop", {})):
+        denied = bob.post(path, json=body)
+        assert denied.status_code == 403 and "alice" in denied.json()["detail"], denied.text
+    denied_tell = bob.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": 1.0})
+    assert denied_tell.status_code == 403
+    assert (
+        bob.put(f"/api/v1/trials/{trial['id']}/artifacts/x.json", content=b"{}").status_code == 403
+    )
+    assert reader.post(url + "/stop", json={}).status_code == 403
+    unchanged = alice.get(url).json()
+    assert unchanged["state"] == "running" and unchanged["n_trials"] == 1
+    assert unchanged["n_complete"] == 0
+
+    # The owner asks, uploads and tells its own; an admin stops anyone's.
+    assert (
+        alice.put(f"/api/v1/trials/{trial['id']}/artifacts/x.json", content=b"{}").status_code
+        == 201
+    )
+    assert alice.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": 1.0}).status_code == 200
+    assert alice.post(url + "/ask", json={"count": 1}).status_code == 200
+    # Bob's own study is his.
+    own = bob.post("/api/v1/studies", json=ASKED).json()
+    assert bob.post(f"/api/v1/studies/{own['id']}/ask", json={"count": 1}).status_code == 200
+    stopped = admin.post(url + "/stop", json={})
+    assert stopped.status_code == 200 and stopped.json()["state"] == "stopped"
+
+
+def test_artifact_uploads_need_the_lease_and_fit_the_quota(
+    server_factory: Callable[..., ServerProcess],
+) -> None:
+    secured = server_factory(AD_AUTH="true", AD_MAX_ARTIFACTS_PER_TRIAL="3")
+    admin = as_token(secured, make_token(secured, "admin"))
+    worker = as_token(secured, make_token(secured, "worker"))
+    admin.post("/api/v1/studies", json=MANAGED)
+    job = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+    base = f"/api/v1/trials/{job['trial_id']}/artifacts"
+    queued_trial = job["trial_id"] + 1000
+    assert (
+        worker.put(f"/api/v1/trials/{queued_trial}/artifacts/a.json", content=b"{}").status_code
+        == 404
+    )
+    assert worker.put(base + "/a.json?worker_id=other", content=b"{}").status_code == 409
+    for name in ("a.json", "b.json", "c.json"):
+        assert worker.put(f"{base}/{name}?worker_id=w", content=b"{}").status_code == 201
+    assert worker.put(base + "/a.json?worker_id=w", content=b"[]").status_code == 201  # replaces
+    over = worker.put(base + "/d.json?worker_id=w", content=b"{}")
+    assert over.status_code == 413 and "3 artifacts" in over.json()["detail"]
+    assert sorted(a["name"] for a in admin.get(base).json()) == ["a.json", "b.json", "c.json"]
+
+
+def test_artifacts_are_served_inert(secured: ServerProcess) -> None:
+    admin = as_token(secured, make_token(secured, "admin"))
+    worker = as_token(secured, make_token(secured, "worker"))
+    admin.post("/api/v1/studies", json=MANAGED)
+    job = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+    base = f"/api/v1/trials/{job['trial_id']}/artifacts"
+    uploads = {
+        "robot.png": (SCRIPT_SVG, "image/svg+xml"),
+        "page.html": (b"<script>alert(1)</script>", "text/html"),
+        "real.png": (PNG, "text/html"),
+        "curve.json": (b"[1, 2]", "application/json"),
+    }
+    for name, (data, declared) in uploads.items():
+        answer = worker.put(
+            f"{base}/{name}?worker_id=w", content=data, headers={"Content-Type": declared}
+        )
+        assert answer.status_code == 201
+    served = {name: admin.get(f"{base}/{name}") for name in uploads}
+    for name, answer in served.items():
+        assert answer.headers["x-content-type-options"] == "nosniff", name
+        assert answer.headers["content-security-policy"].startswith("sandbox"), name
+    for name in ("robot.png", "page.html"):  # script, whatever its name or declared type
+        assert served[name].headers["content-type"] == "application/octet-stream"
+        assert served[name].headers["content-disposition"].startswith("attachment")
+    assert served["real.png"].headers["content-type"] == "image/png"  # from its bytes
+    assert served["real.png"].headers["content-disposition"].startswith("inline")
+    assert served["curve.json"].headers["content-type"].startswith("application/json")
+    assert served["curve.json"].headers["content-disposition"].startswith("attachment")
+
+
+def test_dashboard_sign_in_is_a_cookie_session_with_csrf(secured: ServerProcess) -> None:
+    token = make_token(secured, "user", name="carol")
+    with httpx.Client(base_url=secured.url, timeout=30) as browser:
+        assert browser.get("/api/v1/session").json() == {
+            "auth": True,
+            "signed_in": False,
+            "role": None,
+            "name": None,
+            "csrf_token": None,
+        }
+        assert browser.post("/api/v1/session", json={"token": "adt_wrong"}).status_code == 401
+        signed = browser.post("/api/v1/session", json={"token": token})
+        assert signed.status_code == 200
+        cookie = signed.headers["set-cookie"].lower()
+        assert "httponly" in cookie and "samesite=strict" in cookie and token.lower() not in cookie
+        info = signed.json()
+        assert info["signed_in"] and info["role"] == "user" and info["name"] == "carol"
+        assert browser.get("/api/v1/studies").status_code == 200  # the cookie authenticates
+        # A change with the cookie needs the CSRF token.
+        no_csrf = browser.post("/api/v1/studies", json=MANAGED)
+        assert no_csrf.status_code == 403 and "CSRF" in no_csrf.json()["detail"]
+        wrong = browser.post("/api/v1/studies", json=MANAGED, headers={"X-CSRF-Token": "x"})
+        assert wrong.status_code == 403
+        made = browser.post(
+            "/api/v1/studies", json=MANAGED, headers={"X-CSRF-Token": info["csrf_token"]}
+        )
+        assert made.status_code == 201 and made.json()["created_by"] == "carol"
+        assert browser.get("/api/v1/session").json()["csrf_token"] == info["csrf_token"]
+        out = browser.delete("/api/v1/session", headers={"X-CSRF-Token": info["csrf_token"]})
+        assert out.status_code == 204
+        browser.cookies.clear()
+    # The old cookie is dead on the server too, not only forgotten by the browser.
+    old = signed.cookies.get("ad_session")
+    with httpx.Client(base_url=secured.url, timeout=30, cookies={"ad_session": old}) as replay:
+        assert replay.get("/api/v1/studies").status_code == 401
