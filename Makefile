@@ -22,6 +22,8 @@ demo: install
 	$(BIN)/python examples/demo.py
 
 test: install
+	# Debian's chromium and postgresql, once, before any test process starts.
+	$(BIN)/python tests/system_packages.py
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
 test-fast: install

@@ -14,17 +14,19 @@ import pytest
 
 from tests.postgres import PostgresCluster, PostgresUnavailable
 from tests.servers import ServerProcess
+from tests.system_packages import unavailable
 
 DATABASES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
 
 
 @pytest.fixture(scope="session")
 def postgres_cluster() -> Iterator[PostgresCluster]:
-    """One PostgreSQL cluster per test process (so per xdist worker), stopped at the end."""
+    """One PostgreSQL cluster per test process (so per xdist worker), stopped at the end;
+    without PostgreSQL its tests skip, or fail where required (tests/system_packages.py)."""
     try:
         cluster = PostgresCluster.start(durable=False)
     except PostgresUnavailable as error:
-        pytest.skip(f"POSTGRESQL TESTS SKIPPED: {error}")
+        unavailable("POSTGRESQL", str(error))
     yield cluster
     cluster.stop()
 

@@ -1,6 +1,7 @@
 """A throwaway PostgreSQL cluster for tests and benchmarks: Debian's ``postgresql``
-package (installed with apt-get where missing), a cluster in a temporary folder owned
-by an unprivileged user, listening on a free loopback port, removed when stopped.
+package (``make test`` installs it: tests/system_packages.py), a cluster in a temporary
+folder owned by an unprivileged user, listening on a free loopback port, removed when
+stopped.
 
     with PostgresCluster.start() as cluster:
         url = cluster.create_database()   # postgresql+psycopg://postgres@127.0.0.1:PORT/db_1
@@ -10,8 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import fcntl
-import glob
 import itertools
 import os
 import pwd
@@ -27,64 +26,23 @@ from pathlib import Path
 import psycopg
 
 from tests.servers import free_port
+from tests.system_packages import postgres_bin_dir
 
 SUPERUSER = "postgres"
 UNPRIVILEGED_USER = "nobody"  # initdb and postgres refuse to run as root
 PREFIX = "activedesign-pg-"
-INSTALL_LOCK = Path(tempfile.gettempdir()) / "activedesign-apt-install.lock"
-"""Held around every apt-get the tests run (PostgreSQL here, Chromium in the browser
-fixture): two at once make apt's own lock fail the second."""
 
 
 class PostgresUnavailable(RuntimeError):
-    """PostgreSQL is missing and cannot be installed here (no apt-get)."""
+    """PostgreSQL is not installed (tests/system_packages.py installs it)."""
 
 
-def _bin_dir() -> Path | None:
-    """The folder with ``initdb`` and ``postgres``: Debian keeps them off PATH, in
-    /usr/lib/postgresql/VERSION/bin; the newest version wins."""
-    on_path = shutil.which("initdb")
-    if on_path and Path(on_path).resolve().with_name("postgres").exists():
-        return Path(on_path).resolve().parent
-    versions = sorted(
-        glob.glob("/usr/lib/postgresql/*/bin/initdb"),
-        key=lambda path: int(Path(path).parts[-3]) if Path(path).parts[-3].isdigit() else 0,
-    )
-    return Path(versions[-1]).parent if versions else None
-
-
-def ensure_installed() -> Path:
-    """The PostgreSQL bin folder, installing Debian's ``postgresql`` first if needed.
-
-    A file lock keeps parallel test processes from running apt-get at once."""
-    found = _bin_dir()
-    if found is not None:
-        return found
-    apt_get = shutil.which("apt-get")
-    if apt_get is None:
-        raise PostgresUnavailable(
-            "PostgreSQL (initdb) is not installed and apt-get is not available to install "
-            "it: install Debian's `postgresql` package to run the PostgreSQL tests"
-        )
-    with INSTALL_LOCK.open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        found = _bin_dir()
-        if found is None:
-            env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-            prefix = [] if os.geteuid() == 0 else ["sudo", "-n"]
-            for command in (
-                [*prefix, apt_get, "update", "-q"],
-                [*prefix, apt_get, "install", "-y", "-q", "--no-install-recommends", "postgresql"],
-            ):
-                done = subprocess.run(command, env=env, capture_output=True, text=True)
-                if done.returncode != 0:
-                    raise RuntimeError(
-                        f"{' '.join(command)} failed ({done.returncode}):\n"
-                        f"{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
-                    )
-            found = _bin_dir()
-        if found is None:
-            raise RuntimeError("apt-get installed postgresql but initdb was not found")
+def installed_bin_dir() -> Path:
+    """The PostgreSQL bin folder. The tests never install it themselves: ``make test``
+    does, once, before any test process starts."""
+    found = postgres_bin_dir()
+    if found is None:
+        raise PostgresUnavailable("PostgreSQL (initdb) is not installed")
     return found
 
 
@@ -132,7 +90,7 @@ class PostgresCluster:
         """Create and start a cluster. ``durable=False`` turns off fsync and synchronous
         commit: what tests need (nothing survives the run anyway), not what a benchmark
         of a real deployment should measure."""
-        bin_dir = ensure_installed()
+        bin_dir = installed_bin_dir()
         remove_stale_clusters()
         root = Path(tempfile.mkdtemp(prefix=PREFIX))
         as_user: dict[str, object] = {}

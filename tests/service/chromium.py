@@ -7,10 +7,7 @@ uncaught page exceptions and console errors so a test can assert there were none
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
-import os
-import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -19,34 +16,19 @@ from typing import Any
 import httpx
 from websockets.sync.client import ClientConnection, connect
 
-from tests.postgres import INSTALL_LOCK
+from tests.system_packages import chromium_executable, unavailable
 
 
 class PageError(AssertionError):
     """JavaScript evaluated in the page threw."""
 
 
-def find_or_install_chromium() -> str | None:
-    """The chromium executable, installed with apt-get when missing; None when neither
-    chromium nor apt-get is there (the caller skips, saying so)."""
-    found = shutil.which("chromium") or shutil.which("chromium-browser")
-    if found:
-        return found
-    apt = shutil.which("apt-get")
-    if apt is None:
-        return None
-    sudo = [] if os.geteuid() == 0 or shutil.which("sudo") is None else ["sudo", "-n"]
-    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    # one apt-get at a time: the PostgreSQL fixture of another test process may be
-    # installing too, and apt's own lock makes the second one fail (exit 100)
-    with INSTALL_LOCK.open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if shutil.which("chromium") is None:
-            subprocess.run([*sudo, apt, "update", "-qq"], check=True, env=env)
-            subprocess.run([*sudo, apt, "install", "-y", "-qq", "chromium"], check=True, env=env)
-    found = shutil.which("chromium")
+def find_chromium() -> str:
+    """The chromium executable. The tests never install it themselves (``make test``
+    does, once, first): when missing, the browser tests skip, or fail where required."""
+    found = chromium_executable()
     if found is None:
-        raise RuntimeError("apt-get installed chromium but no `chromium` is on PATH")
+        unavailable("BROWSER", "chromium is not installed")
     return found
 
 
@@ -74,11 +56,14 @@ class Chromium:
             stderr=(profile / "chromium.log").open("wb"),
         )
         self.errors: list[str] = []
+        self.requested: list[str] = []
+        """Every URL the page asked for (documents, scripts, fetches, images)."""
         self._next_id = 0
         self._exits = contextlib.ExitStack()
         self._socket = self._connect()
         self.send("Runtime.enable")
         self.send("Page.enable")
+        self.send("Network.enable")
 
     def _connect(self) -> ClientConnection:
         port_file = self.profile / "DevToolsActivePort"
@@ -115,6 +100,8 @@ class Chromium:
             details = params.get("exceptionDetails", {})
             text = details.get("exception", {}).get("description") or details.get("text")
             self.errors.append(f"uncaught: {text}")
+        elif method == "Network.requestWillBeSent":
+            self.requested.append(params.get("request", {}).get("url", ""))
         elif method == "Runtime.consoleAPICalled" and params.get("type") == "error":
             args = [arg.get("value", arg.get("description")) for arg in params.get("args", [])]
             self.errors.append(f"console.error: {args}")
