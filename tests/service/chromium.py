@@ -56,11 +56,14 @@ class Chromium:
             stderr=(profile / "chromium.log").open("wb"),
         )
         self.errors: list[str] = []
+        self.requested: list[str] = []
+        """Every URL the page asked for (documents, scripts, fetches, images)."""
         self._next_id = 0
         self._exits = contextlib.ExitStack()
         self._socket = self._connect()
         self.send("Runtime.enable")
         self.send("Page.enable")
+        self.send("Network.enable")
 
     def _connect(self) -> ClientConnection:
         port_file = self.profile / "DevToolsActivePort"
@@ -97,6 +100,8 @@ class Chromium:
             details = params.get("exceptionDetails", {})
             text = details.get("exception", {}).get("description") or details.get("text")
             self.errors.append(f"uncaught: {text}")
+        elif method == "Network.requestWillBeSent":
+            self.requested.append(params.get("request", {}).get("url", ""))
         elif method == "Runtime.consoleAPICalled" and params.get("type") == "error":
             args = [arg.get("value", arg.get("description")) for arg in params.get("args", [])]
             self.errors.append(f"console.error: {args}")

@@ -23,6 +23,7 @@ from PIL import Image
 from adclient.schemas import TellRequest
 from adservice import repository
 from adservice.db import Database
+from adservice.principals import OPEN_ADMIN
 from tests.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium, find_chromium
 
@@ -110,18 +111,23 @@ def tell(http: httpx.Client, trial_id: int, **body: Any) -> None:
     assert response.status_code == 200, response.text
 
 
-def upload(http: httpx.Client, trial_id: int, name: str, content: bytes, content_type: str) -> None:
+def upload(
+    http: httpx.Client, trial_id: int, name: str, content: bytes, content_type: str, worker: str
+) -> None:
+    """As a worker does: while it holds the trial's lease, before it tells."""
     response = http.put(
         f"/api/v1/trials/{trial_id}/artifacts/{name}",
+        params={"worker_id": worker},
         content=content,
-        headers={"Content-Type": content_type},
+        headers={"Content-Type": content_type, "X-Activedesign-Client": "test"},
     )
     assert response.status_code == 201, response.text
 
 
 def seed_mixed_study(http: httpx.Client) -> dict[str, Any]:
     """A managed study: 8 complete and 2 failed trials told by two workers, one trial
-    leased by worker-1 and two asked (running), and images on the best trial."""
+    leased by worker-1 and two asked (running), and an image and a URDF on each
+    complete trial (uploaded before its tell, as workers do)."""
     study = http.post("/api/v1/studies", json=MANAGED_BOX).raise_for_status().json()
     values: dict[int, float] = {}
     done = {"worker-1": 0, "worker-2": 0}
@@ -134,20 +140,15 @@ def seed_mixed_study(http: httpx.Client) -> dict[str, Any]:
             failed[worker] += 1
         else:
             value = score(job["params"])
+            upload(http, job["trial_id"], "robot.png", png(64, 48), "image/png", worker)
+            urdf = b'<robot name="r"><link name="a"/></robot>'
+            upload(http, job["trial_id"], "robot.urdf", urdf, "application/xml", worker)
             tell(http, job["trial_id"], value=value, worker_id=worker)
             values[job["number"]] = value
             done[worker] += 1
     held = lease(http, "worker-1")
     asked = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 2}).raise_for_status()
     best = http.get(f"/api/v1/studies/{study['id']}/best").raise_for_status().json()
-    upload(http, best["id"], "robot.png", png(64, 48), "image/png")
-    upload(
-        http,
-        best["id"],
-        "robot.urdf",
-        b'<robot name="r"><link name="a"/></robot>',
-        "application/xml",
-    )
     return {
         "study": study,
         "values": values,
@@ -310,6 +311,7 @@ def test_study_page_draws_the_study_and_follows_it_live(
         # Live: a better trial is told; the same document shows it without a reload.
         held = seeded["held"]
         new_value = best["value"] + 10.0
+        upload(http, held["trial_id"], "robot.png", png(80, 60), "image/png", "worker-1")
         tell(http, held["trial_id"], value=new_value, worker_id="worker-1")
         browser.wait_for(f"{TABLE_NUMBERS}[0] === {held['number']}")
         browser.wait_for(f"document.querySelector('{history}').dataset.points === '9'")
@@ -320,10 +322,7 @@ def test_study_page_draws_the_study_and_follows_it_live(
         assert "9 complete" in browser.evaluate(
             "document.querySelector('[data-counts]').textContent"
         )
-        assert browser.evaluate(f"{DISPLAY}('[data-best-image]')") == "none"
-        assert browser.evaluate(f"{DISPLAY}('[data-best-placeholder]')") != "none"
-        # The image arrives after the tell (as a worker uploads it): the page picks it up.
-        upload(http, held["trial_id"], "robot.png", png(80, 60), "image/png")
+        # The new best's own image replaces the old one.
         assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 80
         workers_after = browser.wait_for(
             "(() => { const row = [...document.querySelectorAll('table.workers tbody tr')]"
@@ -373,7 +372,7 @@ def seed_many(database_url: str, study_id: int, count: int, open_count: int) -> 
                     if k % 50 == 7
                     else TellRequest(value=score(trial.params))
                 )
-                repository.tell_trial(session, trial_id=trial.id, body=body)
+                repository.tell_trial(session, trial_id=trial.id, body=body, caller=OPEN_ADMIN)
     finally:
         db.dispose()
     return [trial.id for trial in trials[count - open_count :]]
@@ -462,11 +461,11 @@ def test_ten_thousand_trials_render_and_update(
         print(f"\ndashboard with {count} trials: {json.dumps(timings)}")
 
 
-def test_page_sends_a_stored_token_when_auth_is_on(
+def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
     server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
     server = server_factory(AD_AUTH="true")
-    admin, reader = make_token(server, "admin"), make_token(server, "reader")
+    admin, reader = make_token(server, "admin"), make_token(server, "reader", name="rita")
     with httpx.Client(
         base_url=server.url, timeout=30, headers={"Authorization": f"Bearer {admin}"}
     ) as http:
@@ -478,12 +477,68 @@ def test_page_sends_a_stored_token_when_auth_is_on(
     assert "requires a token" in browser.evaluate(
         "document.querySelector('[data-auth]').textContent"
     )
-
-    browser.navigate(f"{server.url}/?token={reader}#/studies/{study_id}")
+    # Type the token into the form and submit it, as a person does.
+    browser.evaluate(
+        f"(() => {{ const form = document.querySelector('[data-auth] form');"
+        f" form.elements.token.value = {json.dumps(reader)}; form.requestSubmit(); }})()"
+    )
     browser.wait_for(STUDY_PAGE_READY)
-    assert browser.evaluate("location.search") == ""  # the token left the address bar
-    assert browser.evaluate("localStorage.getItem('ad_token')") == reader
     assert browser.evaluate("document.querySelector('[data-auth]').hidden") is True
+    assert "rita" in browser.evaluate("document.querySelector('[data-signed-in]').textContent")
     assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 64
     assert browser.evaluate("document.querySelector('[data-trials]').dataset.total") == "13"
-    assert all("401" in error for error in browser.errors)  # only the refused first visit
+
+    # The token is nowhere a page script or a log could find it.
+    assert browser.evaluate("document.querySelector('[data-auth] input').value") == ""
+    assert browser.evaluate("document.cookie") == ""  # the session cookie is HttpOnly
+    storage = browser.evaluate(
+        "JSON.stringify([{...localStorage}, {...sessionStorage}, location.href])"
+    )
+    assert reader not in storage and "ad_token" not in storage
+    assert browser.requested, "no request was recorded"
+    assert not [url for url in browser.requested if reader in url or "token=" in url]
+    assert all(url.startswith(server.url) or url.startswith("data:") for url in browser.requested)
+
+    # Signing out ends the session on the server: the page asks again.
+    browser.evaluate("document.querySelector('[data-sign-out]').click()")
+    browser.wait_for("!document.querySelector('[data-auth]').hidden")
+    refused = browser.evaluate("fetch('/api/v1/studies').then(r => r.status)")
+    assert refused == 401
+    assert all("401" in error for error in browser.errors)  # only the refused visits
+
+
+def test_scripted_artifacts_run_no_script(
+    server_factory: Callable[..., ServerProcess], browser: Chromium
+) -> None:
+    """A worker uploads script as an SVG named robot.png and as HTML: opened in the
+    dashboard or in a tab of their own, neither runs on the dashboard's origin."""
+    server = server_factory()
+    marker = "localStorage.setItem('pwned', document.domain)"
+    svg = (
+        '<svg xmlns="http://www.w3.org/2000/svg" width="64" height="48">'
+        f"<script>{marker}</script><rect width='64' height='48'/></svg>"
+    ).encode()
+    html = f"<html><body><script>{marker}</script></body></html>".encode()
+    with httpx.Client(base_url=server.url, timeout=30) as http:
+        study = http.post("/api/v1/studies", json=MANAGED_BOX).raise_for_status().json()
+        job = lease(http, "worker-1")
+        upload(http, job["trial_id"], "robot.png", svg, "image/svg+xml", "worker-1")
+        upload(http, job["trial_id"], "page.html", html, "text/html", "worker-1")
+        tell(http, job["trial_id"], value=1.0, worker_id="worker-1")
+    base = f"{server.url}/api/v1/trials/{job['trial_id']}/artifacts"
+
+    browser.navigate(f"{server.url}/#/studies/{study['id']}")
+    browser.wait_for(STUDY_PAGE_READY)
+    # The marker mechanism works on this origin (so its absence below means something).
+    browser.evaluate("localStorage.setItem('probe', '1')")
+    assert browser.evaluate("localStorage.getItem('probe')") == "1"
+    browser.evaluate(f"document.querySelector('[data-open-trial=\"{job['trial_id']}\"]')?.click()")
+    for url in (f"{base}/robot.png", f"{base}/page.html"):
+        browser.navigate(url)  # "open image in new tab": a download, never a page
+        time.sleep(1.0)
+    browser.navigate(f"{server.url}/#/studies/{study['id']}")
+    browser.wait_for(STUDY_PAGE_READY)
+    assert browser.evaluate("localStorage.getItem('pwned')") is None
+    assert browser.evaluate("localStorage.getItem('probe')") == "1"
+    # And the dashboard itself never wrapped an artifact in a blob or data URL.
+    assert not [url for url in browser.requested if url.startswith(("blob:", "data:image/svg"))]

@@ -1,8 +1,9 @@
-// HTTP helpers: JSON reads, blobs for images and downloads, and the optional bearer token.
-// The token is the user's own (never part of the page): it is taken once from `?token=`
-// and kept in localStorage under 'ad_token'.
+// HTTP helpers: JSON reads and the sign-in session.
+// With auth on, the page signs in once: the token is sent to POST /api/v1/session, which
+// answers with an HttpOnly cookie. The page never keeps the token (no storage, no URL);
+// it keeps only the session's CSRF token, in memory, for the few changes it makes.
 
-const TOKEN_KEY = 'ad_token';
+let csrfToken = null;
 
 export class HttpError extends Error {
   constructor(status, detail) {
@@ -14,33 +15,8 @@ export class HttpError extends Error {
   }
 }
 
-/** Move a `?token=` from the address into localStorage, and out of the address bar. */
-export function adoptTokenFromUrl() {
-  const url = new URL(window.location.href);
-  const token = url.searchParams.get('token');
-  if (token) {
-    setToken(token);
-    url.searchParams.delete('token');
-    history.replaceState(null, '', url.pathname + url.search + url.hash);
-  }
-}
-
-export function setToken(token) {
-  if (token) localStorage.setItem(TOKEN_KEY, token.trim());
-  else localStorage.removeItem(TOKEN_KEY);
-}
-
-export function hasToken() {
-  return Boolean(localStorage.getItem(TOKEN_KEY));
-}
-
-function headers() {
-  const token = localStorage.getItem(TOKEN_KEY);
-  return token ? { Authorization: `Bearer ${token}` } : {};
-}
-
-async function request(path) {
-  const response = await fetch(path, { headers: headers(), cache: 'no-store' });
+async function request(path, options = {}) {
+  const response = await fetch(path, { cache: 'no-store', credentials: 'same-origin', ...options });
   if (!response.ok) {
     let detail = response.statusText;
     try {
@@ -61,24 +37,30 @@ export async function getJSON(path, { withTotal = false } = {}) {
   return { body, total: Number(response.headers.get('X-Total-Count') ?? body.length) };
 }
 
-/** GET a file as an object URL (works with a bearer token, unlike a bare <img src>). */
-export async function getObjectUrl(path) {
-  const response = await request(path);
-  return URL.createObjectURL(await response.blob());
+function remember(info) {
+  csrfToken = info.csrf_token ?? null;
+  return info;
 }
 
-/** Links marked `data-download` fetch with the token and save, when a token is set;
- * without one they are plain links. */
-export function installDownloadLinks(root) {
-  root.addEventListener('click', async (event) => {
-    const link = event.target.closest('a[data-download]');
-    if (!link || !hasToken()) return;
-    event.preventDefault();
-    const url = await getObjectUrl(link.getAttribute('href'));
-    const save = document.createElement('a');
-    save.href = url;
-    save.download = link.dataset.download;
-    save.click();
-    setTimeout(() => URL.revokeObjectURL(url), 10_000);
+/** Who the page is signed in as: {auth, signed_in, role, name}. */
+export async function currentSession() {
+  return remember(await getJSON('/api/v1/session'));
+}
+
+/** Exchange a token for the session cookie; the token is not kept anywhere. */
+export async function signIn(token) {
+  const response = await request('/api/v1/session', {
+    method: 'POST',
+    headers: { 'Content-Type': 'application/json' },
+    body: JSON.stringify({ token: token.trim() }),
   });
+  return remember(await response.json());
+}
+
+export async function signOut() {
+  await request('/api/v1/session', {
+    method: 'DELETE',
+    headers: csrfToken ? { 'X-CSRF-Token': csrfToken } : { 'X-Activedesign-Client': 'dashboard' },
+  });
+  csrfToken = null;
 }

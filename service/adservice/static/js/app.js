@@ -4,15 +4,7 @@
 // study's counts or updated_at moved; chart columns come as a delta (new trials and the
 // ones last seen open), so a 10,000-trial study stays cheap to follow.
 
-import {
-  HttpError,
-  adoptTokenFromUrl,
-  getJSON,
-  getObjectUrl,
-  hasToken,
-  installDownloadLinks,
-  setToken,
-} from './api.js';
+import { HttpError, currentSession, getJSON, signIn, signOut } from './api.js';
 import {
   drawCurve,
   drawHistory,
@@ -481,16 +473,17 @@ class StudyPage {
   stop() {
     this.alive = false;
     this.resizer.disconnect();
-    if (this.bestImage.url) URL.revokeObjectURL(this.bestImage.url);
   }
 
   // --- data ---
 
   async loadSeries(full) {
+    const url = `/api/v1/dashboard/studies/${this.studyId}/series`;
     if (full || !this.series) {
-      const series = await getJSON(`/api/v1/dashboard/studies/${this.studyId}/series`);
-      this.series = series;
+      const [first, ...rest] = await this.seriesPages(url);
+      this.series = first;
       this.reindex();
+      rest.forEach((page) => this.merge(page));
       return;
     }
     const s = this.series;
@@ -504,10 +497,19 @@ class StudyPage {
       after = Math.min(after, open[0]);
       numbers = [];
     }
-    const delta = await getJSON(
-      `/api/v1/dashboard/studies/${this.studyId}/series?after=${after}&numbers=${numbers.join(',')}`,
-    );
-    this.merge(delta);
+    const pages = await this.seriesPages(`${url}?after=${after}&numbers=${numbers.join(',')}`);
+    pages.forEach((page) => this.merge(page));
+  }
+
+  // Chart columns from `first` on: the server answers a page at a time, and each page's
+  // `next` is where the following one starts (null after the last).
+  async seriesPages(first) {
+    const pages = [await getJSON(first)];
+    const base = first.split('?')[0];
+    while (pages[pages.length - 1].next != null) {
+      pages.push(await getJSON(`${base}?after=${pages[pages.length - 1].next}`));
+    }
+    return pages;
   }
 
   reindex() {
@@ -605,9 +607,9 @@ class StudyPage {
       this.bestArtifacts = (await this.artifactNames([id]))[id] ?? [];
     }
     if (this.bestArtifacts.includes('robot.png') && this.bestImage.trialId !== id) {
-      const url = await getObjectUrl(`/api/v1/trials/${id}/artifacts/robot.png`);
-      if (this.bestImage.url) URL.revokeObjectURL(this.bestImage.url);
-      this.bestImage = { trialId: id, url };
+      // A plain URL (the sign-in cookie authenticates it): the server serves an artifact
+      // inline only when its bytes are a raster image, so the page never wraps one itself.
+      this.bestImage = { trialId: id, url: `/api/v1/trials/${id}/artifacts/robot.png` };
     }
   }
 
@@ -908,8 +910,7 @@ async function openTrialDialog(study, trialId) {
   if (!dialog.open) dialog.showModal();
   const image = dialog.querySelector('[data-trial-image]');
   if (image) {
-    image.src = await getObjectUrl(`/api/v1/trials/${trial.id}/artifacts/robot.png`);
-    dialog.addEventListener('close', () => URL.revokeObjectURL(image.src), { once: true });
+    image.src = `/api/v1/trials/${trial.id}/artifacts/robot.png`;
   }
   const curve = dialog.querySelector('[data-curve]');
   if (curve) drawCurve(curve, await getJSON(`/api/v1/trials/${trial.id}/artifacts/curve.json`));
@@ -931,14 +932,26 @@ function setLive(ok, detail = '') {
   live.title = ok ? `live · last update ${new Date().toLocaleTimeString()}` : `not updating: ${detail}`;
 }
 
+function askToSignIn(text) {
+  const auth = document.querySelector('[data-auth]');
+  auth.hidden = false;
+  auth.querySelector('[data-auth-text]').textContent = text;
+  document.querySelector('[data-signed-in]').hidden = true;
+}
+
+function showSignedIn(session) {
+  document.querySelector('[data-auth]').hidden = true;
+  const who = document.querySelector('[data-signed-in]');
+  who.hidden = !session.auth || !session.signed_in;
+  who.querySelector('[data-who]').textContent = session.name
+    ? `${session.name} (${session.role})`
+    : session.role ?? '';
+}
+
 function showError(error) {
   console.error(error);
-  const auth = document.querySelector('[data-auth]');
-  if (error instanceof HttpError && error.isAuth) {
-    auth.hidden = false;
-    auth.querySelector('[data-auth-text]').textContent = hasToken()
-      ? `The server refused the stored token (${error.message}). Paste another reader token:`
-      : 'This server requires a token. Paste a reader token (it stays in this browser only):';
+  if (error instanceof HttpError && error.status === 401) {
+    askToSignIn('This server requires a token. Sign in with a reader token or higher:');
   }
   setLive(false, error.message);
 }
@@ -977,15 +990,40 @@ async function pollForever() {
   }
 }
 
-document.querySelector('[data-auth] form').addEventListener('submit', (event) => {
+document.querySelector('[data-auth] form').addEventListener('submit', async (event) => {
   event.preventDefault();
-  setToken(event.target.elements.token.value);
-  document.querySelector('[data-auth]').hidden = true;
-  route();
+  const field = event.target.elements.token;
+  try {
+    showSignedIn(await signIn(field.value));
+    field.value = '';
+    route();
+  } catch (error) {
+    field.value = '';
+    askToSignIn(`The server refused that token (${error.message}). Try another:`);
+  }
 });
 
-adoptTokenFromUrl();
-installDownloadLinks(document.body);
-window.addEventListener('hashchange', route);
-route();
-pollForever();
+document.querySelector('[data-sign-out]').addEventListener('click', async () => {
+  await signOut();
+  page?.stop();
+  view.innerHTML = '';
+  askToSignIn('Signed out. Sign in with a reader token or higher:');
+});
+
+async function start() {
+  try {
+    const session = await currentSession();
+    if (session.auth && !session.signed_in) {
+      askToSignIn('This server requires a token. Sign in with a reader token or higher:');
+    } else {
+      showSignedIn(session);
+    }
+  } catch (error) {
+    showError(error);
+  }
+  window.addEventListener('hashchange', route);
+  route();
+  pollForever();
+}
+
+start();
