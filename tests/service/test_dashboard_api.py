@@ -40,7 +40,25 @@ def test_series_delta_is_new_trials_and_the_listed_open_ones(api: TestClient) ->
     assert delta["value"] == [None, 3.0, None, None]
     assert len(delta["params"]["y"]) == 4
     nothing = api.get(url, params={"after": 6}).json()
-    assert nothing == {"number": [], "state": [], "value": [], "params": {}}
+    assert nothing == {"number": [], "state": [], "value": [], "params": {}, "next": None}
+
+
+def test_series_pages_follow_next_and_keep_the_listed_open_ones(api: TestClient) -> None:
+    study_id, trials = make_study(api, asked=7)
+    api.post(f"/api/v1/trials/{trials[1]['id']}/tell", json={"value": 2.0})
+    url = f"/api/v1/dashboard/studies/{study_id}/series"
+    first = api.get(url, params={"after": 5, "numbers": "1,3", "limit": 2}).json()
+    assert first["number"] == [1, 3] and first["next"] == 4
+    second = api.get(url, params={"after": first["next"], "limit": 3}).json()
+    assert second["number"] == [4, 5, 6] and second["next"] is None
+    plain = f"/api/v1/studies/{study_id}/series"
+    pages, after = [], 0
+    while after is not None:
+        page = api.get(plain, params={"after": after, "limit": 3}).json()
+        pages.append(page["number"])
+        after = page["next"]
+    assert pages == [[0, 1, 2], [3, 4, 5], [6]]
+    assert api.get(plain, params={"limit": 5001}).status_code == 422
 
 
 def test_series_delta_refuses_bad_lists_and_unknown_studies(api: TestClient) -> None:

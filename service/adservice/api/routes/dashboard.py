@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Response
 
+from adclient.schemas import TrialColumns
 from adservice import views
 from adservice.api.deps import MAX_ID, ReaderDep, SessionDep, StudyId
+from adservice.api.responses import model_response
 from adservice.errors import InvalidError
 
 router = APIRouter(prefix="/api/v1/dashboard", tags=["dashboard"])
@@ -29,19 +31,25 @@ def _numbers(text: str, what: str) -> list[int]:
     return numbers
 
 
-@router.get("/studies/{study_id}/series")
+@router.get("/studies/{study_id}/series", response_model=TrialColumns)
 def changed_series(
     study_id: StudyId,
     session: SessionDep,
     _: ReaderDep,
     after: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
     numbers: Annotated[str, Query(max_length=20_000)] = "",
-) -> dict[str, Any]:
+    limit: Annotated[int, Query(ge=1, le=views.SERIES_PAGE)] = views.SERIES_PAGE,
+) -> Response:
     """Like ``/studies/{id}/series`` but only trials numbered ``after`` or more, plus the
     trial numbers listed in ``numbers`` (those the page last saw queued or running)."""
-    return views.changed_trial_columns(
-        session, study_id=study_id, after=after, numbers=_numbers(numbers, "numbers")
+    columns = views.trial_columns(
+        session,
+        study_id=study_id,
+        after=after,
+        numbers=_numbers(numbers, "numbers"),
+        limit=limit,
     )
+    return model_response(columns)
 
 
 @router.get("/studies/{study_id}/artifacts")
