@@ -42,6 +42,7 @@ from pydantic import BaseModel, ValidationError
 from adclient import __version__
 from adclient.errors import ApiError, Invalid, NotFound, Unavailable, error_class
 from adclient.schemas import (
+    MAX_TRIAL_PAGE,
     ArtifactInfo,
     AskResponse,
     HeartbeatResponse,
@@ -365,19 +366,27 @@ class Client:
         offset: int = 0,
         limit: int | None = None,
     ) -> list[Trial]:
-        """The study's trials in order of number, optionally only those in ``state``.
+        """The study's trials in order of number, optionally only those in ``state``:
+        all of them, or ``limit`` from the ``offset``-th on.
 
-        ``offset`` and ``limit`` page through long studies.
+        The server answers at most ``MAX_TRIAL_PAGE`` trials a request; longer lists are
+        fetched page by page, each after the last number seen (a trial that changes
+        state meanwhile shifts no other out of the list).
         """
-        params: dict[str, Any] = {}
+        found: list[Trial] = []
+        params: dict[str, Any] = {"offset": offset}
         if state is not None:
             params["state"] = str(getattr(state, "value", state))
-        if offset:
-            params["offset"] = offset
-        if limit is not None:
-            params["limit"] = limit
-        data = self._get_json(f"{API}/studies/{int(study_id)}/trials", params=params or None)
-        return [Trial.model_validate(item) for item in data]
+        while limit is None or len(found) < limit:
+            wanted = MAX_TRIAL_PAGE if limit is None else min(MAX_TRIAL_PAGE, limit - len(found))
+            data = self._get_json(
+                f"{API}/studies/{int(study_id)}/trials", params={**params, "limit": wanted}
+            )
+            found += [Trial.model_validate(item) for item in data]
+            if len(data) < wanted:
+                break
+            params.update(offset=0, after=found[-1].number + 1)
+        return found
 
     def get_trial(self, trial: TrialRef) -> Trial:
         """One trial's current record."""

@@ -11,7 +11,15 @@ import pytest
 
 from adclient import Client, Conflict, Invalid, NotFound, PayloadTooLarge
 from adclient.client import StudyHandle, study_finished
-from adclient.schemas import BoxParam, BoxSpace, ProposerConfig, Study, StudyCreate, Trial
+from adclient.schemas import (
+    MAX_TRIAL_PAGE,
+    BoxParam,
+    BoxSpace,
+    ProposerConfig,
+    Study,
+    StudyCreate,
+    Trial,
+)
 from tests.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
@@ -217,6 +225,26 @@ def test_export_json_and_csv_hold_every_trial(client: Client) -> None:
     assert rows[3]["value"] == ""
     with pytest.raises(ValueError):
         client.export(study.id, "xml")  # type: ignore[arg-type, unused-ignore]
+
+
+def test_trials_and_export_page_past_the_servers_largest_page(client: Client) -> None:
+    """The server answers at most MAX_TRIAL_PAGE trials a request; the SDK still gives
+    every trial, and a state filter or a slice across page boundaries."""
+    study = box_study(client, "long")
+    total = 2 * MAX_TRIAL_PAGE + 100
+    asked = [trial for start in range(0, total, 64) for trial in study.ask(min(64, total - start))]
+    for trial in asked[: MAX_TRIAL_PAGE + 50]:
+        if trial.number % 2 == 0 or trial.number > 50:
+            study.tell(trial, float(trial.number))
+
+    trials = client.trials(study.id)
+    assert [trial.number for trial in trials] == list(range(total))
+    complete = client.trials(study.id, "complete")
+    assert len(complete) > MAX_TRIAL_PAGE
+    assert [t.number for t in complete] == [t.number for t in trials if t.state == "complete"]
+    window = client.trials(study.id, offset=MAX_TRIAL_PAGE - 5, limit=MAX_TRIAL_PAGE + 10)
+    assert [t.number for t in window] == list(range(MAX_TRIAL_PAGE - 5, 2 * MAX_TRIAL_PAGE + 5))
+    assert len(json.loads(study.export("json"))["trials"]) == total
 
 
 def test_client_closes_its_connection_pool(server: ServerProcess) -> None:
