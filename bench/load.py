@@ -36,6 +36,8 @@ from typing import Any
 import httpx
 import numpy as np
 
+from adclient import Client
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.postgres import PostgresCluster
@@ -156,11 +158,9 @@ def run_load(
             for part in parts:
                 seen.merge(part.result())
         elapsed = time.perf_counter() - started
-        with httpx.Client(base_url=server.url, timeout=120) as http:
-            stored = http.get(
-                f"/api/v1/studies/{study_id}/trials", params={"limit": trials + 1000}
-            ).json()
-            study = http.get(f"/api/v1/studies/{study_id}").json()
+        with Client(server.url, timeout=120) as sdk:  # pages through every trial
+            stored = [trial.model_dump(mode="json") for trial in sdk.trials(study_id)]
+            study = sdk.study_info(study_id).model_dump(mode="json")
     finally:
         server.stop()
 

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import httpx
 
+from adclient import Client
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.servers import ServerProcess
@@ -67,8 +69,8 @@ def run_activedesign(workdir: Path, clients: int, cycles: int) -> dict[str, floa
         for thread in threads:
             thread.join()
         elapsed = time.perf_counter() - start
-        with httpx.Client(base_url=server.url, timeout=60) as http:
-            stored = http.get(f"/api/v1/studies/{study['id']}/trials").json()
+        with Client(server.url, timeout=60) as sdk:  # pages through every trial
+            stored = [trial.model_dump(mode="json") for trial in sdk.trials(study["id"])]
     finally:
         server.stop()
     log = server.log_path.read_text()
