@@ -103,6 +103,11 @@ class ServerProcess:
         return self.start()
 
 
+SDK_HEADERS = {"X-Activedesign-Client": "test"}
+"""What the SDK sends with every request; a raw client changing something without it
+(or a JSON body) is refused 415, as a cross-site page would be."""
+
+
 def make_token(server: ServerProcess, role: str, name: str = "") -> str:
     """A new API token of ``role``, made as an operator would: ``adserver token create``."""
     done = subprocess.run(

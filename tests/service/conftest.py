@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 
 from adservice.app import create_app
 from adservice.settings import Settings
+from tests.servers import SDK_HEADERS
 
 
 @pytest.fixture
@@ -22,7 +23,7 @@ def settings(tmp_path: Path, database_url: str) -> Settings:
 
 @pytest.fixture
 def api(settings: Settings) -> Iterator[TestClient]:
-    with TestClient(create_app(settings)) as client:
+    with TestClient(create_app(settings), headers=SDK_HEADERS) as client:
         yield client
 
 

@@ -12,7 +12,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.servers import ServerProcess
+from tests.servers import SDK_HEADERS, ServerProcess
 
 pytestmark = pytest.mark.e2e
 
@@ -29,7 +29,7 @@ def one_trial(http: httpx.Client) -> dict[str, Any]:
 
 def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., ServerProcess]) -> None:
     server = server_factory()
-    with httpx.Client(base_url=server.url, timeout=10) as http:
+    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS) as http:
         study = http.post(
             "/api/v1/studies", json={"name": "crash", "space": BOX, "proposer": {"name": "random"}}
         ).json()
@@ -42,7 +42,7 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
     stop = threading.Event()
 
     def stream(offset: int) -> None:
-        with httpx.Client(base_url=server.url, timeout=5) as http:
+        with httpx.Client(base_url=server.url, timeout=5, headers=SDK_HEADERS) as http:
             for trial in trials[offset::4]:
                 if stop.is_set():
                     return
@@ -66,7 +66,7 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
     assert 40 <= len(acknowledged) < len(trials)
 
     server.start()
-    with httpx.Client(base_url=server.url, timeout=10) as http:
+    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS) as http:
         stored = http.get(f"/api/v1/studies/{study['id']}/trials").json()
         info = http.get(f"/api/v1/studies/{study['id']}").json()
     values = {t["id"]: t["value"] for t in stored if t["state"] == "complete"}
@@ -75,31 +75,33 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
 
 
 def test_interrupted_upload_is_never_served(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=10) as http:
+    with httpx.Client(base_url=live_server.url, timeout=10, headers=SDK_HEADERS) as http:
         trial = one_trial(http)
     path = f"/api/v1/trials/{trial['id']}/artifacts/robot.png"
     # Declare 100 kB, send 10 kB, hang up: the upload never completes.
     with socket.create_connection(("127.0.0.1", live_server.port)) as sock:
         sock.sendall(
             f"PUT {path} HTTP/1.1\r\nHost: x\r\nContent-Type: image/png\r\n"
+            "X-Activedesign-Client: test\r\n"
             f"Content-Length: 100000\r\n\r\n".encode()
             + b"\x89PNG" * 2500
         )
         time.sleep(0.3)
-    with httpx.Client(base_url=live_server.url, timeout=10) as http:
+    with httpx.Client(base_url=live_server.url, timeout=10, headers=SDK_HEADERS) as http:
         assert http.get(path).status_code == 404
         assert http.get(f"/api/v1/trials/{trial['id']}/artifacts").json() == []
-        complete = http.put(path, content=b"\x89PNG" * 10, headers={"Content-Type": "image/png"})
+        image = b"\x89PNG\r\n\x1a\n" * 5
+        complete = http.put(path, content=image, headers={"Content-Type": "image/png"})
         assert complete.status_code == 201 and complete.json()["size"] == 40
         served = http.get(path)
-        assert served.status_code == 200 and served.content == b"\x89PNG" * 10
+        assert served.status_code == 200 and served.content == image
         assert served.headers["content-type"] == "image/png"
     leftovers = list(live_server.artifact_dir.rglob(".upload-*"))
     assert leftovers == []
 
 
 def test_truncated_artifact_file_is_not_served(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=10) as http:
+    with httpx.Client(base_url=live_server.url, timeout=10, headers=SDK_HEADERS) as http:
         trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/curve.json"
         http.put(path, content=b'{"curve": [1, 2, 3]}')
@@ -111,7 +113,7 @@ def test_truncated_artifact_file_is_not_served(live_server: ServerProcess) -> No
 
 @pytest.mark.parametrize("name", ["..", "a/b", "..%2F..%2Fetc", ".hidden", "x" * 200])
 def test_artifact_names_cannot_escape(live_server: ServerProcess, name: str) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=10) as http:
+    with httpx.Client(base_url=live_server.url, timeout=10, headers=SDK_HEADERS) as http:
         trial = one_trial(http)
         response = http.put(f"/api/v1/trials/{trial['id']}/artifacts/{name}", content=b"x")
         assert response.status_code in (404, 405, 422)
@@ -123,7 +125,7 @@ def test_oversized_artifact_is_413_and_not_stored(
     server_factory: Callable[..., ServerProcess],
 ) -> None:
     server = server_factory(AD_MAX_ARTIFACT_BYTES="1000")
-    with httpx.Client(base_url=server.url, timeout=10) as http:
+    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS) as http:
         trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/big.bin"
         assert http.put(path, content=b"x" * 5000).status_code == 413

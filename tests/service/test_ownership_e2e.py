@@ -230,3 +230,41 @@ def test_dashboard_sign_in_is_a_cookie_session_with_csrf(secured: ServerProcess)
     old = signed.cookies.get("ad_session")
     with httpx.Client(base_url=secured.url, timeout=30, cookies={"ad_session": old}) as replay:
         assert replay.get("/api/v1/studies").status_code == 401
+
+
+def test_a_simple_cross_site_request_changes_nothing(live_server: ServerProcess) -> None:
+    """Auth off (loopback): what a page on another origin can send unasked, a form post or
+    a no-cors fetch, has neither a JSON type nor a custom header, and is refused."""
+    with httpx.Client(base_url=live_server.url, timeout=30) as browser_like:
+        study = browser_like.post("/api/v1/studies", json=ASKED).json()  # JSON: allowed
+        url = f"/api/v1/studies/{study['id']}"
+        for headers, body in (
+            ({}, b""),
+            ({"Content-Type": "text/plain"}, b'{"count": 1}'),
+            ({"Content-Type": "application/x-www-form-urlencoded"}, b"count=1"),
+            ({"Content-Type": "multipart/form-data; boundary=x"}, b"--x--"),
+        ):
+            for path in ("/stop", "/ask"):
+                refused = browser_like.post(url + path, content=body, headers=headers)
+                assert refused.status_code == 415, (path, headers, refused.text)
+        assert browser_like.get(url).json()["state"] == "running"
+        assert browser_like.get(url).json()["n_trials"] == 0
+        # The SDK's header, or JSON, is what a client sends.
+        stopped = browser_like.post(url + "/stop", headers={"X-Activedesign-Client": "x"})
+        assert stopped.status_code == 200 and stopped.json()["state"] == "stopped"
+
+
+def test_every_answer_carries_security_headers(live_server: ServerProcess) -> None:
+    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+        for path in ("/", "/api/v1/studies", "/healthz", "/api/v1/nowhere"):
+            answer = http.get(path)
+            assert answer.headers["x-content-type-options"] == "nosniff", path
+            policy = answer.headers["content-security-policy"]
+            assert "frame-ancestors 'none'" in policy and "script-src 'self'" in policy, path
+            assert "unsafe-inline" not in policy.split("script-src")[1].split(";")[0]
+            assert "access-control-allow-origin" not in answer.headers  # CORS off
+        preflight = http.options(
+            "/api/v1/studies",
+            headers={"Origin": "https://evil.example", "Access-Control-Request-Method": "POST"},
+        )
+        assert "access-control-allow-origin" not in preflight.headers
