@@ -143,8 +143,8 @@ def run_demo(client: httpx.Client, trials: int, workdir: Path) -> int:
         else:
             value = synthetic_score(job["params"], rng)
             body = {"state": "complete", "value": value, "worker_id": worker}
-        client.post(f"/api/v1/trials/{job['trial_id']}/tell", json=body).raise_for_status()
         if body["state"] == "complete" and body["value"] > best:
+            # A worker uploads while it holds the lease, before it tells.
             best = body["value"]
             trial_id = job["trial_id"]
             urdf = client.get(f"/api/v1/trials/{trial_id}/urdf").raise_for_status().text
@@ -156,9 +156,11 @@ def run_demo(client: httpx.Client, trials: int, workdir: Path) -> int:
             for name, (content, content_type) in uploads.items():
                 client.put(
                     f"/api/v1/trials/{trial_id}/artifacts/{name}",
+                    params={"worker_id": worker},
                     content=content,
                     headers={"Content-Type": content_type},
                 ).raise_for_status()
+        client.post(f"/api/v1/trials/{job['trial_id']}/tell", json=body).raise_for_status()
         told += 1
     for name in WORKERS:  # each worker is busy with one more: leases show as running
         if name not in held:
@@ -206,7 +208,8 @@ def main() -> None:
         workdir = Path(tmp)
         process, url = start_server(workdir)
         try:
-            with httpx.Client(base_url=url, timeout=60) as client:
+            headers = {"X-Activedesign-Client": "screenshot"}
+            with httpx.Client(base_url=url, timeout=60, headers=headers) as client:
                 study_id = run_demo(client, args.trials, workdir)
             args.out.parent.mkdir(parents=True, exist_ok=True)
             shoot(f"{url}/#/studies/{study_id}", args.out, args.width, args.height)
