@@ -485,6 +485,7 @@ def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
     browser.wait_for(STUDY_PAGE_READY)
     assert browser.evaluate("document.querySelector('[data-auth]').hidden") is True
     assert "rita" in browser.evaluate("document.querySelector('[data-signed-in]').textContent")
+    assert "by admin" in browser.evaluate("document.querySelector('[data-meta]').textContent")
     assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 64
     assert browser.evaluate("document.querySelector('[data-trials]').dataset.total") == "13"
 

@@ -638,7 +638,8 @@ class StudyPage {
     const space = s.space.type === 'box' ? `${s.space.params.length} params` : 'robot design space';
     this.$('meta').innerHTML =
       `${s.direction === 'maximize' ? 'maximise' : 'minimise'} · proposer ${esc(s.proposer.name)}` +
-      `${task} · ${space} · updated <span title="${esc(s.updated_at)}">${ago(s.updated_at)}</span>`;
+      `${task} · ${space}${s.created_by ? ` · by ${esc(s.created_by)}` : ''}` +
+      ` · updated <span title="${esc(s.updated_at)}">${ago(s.updated_at)}</span>`;
     this.$('progress').innerHTML = progressBar(s);
     this.$('counts').innerHTML =
       `<span class="count complete">${s.n_complete} complete</span>` +
