@@ -1,9 +1,10 @@
 """``adclient``: the command line of the SDK.
 
 Every command talks to the server named by ``--server`` (env ``AD_SERVER_URL``) with
-the token of ``--token`` (env ``AD_TOKEN``). Listings are rich tables, or JSON with
-``--json``. Errors end with one line on stderr and exit status 1 (2 for bad usage),
-never a traceback.
+the token of ``--token`` (env ``AD_TOKEN``); an https server with a private or
+self-signed certificate needs ``--ca-bundle`` (env ``AD_CA_BUNDLE``). Listings are
+rich tables, or JSON with ``--json``. Errors end with one line on stderr and exit
+status 1 (2 for bad usage), never a traceback.
 """
 
 from __future__ import annotations
@@ -52,14 +53,26 @@ app = typer.Typer(
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+CA_BUNDLE_OPTION = typer.Option(
+    None,
+    "--ca-bundle",
+    envvar="AD_CA_BUNDLE",
+    exists=True,
+    dir_okay=False,
+    help="CA certificates (PEM) to check an https server against.",
+)
+"""Shared with ``adworker``."""
+
 
 @dataclass
 class Settings:
     server: str
     token: str | None
+    ca_bundle: str | None = None
 
     def client(self) -> Client:
-        return Client(self.server, self.token, retries=CLI_RETRIES, backoff=0.1)
+        verify = self.ca_bundle or True
+        return Client(self.server, self.token, retries=CLI_RETRIES, backoff=0.1, verify=verify)
 
 
 def _settings(ctx: typer.Context) -> Settings:
@@ -158,11 +171,12 @@ def _main(
     token: str | None = typer.Option(
         None, "--token", envvar="AD_TOKEN", help="Bearer token.", show_default=False
     ),
+    ca_bundle: Path | None = CA_BUNDLE_OPTION,
     version: bool = typer.Option(
         False, "--version", callback=_version, is_eager=True, help="Print the version."
     ),
 ) -> None:
-    ctx.obj = Settings(server.rstrip("/"), token or None)
+    ctx.obj = Settings(server.rstrip("/"), token or None, str(ca_bundle) if ca_bundle else None)
 
 
 # -- formatting ------------------------------------------------------------------------

@@ -110,7 +110,11 @@ class Client:
         retries: int = DEFAULT_RETRIES,
         backoff: float = DEFAULT_BACKOFF,
         max_backoff: float = DEFAULT_MAX_BACKOFF,
+        verify: bool | str = True,
     ) -> None:
+        """``verify``: check an https server's certificate against the system's CAs (True),
+        against the CA bundle file at this path (a private or self-signed CA), or not at
+        all (False)."""
         if retries < 0:
             raise ValueError("retries must be >= 0")
         self.url = url.rstrip("/")
@@ -124,10 +128,17 @@ class Client:
         }
         if token:
             headers["Authorization"] = f"Bearer {token}"
+        if isinstance(verify, str):  # httpx deprecates a path: it wants a context
+            import ssl
+
+            tls: bool | ssl.SSLContext = ssl.create_default_context(cafile=verify)
+        else:
+            tls = verify
         self._http = httpx.Client(
             base_url=self.url,
             headers=headers,
             timeout=httpx.Timeout(timeout, connect=min(timeout, 10.0)),
+            verify=tls,
         )
 
     # -- lifecycle -------------------------------------------------------------------

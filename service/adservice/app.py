@@ -35,6 +35,7 @@ from adservice.errors import (
     TooLargeError,
     UnauthorizedError,
 )
+from adservice.limits import BodyTimeout
 from adservice.locks import StudyLocks
 from adservice.security import RefuseSimpleCrossSiteChanges, SecurityHeaders
 from adservice.settings import Settings, get_settings
@@ -240,6 +241,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     install_error_handlers(app)
     document_error_bodies(app)
+    app.add_middleware(BodyTimeout, timeout=settings.body_timeout)  # inside: its 408 gets headers
     # Added last runs first: the host, then headers on every answer, CORS, the cross-site
     # guard and the body limit, and who is calling before any route parses a body.
     app.add_middleware(Authentication)

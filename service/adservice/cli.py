@@ -5,9 +5,12 @@ from __future__ import annotations
 import ipaddress
 import logging
 import socket
+from pathlib import Path
+from typing import Any
 
 import typer
 import uvicorn
+from pydantic import ValidationError
 
 from adservice.settings import Settings
 
@@ -32,27 +35,59 @@ def is_loopback(host: str) -> bool:
             return False
 
 
-def _settings(database_url: str | None) -> Settings:
-    return Settings(database_url=database_url) if database_url else Settings()
+def _settings(**given: Any) -> Settings:
+    """``Settings`` from the environment, with the options given on the command line
+    taking precedence (so an option's default is its ``AD_`` variable's value)."""
+    try:
+        return Settings(**{name: value for name, value in given.items() if value is not None})
+    except ValidationError as error:
+        problems = "; ".join(
+            f"{'.'.join(map(str, item['loc'])) or 'settings'}: {item['msg']}"
+            for item in error.errors()
+        )
+        typer.echo(f"adserver: invalid settings: {problems}", err=True)
+        raise typer.Exit(2) from None
 
 
 @app.callback(invoke_without_command=True)
 def serve(
     ctx: typer.Context,
-    host: str = typer.Option("127.0.0.1", envvar="AD_HOST", help="Address to bind."),
-    port: int = typer.Option(8000, envvar="AD_PORT", help="Port to bind."),
+    host: str | None = typer.Option(
+        None, "--host", help="Address to bind (default: AD_HOST or 127.0.0.1)."
+    ),
+    port: int | None = typer.Option(
+        None, "--port", help="Port to bind (default: AD_PORT or 8000)."
+    ),
     database_url: str | None = DATABASE_OPTION,
     insecure: bool = typer.Option(
         False, "--insecure", help="Allow a non-loopback address without authentication."
     ),
-    log_level: str = typer.Option("info", envvar="AD_LOG_LEVEL"),
+    log_level: str | None = typer.Option(
+        None, "--log-level", help="debug, info, warning... (default: AD_LOG_LEVEL or info)."
+    ),
+    ssl_certfile: Path | None = typer.Option(
+        None, "--ssl-certfile", help="Serve HTTPS with this PEM certificate (AD_SSL_CERTFILE)."
+    ),
+    ssl_keyfile: Path | None = typer.Option(
+        None, "--ssl-keyfile", help="The certificate's PEM private key (AD_SSL_KEYFILE)."
+    ),
 ) -> None:
-    """Start the server (the default command)."""
+    """Start the server (the default command). Every setting, limits included, is an
+    ``AD_`` environment variable: see docs/server.md."""
     if ctx.invoked_subcommand is not None:
         return
     from adservice.app import create_app
+    from adservice.server import uvicorn_config
 
-    settings = _settings(database_url)
+    settings = _settings(
+        database_url=database_url,
+        host=host,
+        port=port,
+        log_level=log_level,
+        ssl_certfile=ssl_certfile,
+        ssl_keyfile=ssl_keyfile,
+    )
+    host = settings.host
     loopback = is_loopback(host)
     if settings.auth is None:
         settings.auth = not loopback
@@ -64,9 +99,12 @@ def serve(
         )
         raise typer.Exit(2)
     logging.basicConfig(
-        level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s"
+        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s"
     )
-    uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level, access_log=False)
+    server = uvicorn.Server(uvicorn_config(create_app(settings), settings))
+    server.run()
+    if not server.started:  # as uvicorn.run: the port was taken, or the app failed to start
+        raise typer.Exit(3)
 
 
 @tokens.command("create")
@@ -85,7 +123,7 @@ def create_token(
             f"adserver: unknown role {role!r}; choose reader, worker, user or admin", err=True
         )
         raise typer.Exit(2)
-    settings = _settings(database_url)
+    settings = _settings(database_url=database_url)
     upgrade_to_head(settings.database_url)
     db = Database(settings.database_url)
     token = new_token()
@@ -101,7 +139,7 @@ def list_tokens(database_url: str | None = DATABASE_OPTION) -> None:
     from adservice import repository
     from adservice.db import Database, upgrade_to_head
 
-    settings = _settings(database_url)
+    settings = _settings(database_url=database_url)
     upgrade_to_head(settings.database_url)
     db = Database(settings.database_url)
     with db.read() as session:
@@ -118,7 +156,7 @@ def revoke_token(token_id: int, database_url: str | None = DATABASE_OPTION) -> N
     from adservice.db import Database
     from adservice.errors import NotFoundError
 
-    db = Database(_settings(database_url).database_url)
+    db = Database(_settings(database_url=database_url).database_url)
     try:
         with db.write() as session:
             repository.revoke_token(session, token_id=token_id)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
+from pydantic import FilePath, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -34,6 +35,34 @@ class Settings(BaseSettings):
     auth: bool | None = None
     """Require bearer tokens. None: decided by ``adserver`` from the bind address (off on
     loopback, on elsewhere); an app built in-process without it runs open."""
+    host: str = "127.0.0.1"
+    port: int = 8000
+    log_level: str = "info"
+    torch_threads: int = 1
+    """torch's intra-op threads in a model-based ask (one: requests run side by side)."""
+    max_header_bytes: int = 65_536
+    """A request line and headers longer than this: 431, and the connection is closed."""
+    header_timeout: float = 10.0
+    """Seconds from a request's first byte (or a new connection) to the end of its headers;
+    past it the connection is closed (408 when part of a request came)."""
+    body_timeout: float = 60.0
+    """Seconds a request body may take to arrive, counted from the end of its headers
+    (408 past it): 16 MB artifacts need about 270 kB/s."""
+    keep_alive_timeout: float = 5.0
+    """Seconds an idle keep-alive connection stays open between requests."""
+    max_connections: int | None = None
+    """Open connections (and requests) beyond which uvicorn answers 503; None: no cap.
+    Idle and slow connections count too, so a cap turns a slowloris into a refusal of
+    service: the header timeout is the defence, the cap only bounds memory."""
+    ssl_certfile: FilePath | None = None
+    """PEM certificate (chain) for HTTPS; ``ssl_keyfile`` too unless it holds the key."""
+    ssl_keyfile: FilePath | None = None
+
+    @model_validator(mode="after")
+    def _keyfile_needs_certfile(self) -> Settings:
+        if self.ssl_keyfile is not None and self.ssl_certfile is None:
+            raise ValueError("ssl_keyfile is set but ssl_certfile is not")
+        return self
 
     def resolved_artifact_dir(self) -> Path:
         if self.artifact_dir is not None:

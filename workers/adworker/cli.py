@@ -5,7 +5,8 @@
 Each worker process leases a job, trains and evaluates the design in PyBullet, and
 reports the score with its metrics and artifacts (URDF, picture, curve). SIGTERM or
 Ctrl-C: finish the current job and exit; a second one: abandon it and exit now.
-Exit status 0 when stopped, 2 when the server refused the token.
+Exit status 0 when stopped, 2 when the server refused the token. An https server with
+a private or self-signed certificate needs ``--ca-bundle`` (env ``AD_CA_BUNDLE``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import typer
 
+from adclient.cli import CA_BUNDLE_OPTION
 from adworker.worker import (
     Worker,
     WorkerConfig,
@@ -40,6 +42,7 @@ def run(
     token: str | None = typer.Option(
         None, "--token", envvar="AD_TOKEN", help="A worker (or admin) bearer token."
     ),
+    ca_bundle: Path | None = CA_BUNDLE_OPTION,
     concurrency: int = typer.Option(
         1, "--concurrency", min=1, max=256, help="Jobs at once, each in its own process."
     ),
@@ -68,6 +71,10 @@ def run(
     # One BLAS/torch thread per process: N processes share the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("MKL_NUM_THREADS", "1")
+    if ca_bundle is not None:
+        # The SDK's default verification (httpx) trusts SSL_CERT_FILE; the environment
+        # reaches every client this process and its pool's processes make.
+        os.environ["SSL_CERT_FILE"] = str(ca_bundle.resolve())
     level = logging.getLevelNamesMapping().get(log_level.upper())
     if level is None:
         raise typer.BadParameter(f"unknown log level {log_level!r}", param_hint="--log-level")

@@ -79,7 +79,6 @@ Decisions worth knowing:
 from __future__ import annotations
 
 import hashlib
-import os
 import threading
 import time
 import warnings
@@ -98,6 +97,7 @@ from adservice.proposers.base import (
     search_vectors,
 )
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
+from adservice.settings import get_settings
 
 if TYPE_CHECKING:
     import torch
@@ -110,7 +110,7 @@ _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
 _DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
-_TORCH_THREADS = int(os.environ.get("AD_TORCH_THREADS", "1"))
+_TORCH_THREADS = get_settings().torch_threads
 
 
 def clear_caches() -> None:

@@ -1,0 +1,133 @@
+"""uvicorn's httptools protocol with the limits it lacks, and the uvicorn config built from
+``Settings``.
+
+httptools (uvicorn's fastest parser) has no cap on header size: it joins a header's
+pieces by concatenation, so one connection sending a 100 MB header kept the event loop
+busy for 12 s. Nor does uvicorn time out a request whose headers never finish. h11 has a
+cap but costs about 18% more server CPU per ask/tell (bench/RESULTS.md, issue 13), so
+we keep httptools and count the bytes ourselves.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+import uvicorn
+from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+from adservice.settings import Settings
+
+
+def _plain_response(status: bytes, text: bytes) -> bytes:
+    return (
+        b"HTTP/1.1 " + status + b"\r\ncontent-type: text/plain; charset=utf-8\r\n"
+        b"content-length: " + str(len(text)).encode() + b"\r\nconnection: close\r\n\r\n" + text
+    )
+
+
+TOO_LARGE = _plain_response(b"431 Request Header Fields Too Large", b"Request headers too large")
+TIMED_OUT = _plain_response(b"408 Request Timeout", b"Request headers not received in time")
+
+
+class LimitedHttpToolsProtocol(HttpToolsProtocol):
+    """Refuses a request whose line and headers exceed ``max_header_bytes`` (431) or do not
+    arrive within ``header_timeout`` seconds of its first byte (408; a connection that
+    sends nothing is closed), and closes a connection whose response went out before its
+    body was read (uvicorn would keep it open as long as the body trickles in)."""
+
+    max_header_bytes = 65_536
+    header_timeout = 10.0
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        self._awaiting_headers = True
+        self._header_bytes = 0
+        self._skip_chunk = False
+        """The chunk that ended the previous request also holds some of its bytes: not counted."""
+        self._got_bytes = False
+        self._header_timer: asyncio.TimerHandle | None = self.loop.call_later(
+            self.header_timeout, self._headers_timed_out
+        )
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._cancel_header_timer()
+        super().connection_lost(exc)
+
+    def data_received(self, data: bytes) -> None:
+        if self._awaiting_headers:
+            self._got_bytes = True
+            if self._header_timer is None:
+                self._header_timer = self.loop.call_later(
+                    self.header_timeout, self._headers_timed_out
+                )
+        super().data_received(data)
+        if not self._awaiting_headers or self.transport.is_closing():
+            return
+        if self._skip_chunk:
+            self._skip_chunk = False
+            return
+        self._header_bytes += len(data)
+        if self._header_bytes > self.max_header_bytes:
+            self._refuse(TOO_LARGE)
+
+    def on_headers_complete(self) -> None:
+        self._awaiting_headers = False
+        self._cancel_header_timer()
+        super().on_headers_complete()
+
+    def on_message_complete(self) -> None:
+        super().on_message_complete()
+        self._awaiting_headers = True
+        self._header_bytes = 0
+        self._skip_chunk = True
+        self._got_bytes = False
+
+    def on_response_complete(self) -> None:
+        unread_body = not self.pipeline and self.cycle is not None and self.cycle.more_body
+        super().on_response_complete()
+        if unread_body:
+            self.transport.close()
+
+    def _cancel_header_timer(self) -> None:
+        if self._header_timer is not None:
+            self._header_timer.cancel()
+            self._header_timer = None
+
+    def _headers_timed_out(self) -> None:
+        self._header_timer = None
+        if self._got_bytes:
+            self._refuse(TIMED_OUT)
+        elif not self.transport.is_closing():
+            self.transport.close()
+
+    def _refuse(self, response: bytes) -> None:
+        self._cancel_header_timer()
+        if not self.transport.is_closing():
+            self.transport.write(response)
+            self.transport.close()
+
+
+def protocol_class(settings: Settings) -> type[LimitedHttpToolsProtocol]:
+    """uvicorn builds its protocol from ``(config, server_state, app_state)`` only: the
+    limits travel as class attributes of a subclass made for these settings."""
+    return type(
+        "LimitedHttpToolsProtocol",
+        (LimitedHttpToolsProtocol,),
+        {"max_header_bytes": settings.max_header_bytes, "header_timeout": settings.header_timeout},
+    )
+
+
+def uvicorn_config(app: Any, settings: Settings) -> uvicorn.Config:
+    return uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level=settings.log_level,
+        access_log=False,
+        http=protocol_class(settings),
+        timeout_keep_alive=settings.keep_alive_timeout,  # type: ignore[arg-type]
+        limit_concurrency=settings.max_connections,
+        ssl_certfile=settings.ssl_certfile,
+        ssl_keyfile=settings.ssl_keyfile,
+    )

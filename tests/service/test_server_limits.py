@@ -1,0 +1,181 @@
+"""A real ``adserver`` against oversized and slow clients: it refuses them, closes their
+connections in time, and keeps answering others.
+
+Latency bounds compare with what the attacks did before issue 13: a 100 MB header froze
+the event loop for 12 to 23 s, and slow connections were held for good. Timeouts here are
+2 to 3 s; the socket timeouts (60 s) only stop a broken build from hanging.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from bench.slow_clients import Attack, big_header, healthz_seconds, slowloris
+
+from tests.servers import ADSERVER, ServerProcess
+
+pytestmark = pytest.mark.e2e
+
+HEADER_TIMEOUT = 3.0
+BODY_TIMEOUT = 2.0
+FAST = 5.0
+"""/healthz on a new connection stays under this (it took 12 s or more under the big header)."""
+PATIENCE = 60.0
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    workdir = tmp_path_factory.mktemp("limits")
+    process = ServerProcess(
+        database_url=f"sqlite:///{workdir / 'limits.db'}",
+        workdir=workdir,
+        env={"AD_HEADER_TIMEOUT": str(HEADER_TIMEOUT), "AD_BODY_TIMEOUT": str(BODY_TIMEOUT)},
+    ).start()
+    yield process
+    process.stop()
+
+
+def connect(server: ServerProcess) -> socket.socket:
+    sock = socket.create_connection(("127.0.0.1", server.port))
+    sock.settimeout(PATIENCE)
+    return sock
+
+
+def read_until_closed(sock: socket.socket) -> bytes:
+    """Everything the server sends until it closes the connection."""
+    received = b""
+    while chunk := sock.recv(65_536):
+        received += chunk
+    return received
+
+
+def test_a_100_mb_header_is_refused_without_stalling_other_clients(server: ServerProcess) -> None:
+    stop = threading.Event()
+    results: list[Attack] = []
+    attacker = threading.Thread(target=lambda: results.append(big_header(server.port, stop)))
+    attacker.start()
+    latencies = [healthz_seconds(server.port)]
+    while attacker.is_alive() or len(latencies) < 3:
+        latencies.append(healthz_seconds(server.port))
+        time.sleep(0.05)
+    attacker.join()
+    (attack,) = results
+    assert attack.closed == 1
+    assert attack.answers in ("", "HTTP/1.1 431"), attack.answers  # refused, or reset first
+    assert max(latencies) < FAST, latencies
+
+
+def test_a_slow_body_gets_408_after_the_body_timeout(server: ServerProcess) -> None:
+    with connect(server) as sock:
+        sock.sendall(
+            b"POST /api/v1/studies HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            b"Content-Type: application/json\r\nContent-Length: 1000\r\n\r\n{"
+        )
+        started = time.monotonic()
+        latencies = []
+        sock.settimeout(1.0)
+        reply = b""
+        while not reply and time.monotonic() - started < PATIENCE:
+            try:
+                reply = sock.recv(65_536)
+            except TimeoutError:
+                sock.send(b" ")  # a byte a second: never enough, always something
+                latencies.append(healthz_seconds(server.port))
+        elapsed = time.monotonic() - started
+        sock.settimeout(PATIENCE)
+        reply += read_until_closed(sock)
+    assert reply.startswith(b"HTTP/1.1 408 "), reply[:200]
+    assert b"connection: close" in reply.lower()
+    assert elapsed >= BODY_TIMEOUT * 0.9
+    assert latencies and max(latencies) < FAST, latencies
+
+
+def test_half_sent_headers_are_closed_after_the_header_timeout(server: ServerProcess) -> None:
+    with connect(server) as half, connect(server) as silent:
+        half.sendall(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Half: ")
+        started = time.monotonic()
+        reply = read_until_closed(half)
+        elapsed = time.monotonic() - started
+        assert read_until_closed(silent) == b""  # a connection that never sends: closed
+    assert reply.startswith(b"HTTP/1.1 408 "), reply
+    assert elapsed >= HEADER_TIMEOUT * 0.9
+
+
+def test_100_slowloris_connections_do_not_stop_healthz(server: ServerProcess) -> None:
+    stop = threading.Event()
+    results: list[Attack] = []
+    attacker = threading.Thread(target=lambda: results.append(slowloris(server.port, stop, 100)))
+    attacker.start()
+    latencies = [healthz_seconds(server.port)]
+    deadline = time.monotonic() + PATIENCE
+    while attacker.is_alive() and time.monotonic() < deadline:
+        latencies.append(healthz_seconds(server.port))
+        time.sleep(0.1)
+    stop.set()
+    attacker.join()
+    (attack,) = results
+    assert (attack.opened, attack.closed) == (100, 100)  # every one closed by the server
+    assert attack.answers == "HTTP/1.1 408"
+    assert max(latencies) < FAST, latencies
+
+
+def test_a_body_left_unread_ends_the_connection(server: ServerProcess) -> None:
+    """/healthz answers without reading the body; the connection must not then stay open
+    for as long as the client trickles that body (uvicorn alone keeps it)."""
+    with connect(server) as sock:
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 100000\r\n\r\n{")
+        reply = sock.recv(65_536)
+        assert reply.startswith(b"HTTP/1.1 200 "), reply[:200]
+        sock.settimeout(1.0)
+        closed = False
+        started = time.monotonic()
+        while not closed and time.monotonic() - started < PATIENCE:
+            try:
+                sock.send(b" ")
+                closed = sock.recv(65_536) == b""
+            except TimeoutError:
+                continue
+            except OSError:
+                closed = True
+    assert closed
+
+
+def test_settings_come_from_the_environment_and_options_override_them(tmp_path: Path) -> None:
+    """AD_PORT alone picks the port; a bad setting ends ``adserver`` with one line, status 2."""
+    server = ServerProcess(database_url=f"sqlite:///{tmp_path / 'a.db'}", workdir=tmp_path)
+    env = {"AD_PORT": str(server.port), "AD_DATABASE_URL": server.database_url}
+    process = subprocess.Popen([str(ADSERVER)], cwd=tmp_path, env={**_base_env(), **env})
+    try:
+        deadline = time.monotonic() + PATIENCE
+        answered = False
+        while not answered and time.monotonic() < deadline and process.poll() is None:
+            try:
+                answered = healthz_seconds(server.port) >= 0
+            except httpx.TransportError:
+                time.sleep(0.2)
+        assert answered
+    finally:
+        process.terminate()
+        process.wait(timeout=PATIENCE)
+    bad = subprocess.run(
+        [str(ADSERVER), "--port", "1"],
+        env={**_base_env(), "AD_HEADER_TIMEOUT": "soon", "AD_SSL_KEYFILE": str(tmp_path)},
+        capture_output=True,
+        text=True,
+        timeout=PATIENCE,
+    )
+    assert bad.returncode == 2, bad.stderr
+    assert "header_timeout" in bad.stderr and "ssl_keyfile" in bad.stderr
+    assert "Traceback" not in bad.stderr
+
+
+def _base_env() -> dict[str, str]:
+    return {name: value for name, value in os.environ.items() if not name.startswith("AD_")}
