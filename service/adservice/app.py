@@ -17,12 +17,20 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.cors import CORSMiddleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from adclient import __version__
 from adclient.schemas import ErrorBody
 from adservice import repository
-from adservice.api.routes import artifacts, dashboard, health, jobs, session, studies, trials
+from adservice.api.routes import (
+    artifacts,
+    dashboard,
+    docs,
+    health,
+    jobs,
+    session,
+    studies,
+    trials,
+)
 from adservice.artifacts import ArtifactStore
 from adservice.auth import Authentication, PrincipalCache
 from adservice.db import Database, upgrade_to_head
@@ -36,7 +44,9 @@ from adservice.errors import (
     UnauthorizedError,
 )
 from adservice.limits import BodyTimeout
+from adservice.limits_body import BodySizeLimit
 from adservice.locks import StudyLocks
+from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
 from adservice.security import RefuseSimpleCrossSiteChanges, SecurityHeaders
 from adservice.settings import Settings, get_settings
 
@@ -155,49 +165,6 @@ def install_error_handlers(app: FastAPI) -> None:
         )
 
 
-class BodySizeLimit:
-    """Pure ASGI middleware: refuse a body larger than the limit, whether it declares its
-    length or streams it, before a route reads it."""
-
-    def __init__(self, app: ASGIApp, *, limit: int, artifact_limit: int) -> None:
-        self.app = app
-        self.limit = limit
-        self.artifact_limit = artifact_limit
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        allowed = self.artifact_limit if "/artifacts/" in scope["path"] else self.limit
-        headers = dict(scope["headers"])
-        declared = headers.get(b"content-length")
-        if declared is not None and (not declared.isdigit() or int(declared) > allowed):
-            status = 400 if not declared.isdigit() else 413
-            detail = (
-                "Content-Length must be a number"
-                if status == 400
-                else f"body exceeds the limit of {allowed} bytes"
-            )
-            response = JSONResponse(
-                {"error": "too_large" if status == 413 else "invalid", "detail": detail},
-                status_code=status,
-            )
-            await response(scope, receive, send)
-            return
-        received = 0
-
-        async def counted_receive() -> Message:
-            nonlocal received
-            message = await receive()
-            if message["type"] == "http.request":
-                received += len(message.get("body", b""))
-                if received > allowed:
-                    raise TooLargeError(f"body exceeds the limit of {allowed} bytes")
-            return message
-
-        await self.app(scope, counted_receive, send)
-
-
 def _sweep_leases(db: Database, interval: float, stop: threading.Event) -> None:
     while not stop.wait(interval):
         try:
@@ -219,6 +186,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.db = db
         app.state.settings = settings
         app.state.locks = StudyLocks()
+        memory = settings.ask_memory_mb
+        app.state.proposals = ProposalRunner(
+            settings.proposal_threads or available_cores(),
+            AskBudget(settings.ask_seconds, None if memory is None else int(memory * 2**20)),
+        )
         app.state.principals = PrincipalCache()
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
         stop = threading.Event()
@@ -231,6 +203,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             stop.set()
             sweeper.join(timeout=5)
+            app.state.proposals.shutdown()
             db.dispose()
 
     app = FastAPI(
@@ -238,6 +211,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=__version__,
         description="Automatic robot design: ask/tell Bayesian optimisation, simulation workers.",
         lifespan=lifespan,
+        docs_url=None,  # served from the package by the docs router
+        redoc_url=None,
     )
     install_error_handlers(app)
     document_error_bodies(app)
@@ -258,9 +233,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             expose_headers=["X-Total-Count"],
         )
     app.add_middleware(SecurityHeaders)
-    if settings.allowed_hosts is not None:
-        app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.allowed_hosts)
-    for module in (health, session, studies, trials, jobs, artifacts, dashboard):
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.resolved_allowed_hosts())
+    for module in (health, session, studies, trials, jobs, artifacts, dashboard, docs):
         app.include_router(module.router)
 
     @app.api_route(

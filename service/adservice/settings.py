@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Literal
 
-from pydantic import FilePath, model_validator
+from pydantic import Field, FilePath, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -16,6 +17,15 @@ class Settings(BaseSettings):
     artifact_dir: Path | None = None
     """Artifact folder; default: ``artifacts`` beside a SQLite file, else ./artifacts."""
     lease_seconds: float = 60.0
+    proposal_threads: int | None = Field(default=None, ge=1)
+    """Threads that compute model-based proposals, apart from the ones serving requests;
+    None: one per core this process may use."""
+    ask_seconds: float | None = Field(default=30.0, gt=0)
+    """A model-based ask's time budget: past it the search stops at its best candidates
+    so far and the rest of the batch are Sobol points, said in their info. None: none."""
+    ask_memory_mb: float | None = Field(default=1024.0, gt=0)
+    """The memory one ask may take by its estimate: a study whose options, or an ask
+    whose count, would exceed it is refused (422 naming it). None: no limit."""
     sweep_seconds: float = 2.0
     """How often expired leases are returned to the queue in the background."""
     max_body_bytes: int = 1_000_000
@@ -29,15 +39,15 @@ class Settings(BaseSettings):
     cors_origins: list[str] = []
     """Other web origins allowed to call the API from a browser; none by default."""
     allowed_hosts: list[str] | None = None
-    """``Host`` headers served (DNS rebinding defence). None: ``adserver`` allows its bind
-    address, loopback names and the host of ``public_url``; "*" allows any."""
+    """``Host`` headers served (DNS rebinding defence); "*" allows any. None: see
+    :meth:`resolved_allowed_hosts`."""
     public_url: str | None = None
     auth: bool | None = None
     """Require bearer tokens. None: decided by ``adserver`` from the bind address (off on
     loopback, on elsewhere); an app built in-process without it runs open."""
     host: str = "127.0.0.1"
     port: int = 8000
-    log_level: str = "info"
+    log_level: Literal["critical", "error", "warning", "info", "debug", "trace"] = "info"
     torch_threads: int = 1
     """torch's intra-op threads in a model-based ask (one: requests run side by side)."""
     max_header_bytes: int = 65_536
@@ -63,6 +73,23 @@ class Settings(BaseSettings):
         if self.ssl_keyfile is not None and self.ssl_certfile is None:
             raise ValueError("ssl_keyfile is set but ssl_certfile is not")
         return self
+
+    def resolved_allowed_hosts(self) -> list[str]:
+        """The ``Host`` names served: ``allowed_hosts`` if set; else any when bound to every
+        interface (auth is on there), otherwise the bound address, the loopback names and
+        the host of ``public_url`` (what a DNS-rebinding page cannot send)."""
+        if self.allowed_hosts is not None:
+            return self.allowed_hosts
+        if self.host in ("0.0.0.0", "::", ""):
+            return ["*"]
+        hosts = {self.host, "localhost", "127.0.0.1", "::1", "[::1]"}
+        if self.public_url:
+            from urllib.parse import urlsplit
+
+            public = urlsplit(self.public_url).hostname
+            if public:
+                hosts.add(public)
+        return sorted(hosts)
 
     def resolved_artifact_dir(self) -> Path:
         if self.artifact_dir is not None:

@@ -13,6 +13,9 @@ from adservice.app import create_app
 from adservice.settings import Settings
 from tests.servers import SDK_HEADERS
 
+LOCAL = "http://localhost"
+"""The in-process app answers only Host names it is served under (loopback by default)."""
+
 
 @pytest.fixture
 def settings(tmp_path: Path, database_url: str) -> Settings:
@@ -23,7 +26,7 @@ def settings(tmp_path: Path, database_url: str) -> Settings:
 
 @pytest.fixture
 def api(settings: Settings) -> Iterator[TestClient]:
-    with TestClient(create_app(settings), headers=SDK_HEADERS) as client:
+    with TestClient(create_app(settings), base_url=LOCAL, headers=SDK_HEADERS) as client:
         yield client
 
 

@@ -81,7 +81,7 @@ def test_interrupted_upload_is_never_served(live_server: ServerProcess) -> None:
     # Declare 100 kB, send 10 kB, hang up: the upload never completes.
     with socket.create_connection(("127.0.0.1", live_server.port)) as sock:
         sock.sendall(
-            f"PUT {path} HTTP/1.1\r\nHost: x\r\nContent-Type: image/png\r\n"
+            f"PUT {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: image/png\r\n"
             "X-Activedesign-Client: test\r\n"
             f"Content-Length: 100000\r\n\r\n".encode()
             + b"\x89PNG" * 2500

@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from adservice.app import create_app
 from adservice.settings import Settings
 from tests.servers import SDK_HEADERS
-from tests.service.conftest import BOX_STUDY
+from tests.service.conftest import BOX_STUDY, LOCAL
 
 
 def managed(
@@ -120,7 +120,7 @@ def test_the_holder_releases_a_trial_back_to_the_queue_without_spending_an_attem
 @pytest.fixture
 def short_lease_api(settings: Settings) -> Any:
     quick = settings.model_copy(update={"lease_seconds": 0.3, "sweep_seconds": 60.0})
-    with TestClient(create_app(quick), headers=SDK_HEADERS) as client:
+    with TestClient(create_app(quick), base_url=LOCAL, headers=SDK_HEADERS) as client:
         yield client
 
 

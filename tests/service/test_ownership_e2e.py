@@ -268,3 +268,15 @@ def test_every_answer_carries_security_headers(live_server: ServerProcess) -> No
             headers={"Origin": "https://evil.example", "Access-Control-Request-Method": "POST"},
         )
         assert "access-control-allow-origin" not in preflight.headers
+
+
+def test_host_header_must_name_the_server(server_factory: Callable[..., ServerProcess]) -> None:
+    """DNS rebinding: a page whose name now points at 127.0.0.1 still sends its own name."""
+    server = server_factory(AD_PUBLIC_URL="https://design.example.org")
+    with httpx.Client(base_url=server.url, timeout=30) as http:
+        for host in (f"127.0.0.1:{server.port}", "localhost", "design.example.org"):
+            assert http.get("/api/v1/studies", headers={"Host": host}).status_code == 200, host
+        for host in ("attacker.example", f"rebound.attacker.example:{server.port}"):
+            refused = http.post("/api/v1/studies", json=ASKED, headers={"Host": host})
+            assert refused.status_code == 400, host
+        assert http.get("/api/v1/studies").json() == []
