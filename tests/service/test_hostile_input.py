@@ -1,0 +1,257 @@
+"""Hostile input against a real ``adserver``, on SQLite and on PostgreSQL: each request
+is answered with a 4xx naming what is wrong, never a 500; no request costs more than a
+bounded page; and nothing one caller stores can break a read for everyone else."""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import socket
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import httpx
+import pytest
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from adclient import Client
+from adclient.schemas import CUT_JSON, MAX_JSON_BYTES, MAX_JSON_DEPTH, MAX_TRIAL_PAGE
+from adservice.models import StudyRow
+from adservice.views import SERIES_CELLS, SERIES_PAGE
+from tests.servers import ServerProcess
+
+pytestmark = pytest.mark.e2e
+
+BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
+STUDY = {"name": "hostile", "space": BOX, "proposer": {"name": "random", "seed": 1}}
+EXTERNAL = {"name": "mine", "external": True}
+
+
+@pytest.fixture
+def http(live_server: ServerProcess) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=live_server.url, timeout=60) as client:
+        yield client
+
+
+def nested(levels: int) -> dict[str, Any]:
+    """An object ``levels`` deep: {"a": {"a": ... {}}}."""
+    value: dict[str, Any] = {}
+    for _ in range(levels - 1):
+        value = {"a": value}
+    return value
+
+
+def depth_of(value: Any) -> int:
+    if isinstance(value, dict):
+        return 1 + max((depth_of(item) for item in value.values()), default=0)
+    return 0
+
+
+def create(http: httpx.Client, **fields: Any) -> dict[str, Any]:
+    response = http.post("/api/v1/studies", json=STUDY | fields)
+    assert response.status_code == 201, response.text
+    return dict(response.json())
+
+
+def ask(http: httpx.Client, study_id: int, count: int) -> None:
+    for start in range(0, count, 64):
+        asked = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": min(64, count - start)})
+        assert asked.status_code == 200, asked.text
+
+
+# --- paging ---------------------------------------------------------------------------
+
+
+def test_offsets_past_the_integer_columns_are_422_not_an_overflow(http: httpx.Client) -> None:
+    study = create(http)
+    url = f"/api/v1/studies/{study['id']}/trials"
+    for offset in (2**31, 2**63, 2**64, 10**30):
+        for name in ("offset", "after"):
+            response = http.get(url, params={name: offset})
+            assert response.status_code == 422, response.text
+            assert name in response.json()["detail"]
+    last = http.get(url, params={"offset": 2**31 - 1, "after": 2**31 - 1})
+    assert last.status_code == 200 and last.json() == []
+
+
+def test_trials_come_a_bounded_page_at_a_time(http: httpx.Client) -> None:
+    study = create(http)
+    total = MAX_TRIAL_PAGE + 88
+    ask(http, study["id"], total)
+    url = f"/api/v1/studies/{study['id']}/trials"
+    first = http.get(url)
+    assert len(first.json()) == MAX_TRIAL_PAGE
+    assert first.headers["X-Total-Count"] == str(total)
+    for limit in (MAX_TRIAL_PAGE + 1, 100_000):
+        assert http.get(url, params={"limit": limit}).status_code == 422
+    rest = http.get(url, params={"after": MAX_TRIAL_PAGE}).json()
+    assert [trial["number"] for trial in rest] == list(range(MAX_TRIAL_PAGE, total))
+
+
+@pytest.mark.parametrize(
+    "path", ["/api/v1/studies/{id}/series", "/api/v1/dashboard/studies/{id}/series"]
+)
+def test_series_of_a_wide_study_ends_each_page_at_the_cell_budget(
+    http: httpx.Client, path: str
+) -> None:
+    width, total = 256, 1100
+    space = {
+        "type": "box",
+        "params": [{"name": f"p{i}", "low": 0, "high": 1} for i in range(width)],
+    }
+    study = create(http, space=space)
+    ask(http, study["id"], total)
+    url = path.format(id=study["id"])
+    pages: list[list[int]] = []
+    after: int | None = 0
+    while after is not None:
+        page = http.get(url, params={"after": after}).json()
+        assert len(page["number"]) * width <= SERIES_CELLS + width
+        assert all(len(column) == len(page["number"]) for column in page["params"].values())
+        pages.append(page["number"])
+        after = page["next"]
+    assert len(pages) == -(-total * width // SERIES_CELLS)  # ceil: pages end on the budget
+    assert [number for page in pages for number in page] == list(range(total))
+    assert http.get(url, params={"limit": SERIES_PAGE + 1}).status_code == 422
+
+
+# --- free JSON fields -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("fields", "named"),
+    [
+        ({"metadata": nested(MAX_JSON_DEPTH + 1)}, "metadata"),
+        ({"metadata": nested(900)}, "metadata"),
+        ({"metadata": {"notes": "x" * MAX_JSON_BYTES}}, "metadata"),
+        ({"proposer": {"name": "random", "options": nested(300)}}, "proposer.options"),
+        ({"task": EXTERNAL | {"options": nested(300)}, "max_trials": 5}, "task.options"),
+        (
+            {"task": EXTERNAL | {"options": {"k": ["v" * 1000] * 70}}, "max_trials": 5},
+            "task.options",
+        ),
+    ],
+)
+def test_free_json_past_the_limits_is_422_naming_the_field(
+    http: httpx.Client, fields: dict[str, Any], named: str
+) -> None:
+    response = http.post("/api/v1/studies", json=STUDY | fields)
+    assert response.status_code == 422, response.text
+    assert response.json()["detail"].startswith(f"{named}: "), response.text
+    assert http.get("/api/v1/studies").json() == []
+
+
+def test_free_json_at_the_limits_is_stored(http: httpx.Client) -> None:
+    deepest = nested(MAX_JSON_DEPTH)
+    study = create(http, metadata={"deep": nested(MAX_JSON_DEPTH - 1)})
+    assert depth_of(study["metadata"]) == depth_of(deepest)
+    external = create(http, task=EXTERNAL | {"options": deepest}, max_trials=2)
+    assert external["task"]["options"] == deepest
+    assert len(http.get("/api/v1/studies").json()) == 2
+
+
+def test_a_body_nested_past_the_parser_is_refused_not_a_500(http: httpx.Client) -> None:
+    levels = 200_000  # 400 kB, under the body limit; json.loads gives up long before
+    body = '{"name": "deep", "metadata": {"a": ' + "[" * levels + "]" * levels + "}}"
+    response = http.post(
+        "/api/v1/studies", content=body, headers={"Content-Type": "application/json"}
+    )
+    assert response.status_code in (400, 422), response.text
+
+
+def test_a_stored_row_past_the_limits_cannot_break_a_listing(
+    live_server: ServerProcess, http: httpx.Client
+) -> None:
+    """A study stored before the limits (written here straight into the database): every
+    listing still answers, showing its free JSON cut at MAX_JSON_DEPTH."""
+    create(http)
+    engine = sa.create_engine(live_server.database_url)
+    with Session(engine) as session, session.begin():
+        row = StudyRow(
+            name="old",
+            direction="maximize",
+            state="running",
+            space=BOX,
+            proposer={"name": "random", "options": nested(300)},
+            task=EXTERNAL | {"options": nested(300)},
+            max_trials=5,
+            metadata_=nested(300),
+        )
+        session.add(row)
+        session.flush()
+        old_id = row.id
+    engine.dispose()
+
+    listed = http.get("/api/v1/studies")
+    assert listed.status_code == 200, listed.text
+    old = http.get(f"/api/v1/studies/{old_id}")
+    assert old.status_code == 200, old.text
+    for value in (old.json()["metadata"], old.json()["task"]["options"]):
+        assert depth_of(value) == MAX_JSON_DEPTH
+        assert CUT_JSON in old.text
+    with Client(live_server.url) as client:
+        assert {study.name for study in client.studies()} == {"hostile", "old"}
+
+
+# --- bodies ---------------------------------------------------------------------------
+
+
+def chunked_post(server: ServerProcess, path: str, chunks: list[bytes]) -> tuple[int, bytes]:
+    """POST ``chunks`` with ``Transfer-Encoding: chunked`` (no Content-Length) over a
+    raw socket; the answer's status and body."""
+    head = (
+        f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\n"
+        "Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n"
+    ).encode()
+    body = b"".join(b"%x\r\n%s\r\n" % (len(chunk), chunk) for chunk in chunks) + b"0\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", server.port), timeout=30) as sock:
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+            sock.sendall(head + body)  # the server may answer and close before the end
+        answer = b""
+        while b"\r\n\r\n" not in answer or not _complete(answer):
+            data = sock.recv(65536)
+            if not data:
+                break
+            answer += data
+    status = int(answer.split(b" ", 2)[1])
+    return status, answer.split(b"\r\n\r\n", 1)[1]
+
+
+def _complete(answer: bytes) -> bool:
+    head, _, body = answer.partition(b"\r\n\r\n")
+    length = re.search(rb"(?im)^content-length: *(\d+)", head)
+    return length is not None and len(body) >= int(length.group(1))
+
+
+def test_a_chunked_body_over_the_limit_is_413(server_factory: Callable[..., ServerProcess]) -> None:
+    server = server_factory(AD_MAX_BODY_BYTES="2000")
+    padding = b'{"name": "big", "metadata": {"pad": "' + b"x" * 1500
+    status, body = chunked_post(server, "/api/v1/studies", [padding, b"x" * 1500, b'"}}'])
+    assert status == 413, body
+    assert b"too_large" in body and b"2000" in body
+    small = [
+        b'{"name": "small", "space": {"type": "box", "params": ',
+        b'[{"name": "x", "low": 0, "high": 1}]}, "proposer": {"name": "random"}}',
+    ]
+    status, body = chunked_post(server, "/api/v1/studies", small)
+    assert status == 201, body
+
+
+# --- docs -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("database", ["sqlite"])
+@pytest.mark.parametrize("page", ["/docs", "/redoc"])
+def test_docs_pages_load_only_files_the_server_serves(http: httpx.Client, page: str) -> None:
+    response = http.get(page)
+    assert response.status_code == 200
+    html = response.text
+    assert not re.search(r"(?i)(https?:)?//", html), html  # no URL outside the server
+    assert "<script>" not in html  # none inline: the CSP allows script files only
+    referenced = re.findall(r'(?:src|href)="([^"]+)"', html)
+    assert any(url.endswith(".js") for url in referenced)
+    for url in referenced:
+        served = http.get(url)
+        assert served.status_code == 200 and served.content, url
+    assert http.get(re.findall(r'data-openapi="([^"]+)"', html)[0]).json()["openapi"]
