@@ -2,7 +2,8 @@
 
 Each attack runs for ``--seconds`` while a probe asks ``GET /healthz`` on a fresh
 connection every 0.2 s; the table gives the probe's median and worst latency, their ratio
-to a run with no attack, and how many attacking connections the server closed.
+to a run with no attack, how many attacking connections the server closed, and the
+server's resident memory at the end.
 Attacks: one 100 MB header; 250 slowloris connections (a header line a second, never
 finished); 100 slow bodies (a byte a second); 250 idle connections. ``--unprotected``
 runs the same app under plain ``uvicorn.run`` as before issue 13 (httptools, no header
@@ -92,6 +93,14 @@ def start_server(
             time.sleep(0.1)
     process.kill()
     raise RuntimeError("server did not start")
+
+
+def rss_mb(pid: int) -> float:
+    """The process's resident memory now (Linux)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
 
 
 def healthz_seconds(port: int) -> float:
@@ -223,7 +232,7 @@ def main() -> None:
     print(f"{label}; {args.seconds:g} s per attack; /healthz every 0.2 s on a new connection")
     print(
         f"{'attack':<17}{'probes':>7}{'p50 ms':>9}{'max ms':>10}{'p50 x':>7}{'max x':>8}"
-        f"{'closed':>10}{'first close s':>15}  answers"
+        f"{'closed':>10}{'first close s':>15}{'RSS MB':>8}  answers"
     )
     base_p50 = base_max = 0.0
     for name, attack in ATTACKS.items():
@@ -231,6 +240,7 @@ def main() -> None:
             process, port = start_server(Path(temp), unprotected=args.unprotected, env=env)
             try:
                 latencies, seen = measure(port, attack, args.seconds)
+                rss = rss_mb(process.pid)
             finally:
                 process.kill()
                 process.wait()
@@ -241,7 +251,7 @@ def main() -> None:
         print(
             f"{name:<17}{len(latencies):>7}{p50 * 1e3:>9.1f}{worst * 1e3:>10.1f}"
             f"{p50 / base_p50:>7.1f}{worst / base_max:>8.1f}"
-            f"{f'{seen.closed}/{seen.opened}':>10}{first:>15}  {seen.answers or '-'}",
+            f"{f'{seen.closed}/{seen.opened}':>10}{first:>15}{rss:>8.0f}  {seen.answers or '-'}",
             flush=True,
         )
 
