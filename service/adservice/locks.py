@@ -1,7 +1,10 @@
 """Per-study proposal locks: two asks on one study never see the same pending set.
 
 Inside one process a ``threading.Lock`` per study; on PostgreSQL also a session-level
-advisory lock, so several ``adserver`` processes on one database take turns too.
+advisory lock, so several ``adserver`` processes on one database take turns too. The
+routes wait for a study's turn on the event loop first (``ProposalRunner``), so a
+thread that takes these locks finds the process's own one free and waits, if at all,
+only for another process.
 """
 
 from __future__ import annotations

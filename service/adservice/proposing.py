@@ -5,7 +5,8 @@ created, so each server keeps it parsed in memory. Cheap proposers that need no
 history (random, Sobol) propose inside one short write transaction. Model-based ones
 propose with no database lock held (a qEI fit takes a fraction of a second) under a
 per-study lock, so concurrent asks of one study each see the previous one's trials as
-pending.
+pending; the routes run them through ``ProposalRunner`` (their own threads, one study
+at a time), within the server's time and memory budget per ask (``AskBudget``).
 """
 
 from __future__ import annotations
@@ -34,7 +35,15 @@ from adservice.errors import ConflictError, InvalidError, StudyConfigError
 from adservice.locks import StudyLocks
 from adservice.models import StudyRow
 from adservice.principals import Principal, check_manager
-from adservice.proposers import Proposal, ProposalRequest, available, get_proposer, options_model
+from adservice.proposal_runner import AskBudget, ProposalRunner
+from adservice.proposers import (
+    Proposal,
+    ProposalRequest,
+    available,
+    get_proposer,
+    options_model,
+    proposer_class,
+)
 from adservice.proposers.base import SearchStructure, empty_history
 from adservice.repository import History
 
@@ -136,9 +145,12 @@ def study_config(db: Database, study_id: int) -> StudyConfig:
     return config
 
 
-def create_study(db: Database, *, body: StudyCreate, owner: Principal) -> StudyRow:
+def create_study(
+    db: Database, *, body: StudyCreate, owner: Principal, budget: AskBudget | None = None
+) -> StudyRow:
     """Check what the schema cannot (the proposer and its options, the representation's
-    numbers), then store the study; InvalidError, with nothing stored, otherwise."""
+    numbers, an ask's memory within ``budget``), then store the study; InvalidError, with
+    nothing stored, otherwise."""
     check_proposer(body.proposer)
     representation = None
     if isinstance(body.space, DesignSpace):
@@ -146,6 +158,11 @@ def create_study(db: Database, *, body: StudyCreate, owner: Principal) -> StudyR
 
         representation = build_representation(body.space).model_dump(mode="json")
         _check_finite(body.space, representation)
+        dim = len(representation["bounds"][0])
+    else:
+        dim = len(body.space.params)
+    if budget is not None and budget.memory_bytes is not None:
+        _check_options_memory(body.proposer, dim=dim, budget=budget.memory_bytes)
     with db.write() as session:
         return repository.create_study(
             session, body=body, representation=representation, owner=owner
@@ -184,8 +201,92 @@ def _check_finite(space: DesignSpace, representation: dict[str, Any]) -> None:
     raise InvalidError(f"space.design: the search representation overflows ({where})")
 
 
+def _memory_need(
+    config: ProposerConfig,
+    *,
+    dim: int,
+    count: int,
+    n_train: int,
+    n_pending: int,
+    n_failed: int = 0,
+) -> Any:
+    """The proposer's estimate of an ask's peak memory (``qei.MemoryNeed``), or None
+    for proposers whose memory does not grow with their options."""
+    estimate = getattr(proposer_class(config.name), "memory_need", None)
+    if estimate is None:
+        return None
+    return estimate(
+        config.options,
+        dim=dim,
+        count=count,
+        n_train=n_train,
+        n_pending=n_pending,
+        n_failed=n_failed,
+    )
+
+
+def _over_budget(need: Any, budget: int) -> str:
+    return (
+        f"an ask would need {need.describe()}, more than this server allows per ask "
+        f"({budget / 2**20:.0f} MB, AD_ASK_MEMORY_MB)"
+    )
+
+
+def _check_options_memory(config: ProposerConfig, *, dim: int, budget: int) -> None:
+    """InvalidError naming the option when one point asked of a study with a few
+    observations already exceeds the memory budget."""
+    need = _memory_need(config, dim=dim, count=1, n_train=2, n_pending=0)
+    if need is None or need.bytes <= budget:
+        return
+    named = need.driver in options_model(config.name).model_fields
+    path = f"proposer.options.{need.driver}" if named else "proposer.options"
+    advice = f"; lower {need.driver}" if named else ""
+    problem = f"{path}: {_over_budget(need, budget)}{advice}"
+    raise InvalidError(problem, problems=[problem])
+
+
+def _check_ask_memory(
+    config: StudyConfig, *, count: int, n_issued: int, history: History, budget: int
+) -> None:
+    """InvalidError naming ``count`` (with the largest count that fits) or the option
+    when an ask exceeds the memory budget; one that exceeds it through its history alone
+    is left to the proposer, which falls back and says why."""
+    proposer = config.proposer
+    model_count = count - min(max(proposer.n_initial - n_issued, 0), count)
+    if model_count == 0:
+        return
+
+    def need(points: int) -> Any:
+        return _memory_need(
+            proposer,
+            dim=config.dim,
+            count=points,
+            n_train=len(history.y),
+            n_pending=len(history.pending),
+            n_failed=len(history.failed),
+        )
+
+    asked = need(model_count)
+    if asked is None or asked.bytes <= budget:
+        return
+    _check_options_memory(proposer, dim=config.dim, budget=budget)
+    if need(1).bytes > budget:
+        return
+    fits = max(c for c in range(1, model_count) if need(c).bytes <= budget)
+    problem = (
+        f"count: {_over_budget(asked, budget)}; ask at most {fits + count - model_count} "
+        "points at a time"
+    )
+    raise InvalidError(problem, problems=[problem])
+
+
 def _request(
-    config: StudyConfig, *, count: int, n_issued: int, history: History | None
+    config: StudyConfig,
+    *,
+    count: int,
+    n_issued: int,
+    history: History | None,
+    budget: AskBudget | None = None,
 ) -> ProposalRequest:
     empty = empty_history(config.dim)
     sign = 1.0 if config.maximize else -1.0
@@ -203,6 +304,8 @@ def _request(
         noisy=noisy if noisy is not None else config.task is not None,
         options=config.proposer.options,
         structure=config.search,
+        seconds=budget.seconds if budget else None,
+        memory_bytes=budget.memory_bytes if budget else None,
     )
 
 
@@ -254,9 +357,11 @@ def propose_trials(
     caller: Principal,
     worker_id: str | None = None,
     lease_seconds: float = 60.0,
+    budget: AskBudget | None = None,
 ) -> list[Trial]:
     """New trials of a study: asked by its owner (``worker_id`` None), or proposed for a
-    worker's lease (any worker may lease from any managed study)."""
+    worker's lease (any worker may lease from any managed study); ``budget`` bounds a
+    model-based proposal (an owner's ask beyond its memory is refused, naming why)."""
     config = study_config(db, study_id)
     if worker_id is None:
         check_manager(
@@ -290,8 +395,16 @@ def propose_trials(
             study = repository.get_study(session, study_id=study_id)
             repository.check_room(study, count=count)
             history = repository.study_history(session, study_id=study_id, dim=config.dim)
+        if worker_id is None and budget is not None and budget.memory_bytes is not None:
+            _check_ask_memory(
+                config,
+                count=count,
+                n_issued=study.n_trials,
+                history=history,
+                budget=budget.memory_bytes,
+            )
         proposal = proposer.propose(
-            _request(config, count=count, n_issued=study.n_trials, history=history)
+            _request(config, count=count, n_issued=study.n_trials, history=history, budget=budget)
         )
         return _record(
             db,
@@ -304,9 +417,10 @@ def propose_trials(
         )
 
 
-def lease_job(
+async def lease_job(
     db: Database,
     locks: StudyLocks,
+    proposals: ProposalRunner,
     *,
     worker_id: str,
     caller: Principal,
@@ -314,35 +428,54 @@ def lease_job(
     tasks: Sequence[str] | None = None,
 ) -> Job | None:
     """A queued trial if there is one, else a freshly proposed one from a managed study
-    with room; None when there is no work (of ``tasks``, when given)."""
-    with db.write() as session:
-        row = repository.lease_queued_trial(
-            session,
-            worker_id=worker_id,
-            lease_token_id=caller.token_id,
-            lease_seconds=lease_seconds,
-            tasks=tasks,
-        )
-        trial = Trial.model_validate(row, from_attributes=True) if row else None
-    if trial is None:
+    with room; None when there is no work (of ``tasks``, when given). Leasing a queued
+    trial is one short write that never waits for a proposal; a model-based proposal
+    runs in ``proposals``, preferring a study with none under way."""
+
+    def queued() -> Job | None:
+        with db.write() as session:
+            row = repository.lease_queued_trial(
+                session,
+                worker_id=worker_id,
+                lease_token_id=caller.token_id,
+                lease_seconds=lease_seconds,
+                tasks=tasks,
+            )
+            trial = Trial.model_validate(row, from_attributes=True) if row else None
+        return _job(db, trial) if trial else None
+
+    def wanting() -> list[int]:
         with db.read() as session:
-            candidates = repository.studies_wanting_trials(session, tasks=tasks)
-        for study_id in candidates:
-            try:
-                (trial,) = propose_trials(
-                    db,
-                    locks,
-                    study_id=study_id,
-                    count=1,
-                    caller=caller,
-                    worker_id=worker_id,
-                    lease_seconds=lease_seconds,
-                )
-            except ConflictError:
-                continue  # filled or stopped meanwhile: try the next study
-            break
-    if trial is None:
-        return None
+            return repository.studies_wanting_trials(session, tasks=tasks)
+
+    job = await db.run(queued)
+    if job is not None:
+        return job
+    for study_id in proposals.free_first(await db.run(wanting)):
+
+        def propose(study_id: int = study_id) -> Job:
+            (trial,) = propose_trials(
+                db,
+                locks,
+                study_id=study_id,
+                count=1,
+                caller=caller,
+                worker_id=worker_id,
+                lease_seconds=lease_seconds,
+                budget=proposals.budget,
+            )
+            return _job(db, trial)
+
+        try:
+            if proposes_instantly(db, study_id):
+                return await db.run(propose)
+            return await proposals.run(study_id, propose)
+        except ConflictError:
+            continue  # filled or stopped meanwhile: try the next study
+    return None
+
+
+def _job(db: Database, trial: Trial) -> Job:
     config = study_config(db, trial.study_id)
     assert config.task is not None and trial.lease_expires_at is not None
     return Job.model_validate(

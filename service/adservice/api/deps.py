@@ -16,6 +16,7 @@ from adservice.artifacts import ArtifactStore
 from adservice.auth import Principal, Role, require
 from adservice.db import Database
 from adservice.locks import StudyLocks
+from adservice.proposal_runner import ProposalRunner
 from adservice.settings import Settings
 
 
@@ -34,6 +35,11 @@ async def get_locks(request: Request) -> StudyLocks:
     return locks
 
 
+async def get_proposals(request: Request) -> ProposalRunner:
+    proposals: ProposalRunner = request.app.state.proposals
+    return proposals
+
+
 async def get_artifact_store(request: Request) -> ArtifactStore:
     store: ArtifactStore = request.app.state.artifacts
     return store
@@ -49,6 +55,7 @@ def read_session(db: Annotated[Database, Depends(get_database)]) -> Iterator[Ses
 SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 DatabaseDep = Annotated[Database, Depends(get_database)]
 LocksDep = Annotated[StudyLocks, Depends(get_locks)]
+ProposalsDep = Annotated[ProposalRunner, Depends(get_proposals)]
 ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifact_store)]
 SessionDep = Annotated[Session, Depends(read_session)]
 

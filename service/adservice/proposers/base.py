@@ -108,6 +108,9 @@ class ProposalRequest:
     bounds: (2, d) search box. n_issued: how many trials the study has created so
     far (a position in a space-filling sequence). seed: the study's seed.
     structure: what the coordinates of a design vector mean (None: a plain box).
+    seconds, memory_bytes: the server's budget for this ask (None: no limit); a
+    proposer that models stops at the time budget and keeps within the memory one,
+    recording in the info what it gave up (see ``qei``).
     """
 
     bounds: FloatArray
@@ -122,6 +125,8 @@ class ProposalRequest:
     noisy: bool = False
     options: dict[str, Any] = field(default_factory=dict)
     structure: SearchStructure | None = None
+    seconds: float | None = None
+    memory_bytes: int | None = None
 
     @property
     def dim(self) -> int:

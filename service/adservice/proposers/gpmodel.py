@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -33,7 +34,9 @@ import torch
 from gpytorch.constraints import GreaterThan
 from gpytorch.kernels import Kernel
 from gpytorch.priors import LogNormalPrior
+from linear_operator.utils.warnings import NumericalWarning
 
+from adservice.proposers.acquisition import OutOfTime, past
 from adservice.proposers.base import SearchStructure
 
 STRUCTURE_LENGTHSCALE_PRIOR = (math.log(0.5), 1.0)
@@ -41,6 +44,10 @@ STRUCTURE_LENGTHSCALE_PRIOR = (math.log(0.5), 1.0)
 are scaled to a largest of 1 and a smallest of 0.05, so this spans unrelated to alike."""
 WEIGHT_PRIOR = (math.log(1.0 / 3.0), 1.0)
 """(loc, scale) of each component weight's log-normal prior (outcomes are standardised)."""
+
+# Jitter added to a nearly singular matrix, a tiny fixed noise: expected here, and said
+# by the trials' info. Filtered once: catch_warnings is not safe while others propose.
+warnings.filterwarnings("ignore", category=NumericalWarning)
 
 
 class SpecFeatures:
@@ -327,14 +334,15 @@ def structure_lengthscale(model: Any) -> float:
     return round(float(structure.lengthscale.detach().cpu().reshape(-1)[0]), 6)
 
 
-def fit_map(model: Any, *, maxiter: int = 200) -> int:
+def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) -> int:
     """Fit the hyperparameters by maximum a posteriori marginal likelihood, as BoTorch's
     ``fit_gpytorch_mll`` does (L-BFGS-B on the raw parameters, within their
     constraints' bounds, from their current values), with the likelihood computed
     straight from ``DesignKernel.forward`` and one Cholesky factor, without
     gpytorch's lazy kernel and distribution objects. Same optimum (tested); the
     median fit of ``bench/asklatency.py`` at n = 50, d = 6 fell from 0.087 s to
-    0.069 s (bench/RESULTS.md, issue 12).
+    0.069 s (bench/RESULTS.md, issue 12). Past ``deadline`` (``time.monotonic()``) it
+    stops with the best parameters evaluated so far (the ask's time budget).
     Returns the number of likelihood evaluations."""
     from botorch.optim.utils import get_parameters_and_bounds
     from scipy.optimize import minimize
@@ -359,6 +367,7 @@ def fit_map(model: Any, *, maxiter: int = 200) -> int:
     count = len(targets)
     priors = list(model.named_priors())
     evaluations = 0
+    best: tuple[float, np.ndarray | None] = (math.inf, None)
 
     def load(flat: np.ndarray) -> None:
         offset = 0
@@ -369,7 +378,9 @@ def fit_map(model: Any, *, maxiter: int = 200) -> int:
                 offset += size
 
     def objective(flat: np.ndarray) -> tuple[float, np.ndarray]:
-        nonlocal evaluations
+        nonlocal evaluations, best
+        if evaluations and past(deadline):
+            raise OutOfTime
         evaluations += 1
         load(flat)
         for tensor in tensors:
@@ -390,6 +401,8 @@ def fit_map(model: Any, *, maxiter: int = 200) -> int:
         if not torch.isfinite(loss):
             return 1e10, np.zeros_like(flat)
         loss.backward()
+        if float(loss.detach()) < best[0]:
+            best = (float(loss.detach()), flat.copy())
         gradient = [
             (tensor.grad if tensor.grad is not None else torch.zeros_like(tensor)).reshape(-1)
             for tensor in tensors
@@ -398,15 +411,19 @@ def fit_map(model: Any, *, maxiter: int = 200) -> int:
 
     start = np.concatenate([tensor.detach().cpu().reshape(-1).numpy() for tensor in tensors])
     model.train()
-    result = minimize(
-        objective,
-        np.clip(start, low, high),
-        jac=True,
-        method="L-BFGS-B",
-        bounds=list(zip(low, high, strict=True)),
-        options={"maxiter": maxiter},
-    )
-    load(result.x)
+    try:
+        result = minimize(
+            objective,
+            np.clip(start, low, high),
+            jac=True,
+            method="L-BFGS-B",
+            bounds=list(zip(low, high, strict=True)),
+            options={"maxiter": maxiter},
+        )
+        final = result.x
+    except OutOfTime:
+        final = best[1] if best[1] is not None else np.clip(start, low, high)
+    load(final)
     for tensor in tensors:
         tensor.grad = None
     return evaluations

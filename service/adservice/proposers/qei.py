@@ -48,10 +48,26 @@ Decisions worth knowing:
   ``"method": "sobol-fallback"`` with the ``"reason"``. A model candidate that
   duplicates another candidate of the batch (or, for noise-free studies, an
   already observed or pending point) is replaced the same way.
-- Seeding: the acquisition's quasi-Monte-Carlo sampler, the raw samples of the
-  restarts and any random re-start of the fit are seeded from
-  ``(seed, n_issued)``, under a process-wide lock so concurrent asks cannot
-  disturb each other's random streams.
+- Seeding: the acquisition's quasi-Monte-Carlo samplers (the noisy baseline's
+  pruning included) and the raw samples of the restarts have generators of their
+  own, seeded from ``(seed, n_issued)``; nothing draws from torch's global generator,
+  so concurrent asks cannot disturb each other's random streams.
+- Concurrency: asks of different studies run side by side (issue 13: one lock for
+  every fit let a 35 s ask hold up every other study). The fit caches have a lock of
+  their own held only to read or store an entry; warnings are not filtered with
+  ``warnings.catch_warnings`` (it swaps the process's filter list); torch's and the
+  BLAS's thread counts are set once per thread and never restored. Only ``mc``
+  acquisitions take turns on one lock (their fits do not): BoTorch's Monte Carlo
+  posterior sets and restores gpytorch's process-wide settings at every call, and
+  side by side they changed each other's candidates (by up to 5e-4).
+- Budgets (``ProposalRequest.seconds``, ``memory_bytes``; the server's
+  ``AD_ASK_SECONDS``, ``AD_ASK_MEMORY_MB``): past the time budget the fit and the
+  acquisition search stop at their best so far, the candidate being searched is
+  kept and the rest of the batch are Sobol fallbacks; every model trial of the ask
+  says ``"budget": "time"``. ``memory_need`` estimates an ask's peak memory from its
+  options and sizes (the service refuses an ask whose count or options exceed the
+  memory budget); one that exceeds it through its history alone falls back to Sobol
+  points with the reason.
 - Acquisition optimisation: as GPSampler, 2048 Sobol points and 10 local searches
   (L-BFGS-B) per candidate (``options`` may override ``num_restarts``,
   ``raw_samples``, ``maxiter``; with only ``raw_samples`` given, the restarts are at
@@ -78,11 +94,12 @@ Decisions worth knowing:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import threading
 import time
-import warnings
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
@@ -102,7 +119,9 @@ from adservice.settings import get_settings
 if TYPE_CHECKING:
     import torch
 
-_LOCK = threading.Lock()
+_CACHE_LOCK = threading.Lock()
+_MC_LOCK = threading.Lock()
+_THREAD = threading.local()
 _CACHE_SIZE = 256
 _FITS_BY_DATA: OrderedDict[str, dict[str, torch.Tensor]] = OrderedDict()
 _FITS_BY_STUDY: OrderedDict[tuple[Any, ...], dict[str, torch.Tensor]] = OrderedDict()
@@ -115,23 +134,39 @@ _TORCH_THREADS = get_settings().torch_threads
 
 def clear_caches() -> None:
     """Forget every cached fit (tests and benchmarks measure cold starts with it)."""
-    with _LOCK:
+    with _CACHE_LOCK:
         _FITS_BY_DATA.clear()
         _FITS_BY_STUDY.clear()
 
 
 def _lru_put(cache: OrderedDict, key: Any, value: Any) -> None:
-    cache[key] = value
-    cache.move_to_end(key)
-    while len(cache) > _CACHE_SIZE:
-        cache.popitem(last=False)
+    with _CACHE_LOCK:
+        cache[key] = value
+        cache.move_to_end(key)
+        while len(cache) > _CACHE_SIZE:
+            cache.popitem(last=False)
 
 
 def _lru_get(cache: OrderedDict, key: Any) -> Any:
-    value = cache.get(key)
-    if value is not None:
-        cache.move_to_end(key)
-    return value
+    with _CACHE_LOCK:
+        value = cache.get(key)
+        if value is not None:
+            cache.move_to_end(key)
+        return value
+
+
+def _limit_threads(torch: Any) -> None:
+    """torch's intra-op threads (OpenMP: a per-thread setting) and the BLAS's (global
+    for OpenBLAS) for this thread, once: every thread sets the same values and none
+    restores them, so concurrent asks cannot leave each other with the wrong count."""
+    if getattr(_THREAD, "limited", False):
+        return
+    from threadpoolctl import threadpool_limits
+
+    if torch.get_num_threads() != _TORCH_THREADS:
+        torch.set_num_threads(_TORCH_THREADS)
+    threadpool_limits(limits=1, user_api="blas")  # L-BFGS-B's small products only contend
+    _THREAD.limited = True
 
 
 def _n_distinct(unit: np.ndarray) -> int:
@@ -191,6 +226,51 @@ class QEIOptions(ProposerOptions):
         return self
 
 
+_FLOAT = 8
+_SCORED_AT_ONCE = 1024
+"""Raw samples scored in one batch (``acquisition._CHUNK``)."""
+
+
+@dataclass(frozen=True)
+class MemoryNeed:
+    """An ask's estimated peak memory, and the option (or ``observations``, the
+    history) whose arrays are the largest part of it."""
+
+    bytes: int
+    driver: str
+    sizes: str
+
+    def describe(self) -> str:
+        return f"about {self.bytes / 2**20:.0f} MB ({self.sizes}; mostly {self.driver})"
+
+
+def memory_need(
+    options: QEIOptions, *, dim: int, count: int, n_train: int, n_pending: int
+) -> MemoryNeed:
+    """Peak memory of an ask beyond the process's own, in float64 arrays: the raw
+    samples, one batch of them scored (against every point the last believer
+    conditions on, or, for ``mc``, ``mc_samples`` joint draws of the candidate with the
+    pending points), the kernel matrices of the fit and of the posterior. The factors
+    are measured peaks over those sizes, rounded up (bench/RESULTS.md, issue 13: the
+    estimate against the growth of a fresh process's peak memory)."""
+    restarts = options.num_restarts or min(DEFAULT_RESTARTS, options.raw_samples or 10**9)
+    raw = options.raw_samples or max(DEFAULT_RAW_SAMPLES, restarts)
+    batch = min(_SCORED_AT_ONCE, raw)
+    conditioned = n_train + n_pending + count
+    parts = {
+        "raw_samples": _FLOAT * raw * (dim + 1) * 6 + _FLOAT * batch * (conditioned + dim) * 10,
+        "observations": _FLOAT * (16 * n_train**2 + 6 * conditioned**2),
+    }
+    sizes = f"{raw} raw samples of {dim} dimensions, {n_train} observations, {n_pending} pending"
+    if options.acquisition == "mc":
+        mc = options.mc_samples or 128
+        joint = count + n_pending  # the noisy baseline's draws are cached, not per batch
+        parts["mc_samples"] = _FLOAT * batch * joint * (10 * mc + 4 * (joint + n_train))
+        sizes += f", {mc} MC samples of {joint} points jointly"
+    driver = max(parts, key=lambda name: parts[name])
+    return MemoryNeed(bytes=int(sum(parts.values())), driver=driver, sizes=sizes)
+
+
 class QLogEIProposer:
     """Sobol start, then a GP with batch log expected improvement (noisy variant on request)."""
 
@@ -198,7 +278,28 @@ class QLogEIProposer:
     needs_history: ClassVar[bool] = True
     options_model: ClassVar[type[ProposerOptions]] = QEIOptions
 
+    @staticmethod
+    def memory_need(
+        options: dict[str, Any],
+        *,
+        dim: int,
+        count: int,
+        n_train: int,
+        n_pending: int,
+        n_failed: int,
+    ) -> MemoryNeed:
+        """``memory_need`` for the service: options as stored, failed trials counted as
+        ``propose`` counts them (the latest few, as pending points)."""
+        return memory_need(
+            QEIOptions.model_validate(options),
+            dim=dim,
+            count=count,
+            n_train=n_train,
+            n_pending=n_pending + min(n_failed, _MAX_FAILED_AS_PENDING),
+        )
+
     def propose(self, request: ProposalRequest) -> Proposal:
+        deadline = None if request.seconds is None else time.monotonic() + request.seconds
         options = QEIOptions.model_validate(request.options)
         count = request.count
         bounds = np.asarray(request.bounds, dtype=np.float64)
@@ -220,7 +321,7 @@ class QLogEIProposer:
 
         q = count - n_sobol
         model_rows, model_info = self._model_batch(
-            request, bounds, q, candidates[:n_sobol], options
+            request, bounds, q, candidates[:n_sobol], options, deadline
         )
         candidates[n_sobol:] = model_rows
         info[n_sobol:] = model_info
@@ -251,6 +352,7 @@ class QLogEIProposer:
         q: int,
         issued_now: np.ndarray,
         options: QEIOptions,
+        deadline: float | None,
     ) -> tuple[np.ndarray, list[dict[str, Any]]]:
         first = request.count - q
         X = np.asarray(request.X, dtype=np.float64).reshape(-1, request.dim)
@@ -280,11 +382,27 @@ class QLogEIProposer:
 
         import botorch  # noqa: F401  (an import error is a broken install, not a fallback)
 
+        if request.memory_bytes is not None:
+            need = memory_need(
+                options,
+                dim=request.dim,
+                count=q,
+                n_train=len(y),
+                n_pending=len(X_pending),
+            )
+            if need.bytes > request.memory_bytes:
+                return self._fallback(
+                    request,
+                    bounds,
+                    first,
+                    q,
+                    f"memory budget: {need.describe()}, over the budget of "
+                    f"{request.memory_bytes / 2**20:.0f} MB per ask",
+                )
+
         cpu_started = time.thread_time()
         try:
-            with _LOCK, warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                rows, extra = self._optimise(request, bounds, X, y, X_pending, q, options)
+            rows, extra = self._optimise(request, bounds, X, y, X_pending, q, options, deadline)
         except Exception as error:  # any numerical failure must degrade, not crash the ask
             return self._fallback(
                 request, bounds, first, q, f"model failed: {type(error).__name__}: {error}"[:300]
@@ -305,7 +423,7 @@ class QLogEIProposer:
         taken = [observed_Z, model_inputs(X_pending, bounds, request.structure)]
         taken = taken if not request.noisy else []
         sobol_rows, sobol_info = self._fallback(request, bounds, first, q, "duplicate candidate")
-        for i in range(q):
+        for i in range(len(rows)):
             stack = np.concatenate([*taken, rows_Z[:i]], axis=0)
             if _nearest_distance(stack, rows_Z[i]) < _DUPLICATE_CANDIDATE_TOL:
                 rows[i] = sobol_rows[i]
@@ -313,6 +431,17 @@ class QLogEIProposer:
                 infos.append({**sobol_info[i], **extra, "method": "sobol-fallback"})
             else:
                 infos.append({"proposer": self.name, **extra, "method": methods[i]})
+        if len(rows) < q:
+            done = len(rows)
+            late_rows, late_info = self._fallback(
+                request,
+                bounds,
+                first + done,
+                q - done,
+                f"time budget: {request.seconds:g} s spent after {done} of {q} model candidates",
+            )
+            rows = np.concatenate([rows, late_rows])
+            infos += [{**info, "budget": "time"} for info in late_info]
         return rows, infos
 
     def _optimise(
@@ -324,18 +453,20 @@ class QLogEIProposer:
         X_pending: np.ndarray,
         q: int,
         options: QEIOptions,
+        deadline: float | None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Up to q candidates (fewer when the time budget ran out) and what to record."""
         import torch
         from botorch.acquisition.logei import (
             qLogExpectedImprovement,
             qLogNoisyExpectedImprovement,
         )
+        from botorch.acquisition.utils import prune_inferior_points
         from botorch.models import SingleTaskGP
         from botorch.models.transforms.outcome import Standardize
         from botorch.sampling.normal import SobolQMCNormalSampler
-        from botorch.utils.sampling import manual_seed
 
-        from adservice.proposers.acquisition import MixedDomain, maximise
+        from adservice.proposers.acquisition import MixedDomain, maximise, past
         from adservice.proposers.gpmodel import (
             AnalyticLogEI,
             design_kernel,
@@ -344,8 +475,7 @@ class QLogEIProposer:
             structure_lengthscale,
         )
 
-        if torch.get_num_threads() != _TORCH_THREADS:
-            torch.set_num_threads(_TORCH_THREADS)
+        _limit_threads(torch)
         device_name = options.device or ("cuda" if torch.cuda.is_available() else "cpu")
         device = torch.device(device_name)
         tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
@@ -416,12 +546,14 @@ class QLogEIProposer:
             if previous is not None:
                 model.load_state_dict(_to_device(previous, device), strict=False)
                 fit_source = "warm"
-            with manual_seed(seed):
-                fit_map(model)
+            fit_map(model, deadline=deadline)
             params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
             if not all(torch.isfinite(p).all() for p in params.values()):
                 raise FloatingPointError("non-finite hyperparameters after the fit")
-            _lru_put(_FITS_BY_DATA, data_key, params)
+            if past(deadline):
+                fit_source += "-stopped"  # not the exact fit: a warm start, never a reuse
+            else:
+                _lru_put(_FITS_BY_DATA, data_key, params)
             _lru_put(_FITS_BY_STUDY, study_key, params)
         model.eval()
         fit_seconds = time.perf_counter() - started
@@ -448,12 +580,28 @@ class QLogEIProposer:
             if options.acquisition == "analytic"
             else None
         )
-        for step in range(q):
-            step_seed = derived_seed(seed, step)
-            batch_pending = np.concatenate([pending_Z, *[z[None, :] for z in chosen]])
-            pending_t = torch.as_tensor(batch_pending, **tkw) if len(batch_pending) else None
-            acqf: Any
-            with manual_seed(step_seed):
+        # gpytorch's settings are class attributes that BoTorch's Monte Carlo posterior
+        # sets and restores at every call: those acquisitions take turns (the analytic
+        # one sets none)
+        with _MC_LOCK if analytic is None else contextlib.nullcontext():
+            baseline = train_Z
+            if analytic is None and request.noisy:
+                # BoTorch's own pruning would seed its sampler from torch's global generator
+                with torch.no_grad():
+                    baseline = prune_inferior_points(
+                        model,
+                        train_Z,
+                        sampler=SobolQMCNormalSampler(
+                            sample_shape=torch.Size([2048]), seed=derived_seed(seed, q)
+                        ),
+                    )
+            for step in range(q):
+                if step and past(deadline):
+                    break
+                step_seed = derived_seed(seed, step)
+                batch_pending = np.concatenate([pending_Z, *[z[None, :] for z in chosen]])
+                pending_t = torch.as_tensor(batch_pending, **tkw) if len(batch_pending) else None
+                acqf: Any
                 if analytic is not None:
                     acqf, method = analytic.step(pending_t)
                 else:
@@ -463,10 +611,10 @@ class QLogEIProposer:
                     if request.noisy:
                         acqf = qLogNoisyExpectedImprovement(
                             model=model,
-                            X_baseline=train_Z,
+                            X_baseline=baseline,
                             sampler=sampler,
                             X_pending=pending_t,
-                            prune_baseline=True,
+                            prune_baseline=False,
                         )
                         method = "qLogNEI"
                     else:
@@ -483,11 +631,12 @@ class QLogEIProposer:
                     seed=step_seed,
                     incumbents=incumbents,
                     tkw=tkw,
+                    deadline=deadline,
                 )
-            chosen.append(optimum.z)
-            methods.append(method)
-            values.append(optimum.value)
-            switched += optimum.structures_switched
+                chosen.append(optimum.z)
+                methods.append(method)
+                values.append(optimum.value)
+                switched += optimum.structures_switched
         acq_seconds = time.perf_counter() - started
         rows_np = search_vectors(np.array(chosen), bounds, search)
         if not np.all(np.isfinite(rows_np)):
@@ -502,6 +651,8 @@ class QLogEIProposer:
             "raw_samples": raw_count,
             "device": device.type,
         }
+        if past(deadline):
+            extra.update(budget="time", budget_seconds=request.seconds)
         if search is not None and search.n_structures > 1:
             extra["structure_lengthscale"] = structure_lengthscale(model)
             extra["structure_correlation"] = structure_correlation(model, search, tkw)

@@ -6,18 +6,24 @@ from fastapi import APIRouter, Response
 
 from adclient.schemas import Job, LeaseRequest
 from adservice import proposing
-from adservice.api.deps import DatabaseDep, LocksDep, SettingsDep, WorkerDep
+from adservice.api.deps import DatabaseDep, LocksDep, ProposalsDep, SettingsDep, WorkerDep
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 
 
 @router.post("/lease", response_model=Job, responses={204: {"description": "No work now"}})
-def lease(
-    body: LeaseRequest, db: DatabaseDep, locks: LocksDep, settings: SettingsDep, caller: WorkerDep
+async def lease(
+    body: LeaseRequest,
+    db: DatabaseDep,
+    locks: LocksDep,
+    proposals: ProposalsDep,
+    settings: SettingsDep,
+    caller: WorkerDep,
 ) -> Response | Job:
-    job = proposing.lease_job(
+    job = await proposing.lease_job(
         db,
         locks,
+        proposals,
         worker_id=body.worker_id,
         caller=caller,
         lease_seconds=settings.lease_seconds,

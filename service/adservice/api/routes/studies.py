@@ -7,7 +7,6 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 from pydantic import AfterValidator
-from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import (
     MAX_TRIAL_PAGE,
@@ -25,6 +24,7 @@ from adservice.api.deps import (
     MAX_ID,
     DatabaseDep,
     LocksDep,
+    ProposalsDep,
     ReaderDep,
     SessionDep,
     StudyId,
@@ -58,8 +58,10 @@ TrialOrder = Annotated[
 
 
 @router.post("", status_code=201)
-def create_study(body: StudyCreate, db: DatabaseDep, caller: UserDep) -> Study:
-    row = proposing.create_study(db, body=body, owner=caller)
+def create_study(
+    body: StudyCreate, db: DatabaseDep, proposals: ProposalsDep, caller: UserDep
+) -> Study:
+    row = proposing.create_study(db, body=body, owner=caller, budget=proposals.budget)
     return study_schema(row, {})
 
 
@@ -79,17 +81,22 @@ def get_study(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Study:
 
 @router.post("/{study_id}/ask", response_model=AskResponse)
 async def ask(
-    study_id: StudyId, body: AskRequest, db: DatabaseDep, locks: LocksDep, caller: UserDep
+    study_id: StudyId,
+    body: AskRequest,
+    db: DatabaseDep,
+    locks: LocksDep,
+    proposals: ProposalsDep,
+    caller: UserDep,
 ) -> Response:
     def propose() -> list[Trial]:
         return proposing.propose_trials(
-            db, locks, study_id=study_id, count=body.count, caller=caller
+            db, locks, study_id=study_id, count=body.count, caller=caller, budget=proposals.budget
         )
 
     if proposing.proposes_instantly(db, study_id):
         trials = await db.run(propose)
-    else:
-        trials = await run_in_threadpool(propose)  # model fitting: off the loop
+    else:  # model fitting: in the proposal threads, once this study's turn comes
+        trials = await proposals.run(study_id, propose)
     return model_response(AskResponse(trials=trials))
 
 
