@@ -1,0 +1,203 @@
+"""Issue 13: lease latency of one study, alone and while another study's heavy ask computes.
+
+A real ``adserver`` (SQLite file, loopback HTTP). Study A is ``qei`` on a box of
+``--dim`` params holding ``--told`` observations; study B is managed (a task) with the
+``random`` proposer. Each round times ``--leases`` concurrent leases of B (every one
+a thread with its own connection) and a few ``/healthz``: first alone, then while one
+``ask`` of ``--count`` points of A computes (started a second earlier; the round
+checks that it was still computing when the last lease was answered) with
+``--waiting`` more asks of A queued behind it. Printed: the
+median and p95 lease latency in each case, their ratio, and the heavy ask's duration.
+Before issue 13 every fit held one process-wide lock and waited for it in the request
+thread pool: 40 leases during a 35 s ask took 41 to 44 s.
+
+Run: ``.venv/bin/python bench/ask_isolation.py [--rounds 3] [--dim 96] [--count 16]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tests.servers import ServerProcess
+
+
+def box(dim: int) -> dict:
+    return {
+        "type": "box",
+        "params": [{"name": f"x{i}", "low": 0.0, "high": 1.0} for i in range(dim)],
+    }
+
+
+def heavy_study(http: httpx.Client, name: str, dim: int, told: int, room: int) -> int:
+    """A qei study holding ``told`` observations with room for ``room`` more trials."""
+    study = http.post(
+        "/api/v1/studies",
+        json={
+            "name": name,
+            "space": box(dim),
+            "proposer": {"name": "qei", "n_initial": told},
+            "max_trials": told + room,
+        },
+    ).json()
+    trials = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": told}).json()["trials"]
+    for trial in trials:
+        x = np.array(trial["vector"])
+        value = float(-np.sum((x - 0.3) ** 2) + 0.2 * np.sin(5 * x.sum()))
+        http.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": value}).raise_for_status()
+    return int(study["id"])
+
+
+def managed_study(http: httpx.Client) -> int:
+    """A managed study with the ``random`` proposer: its leases propose instantly."""
+    study = http.post(
+        "/api/v1/studies",
+        json={
+            "name": "B",
+            "space": box(2),
+            "proposer": {"name": "random"},
+            "task": {"name": "noop", "external": True},
+            "max_trials": 1_000_000,
+        },
+    )
+    study.raise_for_status()
+    return int(study.json()["id"])
+
+
+def waiting_asks(url: str, study_id: int, count: int) -> tuple[list[threading.Thread], list]:
+    """``count`` asks of one point queued behind the study's heavy ask, and their status
+    codes: the heavy ask fills the study, so each is refused (409) when its turn comes.
+    Before issue 13 each waited for that turn holding a request thread."""
+    statuses: list[int] = []
+
+    def ask() -> None:
+        with httpx.Client(base_url=url, timeout=600) as http:
+            response = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 1})
+            statuses.append(response.status_code)
+
+    threads = [threading.Thread(target=ask) for _ in range(count)]
+    for thread in threads:
+        thread.start()
+    return threads, statuses
+
+
+def burst(url: str, leases: int) -> tuple[list[float], list[float], float]:
+    """Latencies of ``leases`` concurrent leases and 5 /healthz, and when the last ended."""
+
+    def call(index: int) -> tuple[float, float]:
+        with httpx.Client(base_url=url, timeout=600) as http:
+            started = time.monotonic()
+            if index < leases:
+                response = http.post("/api/v1/jobs/lease", json={"worker_id": f"w{index}"})
+            else:
+                response = http.get("/healthz")
+            response.raise_for_status()
+            return time.monotonic() - started, time.monotonic()
+
+    with ThreadPoolExecutor(max_workers=leases + 5) as pool:
+        results = list(pool.map(call, range(leases + 5)))
+    seconds = [r[0] for r in results]
+    return seconds[:leases], seconds[leases:], max(r[1] for r in results)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--dim", type=int, default=96)
+    parser.add_argument("--told", type=int, default=40)
+    parser.add_argument("--count", type=int, default=16)
+    parser.add_argument("--leases", type=int, default=40)
+    parser.add_argument("--waiting", type=int, default=45, help="asks queued behind A's")
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory() as workdir:
+        server = ServerProcess(
+            database_url=f"sqlite:///{Path(workdir) / 'isolation.db'}",
+            workdir=Path(workdir),
+            env={"AD_ASK_SECONDS": "600"},
+        ).start()
+        try:
+            with httpx.Client(base_url=server.url, timeout=600) as http:
+                managed_study(http)
+                burst(server.url, 4)  # warm: imports, the study's config
+                heavy = [
+                    heavy_study(http, f"A{r}", args.dim, args.told, args.count)
+                    for r in range(args.rounds)
+                ]
+            alone: list[float] = []
+            during: list[float] = []
+            health_alone: list[float] = []
+            health_during: list[float] = []
+            asks: list[float] = []
+            for study_id in heavy:
+                lease_s, health_s, _ = burst(server.url, args.leases)
+                alone += lease_s
+                health_alone += health_s
+                outcome: dict[str, float] = {}
+
+                def ask(study_id: int = study_id, outcome: dict[str, float] = outcome) -> None:
+                    with httpx.Client(base_url=server.url, timeout=600) as http:
+                        started = time.monotonic()
+                        response = http.post(
+                            f"/api/v1/studies/{study_id}/ask", json={"count": args.count}
+                        )
+                        response.raise_for_status()
+                        outcome["seconds"] = time.monotonic() - started
+                        outcome["ended"] = time.monotonic()
+
+                thread = threading.Thread(target=ask)
+                thread.start()
+                time.sleep(0.5)
+                queued, statuses = waiting_asks(server.url, study_id, args.waiting)
+                time.sleep(0.5)
+                lease_s, health_s, last = burst(server.url, args.leases)
+                thread.join()
+                for waiting in queued:
+                    waiting.join()
+                assert statuses == [409] * args.waiting, statuses
+                if last > outcome["ended"]:
+                    print("warning: the heavy ask ended before the leases; use a larger --count")
+                during += lease_s
+                health_during += health_s
+                asks.append(outcome["seconds"])
+        finally:
+            server.stop()
+
+    def line(name: str, values: list[float]) -> str:
+        return (
+            f"{name}: median {np.median(values) * 1000:.0f} ms, "
+            f"p95 {np.percentile(values, 95) * 1000:.0f} ms"
+        )
+
+    print(
+        f"{args.rounds} rounds of {args.leases} concurrent leases of study B (random, managed) "
+        f"and 5 /healthz; study A: qei, {args.dim} params, {args.told} observations, "
+        f"one ask of {args.count} and {args.waiting} asks queued behind it"
+    )
+    print(line("B's leases alone", alone))
+    print(line("B's leases during A's ask", during))
+    print(line("/healthz alone", health_alone))
+    print(line("/healthz during A's ask", health_during))
+    print(
+        "ratio during/alone: median "
+        f"{np.median(during) / np.median(alone):.2f}, "
+        f"p95 {np.percentile(during, 95) / np.percentile(alone, 95):.2f}"
+    )
+    print(
+        f"A's ask: median {np.median(asks):.1f} s (p95 of B's leases during it: "
+        f"{np.percentile(during, 95) / np.median(asks) * 100:.1f}% of it)"
+    )
+
+
+if __name__ == "__main__":
+    main()
