@@ -2,10 +2,10 @@
 ``Settings``.
 
 httptools (uvicorn's fastest parser) has no cap on header size: it joins a header's
-pieces by concatenation, so one connection sending a 100 MB header kept the event loop
-busy for 12 s. Nor does uvicorn time out a request whose headers never finish. h11 has a
-cap but costs about 18% more server CPU per ask/tell (bench/RESULTS.md, issue 13), so
-we keep httptools and count the bytes ourselves.
+pieces with ``bytes +=``, so one connection sending a 100 MB header kept the event loop
+busy for 12 to 30 s. Nor does uvicorn time out a request whose headers never finish. h11
+has a cap but costs about 19% more server CPU per ask/tell (bench/RESULTS.md, issue 13:
+request limits), so we keep httptools and count the bytes ourselves.
 """
 
 from __future__ import annotations
