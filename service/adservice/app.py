@@ -48,6 +48,7 @@ from adservice.limits_body import BodySizeLimit
 from adservice.locks import StudyLocks
 from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
 from adservice.security import RefuseSimpleCrossSiteChanges, SecurityHeaders
+from adservice.services.configs import StudyConfigs
 from adservice.settings import Settings, get_settings
 
 log = logging.getLogger("adservice")
@@ -186,6 +187,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.db = db
         app.state.settings = settings
         app.state.locks = StudyLocks()
+        app.state.configs = StudyConfigs(db)
         memory = settings.ask_memory_mb
         app.state.proposals = ProposalRunner(
             settings.proposal_threads or available_cores(),

@@ -64,8 +64,6 @@ class Database:
         self.engine = make_engine(url)
         self._write_engine = self.engine.execution_options(ad_write=True)
         self._write_lock = threading.Lock() if is_sqlite(self.engine) else None
-        self.study_configs: dict[int, Any] = {}
-        """Parsed immutable study configurations (see ``adservice.proposing``)."""
 
     @property
     def dialect(self) -> str:
@@ -78,7 +76,8 @@ class Database:
 
     @contextmanager
     def write(self) -> Iterator[Session]:
-        """A transaction that commits on success and rolls back on any exception."""
+        """A write transaction that commits on success and rolls back on any exception:
+        every write of the service goes through here."""
         if self._write_lock is None:
             with Session(self._write_engine, expire_on_commit=False) as session, session.begin():
                 yield session
@@ -89,18 +88,6 @@ class Database:
             session.begin(),
         ):
             yield session
-
-    @contextmanager
-    def write_connection(self) -> Iterator[sa.Connection]:
-        """A Core write transaction, as :meth:`write` but without the ORM session's
-        bookkeeping: for the hot paths (a tell, a cheap ask) that only run prebuilt
-        statements."""
-        if self._write_lock is None:
-            with self._write_engine.begin() as connection:
-                yield connection
-            return
-        with self._write_lock, self._write_engine.begin() as connection:
-            yield connection
 
     @property
     def writes_inline(self) -> bool:

@@ -209,16 +209,16 @@ _RESERVE = (
 )
 
 
-def reserve_numbers(handle: Session | sa.Connection, *, study_id: int, count: int) -> int:
+def reserve_numbers(session: Session, *, study_id: int, count: int) -> int:
     """Claim the next ``count`` trial numbers of a running study with room; returns the
     first. One conditional UPDATE: it checks, reserves and (on PostgreSQL) row-locks."""
     reserved = (
-        _connection(handle)
+        session.connection()
         .execute(_RESERVE, {"sid": study_id, "count": count, "now": utcnow()})
         .scalar_one_or_none()
     )
     if reserved is None:
-        check_room(get_study(_session(handle), study_id=study_id), count=count)
+        check_room(get_study(session, study_id=study_id), count=count)
         raise ConflictError(f"study {study_id} takes no new trials")  # changed meanwhile
     return int(reserved) - count
 
@@ -227,7 +227,7 @@ _INSERT_TRIALS = sa.insert(_trials).returning(_trials.c.id, sort_by_parameter_or
 
 
 def insert_trials(
-    handle: Session | sa.Connection,
+    session: Session,
     *,
     study_id: int,
     first_number: int,
@@ -239,8 +239,8 @@ def insert_trials(
     lease_seconds: float = 60.0,
 ) -> list[Trial]:
     """New trials numbered from ``first_number`` (see :func:`reserve_numbers`), in state
-    ``running`` and leased to ``worker_id`` (and its token) when given (that needs a
-    session)."""
+    ``running`` and leased to ``worker_id`` (and its token) when given. Prebuilt Core
+    statements on the session's connection: no ORM bookkeeping per trial."""
     now = utcnow()
     values = [
         {
@@ -264,10 +264,9 @@ def insert_trials(
         }
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
-    ids = _connection(handle).execute(_INSERT_TRIALS, values).scalars().all()
+    ids = session.connection().execute(_INSERT_TRIALS, values).scalars().all()
     if worker_id:
-        assert isinstance(handle, Session), "a lease records its worker through a session"
-        _touch_worker(handle, worker_id=worker_id, now=now, current_trial_id=ids[0])
+        _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
     return [
         Trial.model_validate({"id": trial_id, **row})
         for trial_id, row in zip(ids, values, strict=True)
@@ -424,25 +423,14 @@ _COUNT = {complete: _count_statement(complete=complete) for complete in (False, 
 _WORKER_COUNT = {complete: _worker_statement(complete=complete) for complete in (False, True)}
 
 
-def _connection(handle: Session | sa.Connection) -> sa.Connection:
-    return handle if isinstance(handle, sa.Connection) else handle.connection()
-
-
-def _session(handle: Session | sa.Connection) -> Session:
-    """An ORM session inside ``handle``'s transaction, for a hot path's rare slow branch."""
-    return handle if isinstance(handle, Session) else Session(bind=handle)
-
-
-def tell_trial(
-    handle: Session | sa.Connection, *, trial_id: int, body: TellRequest, caller: Principal
-) -> Trial:
+def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Principal) -> Trial:
     """Finish a trial. Repeating an identical tell is harmless; a contradicting one is
     a conflict; a worker that no longer holds the lease is told so.
 
     The common case is two conditional UPDATEs (trial, then study counters and best);
-    only a tell that changes nothing takes the slow path that finds out why. Takes a
-    session or, on the hot path, a bare connection (``Database.write_connection``)."""
-    connection = _connection(handle)
+    only a tell that changes nothing takes the slow path that finds out why. The UPDATEs
+    are prebuilt Core statements run on the session's connection, in its transaction."""
+    connection = session.connection()
     now = utcnow()
     complete = body.state == "complete"
     finished = connection.execute(
@@ -459,7 +447,7 @@ def tell_trial(
         },
     ).one_or_none()
     if finished is None:
-        return _explain_refused_tell(_session(handle), trial_id=trial_id, body=body, caller=caller)
+        return _explain_refused_tell(session, trial_id=trial_id, body=body, caller=caller)
     connection.execute(
         _COUNT[complete],
         {"sid": finished.study_id, "tid": trial_id, "value": body.value, "now": now},

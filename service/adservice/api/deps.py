@@ -17,6 +17,7 @@ from adservice.auth import Principal, Role, require
 from adservice.db import Database
 from adservice.locks import StudyLocks
 from adservice.proposal_runner import ProposalRunner
+from adservice.services.configs import StudyConfigs
 from adservice.settings import Settings
 
 
@@ -33,6 +34,11 @@ async def get_database(request: Request) -> Database:
 async def get_locks(request: Request) -> StudyLocks:
     locks: StudyLocks = request.app.state.locks
     return locks
+
+
+async def get_configs(request: Request) -> StudyConfigs:
+    configs: StudyConfigs = request.app.state.configs
+    return configs
 
 
 async def get_proposals(request: Request) -> ProposalRunner:
@@ -56,6 +62,7 @@ SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 DatabaseDep = Annotated[Database, Depends(get_database)]
 LocksDep = Annotated[StudyLocks, Depends(get_locks)]
 ProposalsDep = Annotated[ProposalRunner, Depends(get_proposals)]
+ConfigsDep = Annotated[StudyConfigs, Depends(get_configs)]
 ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifact_store)]
 SessionDep = Annotated[Session, Depends(read_session)]
 

@@ -5,8 +5,15 @@ from __future__ import annotations
 from fastapi import APIRouter, Response
 
 from adclient.schemas import Job, LeaseRequest
-from adservice import proposing
-from adservice.api.deps import DatabaseDep, LocksDep, ProposalsDep, SettingsDep, WorkerDep
+from adservice.api.deps import (
+    ConfigsDep,
+    DatabaseDep,
+    LocksDep,
+    ProposalsDep,
+    SettingsDep,
+    WorkerDep,
+)
+from adservice.services.jobs import lease_job
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 
@@ -15,13 +22,15 @@ router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 async def lease(
     body: LeaseRequest,
     db: DatabaseDep,
+    configs: ConfigsDep,
     locks: LocksDep,
     proposals: ProposalsDep,
     settings: SettingsDep,
     caller: WorkerDep,
 ) -> Response | Job:
-    job = await proposing.lease_job(
+    job = await lease_job(
         db,
+        configs,
         locks,
         proposals,
         worker_id=body.worker_id,

@@ -19,9 +19,10 @@ from adclient.schemas import (
     TrialState,
     WorkerInfo,
 )
-from adservice import proposing, repository, views
+from adservice import repository, views
 from adservice.api.deps import (
     MAX_ID,
+    ConfigsDep,
     DatabaseDep,
     LocksDep,
     ProposalsDep,
@@ -32,6 +33,8 @@ from adservice.api.deps import (
 )
 from adservice.api.responses import model_response
 from adservice.convert import study_schema, trial_schema, worker_schema
+from adservice.services import studies as study_service
+from adservice.services import trials as trial_service
 
 router = APIRouter(prefix="/api/v1/studies", tags=["studies"])
 
@@ -61,7 +64,7 @@ TrialOrder = Annotated[
 def create_study(
     body: StudyCreate, db: DatabaseDep, proposals: ProposalsDep, caller: UserDep
 ) -> Study:
-    row = proposing.create_study(db, body=body, owner=caller, budget=proposals.budget)
+    row = study_service.create_study(db, body=body, owner=caller, budget=proposals.budget)
     return study_schema(row, {})
 
 
@@ -84,20 +87,15 @@ async def ask(
     study_id: StudyId,
     body: AskRequest,
     db: DatabaseDep,
+    configs: ConfigsDep,
     locks: LocksDep,
     proposals: ProposalsDep,
     caller: UserDep,
 ) -> Response:
-    def propose() -> list[Trial]:
-        return proposing.propose_trials(
-            db, locks, study_id=study_id, count=body.count, caller=caller, budget=proposals.budget
-        )
-
-    if proposing.proposes_instantly(db, study_id):
-        trials = await db.run(propose)
-    else:  # model fitting: in the proposal threads, once this study's turn comes
-        trials = await proposals.run(study_id, propose)
-    return model_response(AskResponse(trials=trials))
+    asked = await trial_service.ask_trials(
+        db, configs, locks, proposals, study_id=study_id, count=body.count, caller=caller
+    )
+    return model_response(AskResponse(trials=asked))
 
 
 @router.post("/{study_id}/stop")

@@ -28,8 +28,8 @@ async def tell(
         raise ForbiddenError("a worker token tells only the trials it holds: give worker_id")
 
     def write() -> Trial:
-        with db.write_connection() as connection:
-            return repository.tell_trial(connection, trial_id=trial_id, body=body, caller=caller)
+        with db.write() as session:
+            return repository.tell_trial(session, trial_id=trial_id, body=body, caller=caller)
 
     return model_response(await db.run(write))
 

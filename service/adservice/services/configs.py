@@ -1,0 +1,131 @@
+"""A study's configuration (space, proposer, representation) never changes after it is
+created, so each server process keeps it parsed in memory (:class:`StudyConfigs`)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from adclient.design import DesignSpace, Representation
+from adclient.schemas import ProposerConfig, TaskConfig, option_problems
+from adservice import repository
+from adservice.db import Database
+from adservice.errors import InvalidError
+from adservice.models import StudyRow
+from adservice.proposers import available, options_model
+from adservice.proposers.base import SearchStructure
+
+log = logging.getLogger("adservice")
+
+
+def check_proposer(config: ProposerConfig) -> None:
+    """A known proposer and options it declares; InvalidError naming each problem."""
+    if config.name not in available():
+        raise InvalidError(
+            f"proposer.name: unknown proposer {config.name!r}; "
+            f"choose one of {', '.join(available())}"
+        )
+    model = options_model(config.name)
+    try:
+        model.model_validate(config.options)
+    except ValidationError as error:
+        problems = option_problems(error, model, config.name, prefix="proposer.options")
+        raise InvalidError("; ".join(problems), problems=problems) from None
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """The immutable part of a study, parsed once."""
+
+    study_id: int
+    maximize: bool
+    owner_token_id: int | None
+    owner_name: str | None
+    proposer: ProposerConfig
+    task: TaskConfig | None
+    space: dict[str, Any]
+    design_space: DesignSpace | None
+    representation: Representation | None
+    bounds: np.ndarray
+    search: SearchStructure | None = None
+    """What a design vector's coordinates mean, for proposers that model them."""
+    proposer_error: InvalidError | None = None
+    """Why the stored proposer settings cannot be used (a study stored before they were
+    checked at creation): asking such a study answers 409 naming the problem."""
+
+    @classmethod
+    def from_row(cls, row: StudyRow) -> StudyConfig:
+        proposer = ProposerConfig.model_validate(row.proposer)
+        try:
+            check_proposer(proposer)
+            proposer_error = None
+        except InvalidError as error:
+            proposer_error = error
+            log.warning("study %d cannot propose: %s", row.id, error.detail)
+        representation: Representation | None = None
+        design_space: DesignSpace | None = None
+        search: SearchStructure | None = None
+        if row.representation is not None:
+            from adservice.representation import search_structure
+
+            representation = Representation.model_validate(row.representation)
+            bounds = np.asarray(representation.bounds, dtype=np.float64)
+            design_space = DesignSpace.model_validate(row.space)
+            search = search_structure(design_space, representation)
+        else:
+            params = row.space["params"]
+            bounds = np.array([[p["low"] for p in params], [p["high"] for p in params]])
+        return cls(
+            study_id=row.id,
+            maximize=row.direction == "maximize",
+            owner_token_id=row.owner_token_id,
+            owner_name=row.created_by,
+            proposer=proposer,
+            task=TaskConfig.model_validate(row.task) if row.task else None,
+            space=row.space,
+            design_space=design_space,
+            representation=representation,
+            bounds=bounds,
+            search=search,
+            proposer_error=proposer_error,
+        )
+
+    @property
+    def dim(self) -> int:
+        return int(self.bounds.shape[1])
+
+    def params(self, vector: np.ndarray) -> dict[str, Any]:
+        """What a person reads: box params by name, or the decoded design."""
+        if self.representation is None or self.design_space is None:
+            names = [p["name"] for p in self.space["params"]]
+            return {name: float(x) for name, x in zip(names, vector, strict=True)}
+        from adclient.decode import decode, design_params
+
+        return design_params(decode(self.design_space, self.representation, vector.tolist()))
+
+
+class StudyConfigs:
+    """Each study's parsed configuration, read from the database once per process."""
+
+    def __init__(self, db: Database) -> None:
+        self._db = db
+        self._lock = threading.Lock()
+        self._configs: dict[int, StudyConfig] = {}
+
+    def cached(self, study_id: int) -> StudyConfig | None:
+        """The configuration if this process has it already (no database read)."""
+        return self._configs.get(study_id)
+
+    def get(self, study_id: int) -> StudyConfig:
+        config = self._configs.get(study_id)
+        if config is None:
+            with self._db.read() as session:
+                config = StudyConfig.from_row(repository.get_study(session, study_id=study_id))
+            with self._lock:
+                config = self._configs.setdefault(study_id, config)
+        return config

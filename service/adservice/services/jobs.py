@@ -1,0 +1,94 @@
+"""Leasing work to workers: a queued trial, else a new one from a managed study."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from adclient.schemas import Job, Trial
+from adservice import repository
+from adservice.db import Database
+from adservice.errors import ConflictError
+from adservice.locks import StudyLocks
+from adservice.principals import Principal
+from adservice.proposal_runner import ProposalRunner
+from adservice.services.configs import StudyConfigs
+from adservice.services.trials import propose_trials, proposes_instantly
+
+
+async def lease_job(
+    db: Database,
+    configs: StudyConfigs,
+    locks: StudyLocks,
+    proposals: ProposalRunner,
+    *,
+    worker_id: str,
+    caller: Principal,
+    lease_seconds: float,
+    tasks: Sequence[str] | None = None,
+) -> Job | None:
+    """A queued trial if there is one, else a freshly proposed one from a managed study
+    with room; None when there is no work (of ``tasks``, when given). Leasing a queued
+    trial is one short write that never waits for a proposal; a model-based proposal
+    runs in ``proposals``, preferring a study with none under way."""
+
+    def queued() -> Job | None:
+        with db.write() as session:
+            row = repository.lease_queued_trial(
+                session,
+                worker_id=worker_id,
+                lease_token_id=caller.token_id,
+                lease_seconds=lease_seconds,
+                tasks=tasks,
+            )
+            trial = Trial.model_validate(row, from_attributes=True) if row else None
+        return _job(configs, trial) if trial else None
+
+    def wanting() -> list[int]:
+        with db.read() as session:
+            return repository.studies_wanting_trials(session, tasks=tasks)
+
+    job = await db.run(queued)
+    if job is not None:
+        return job
+    for study_id in proposals.free_first(await db.run(wanting)):
+
+        def propose(study_id: int = study_id) -> Job:
+            (trial,) = propose_trials(
+                db,
+                configs,
+                locks,
+                study_id=study_id,
+                count=1,
+                caller=caller,
+                worker_id=worker_id,
+                lease_seconds=lease_seconds,
+                budget=proposals.budget,
+            )
+            return _job(configs, trial)
+
+        try:
+            if proposes_instantly(configs, study_id):
+                return await db.run(propose)
+            return await proposals.run(study_id, propose)
+        except ConflictError:
+            continue  # filled or stopped meanwhile: try the next study
+    return None
+
+
+def _job(configs: StudyConfigs, trial: Trial) -> Job:
+    config = configs.get(trial.study_id)
+    assert config.task is not None and trial.lease_expires_at is not None
+    return Job.model_validate(
+        {
+            "trial_id": trial.id,
+            "study_id": trial.study_id,
+            "number": trial.number,
+            "attempt": trial.attempts,
+            "vector": trial.vector,
+            "params": trial.params,
+            "task": config.task,
+            "space": config.space,
+            "representation": config.representation,
+            "lease_expires_at": trial.lease_expires_at,
+        }
+    )

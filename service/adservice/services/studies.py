@@ -1,0 +1,73 @@
+"""Creating a study: the checks its schema cannot make, then one write."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from adclient.design import DesignSpace
+from adclient.schemas import StudyCreate
+from adservice import repository
+from adservice.db import Database
+from adservice.errors import InvalidError
+from adservice.models import StudyRow
+from adservice.principals import Principal
+from adservice.proposal_runner import AskBudget
+from adservice.services.budget import check_options_memory
+from adservice.services.configs import check_proposer
+
+
+def create_study(
+    db: Database, *, body: StudyCreate, owner: Principal, budget: AskBudget | None = None
+) -> StudyRow:
+    """Check what the schema cannot (the proposer and its options, the representation's
+    numbers, an ask's memory within ``budget``), then store the study; InvalidError, with
+    nothing stored, otherwise."""
+    check_proposer(body.proposer)
+    representation = None
+    if isinstance(body.space, DesignSpace):
+        from adservice.representation import build_representation
+
+        representation = build_representation(body.space).model_dump(mode="json")
+        _check_finite(body.space, representation)
+        dim = len(representation["bounds"][0])
+    else:
+        dim = len(body.space.params)
+    if budget is not None and budget.memory_bytes is not None:
+        check_options_memory(body.proposer, dim=dim, budget=budget.memory_bytes)
+    with db.write() as session:
+        return repository.create_study(
+            session, body=body, representation=representation, owner=owner
+        )
+
+
+def _non_finite(value: Any, where: str) -> str | None:
+    """The path of the first NaN or infinite number in a JSON value, if any."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else where
+    if isinstance(value, dict):
+        items: Any = value.items()
+    elif isinstance(value, list):
+        items = enumerate(value)
+    else:
+        return None
+    for key, item in items:
+        found = _non_finite(item, f"{where}.{key}")
+        if found is not None:
+            return found
+    return None
+
+
+def _check_finite(space: DesignSpace, representation: dict[str, Any]) -> None:
+    """A representation that overflowed cannot decode designs (and PostgreSQL refuses
+    to store NaN); the one setting known to do it is a huge ``fusion_margin``."""
+    where = _non_finite(representation, "representation")
+    if where is None:
+        return
+    if space.fusion_margin > 0:
+        raise InvalidError(
+            f"space.design.fusion_margin: {space.fusion_margin:g} is too large: the fused "
+            f"distances overflow ({where} is not a finite number); the distances it "
+            "separates are between normalised spec vectors, a few units at most"
+        )
+    raise InvalidError(f"space.design: the search representation overflows ({where})")

@@ -1,0 +1,195 @@
+"""Proposing trials: snapshot the history, propose off the database, insert.
+
+Cheap proposers that need no history (random, Sobol) propose inside one short write
+transaction. Model-based ones propose with no database lock held (a qEI fit takes a
+fraction of a second) under a per-study lock, so concurrent asks of one study each see
+the previous one's trials as pending; the routes run them through ``ProposalRunner``
+(their own threads, one study at a time), within the server's time and memory budget
+per ask (``AskBudget``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from adclient.schemas import Trial
+from adservice import repository
+from adservice.db import Database
+from adservice.errors import StudyConfigError
+from adservice.locks import StudyLocks
+from adservice.principals import Principal, check_manager
+from adservice.proposal_runner import AskBudget, ProposalRunner
+from adservice.proposers import Proposal, ProposalRequest, get_proposer
+from adservice.proposers.base import empty_history
+from adservice.repository import History
+from adservice.services.budget import check_ask_memory
+from adservice.services.configs import StudyConfig, StudyConfigs
+
+
+def _request(
+    config: StudyConfig,
+    *,
+    count: int,
+    n_issued: int,
+    history: History | None,
+    budget: AskBudget | None = None,
+) -> ProposalRequest:
+    empty = empty_history(config.dim)
+    sign = 1.0 if config.maximize else -1.0
+    noisy = config.proposer.noisy
+    return ProposalRequest(
+        bounds=config.bounds,
+        count=count,
+        seed=config.proposer.seed,
+        n_issued=n_issued,
+        X=history.X if history else empty,
+        y=sign * history.y if history else np.zeros(0),
+        failed=history.failed if history else empty,
+        pending=history.pending if history else empty,
+        n_initial=config.proposer.n_initial,
+        noisy=noisy if noisy is not None else config.task is not None,
+        options=config.proposer.options,
+        structure=config.search,
+        seconds=budget.seconds if budget else None,
+        memory_bytes=budget.memory_bytes if budget else None,
+    )
+
+
+def _record(
+    db: Database,
+    config: StudyConfig,
+    *,
+    count: int,
+    propose: Callable[[int], Proposal],
+    worker_id: str | None,
+    lease_token_id: int | None,
+    lease_seconds: float,
+) -> list[Trial]:
+    """Reserve trial numbers and store what ``propose(first_number)`` returns, in one
+    write transaction."""
+    with db.write() as session:
+        first = repository.reserve_numbers(session, study_id=config.study_id, count=count)
+        proposal = propose(first)
+        candidates = np.clip(proposal.candidates, config.bounds[0], config.bounds[1])
+        return repository.insert_trials(
+            session,
+            study_id=config.study_id,
+            first_number=first,
+            vectors=candidates.tolist(),
+            params=[config.params(vector) for vector in candidates],
+            infos=proposal.info,
+            worker_id=worker_id,
+            lease_token_id=lease_token_id,
+            lease_seconds=lease_seconds,
+        )
+
+
+def proposes_instantly(configs: StudyConfigs, study_id: int) -> bool:
+    """Whether an ask of this study is only a few short writes: its configuration is
+    cached (no read needed) and its proposer needs no history (random, sobol)."""
+    config = configs.cached(study_id)
+    if config is None or config.proposer_error is not None:
+        return False
+    return not get_proposer(config.proposer.name).needs_history
+
+
+def propose_trials(
+    db: Database,
+    configs: StudyConfigs,
+    locks: StudyLocks,
+    *,
+    study_id: int,
+    count: int,
+    caller: Principal,
+    worker_id: str | None = None,
+    lease_seconds: float = 60.0,
+    budget: AskBudget | None = None,
+) -> list[Trial]:
+    """New trials of a study: asked by its owner (``worker_id`` None), or proposed for a
+    worker's lease (any worker may lease from any managed study); ``budget`` bounds a
+    model-based proposal (an owner's ask beyond its memory is refused, naming why)."""
+    config = configs.get(study_id)
+    if worker_id is None:
+        check_manager(
+            caller,
+            study_id=study_id,
+            owner_token_id=config.owner_token_id,
+            owner_name=config.owner_name,
+        )
+    lease_token_id = caller.token_id if worker_id is not None else None
+    if config.proposer_error is not None:
+        raise StudyConfigError(
+            f"study {study_id} cannot propose: its proposer settings were stored before "
+            f"they were checked and are invalid: {config.proposer_error.detail}",
+            problems=config.proposer_error.problems,
+        )
+    proposer = get_proposer(config.proposer.name)
+    if not proposer.needs_history:
+        return _record(
+            db,
+            config,
+            count=count,
+            propose=lambda first: proposer.propose(
+                _request(config, count=count, n_issued=first, history=None)
+            ),
+            worker_id=worker_id,
+            lease_token_id=lease_token_id,
+            lease_seconds=lease_seconds,
+        )
+    with locks.hold(db, study_id):
+        with db.read() as session:
+            study = repository.get_study(session, study_id=study_id)
+            repository.check_room(study, count=count)
+            history = repository.study_history(session, study_id=study_id, dim=config.dim)
+        if worker_id is None and budget is not None and budget.memory_bytes is not None:
+            check_ask_memory(
+                config,
+                count=count,
+                n_issued=study.n_trials,
+                history=history,
+                budget=budget.memory_bytes,
+            )
+        proposal = proposer.propose(
+            _request(config, count=count, n_issued=study.n_trials, history=history, budget=budget)
+        )
+        return _record(
+            db,
+            config,
+            count=count,
+            propose=lambda _first: proposal,
+            worker_id=worker_id,
+            lease_token_id=lease_token_id,
+            lease_seconds=lease_seconds,
+        )
+
+
+async def ask_trials(
+    db: Database,
+    configs: StudyConfigs,
+    locks: StudyLocks,
+    proposals: ProposalRunner,
+    *,
+    study_id: int,
+    count: int,
+    caller: Principal,
+) -> list[Trial]:
+    """An owner's ask: a history-free proposer's few writes run where short writes run
+    (``Database.run``); model fitting runs in the proposal threads once the study's turn
+    comes, so it never holds a request thread."""
+
+    def propose() -> list[Trial]:
+        return propose_trials(
+            db,
+            configs,
+            locks,
+            study_id=study_id,
+            count=count,
+            caller=caller,
+            budget=proposals.budget,
+        )
+
+    if proposes_instantly(configs, study_id):
+        return await db.run(propose)
+    return await proposals.run(study_id, propose)
