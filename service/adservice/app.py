@@ -43,8 +43,7 @@ from adservice.errors import (
     TooLargeError,
     UnauthorizedError,
 )
-from adservice.limits import BodyTimeout
-from adservice.limits_body import BodySizeLimit
+from adservice.limits import BodyLimits
 from adservice.locks import StudyLocks
 from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
 from adservice.security import RefuseSimpleCrossSiteChanges, SecurityHeaders
@@ -85,6 +84,7 @@ ERROR_RESPONSES = {
     405: "Method not allowed on this path",
     409: "Conflicts with the current state (finished trial, lost lease, full study)",
     413: "Body too large",
+    415: "A change sent with neither a JSON body nor the X-Activedesign-Client header",
     422: "Invalid field; the detail names it",
 }
 
@@ -218,12 +218,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     install_error_handlers(app)
     document_error_bodies(app)
-    app.add_middleware(BodyTimeout, timeout=settings.body_timeout)  # inside: its 408 gets headers
-    # Added last runs first: the host, then headers on every answer, CORS, the cross-site
-    # guard and the body limit, and who is calling before any route parses a body.
+    # Added last runs first: the host, then headers on every answer (errors included),
+    # CORS, the cross-site guard, the body's size and deadline, and who is calling before
+    # any route parses a body.
     app.add_middleware(Authentication)
     app.add_middleware(
-        BodySizeLimit, limit=settings.max_body_bytes, artifact_limit=settings.max_artifact_bytes
+        BodyLimits,
+        limit=settings.max_body_bytes,
+        artifact_limit=settings.max_artifact_bytes,
+        timeout=settings.body_timeout,
     )
     app.add_middleware(RefuseSimpleCrossSiteChanges)
     if settings.cors_origins:

@@ -1,73 +1,105 @@
-"""A deadline for request bodies: uvicorn waits forever for a body that stops arriving."""
+"""Limits on request bodies: a size (413) and a deadline (408).
+
+uvicorn reads whatever body a client sends, for as long as it takes; these limits are
+checked as the body arrives, before a route has read it.
+"""
 
 from __future__ import annotations
 
 import asyncio
 
+from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-TIMED_OUT_BODY = b'{"error":"timeout","detail":"request body not received in time"}'
+
+class BodyRefused(Exception):
+    """Raised into the app from ``receive`` once its body is refused (the client has had
+    its 413 or 408 by then, unless the app had begun answering)."""
 
 
-class BodyTimedOut(Exception):
-    """Raised into the app from ``receive``: its body will not come."""
+class BodyLimits:
+    """Pure ASGI middleware: a body must fit the limit (``artifact_limit`` for artifact
+    uploads) and be complete within ``timeout`` seconds of its headers' end.
 
+    A declared ``Content-Length`` over the limit is answered at once. Otherwise the body
+    is counted and timed as it arrives; past either limit the middleware answers itself,
+    with ``Connection: close`` (the rest is never read), makes the app's ``receive``
+    raise so the route stops waiting, and drops whatever the app sends after: FastAPI
+    turns any error while it reads a body into a 400."""
 
-class BodyTimeout:
-    """Pure ASGI middleware: a request's body must be complete within ``timeout`` seconds
-    of the app being called (its headers' end). Past it the client gets 408 with
-    ``Connection: close``, and the app's ``receive`` raises so the route stops waiting;
-    whatever the app sends afterwards is dropped."""
-
-    def __init__(self, app: ASGIApp, *, timeout: float) -> None:
+    def __init__(self, app: ASGIApp, *, limit: int, artifact_limit: int, timeout: float) -> None:
         self.app = app
+        self.limit = limit
+        self.artifact_limit = artifact_limit
         self.timeout = timeout
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        allowed = self.artifact_limit if "/artifacts/" in scope["path"] else self.limit
+        declared = dict(scope["headers"]).get(b"content-length")
+        if declared is not None and not declared.isdigit():
+            invalid = {"error": "invalid", "detail": "Content-Length must be a number"}
+            await JSONResponse(invalid, status_code=400)(scope, receive, send)
+            return
+        if declared is not None and int(declared) > allowed:
+            await _too_large(allowed)(scope, receive, send)
+            return
         deadline = asyncio.get_running_loop().time() + self.timeout
-        body_done = False
-        response_started = False
-        answered = False
+        received = 0
+        body_done = started = answered = False
 
-        async def timed_receive() -> Message:
-            nonlocal body_done, answered
+        async def refuse(response: JSONResponse) -> None:
+            nonlocal answered
+            if not started and not answered:
+                answered = True
+                await response(scope, receive, send)
+            raise BodyRefused
+
+        async def limited_receive() -> Message:
+            nonlocal received, body_done
             if body_done:
                 return await receive()
             try:
                 async with asyncio.timeout_at(deadline):
                     message = await receive()
             except TimeoutError:
-                if not response_started:
-                    answered = True
-                    await send(
-                        {
-                            "type": "http.response.start",
-                            "status": 408,
-                            "headers": [
-                                (b"content-type", b"application/json"),
-                                (b"content-length", str(len(TIMED_OUT_BODY)).encode()),
-                                (b"connection", b"close"),
-                            ],
-                        }
-                    )
-                    await send({"type": "http.response.body", "body": TIMED_OUT_BODY})
-                raise BodyTimedOut from None
-            if message["type"] != "http.request" or not message.get("more_body", False):
+                await refuse(_timed_out())
+            if message["type"] != "http.request":
                 body_done = True
+                return message
+            received += len(message.get("body", b""))
+            if received > allowed:
+                await refuse(_too_large(allowed))
+            body_done = not message.get("more_body", False)
             return message
 
         async def tracked_send(message: Message) -> None:
-            nonlocal response_started
+            nonlocal started
             if answered:
                 return
-            response_started = True
+            started = True
             await send(message)
 
         try:
-            await self.app(scope, timed_receive, tracked_send)
-        except BodyTimedOut:
-            if not answered:  # the response had begun: uvicorn closes the connection
+            await self.app(scope, limited_receive, tracked_send)
+        except BodyRefused:
+            if not answered:  # the app had begun its answer: uvicorn closes the connection
                 raise
+
+
+def _too_large(allowed: int) -> JSONResponse:
+    return JSONResponse(
+        {"error": "too_large", "detail": f"body exceeds the limit of {allowed} bytes"},
+        status_code=413,
+        headers={"Connection": "close"},
+    )
+
+
+def _timed_out() -> JSONResponse:
+    return JSONResponse(
+        {"error": "timeout", "detail": "request body not received in time"},
+        status_code=408,
+        headers={"Connection": "close"},
+    )

@@ -64,9 +64,9 @@ def trial_columns(
         chunk = session.execute(query.where(TrialRow.number > last).limit(wanted + 1)).all()
         more = len(chunk) > wanted
         for number, state, value, text in chunk[:wanted]:
-            params = json.loads(text) if isinstance(text, str | bytes) else text
-            rows.append((number, state, value, params))
-            cells += len(params)
+            row_params = json.loads(text) if isinstance(text, str | bytes) else text
+            rows.append((number, state, value, row_params))
+            cells += len(row_params)
             last = number
             if cells >= SERIES_CELLS:
                 more = more or number != chunk[-1][0]

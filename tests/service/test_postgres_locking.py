@@ -15,6 +15,7 @@ from adclient.schemas import StudyCreate, TellRequest
 from adservice import repository
 from adservice.db import Database, upgrade_to_head
 from adservice.models import utcnow
+from adservice.principals import OPEN_ADMIN
 
 pytestmark = pytest.mark.postgres
 
@@ -55,7 +56,9 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
         }
     )
     with db.write() as session:
-        study_id = repository.create_study(session, body=body, representation=None).id
+        study_id = repository.create_study(
+            session, body=body, representation=None, owner=OPEN_ADMIN
+        ).id
         first = repository.reserve_numbers(session, study_id=study_id, count=2)
         told, expiring = (
             repository.insert_trials(
@@ -80,7 +83,7 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
     def tell() -> None:
         with db.write() as session:
             request = TellRequest(state="failed", message="crashed", worker_id="w0")
-            repository.tell_trial(session, trial_id=told, body=request)
+            repository.tell_trial(session, trial_id=told, body=request, caller=OPEN_ADMIN)
             tell_stored.set()
             commit_tell.wait()
 

@@ -20,7 +20,7 @@ from schemathesis.specs.openapi.checks import positive_data_acceptance
 
 from adservice.app import create_app
 from adservice.settings import Settings
-from tests.servers import ServerProcess
+from tests.servers import SDK_HEADERS, ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -48,4 +48,8 @@ schema = schemathesis.openapi.from_dict(create_app(Settings(database_url="sqlite
 def test_every_operation_answers_within_its_schema(
     case: schemathesis.Case, fuzzed_server: ServerProcess
 ) -> None:
-    case.call_and_validate(base_url=fuzzed_server.url, excluded_checks=[positive_data_acceptance])
+    case.call_and_validate(
+        base_url=fuzzed_server.url,
+        headers=SDK_HEADERS,
+        excluded_checks=[positive_data_acceptance],
+    )
