@@ -16,7 +16,6 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.cors import CORSMiddleware
-from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from adclient import __version__
 from adclient.schemas import ErrorBody
@@ -46,7 +45,7 @@ from adservice.errors import (
 from adservice.limits import BodyLimits
 from adservice.locks import StudyLocks
 from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
-from adservice.security import RefuseSimpleCrossSiteChanges, SecurityHeaders
+from adservice.security import BrowserEdge
 from adservice.services.configs import StudyConfigs
 from adservice.settings import Settings, get_settings
 
@@ -218,9 +217,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     install_error_handlers(app)
     document_error_bodies(app)
-    # Added last runs first: the host, then headers on every answer (errors included),
-    # CORS, the cross-site guard, the body's size and deadline, and who is calling before
-    # any route parses a body.
+    # Added last runs first: the edge (host, cross-site guard, security headers on every
+    # answer), CORS, the body's size and deadline, and who is calling before any route
+    # parses a body.
     app.add_middleware(Authentication)
     app.add_middleware(
         BodyLimits,
@@ -228,7 +227,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         artifact_limit=settings.max_artifact_bytes,
         timeout=settings.body_timeout,
     )
-    app.add_middleware(RefuseSimpleCrossSiteChanges)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,
@@ -237,8 +235,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["Authorization", "Content-Type", "X-Activedesign-Client"],
             expose_headers=["X-Total-Count"],
         )
-    app.add_middleware(SecurityHeaders)
-    app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.resolved_allowed_hosts())
+    app.add_middleware(BrowserEdge, allowed_hosts=settings.resolved_allowed_hosts())
     for module in (health, session, studies, trials, jobs, artifacts, dashboard, docs):
         app.include_router(module.router)
 

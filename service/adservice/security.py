@@ -12,7 +12,6 @@ token stands in the way.
 from __future__ import annotations
 
 from fastapi.responses import JSONResponse
-from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 CONTENT_SECURITY_POLICY = (
@@ -31,60 +30,85 @@ CHANGE_HEADERS = (b"x-activedesign-client", b"x-csrf-token")
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
 
-class SecurityHeaders:
-    """Pure ASGI middleware: the headers above on every response; the CSP unless the
-    response set a stricter one of its own (artifacts are sandboxed)."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-
-        async def send_with_headers(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                headers = MutableHeaders(scope=message)
-                for name, value in SECURITY_HEADERS.items():
-                    headers.setdefault(name, value)
-                headers.setdefault("Content-Security-Policy", CONTENT_SECURITY_POLICY)
-            await send(message)
-
-        await self.app(scope, receive, send_with_headers)
-
-
 def is_json(content_type: bytes) -> bool:
     media = content_type.split(b";")[0].strip().lower()
     return media == b"application/json" or media.endswith(b"+json")
 
 
-class RefuseSimpleCrossSiteChanges:
-    """Pure ASGI middleware: a state-changing /api request that another origin's page
-    could send unasked (no JSON body, no custom header) is answered 415."""
+def host_name(host: bytes) -> str:
+    """The name in a ``Host`` header, without its port (IPv6 literals keep brackets)."""
+    text = host.decode("latin-1").strip().lower()
+    if text.startswith("["):
+        return text[: text.find("]") + 1]
+    return text.rsplit(":", 1)[0] if text.count(":") == 1 else text
 
-    def __init__(self, app: ASGIApp) -> None:
+
+class BrowserEdge:
+    """Pure ASGI middleware, the outermost: a ``Host`` the server is not served under is
+    400 (DNS rebinding); a state-changing /api request that another origin's page could
+    send unasked (no JSON body, no custom header) is 415; every answer, errors included,
+    carries the headers above (the CSP unless the answer set a stricter one of its own:
+    artifacts are sandboxed). One layer, not three: it runs on every request."""
+
+    def __init__(self, app: ASGIApp, *, allowed_hosts: list[str]) -> None:
         self.app = app
+        patterns = [host.lower() for host in allowed_hosts]
+        self.any_host = "*" in patterns
+        self.hosts = frozenset(p for p in patterns if not p.startswith("*"))
+        self.suffixes = tuple(p[1:] for p in patterns if p.startswith("*."))
+        self.headers = [
+            (name.lower().encode(), value.encode())
+            for name, value in (
+                *SECURITY_HEADERS.items(),
+                ("Content-Security-Policy", CONTENT_SECURITY_POLICY),
+            )
+        ]
+
+    def _host_allowed(self, host: bytes | None) -> bool:
+        if self.any_host:
+            return True
+        if not host:
+            return False
+        name = host_name(host)
+        return name in self.hosts or name.endswith(self.suffixes)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope["headers"])
+
+        async def send_with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                present = {name.lower() for name, _ in message.get("headers", ())}
+                message["headers"] = [
+                    *message.get("headers", ()),
+                    *(pair for pair in self.headers if pair[0] not in present),
+                ]
+            await send(message)
+
+        if not self._host_allowed(headers.get(b"host")):
+            refused = JSONResponse(
+                {"error": "invalid_host", "detail": "this server is not served under that Host"},
+                status_code=400,
+            )
+            await refused(scope, receive, send_with_headers)
+            return
         if (
-            scope["type"] == "http"
-            and scope["method"] not in SAFE_METHODS
+            scope["method"] not in SAFE_METHODS
             and scope["path"].startswith("/api/")
+            and not is_json(headers.get(b"content-type", b""))
+            and not any(name in headers for name in CHANGE_HEADERS)
         ):
-            headers = dict(scope["headers"])
-            if not is_json(headers.get(b"content-type", b"")) and not any(
-                name in headers for name in CHANGE_HEADERS
-            ):
-                response = JSONResponse(
-                    {
-                        "error": "unsupported_media_type",
-                        "detail": "a request that changes something must send a JSON body "
-                        "(Content-Type: application/json) or the X-Activedesign-Client "
-                        "header: other web pages can send neither without the server's leave",
-                    },
-                    status_code=415,
-                )
-                await response(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
+            refused = JSONResponse(
+                {
+                    "error": "unsupported_media_type",
+                    "detail": "a request that changes something must send a JSON body "
+                    "(Content-Type: application/json) or the X-Activedesign-Client "
+                    "header: other web pages can send neither without the server's leave",
+                },
+                status_code=415,
+            )
+            await refused(scope, receive, send_with_headers)
+            return
+        await self.app(scope, receive, send_with_headers)
