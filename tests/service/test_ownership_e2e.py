@@ -256,12 +256,18 @@ def test_a_simple_cross_site_request_changes_nothing(live_server: ServerProcess)
 
 def test_every_answer_carries_security_headers(live_server: ServerProcess) -> None:
     with httpx.Client(base_url=live_server.url, timeout=30) as http:
-        for path in ("/", "/api/v1/studies", "/healthz", "/api/v1/nowhere"):
+        for path in ("/", "/index.html", "/healthz", "/docs"):  # pages
             answer = http.get(path)
             assert answer.headers["x-content-type-options"] == "nosniff", path
+            assert answer.headers["x-frame-options"] == "DENY", path
             policy = answer.headers["content-security-policy"]
             assert "frame-ancestors 'none'" in policy and "script-src 'self'" in policy, path
             assert "unsafe-inline" not in policy.split("script-src")[1].split(";")[0]
+        for path in ("/api/v1/studies", "/api/v1/nowhere"):  # JSON: runs and embeds nothing
+            answer = http.get(path)
+            assert answer.headers["x-content-type-options"] == "nosniff", path
+            policy = answer.headers["content-security-policy"]
+            assert policy == "default-src 'none'; frame-ancestors 'none'", path
             assert "access-control-allow-origin" not in answer.headers  # CORS off
         preflight = http.options(
             "/api/v1/studies",
