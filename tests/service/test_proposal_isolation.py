@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -153,12 +153,21 @@ def test_the_memory_budget_refuses_options_and_counts_naming_them(
 
 @pytest.fixture
 def live_server_factory(
-    server_factory: Callable[..., ServerProcess], database: str
-) -> Callable[..., ServerProcess]:
-    """``server_factory`` on SQLite only: these checks do not depend on the database."""
-    if database != "sqlite":
-        pytest.skip("the budgets do not depend on the database")
-    return server_factory
+    tmp_path_factory: pytest.TempPathFactory,
+) -> Iterator[Callable[..., ServerProcess]]:
+    """Real servers on SQLite only (not run per database): the budgets do not depend on
+    the database."""
+    started: list[ServerProcess] = []
+
+    def start(**env: str) -> ServerProcess:
+        workdir = tmp_path_factory.mktemp("server")
+        url = f"sqlite:///{workdir / 'studies.db'}"
+        started.append(ServerProcess(database_url=url, workdir=workdir, env=env).start())
+        return started[-1]
+
+    yield start
+    for server in started:
+        server.stop()
 
 
 @pytest.mark.e2e
