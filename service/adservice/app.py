@@ -47,6 +47,7 @@ from adservice.locks import StudyLocks
 from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
 from adservice.security import BrowserEdge
 from adservice.services.configs import StudyConfigs
+from adservice.services.trials import Proposing
 from adservice.settings import Settings, get_settings
 
 log = logging.getLogger("adservice")
@@ -185,13 +186,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         db = Database(settings.database_url)
         app.state.db = db
         app.state.settings = settings
-        app.state.locks = StudyLocks()
-        app.state.configs = StudyConfigs(db)
         memory = settings.ask_memory_mb
-        app.state.proposals = ProposalRunner(
+        runner = ProposalRunner(
             settings.proposal_threads or available_cores(),
             AskBudget(settings.ask_seconds, None if memory is None else int(memory * 2**20)),
         )
+        app.state.proposing = Proposing(db, StudyConfigs(db), StudyLocks(), runner)
         app.state.principals = PrincipalCache()
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
         stop = threading.Event()
@@ -204,7 +204,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             stop.set()
             sweeper.join(timeout=5)
-            app.state.proposals.shutdown()
+            runner.shutdown()
             db.dispose()
 
     app = FastAPI(
@@ -236,7 +236,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             expose_headers=["X-Total-Count"],
         )
     app.add_middleware(BrowserEdge, allowed_hosts=settings.resolved_allowed_hosts())
-    for module in (health, session, studies, trials, jobs, artifacts, dashboard, docs):
+    # The hot routes first: a request is matched against the routes in this order.
+    for module in (trials, studies, jobs, artifacts, dashboard, session, health, docs):
         app.include_router(module.router)
 
     @app.api_route(

@@ -15,9 +15,7 @@ from sqlalchemy.orm import Session
 from adservice.artifacts import ArtifactStore
 from adservice.auth import Principal, Role, require
 from adservice.db import Database
-from adservice.locks import StudyLocks
-from adservice.proposal_runner import ProposalRunner
-from adservice.services.configs import StudyConfigs
+from adservice.services.trials import Proposing
 from adservice.settings import Settings
 
 
@@ -31,19 +29,9 @@ async def get_database(request: Request) -> Database:
     return db
 
 
-async def get_locks(request: Request) -> StudyLocks:
-    locks: StudyLocks = request.app.state.locks
-    return locks
-
-
-async def get_configs(request: Request) -> StudyConfigs:
-    configs: StudyConfigs = request.app.state.configs
-    return configs
-
-
-async def get_proposals(request: Request) -> ProposalRunner:
-    proposals: ProposalRunner = request.app.state.proposals
-    return proposals
+async def get_proposing(request: Request) -> Proposing:
+    proposing: Proposing = request.app.state.proposing
+    return proposing
 
 
 async def get_artifact_store(request: Request) -> ArtifactStore:
@@ -60,9 +48,7 @@ def read_session(db: Annotated[Database, Depends(get_database)]) -> Iterator[Ses
 
 SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 DatabaseDep = Annotated[Database, Depends(get_database)]
-LocksDep = Annotated[StudyLocks, Depends(get_locks)]
-ProposalsDep = Annotated[ProposalRunner, Depends(get_proposals)]
-ConfigsDep = Annotated[StudyConfigs, Depends(get_configs)]
+ProposingDep = Annotated[Proposing, Depends(get_proposing)]
 ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifact_store)]
 SessionDep = Annotated[Session, Depends(read_session)]
 
@@ -70,7 +56,6 @@ SessionDep = Annotated[Session, Depends(read_session)]
 ReaderDep = Annotated[Principal, Depends(require(Role.reader))]
 WorkerDep = Annotated[Principal, Depends(require(Role.worker))]
 UserDep = Annotated[Principal, Depends(require(Role.user))]
-AdminDep = Annotated[Principal, Depends(require(Role.admin))]
 
 MAX_ID = 2**31 - 1
 """Ids and trial numbers are INTEGER columns, 32-bit on PostgreSQL: anything larger is a

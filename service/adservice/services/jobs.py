@@ -6,20 +6,14 @@ from collections.abc import Sequence
 
 from adclient.schemas import Job, Trial
 from adservice import repository
-from adservice.db import Database
 from adservice.errors import ConflictError
-from adservice.locks import StudyLocks
 from adservice.principals import Principal
-from adservice.proposal_runner import ProposalRunner
 from adservice.services.configs import StudyConfigs
-from adservice.services.trials import propose_trials, proposes_instantly
+from adservice.services.trials import Proposing, propose_trials, proposes_instantly
 
 
 async def lease_job(
-    db: Database,
-    configs: StudyConfigs,
-    locks: StudyLocks,
-    proposals: ProposalRunner,
+    proposing: Proposing,
     *,
     worker_id: str,
     caller: Principal,
@@ -29,7 +23,13 @@ async def lease_job(
     """A queued trial if there is one, else a freshly proposed one from a managed study
     with room; None when there is no work (of ``tasks``, when given). Leasing a queued
     trial is one short write that never waits for a proposal; a model-based proposal
-    runs in ``proposals``, preferring a study with none under way."""
+    runs in the proposal threads, preferring a study with none under way."""
+    db, configs, locks, proposals = (
+        proposing.db,
+        proposing.configs,
+        proposing.locks,
+        proposing.runner,
+    )
 
     def queued() -> Job | None:
         with db.write() as session:

@@ -11,6 +11,7 @@ per ask (``AskBudget``).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -165,15 +166,19 @@ def propose_trials(
         )
 
 
+@dataclass(frozen=True)
+class Proposing:
+    """What proposing needs, held once per process: one dependency for the hot routes
+    (each FastAPI dependency costs a resolution per request)."""
+
+    db: Database
+    configs: StudyConfigs
+    locks: StudyLocks
+    runner: ProposalRunner
+
+
 async def ask_trials(
-    db: Database,
-    configs: StudyConfigs,
-    locks: StudyLocks,
-    proposals: ProposalRunner,
-    *,
-    study_id: int,
-    count: int,
-    caller: Principal,
+    proposing: Proposing, *, study_id: int, count: int, caller: Principal
 ) -> list[Trial]:
     """An owner's ask: a history-free proposer's few writes run where short writes run
     (``Database.run``); model fitting runs in the proposal threads once the study's turn
@@ -181,15 +186,15 @@ async def ask_trials(
 
     def propose() -> list[Trial]:
         return propose_trials(
-            db,
-            configs,
-            locks,
+            proposing.db,
+            proposing.configs,
+            proposing.locks,
             study_id=study_id,
             count=count,
             caller=caller,
-            budget=proposals.budget,
+            budget=proposing.runner.budget,
         )
 
-    if proposes_instantly(configs, study_id):
-        return await db.run(propose)
-    return await proposals.run(study_id, propose)
+    if proposes_instantly(proposing.configs, study_id):
+        return await proposing.db.run(propose)
+    return await proposing.runner.run(study_id, propose)

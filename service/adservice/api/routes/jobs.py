@@ -5,14 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Response
 
 from adclient.schemas import Job, LeaseRequest
-from adservice.api.deps import (
-    ConfigsDep,
-    DatabaseDep,
-    LocksDep,
-    ProposalsDep,
-    SettingsDep,
-    WorkerDep,
-)
+from adservice.api.deps import ProposingDep, SettingsDep, WorkerDep
 from adservice.services.jobs import lease_job
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
@@ -21,18 +14,12 @@ router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 @router.post("/lease", response_model=Job, responses={204: {"description": "No work now"}})
 async def lease(
     body: LeaseRequest,
-    db: DatabaseDep,
-    configs: ConfigsDep,
-    locks: LocksDep,
-    proposals: ProposalsDep,
+    proposing: ProposingDep,
     settings: SettingsDep,
     caller: WorkerDep,
 ) -> Response | Job:
     job = await lease_job(
-        db,
-        configs,
-        locks,
-        proposals,
+        proposing,
         worker_id=body.worker_id,
         caller=caller,
         lease_seconds=settings.lease_seconds,

@@ -22,10 +22,8 @@ from adclient.schemas import (
 from adservice import repository, views
 from adservice.api.deps import (
     MAX_ID,
-    ConfigsDep,
     DatabaseDep,
-    LocksDep,
-    ProposalsDep,
+    ProposingDep,
     ReaderDep,
     SessionDep,
     StudyId,
@@ -61,10 +59,10 @@ TrialOrder = Annotated[
 
 
 @router.post("", status_code=201)
-def create_study(
-    body: StudyCreate, db: DatabaseDep, proposals: ProposalsDep, caller: UserDep
-) -> Study:
-    row = study_service.create_study(db, body=body, owner=caller, budget=proposals.budget)
+def create_study(body: StudyCreate, proposing: ProposingDep, caller: UserDep) -> Study:
+    row = study_service.create_study(
+        proposing.db, body=body, owner=caller, budget=proposing.runner.budget
+    )
     return study_schema(row, {})
 
 
@@ -86,14 +84,11 @@ def get_study(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Study:
 async def ask(
     study_id: StudyId,
     body: AskRequest,
-    db: DatabaseDep,
-    configs: ConfigsDep,
-    locks: LocksDep,
-    proposals: ProposalsDep,
+    proposing: ProposingDep,
     caller: UserDep,
 ) -> Response:
     asked = await trial_service.ask_trials(
-        db, configs, locks, proposals, study_id=study_id, count=body.count, caller=caller
+        proposing, study_id=study_id, count=body.count, caller=caller
     )
     return model_response(AskResponse(trials=asked))
 
