@@ -71,10 +71,6 @@ def run(
     # One BLAS/torch thread per process: N processes share the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("MKL_NUM_THREADS", "1")
-    if ca_bundle is not None:
-        # The SDK's default verification (httpx) trusts SSL_CERT_FILE; the environment
-        # reaches every client this process and its pool's processes make.
-        os.environ["SSL_CERT_FILE"] = str(ca_bundle.resolve())
     level = logging.getLevelNamesMapping().get(log_level.upper())
     if level is None:
         raise typer.BadParameter(f"unknown log level {log_level!r}", param_hint="--log-level")
@@ -89,6 +85,7 @@ def run(
         workdir=workdir,
         keep_files=keep_files,
         render=render,
+        ca_bundle=ca_bundle.resolve() if ca_bundle is not None else None,
     )
     configure_logging(level, base_id)
     if concurrency == 1:

@@ -71,6 +71,8 @@ class WorkerConfig:
     workdir: Path | None = None
     keep_files: bool = False
     render: bool = True
+    ca_bundle: Path | None = None
+    """A PEM CA bundle to check an https server's certificate with (None: the system's)."""
 
 
 @dataclass
@@ -152,7 +154,11 @@ class Worker:
         unclaim: Callable[[], None] | None = None,
     ) -> None:
         self.config = config
-        self.client = client or Client(config.server, config.token)
+        self.client = client or Client(
+            config.server,
+            config.token,
+            verify=str(config.ca_bundle) if config.ca_bundle is not None else True,
+        )
         self.stopping = threading.Event()
         """Finish the current job, then exit."""
         self.abandon = threading.Event()
