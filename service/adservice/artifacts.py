@@ -1,7 +1,10 @@
 """Artifact files: written whole to a temporary name, synced, then renamed into place.
 
 A file appears under its final name only once complete, and the database learns of it
-only after that, so a half-written or crashed upload is never served.
+only after that, so a half-written or crashed upload is never served. Final names carry
+the content's hash: a new upload of a name never overwrites the file the database still
+points at, so an upload refused at its last step (the lease lost meanwhile) leaves the
+artifact as it was; the replaced file is removed once the database points elsewhere.
 
 Artifacts come from workers, so they are served inert: an image the dashboard shows is
 served inline only when its bytes are a raster image (the type decided here, never the
@@ -56,9 +59,13 @@ class ArtifactStore:
     def __init__(self, root: Path) -> None:
         self.root = root
 
-    def path_for(self, *, study_id: int, trial_id: int, name: str) -> Path:
-        # Names are validated against NAME_PATTERN (no separators), so this stays inside root.
-        return self.root / str(study_id) / str(trial_id) / name
+    def folder_for(self, *, study_id: int, trial_id: int) -> Path:
+        return self.root / str(study_id) / str(trial_id)
+
+    @staticmethod
+    def discard(path: str | Path) -> None:
+        """Remove a file the database no longer points at."""
+        Path(path).unlink(missing_ok=True)
 
     async def write(
         self,
@@ -69,11 +76,11 @@ class ArtifactStore:
         chunks: AsyncIterator[bytes],
         limit: int,
     ) -> tuple[Path, int, str]:
-        final = self.path_for(study_id=study_id, trial_id=trial_id, name=name)
-        final.parent.mkdir(parents=True, exist_ok=True)
+        folder = self.folder_for(study_id=study_id, trial_id=trial_id)
+        folder.mkdir(parents=True, exist_ok=True)
         digest = hashlib.sha256()
         size = 0
-        fd, temp_name = tempfile.mkstemp(dir=final.parent, prefix=".upload-")
+        fd, temp_name = tempfile.mkstemp(dir=folder, prefix=".upload-")
         try:
             with os.fdopen(fd, "wb") as handle:
                 async for chunk in chunks:
@@ -84,6 +91,8 @@ class ArtifactStore:
                     handle.write(chunk)
                 handle.flush()
                 os.fsync(handle.fileno())
+            # Names are checked against NAME_PATTERN (no separators): this stays in folder.
+            final = folder / f"{name}.{digest.hexdigest()[:16]}"
             os.replace(temp_name, final)
         except BaseException:
             Path(temp_name).unlink(missing_ok=True)

@@ -743,9 +743,10 @@ def record_artifact(
     worker_id: str | None,
     caller: Principal,
     quota: ArtifactQuota,
-) -> ArtifactRow:
+) -> tuple[ArtifactRow, str | None]:
     """Record an artifact whose file is already complete on disk (last step of a PUT),
-    checking again that the lease and the quota still allow it."""
+    checking again that the lease and the quota still allow it; also returns the path of
+    the file it replaces, if any (the caller removes it after the commit)."""
     _, room = artifact_room(
         session, trial_id=trial_id, name=name, worker_id=worker_id, caller=caller, quota=quota
     )
@@ -754,6 +755,7 @@ def record_artifact(
     row = session.scalars(
         sa.select(ArtifactRow).where(ArtifactRow.trial_id == trial_id, ArtifactRow.name == name)
     ).one_or_none()
+    replaced = row.path if row is not None and row.path != path else None
     if row is None:
         row = ArtifactRow(trial_id=trial_id, name=name)
         session.add(row)
@@ -763,7 +765,16 @@ def record_artifact(
     row.path = path
     row.created_at = utcnow()
     session.flush()
-    return row
+    return row, replaced
+
+
+def artifact_path(session: Session, *, trial_id: int, name: str) -> str | None:
+    """Where the stored artifact ``name`` of a trial lives, if there is one."""
+    return session.scalar(
+        sa.select(ArtifactRow.path).where(
+            ArtifactRow.trial_id == trial_id, ArtifactRow.name == name
+        )
+    )
 
 
 def get_artifact(session: Session, *, trial_id: int, name: str) -> ArtifactRow:

@@ -105,7 +105,7 @@ def test_truncated_artifact_file_is_not_served(live_server: ServerProcess) -> No
         trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/curve.json"
         http.put(path, content=b'{"curve": [1, 2, 3]}')
-        (stored,) = list(live_server.artifact_dir.rglob("curve.json"))
+        (stored,) = list(live_server.artifact_dir.rglob("curve.json.*"))
         stored.write_bytes(b'{"curve": [1,')  # damaged on disk behind the server's back
         response = http.get(path)
         assert response.status_code == 404 and "incomplete" in response.json()["detail"]

@@ -3,7 +3,8 @@ with auth on, real tokens made by ``adserver token create``."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 
 import httpx
 import pytest
@@ -286,3 +287,43 @@ def test_host_header_must_name_the_server(server_factory: Callable[..., ServerPr
             refused = http.post("/api/v1/studies", json=ASKED, headers={"Host": host})
             assert refused.status_code == 400, host
         assert http.get("/api/v1/studies").json() == []
+
+
+def test_an_upload_refused_at_its_end_leaves_the_artifact_as_it_was(
+    live_server: ServerProcess,
+) -> None:
+    """The lease is lost while a new version streams in: the old version stays served,
+    and once a version is replaced its file is gone from disk."""
+    http = httpx.Client(
+        base_url=live_server.url, timeout=30, headers={"X-Activedesign-Client": "t"}
+    )
+    http.post("/api/v1/studies", json=MANAGED)
+    job = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+    url = f"/api/v1/trials/{job['trial_id']}/artifacts/curve.json?worker_id=w"
+    assert http.put(url, content=b"[1]").status_code == 201
+    assert http.put(url, content=b"[1, 2]").status_code == 201  # replaces [1]
+    files = list(live_server.artifact_dir.rglob("curve.json.*"))
+    assert [f.read_bytes() for f in files] == [b"[1, 2]"]
+
+    halfway = threading.Event()
+    go_on = threading.Event()
+
+    def slow_body() -> Iterator[bytes]:
+        yield b"[1, 2, "
+        halfway.set()
+        go_on.wait(30)
+        yield b"3]"
+
+    answer: list[httpx.Response] = []
+    upload = threading.Thread(target=lambda: answer.append(http.put(url, content=slow_body())))
+    upload.start()
+    assert halfway.wait(30)
+    released = http.post(f"/api/v1/trials/{job['trial_id']}/release", json={})
+    assert released.status_code == 200  # auth off: an admin takes the trial back
+    go_on.set()
+    upload.join(30)
+    assert answer[0].status_code == 409, answer[0].text
+    assert http.get(url.split("?")[0]).content == b"[1, 2]"
+    files = list(live_server.artifact_dir.rglob("curve.json.*"))
+    assert [f.read_bytes() for f in files] == [b"[1, 2]"]
+    http.close()

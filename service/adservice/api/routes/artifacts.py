@@ -23,6 +23,7 @@ from adservice.api.deps import (
 )
 from adservice.artifacts import INERT_HEADERS, SNIFF_BYTES, served_type
 from adservice.convert import artifact_schema
+from adservice.db import Database
 from adservice.errors import NotFoundError
 
 router = APIRouter(prefix="/api/v1/trials/{trial_id}/artifacts", tags=["artifacts"])
@@ -76,9 +77,9 @@ async def put_artifact(
         limit=min(settings.max_artifact_bytes, left),
     )
 
-    def record() -> ArtifactInfo:
+    def record() -> tuple[ArtifactInfo, str | None]:
         with db.write() as session:
-            row = repository.record_artifact(
+            row, replaced = repository.record_artifact(
                 session,
                 trial_id=trial_id,
                 name=name,
@@ -90,9 +91,24 @@ async def put_artifact(
                 caller=caller,
                 quota=quota,
             )
-            return artifact_schema(row)
+            return artifact_schema(row), replaced
 
-    return await run_in_threadpool(record)
+    try:
+        info, replaced = await run_in_threadpool(record)
+    except BaseException:
+        # Refused (lease lost, quota) or failed: the artifact stays as it was. The same
+        # bytes uploaded again have the same name, which the stored row may point at.
+        if not await run_in_threadpool(_recorded, db, trial_id, name, str(path)):
+            store.discard(path)
+        raise
+    if replaced is not None:
+        store.discard(replaced)
+    return info
+
+
+def _recorded(db: Database, trial_id: int, name: str, path: str) -> bool:
+    with db.read() as session:
+        return repository.artifact_path(session, trial_id=trial_id, name=name) == path
 
 
 @router.get(
