@@ -36,6 +36,7 @@ from adservice import repository
 from adservice.db import Database
 from adservice.errors import ForbiddenError, UnauthorizedError
 from adservice.principals import OPEN_ADMIN, RANK, Principal, Role
+from adservice.security import SAFE_METHODS
 
 CACHE_SECONDS = 5.0
 """How long a looked-up token or session is trusted before the database is asked again
@@ -43,7 +44,6 @@ CACHE_SECONDS = 5.0
 
 SESSION_COOKIE = "ad_session"
 CSRF_HEADER = "x-csrf-token"
-SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 PUBLIC_API_PATHS = frozenset({"/api/v1/session"})
 """API paths that answer without a principal (signing in, asking whether one is needed)."""
 

@@ -10,9 +10,6 @@ export class HttpError extends Error {
     super(`HTTP ${status}: ${detail}`);
     this.status = status;
   }
-  get isAuth() {
-    return this.status === 401 || this.status === 403;
-  }
 }
 
 async function request(path, options = {}) {
