@@ -11,7 +11,7 @@ import json
 import math
 from datetime import datetime
 from enum import StrEnum
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     AfterValidator,
@@ -28,6 +28,7 @@ from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
 
 from adclient.design import DesignSpace, Representation
+from adclient.plugins import PluginError, catalogue
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$"
 """Names of studies, params, metrics and artifacts: safe in URLs, file names and XML."""
@@ -43,17 +44,6 @@ MAX_JSON_BYTES = 64 * 1024
 """Bounds of every free JSON field (study metadata, proposer and task options): deep
 enough for any real configuration, far below what serialisers refuse (256 levels), and
 small enough that a listing of many studies stays cheap."""
-
-TaskName = Literal["stand-up", "diagonal-gesture", "lift-highest"]
-"""The built-in tasks. The worker's registry (``adworker.tasks.TASKS``) has exactly
-these; a test keeps the two equal. Listed here so the service can check a new study's
-task without importing the worker."""
-LearnerName = Literal["fast", "ddpg", "td3", "sac", "ppo"]
-"""The built-in learners (``adworker.learners.LEARNERS``, kept equal by a test)."""
-TASK_NAMES: tuple[str, ...] = get_args(TaskName)
-LEARNER_NAMES: tuple[str, ...] = get_args(LearnerName)
-TUNABLE_LEARNERS: tuple[str, ...] = ("ddpg", "td3", "sac", "ppo")
-"""The learners whose hyperparameters ``task.options.learner_kwargs`` may override."""
 
 
 class Direction(StrEnum):
@@ -259,56 +249,6 @@ class TaskConfig(_Strict):
         return _plain_text(options, "options")
 
 
-class TaskOptions(_Strict):
-    """``task.options`` every task understands: simulator settings (defaults as in
-    ``adworker.tasks.base``) and the learner's overrides. Validated when a study is
-    created; the study keeps the mapping as given."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    episode_steps: int | None = Field(default=None, ge=2, le=100_000)
-    frame_skip: int = Field(default=12, ge=1, le=1000)
-    time_step: float = Field(default=1.0 / 120.0, gt=0.0, le=1.0)
-    init_noise: float = Field(default=0.05, ge=0.0, le=math.pi)
-    rolling_friction: float = Field(default=0.02, ge=0.0, le=1000.0)
-    spinning_friction: float = Field(default=0.0, ge=0.0, le=1000.0)
-    learner_kwargs: dict[str, Any] | None = Field(
-        default=None,
-        description="Overrides of an SB3 learner's constructor arguments (not for fast)",
-    )
-
-    def link_names(self) -> list[tuple[str, str]]:
-        """(option, link name) for each link the task will look up in the robot."""
-        return []
-
-
-class StandUpOptions(TaskOptions):
-    lifted_link: str = Field(default="b", min_length=1, max_length=64)
-    feet_links: list[Annotated[str, Field(min_length=1, max_length=64)]] = Field(
-        default_factory=lambda: ["a", "c"], max_length=32
-    )
-
-    def link_names(self) -> list[tuple[str, str]]:
-        return [("lifted_link", self.lifted_link)] + [
-            (f"feet_links[{index}]", name) for index, name in enumerate(self.feet_links)
-        ]
-
-
-class DiagonalGestureOptions(TaskOptions):
-    distal_link: str | None = Field(default=None, min_length=1, max_length=64)
-
-    def link_names(self) -> list[tuple[str, str]]:
-        return [("distal_link", self.distal_link)] if self.distal_link is not None else []
-
-
-TASK_OPTIONS: dict[str, type[TaskOptions]] = {
-    "stand-up": StandUpOptions,
-    "diagonal-gesture": DiagonalGestureOptions,
-    "lift-highest": TaskOptions,
-}
-"""The options model of each built-in task."""
-
-
 def option_problems(
     error: ValidationError, model: type[BaseModel], owner: str, prefix: str = ""
 ) -> list[str]:
@@ -327,29 +267,33 @@ def option_problems(
 
 
 class NewTaskConfig(TaskConfig):
-    """A new study's task: a built-in task and learner (``TaskName``, ``LearnerName``)
-    and options they understand, unless the task is ``external``."""
+    """A new study's task: an installed task and learner (:mod:`adclient.plugins`) and
+    options their models accept, unless the task is ``external``."""
 
     episode_steps: int | None = Field(default=None, ge=2, le=100_000)
     options: JsonObject = Field(default_factory=dict)
 
     @field_validator("name")
     @classmethod
-    def _built_in_task(cls, name: str, info: ValidationInfo) -> str:
-        if name not in TASK_NAMES and not info.data.get("external"):
-            raise ValueError(
-                f"unknown task {name!r}; the built-in tasks are {', '.join(TASK_NAMES)} "
-                "(a task that workers of your own run, not adworker, needs external: true)"
-            )
+    def _installed_task(cls, name: str, info: ValidationInfo) -> str:
+        if not info.data.get("external"):
+            try:
+                catalogue().task(name)
+            except PluginError as error:
+                raise ValueError(
+                    f"{error} (a task that workers of your own serve, such as adworker "
+                    "--function, needs external: true)"
+                ) from None
         return name
 
     @field_validator("learner")
     @classmethod
-    def _built_in_learner(cls, learner: str, info: ValidationInfo) -> str:
-        if learner not in LEARNER_NAMES and not info.data.get("external"):
-            raise ValueError(
-                f"unknown learner {learner!r}; the built-in learners are {', '.join(LEARNER_NAMES)}"
-            )
+    def _installed_learner(cls, learner: str, info: ValidationInfo) -> str:
+        if not info.data.get("external"):
+            try:
+                catalogue().learner(learner)
+            except PluginError as error:
+                raise ValueError(str(error)) from None
         return learner
 
     @field_validator("options")
@@ -357,25 +301,36 @@ class NewTaskConfig(TaskConfig):
     def _known_options(cls, options: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
         _plain_text(options, "options", finite=True)
         task, learner = info.data.get("name"), info.data.get("learner")
-        if info.data.get("external") or task not in TASK_OPTIONS:
+        installed = catalogue()
+        if info.data.get("external") or task not in installed.tasks:
             return options  # the task's own, or the name's error says what is wrong
-        model = TASK_OPTIONS[task]
+        model = installed.tasks[task].options
         try:
             parsed = model.model_validate(options)
         except ValidationError as error:
             raise ValueError("; ".join(option_problems(error, model, f"task {task!r}"))) from None
-        if parsed.learner_kwargs is not None and learner not in TUNABLE_LEARNERS:
+        spec = installed.learners.get(str(learner))
+        if parsed.learner_kwargs is None or spec is None:
+            return options
+        if spec.options is None:
+            takes = [name for name, other in installed.learners.items() if other.options]
             raise ValueError(
-                f"learner_kwargs: learner {learner!r} takes none "
-                f"(only {', '.join(TUNABLE_LEARNERS)} do)"
+                f"learner_kwargs: learner {learner!r} takes none (only {', '.join(takes)} do)"
             )
+        try:
+            spec.options.model_validate(parsed.learner_kwargs)
+        except ValidationError as error:
+            problems = option_problems(
+                error, spec.options, f"learner {learner!r}", prefix="learner_kwargs"
+            )
+            raise ValueError("; ".join(problems)) from None
         return options
 
     def links_looked_up(self) -> list[tuple[str, str]]:
-        """(option, link name) for each link a built-in task looks up in the robot."""
+        """(option, link name) for each link an installed task looks up in the robot."""
         if self.external:
             return []
-        return TASK_OPTIONS[self.name].model_validate(self.options).link_names()
+        return catalogue().task(self.name).options.model_validate(self.options).link_names()
 
 
 class StudyCreate(_Strict):
@@ -624,6 +579,24 @@ class Job(BaseModel):
     space: Space
     representation: Representation | None
     lease_expires_at: datetime
+
+
+class TaskInfo(BaseModel):
+    """An installed task (``GET /api/v1/tasks``): what a study's ``task.name`` may be."""
+
+    name: str
+    description: str
+    options_schema: dict[str, Any] = Field(description="JSON schema of its task.options")
+
+
+class LearnerInfo(BaseModel):
+    """An installed learner (``GET /api/v1/learners``)."""
+
+    name: str
+    description: str
+    options_schema: dict[str, Any] | None = Field(
+        description="JSON schema of task.options.learner_kwargs; null: it takes none"
+    )
 
 
 class ArtifactInfo(BaseModel):

@@ -18,6 +18,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.cors import CORSMiddleware
 
 from adclient import __version__
+from adclient.plugins import catalogue
 from adclient.schemas import ErrorBody
 from adservice import repository
 from adservice.api.routes import (
@@ -26,8 +27,10 @@ from adservice.api.routes import (
     docs,
     health,
     jobs,
+    learners,
     session,
     studies,
+    tasks,
     trials,
 )
 from adservice.artifacts import ArtifactStore
@@ -183,6 +186,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         upgrade_to_head(settings.database_url)
+        for key, reason in sorted(catalogue().broken.items()):
+            log.warning("plugin %s does not load: %s", key, reason)
         db = Database(settings.database_url)
         app.state.db = db
         app.state.settings = settings
@@ -237,7 +242,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
     app.add_middleware(BrowserEdge, allowed_hosts=settings.resolved_allowed_hosts())
     # The hot routes first: a request is matched against the routes in this order.
-    for module in (trials, studies, jobs, artifacts, dashboard, session, health, docs):
+    for module in (
+        trials,
+        studies,
+        jobs,
+        artifacts,
+        dashboard,
+        session,
+        tasks,
+        learners,
+        health,
+        docs,
+    ):
         app.include_router(module.router)
 
     @app.api_route(

@@ -168,5 +168,14 @@ def revoke_token(token_id: int, database_url: str | None = DATABASE_OPTION) -> N
     typer.echo(f"revoked token {token_id}")
 
 
+@app.command("tasks")
+def list_tasks() -> None:
+    """List the tasks and learners that studies may name (the installed plugins)."""
+    from adclient.plugins import catalogue
+
+    for line in catalogue().describe():
+        typer.echo(line)
+
+
 def main() -> None:
     app()

@@ -15,13 +15,13 @@ import yaml
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from adclient.design import Bound, DesignSpace, JointType, PartInstance, PartType
+from adclient.plugins import SimulatorOptions, catalogue
 from adclient.schemas import (
     BoxParam,
     BoxSpace,
     NewTaskConfig,
     ProposerConfig,
     StudyCreate,
-    TaskOptions,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -37,7 +37,7 @@ TABLES: dict[str, type[BaseModel]] = {
     "PartInstance": PartInstance,
     "ProposerConfig": ProposerConfig,
     "NewTaskConfig": NewTaskConfig,
-    "TaskOptions": TaskOptions,
+    "SimulatorOptions": SimulatorOptions,
 }
 """Each model's field table follows a ``<!-- fields: Name -->`` marker in the doc."""
 
@@ -155,14 +155,13 @@ def test_proposer_names_and_options_match_the_registry() -> None:
         assert set(proposers.options_model(name).model_fields) <= documented, name
 
 
-def test_task_and_learner_names_and_budgets_match_the_worker() -> None:
+def test_task_and_learner_names_and_budgets_match_the_catalogue() -> None:
     pytest.importorskip("pybullet")
-    from adworker.learners import LEARNERS
-    from adworker.tasks import TASKS
-
+    installed = catalogue()
     rows = _table("NewTaskConfig")
-    assert _names(rows["name"][0]) == set(TASKS)
-    assert _names(rows["learner"][0]) == set(LEARNERS)
+    assert _names(rows["name"][0]) == set(installed.tasks)
+    assert _names(rows["learner"][0]) == set(installed.learners)
     budgets = rows["train_steps"][2]
-    for name, learner in LEARNERS.items():
+    for name, spec in installed.learners.items():
+        learner = spec.load_factory()
         assert name in budgets and f"{learner.default_steps:,}" in budgets, name

@@ -2,11 +2,16 @@
 
     adworker --server http://127.0.0.1:8000 --token $AD_TOKEN --concurrency 2
 
-Each worker process leases a job, trains and evaluates the design in PyBullet, and
-reports the score with its metrics and artifacts (URDF, picture, curve). SIGTERM or
-Ctrl-C: finish the current job and exit; a second one: abandon it and exit now.
-Exit status 0 when stopped, 2 when the server refused the token. An https server with
-a private or self-signed certificate needs ``--ca-bundle`` (env ``AD_CA_BUNDLE``).
+    adworker --function my_sim:score --task my-sim      # a plain callable instead
+    adworker tasks                                      # what this worker can run
+
+Each worker process leases a job of a task it has, trains and evaluates the design
+in PyBullet (or calls the function), and reports the score with its metrics and
+artifacts (URDF, picture, curve). SIGTERM or Ctrl-C: finish the current job and exit;
+a second one: abandon it and exit now. Exit status 0 when stopped, 2 when the server
+refused the token, 3 when the worker could not start (a function that does not
+import). An https server with a private or self-signed certificate needs
+``--ca-bundle`` (env ``AD_CA_BUNDLE``).
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import typer
 
 from adclient.cli import CA_BUNDLE_OPTION
 from adworker.worker import (
+    EXIT_SETUP,
     Worker,
     WorkerConfig,
     configure_logging,
@@ -34,8 +40,9 @@ app = typer.Typer(
 )
 
 
-@app.command()
+@app.callback(invoke_without_command=True)
 def run(
+    ctx: typer.Context,
     server: str = typer.Option(
         "http://127.0.0.1:8000", "--server", envvar="AD_SERVER_URL", help="Server base URL."
     ),
@@ -65,9 +72,24 @@ def run(
         False, "--keep-files", help="Keep each job's URDF, picture and curve in the workdir."
     ),
     render: bool = typer.Option(True, "--render/--no-render", help="Upload a picture."),
+    function: str | None = typer.Option(
+        None,
+        "--function",
+        help="Score each job with this callable (module:attr) instead of an installed task.",
+    ),
+    task: str | None = typer.Option(
+        None, "--task", help="With --function: the task name whose studies it serves."
+    ),
+    app_dir: Path = typer.Option(
+        Path("."), "--app-dir", help="Where --function's module is imported from."
+    ),
     log_level: str = typer.Option("info", "--log-level", envvar="AD_LOG_LEVEL"),
 ) -> None:
     """Lease and evaluate jobs until stopped."""
+    if ctx.invoked_subcommand is not None:
+        return
+    if (function is None) != (task is None):
+        raise typer.BadParameter("--function and --task go together", param_hint="--task")
     # One BLAS/torch thread per process: N processes share the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("MKL_NUM_THREADS", "1")
@@ -86,15 +108,32 @@ def run(
         keep_files=keep_files,
         render=render,
         ca_bundle=ca_bundle.resolve() if ca_bundle is not None else None,
+        function=function,
+        task=task,
+        app_dir=app_dir.resolve(),
     )
     configure_logging(level, base_id)
     if concurrency == 1:
-        worker = Worker(config)
+        try:
+            worker = Worker(config)
+        except Exception as error:
+            typer.echo(f"adworker: cannot start: {type(error).__name__}: {error}", err=True)
+            raise typer.Exit(EXIT_SETUP) from None
         worker.install_signal_handlers()
         code = worker.run()
     else:
         code = run_pool(config, concurrency, level)
     raise typer.Exit(code)
+
+
+@app.command("tasks")
+def list_tasks() -> None:
+    """List the installed tasks and learners, and any that does not load here."""
+    from adclient.plugins import catalogue
+    from adworker.runner import factory_problem
+
+    for line in catalogue().describe(factory_problem):
+        typer.echo(line)
 
 
 def main() -> None:

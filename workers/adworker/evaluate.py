@@ -15,39 +15,27 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from adclient.design import Design, DesignSpace
+from adclient.plugins import PluginError, TaskOptions, catalogue
 from adclient.schemas import Job, TaskConfig
-from adworker.learners import EpisodeResult, TrainResult, evaluate_policy, get_learner
-from adworker.tasks import get_task
+from adworker.learners import EpisodeResult, Learner, TrainResult, evaluate_policy
+from adworker.runner import Artifact, JobError, Outcome, factory_problem
+
+log = logging.getLogger("adworker")
 
 EVAL_SEED_STRIDE = 10_000
 """Evaluation episode i of a task with seed s runs with seed (s + 1) * stride + i."""
 
 STAGES = ("decode", "urdf", "env", "train", "evaluate", "render")
-
-
-class Cancelled(Exception):
-    """The worker asked the evaluation to stop (lease lost, or shutting down)."""
-
-
-class JobError(ValueError):
-    """The job cannot be evaluated as given (no design space, unknown task...)."""
-
-
-@dataclass
-class Artifact:
-    name: str
-    content_type: str
-    data: bytes
 
 
 @dataclass
@@ -80,11 +68,31 @@ def decode_job(job: Job) -> Design:
     return decode(job.space, representation, job.vector)
 
 
-def env_options(task: TaskConfig) -> dict[str, Any]:
-    options = {k: v for k, v in task.options.items() if k != "learner_kwargs"}
+def task_options(task: TaskConfig) -> TaskOptions:
+    """The task's options model filled in from the job (``task.episode_steps`` wins over
+    ``options.episode_steps``); a JobError for a task not installed here."""
+    options = dict(task.options)
     if task.episode_steps is not None:
         options["episode_steps"] = task.episode_steps
-    return options
+    try:
+        return catalogue().task(task.name).options.model_validate(options)
+    except PluginError as error:
+        raise JobError(str(error)) from None
+
+
+def make_learner(task: TaskConfig, options: TaskOptions) -> Learner:
+    """The job's learner, given ``options.learner_kwargs`` checked by its options model."""
+    try:
+        spec = catalogue().learner(task.learner)
+    except PluginError as error:
+        raise JobError(str(error)) from None
+    if spec.options is None:
+        if options.learner_kwargs is not None:
+            raise JobError(f"learner {task.learner!r} takes no learner_kwargs")
+        learner: Learner = spec.load_factory()(None)
+    else:
+        learner = spec.load_factory()(spec.options.model_validate(options.learner_kwargs or {}))
+    return learner
 
 
 def evaluate_job(
@@ -109,11 +117,9 @@ def evaluate_job(
         timings[stage] = now - since
         return now
 
-    env_class = get_task(task.name)
-    learner_kwargs = task.options.get("learner_kwargs")
-    if learner_kwargs is not None and not isinstance(learner_kwargs, dict):
-        raise JobError("task.options.learner_kwargs must be a mapping")
-    learner = get_learner(task.learner, learner_kwargs)
+    options = task_options(task)
+    make_env = catalogue().task(task.name).load_factory()
+    learner = make_learner(task, options)
 
     t = time.perf_counter()
     design = decode_job(job)
@@ -122,7 +128,7 @@ def evaluate_job(
     urdf_text = design_to_urdf(design, robot_name="robot")
     urdf_path.write_text(urdf_text)
     t = lap("urdf", t)
-    env = env_class(urdf_path, env_options(task))
+    env = make_env(design=design, urdf_path=urdf_path, options=options)
     try:
         t = lap("env", t)
         steps = task.train_steps if task.train_steps is not None else learner.default_steps
@@ -172,6 +178,47 @@ def evaluate_job(
         episodes=episodes,
         train=trained,
     )
+
+
+class TaskRunner:
+    """Runs jobs of the installed tasks whose environments load here: ``adworker``'s
+    default runner. A task whose factory fails to import (its simulator missing) is not
+    leased, so a worker that has it takes its trials."""
+
+    def __init__(self, *, render: bool = True) -> None:
+        self.render = render
+        installed = catalogue()
+        for key, reason in sorted(installed.broken.items()):
+            log.warning("plugin %s does not load: %s", key, reason)
+        self._tasks: list[str] = []
+        for name, spec in sorted(installed.tasks.items()):
+            problem = factory_problem(spec)
+            if problem is None:
+                self._tasks.append(name)
+            else:
+                log.warning(
+                    "task %s: its environment does not load (%s); not leasing it", name, problem
+                )
+        for name, learner in sorted(installed.learners.items()):
+            problem = factory_problem(learner)
+            if problem is not None:
+                log.warning("learner %s does not load (%s): its jobs will fail", name, problem)
+
+    def tasks(self) -> list[str]:
+        return list(self._tasks)
+
+    def __call__(self, job: Job, workdir: Path, check: Callable[[], None]) -> Outcome:
+        evaluation = evaluate_job(job, workdir, render=self.render, check=check)
+        timings = ", ".join(
+            f"{stage} {seconds:.2f}" for stage, seconds in evaluation.timings.items()
+        )
+        spread = evaluation.metrics["score_std"]
+        return Outcome(
+            evaluation.value,
+            evaluation.metrics,
+            evaluation.artifacts,
+            summary=f"score {evaluation.value:.4f} ± {spread:.4f} ({timings} s)",
+        )
 
 
 def _curve_json(job: Job, trained: TrainResult, episodes: list[EpisodeResult]) -> bytes:

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+from pydantic import BaseModel
 
 from adworker.tasks.base import RobotEnv, episode_score
 
@@ -53,10 +54,6 @@ class EpisodeResult:
     score: float
     episode_return: float
     metric: list[float]
-
-
-class UnknownLearner(KeyError):
-    """The job names a learner this worker does not have."""
 
 
 def _no_check() -> None:
@@ -85,8 +82,14 @@ def evaluate_policy(
 
 
 class Learner:
+    """What a learner plugin's factory returns (given the learner's options model
+    instance, or None when it declares none): ``train`` within a step budget."""
+
     name: ClassVar[str]
     default_steps: ClassVar[int]
+
+    def __init__(self, options: BaseModel | None = None) -> None:
+        self.options = options
 
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
@@ -218,17 +221,18 @@ def _halton(count: int, dims: int, rng: np.random.Generator) -> np.ndarray:
 class StableBaselinesLearner(Learner):
     """A stable-baselines3 agent with small networks; see the subclasses for budgets.
 
-    ``hyperparameters`` are the constructor arguments; ``overrides`` (from the task
-    config's ``options["learner_kwargs"]``) replace any of them, ``action_noise`` as
-    ``{"kind": "normal" | "ou", "sigma": s}``.
+    ``hyperparameters`` are the constructor arguments; the options (the task config's
+    ``options["learner_kwargs"]``, as ``StableBaselinesOptions``) replace any of them,
+    ``action_noise`` as ``{"kind": "normal" | "ou", "sigma": s}``.
     """
 
     algorithm: ClassVar[str]
     net_arch: ClassVar[list[int]] = [64, 64]
     hyperparameters: ClassVar[dict[str, Any]] = {}
 
-    def __init__(self, overrides: dict[str, Any] | None = None) -> None:
-        self.overrides = dict(overrides or {})
+    def __init__(self, options: BaseModel | None = None) -> None:
+        super().__init__(options)
+        self.overrides = options.model_dump() if options is not None else {}
 
     def make_model(self, env: Any, *, steps: int, seed: int) -> Any:
         import stable_baselines3
@@ -350,20 +354,3 @@ class PPOLearner(StableBaselinesLearner):
         "gamma": 0.95,
         "gae_lambda": 0.9,
     }
-
-
-LEARNERS: dict[str, type[Learner]] = {
-    cls.name: cls for cls in (ConstantTargetSearch, DDPGLearner, TD3Learner, SACLearner, PPOLearner)
-}
-
-
-def get_learner(name: str, overrides: dict[str, Any] | None = None) -> Learner:
-    """A learner by name; ``overrides`` tune an SB3 learner's hyperparameters."""
-    try:
-        cls = LEARNERS[name]
-    except KeyError:
-        known = ", ".join(sorted(LEARNERS))
-        raise UnknownLearner(f"unknown learner {name!r}; known learners: {known}") from None
-    if issubclass(cls, StableBaselinesLearner):
-        return cls(overrides)
-    return cls()

@@ -1,7 +1,10 @@
 """The worker loop: lease a job, keep its lease alive, evaluate it, report, repeat.
 
 One :class:`Worker` runs jobs one at a time in its own process; ``--concurrency N``
-runs N of them in child processes (:func:`run_pool`). The rules it keeps:
+runs N of them in child processes (:func:`run_pool`). What evaluates a job is its
+runner (:mod:`adworker.runner`): the installed tasks, or a function
+(``--function``); the loop is the same for both, and leases only the runner's tasks.
+The rules it keeps:
 
 - Network errors and 5xx answers are retried with backoff (the SDK retries each
   request a few times; the loop keeps waiting, with a growing pause, while the server
@@ -39,7 +42,8 @@ from typing import Any
 
 from adclient.client import Client
 from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized, Unavailable
-from adclient.schemas import TASK_NAMES, Job
+from adclient.schemas import Job
+from adworker.runner import Artifact, Cancelled, Runner
 
 log = logging.getLogger("adworker")
 
@@ -49,6 +53,8 @@ MAX_IDLE_BACKOFF = 30.0
 MESSAGE_LIMIT = 4000
 EXIT_OK = 0
 EXIT_AUTH = 2
+EXIT_SETUP = 3
+"""The runner could not be made (a --function that does not import...)."""
 
 
 class AuthError(Exception):
@@ -73,6 +79,26 @@ class WorkerConfig:
     render: bool = True
     ca_bundle: Path | None = None
     """A PEM CA bundle to check an https server's certificate with (None: the system's)."""
+    function: str | None = None
+    """``module:callable`` that scores each job (``--function``); None: installed tasks."""
+    task: str | None = None
+    """The task name a function serves."""
+    app_dir: Path | None = None
+    """Where a function's module is imported from, before sys.path."""
+
+
+def make_runner(config: WorkerConfig) -> Runner:
+    """The configured runner; a function's module is imported here, so a typo stops the
+    worker at start, not at its first job."""
+    if config.function is None:
+        from adworker.evaluate import TaskRunner
+
+        return TaskRunner(render=config.render)
+    from adworker.functions import FunctionRunner
+
+    if config.task is None:
+        raise ValueError("--function needs --task: the name of the task it serves")
+    return FunctionRunner(config.function, config.task, config.app_dir)
 
 
 @dataclass
@@ -87,11 +113,10 @@ class Rates:
 
     def line(self) -> str:
         minutes = max(time.monotonic() - self.started, 1e-9) / 60
-        sim_rate = self.sim_steps / max(self.busy_seconds, 1e-9)
-        return (
-            f"{self.jobs} jobs ({self.failed} failed), {self.jobs / minutes:.1f} jobs/min, "
-            f"{sim_rate:,.0f} sim steps/s while busy"
-        )
+        line = f"{self.jobs} jobs ({self.failed} failed), {self.jobs / minutes:.1f} jobs/min"
+        if self.sim_steps:
+            line += f", {self.sim_steps / max(self.busy_seconds, 1e-9):,.0f} sim steps/s while busy"
+        return line
 
 
 class Heartbeat:
@@ -150,6 +175,7 @@ class Worker:
         config: WorkerConfig,
         *,
         client: Client | None = None,
+        runner: Runner | None = None,
         claim: Callable[[], bool] | None = None,
         unclaim: Callable[[], None] | None = None,
     ) -> None:
@@ -159,6 +185,7 @@ class Worker:
             config.token,
             verify=str(config.ca_bundle) if config.ca_bundle is not None else True,
         )
+        self.runner = runner or make_runner(config)
         self.stopping = threading.Event()
         """Finish the current job, then exit."""
         self.abandon = threading.Event()
@@ -189,7 +216,8 @@ class Worker:
     def run(self) -> int:
         """Work until told to stop, out of jobs (``max_jobs``) or idle (``idle_exit``)."""
         config = self.config
-        log.info("worker %s serving %s", config.worker_id, config.server)
+        tasks = self.runner.tasks()
+        log.info("worker %s serving %s: tasks %s", config.worker_id, config.server, tasks)
         idle_since = time.monotonic()
         failures = 0
         try:
@@ -201,7 +229,7 @@ class Worker:
                     log.info("the pool's job budget is spent")
                     break
                 try:
-                    job = self.client.lease(config.worker_id, tasks=TASK_NAMES)
+                    job = self.client.lease(config.worker_id, tasks=tasks)
                 except (Unauthorized, Forbidden) as exc:
                     raise AuthError(str(exc)) from exc
                 except ApiError as exc:
@@ -249,16 +277,8 @@ class Worker:
 
     def process(self, job: Job) -> str:
         """Evaluate and report one job; returns 'complete', 'failed' or 'abandoned'."""
-        from adworker.evaluate import Cancelled, evaluate_job
-
         label = f"trial {job.trial_id} (study {job.study_id} #{job.number}, attempt {job.attempt})"
-        log.info(
-            "%s: %s with %s, %s steps",
-            label,
-            job.task.name,
-            job.task.learner,
-            job.task.train_steps if job.task.train_steps is not None else "default",
-        )
+        log.info("%s: task %s", label, job.task.name)
         jobdir = self.workdir / f"trial-{job.trial_id}-attempt-{job.attempt}"
         started = time.monotonic()
         with Heartbeat(self.client, job, self.config.worker_id) as heartbeat:
@@ -270,17 +290,17 @@ class Worker:
                     raise Cancelled("worker shutting down")
 
             try:
-                evaluation = evaluate_job(job, jobdir, render=self.config.render, check=check)
+                outcome = self.runner(job, jobdir, check)
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
-                outcome = "abandoned"
+                result = "abandoned"
                 unreported = True
             except Exception as exc:
                 message = _failure_message(exc)
                 log.error("%s: evaluation failed: %s", label, message.splitlines()[0])
                 self.rates.jobs += 1
                 self.rates.failed += 1
-                outcome = "failed"
+                result = "failed"
                 unreported = not self._report(
                     job,
                     label,
@@ -291,34 +311,23 @@ class Worker:
             else:
                 busy = time.monotonic() - started
                 self.rates.jobs += 1
-                self.rates.sim_steps += evaluation.metrics["sim_steps"]
+                self.rates.sim_steps += outcome.metrics.get("sim_steps", 0.0)
                 self.rates.busy_seconds += busy
-                outcome = "complete"
-                self._upload(job, heartbeat, label, evaluation.artifacts)
+                result = "complete"
+                self._upload(job, heartbeat, label, outcome.artifacts)
                 unreported = not self._report(
                     job,
                     label,
-                    value=evaluation.value,
-                    metrics=evaluation.metrics,
+                    value=outcome.value,
+                    metrics=outcome.metrics,
                     worker_id=self.config.worker_id,
                 )
-                timings = ", ".join(
-                    f"{stage} {seconds:.2f}" for stage, seconds in evaluation.timings.items()
-                )
-                log.info(
-                    "%s: score %.4f ± %.4f in %.1f s (%s s); %s",
-                    label,
-                    evaluation.value,
-                    evaluation.metrics["score_std"],
-                    busy,
-                    timings,
-                    self.rates.line(),
-                )
+                log.info("%s: %s in %.1f s; %s", label, outcome.summary, busy, self.rates.line())
         if unreported and self.abandon.is_set() and not heartbeat.lost.is_set():
             self._release(job, label)
         if not self.config.keep_files:
             shutil.rmtree(jobdir, ignore_errors=True)
-        return outcome
+        return result
 
     def _release(self, job: Job, label: str) -> None:
         """Hand the lease back so the trial is queued now, not when the lease expires."""
@@ -329,7 +338,9 @@ class Worker:
         else:
             log.info("%s: lease given back; the trial is queued for another worker", label)
 
-    def _upload(self, job: Job, heartbeat: Heartbeat, label: str, artifacts: list[Any]) -> None:
+    def _upload(
+        self, job: Job, heartbeat: Heartbeat, label: str, artifacts: list[Artifact]
+    ) -> None:
         for artifact in artifacts:
             if heartbeat.lost.is_set() or self.abandon.is_set():
                 return
@@ -402,7 +413,11 @@ def _child_main(config: WorkerConfig, budget: Any, log_level: int) -> None:
             with budget.get_lock():
                 budget.value += 1
 
-    worker = Worker(config, claim=claim, unclaim=unclaim)
+    try:
+        worker = Worker(config, claim=claim, unclaim=unclaim)
+    except Exception as error:
+        log.error("cannot start: %s: %s", type(error).__name__, error)
+        raise SystemExit(EXIT_SETUP) from None
     worker.install_signal_handlers()
     # Ctrl-C reaches the whole process group; the parent passes it on as SIGTERM, so
     # a child that also took the SIGINT would count one keypress as two signals.
@@ -415,7 +430,7 @@ def run_pool(config: WorkerConfig, concurrency: int, log_level: int = logging.IN
 
     Signals are passed on to the children (each finishes or abandons its own job).
     A child that dies of something else (a crash inside the physics engine) is
-    replaced; one that stops on a refused token stops the pool.
+    replaced; one that stops on a refused token, or cannot start, stops the pool.
     """
     import multiprocessing
 
@@ -454,8 +469,8 @@ def run_pool(config: WorkerConfig, concurrency: int, log_level: int = logging.IN
                 continue
             process.join()
             del children[slot]
-            if process.exitcode == EXIT_AUTH:
-                code = EXIT_AUTH
+            if process.exitcode in (EXIT_AUTH, EXIT_SETUP):
+                code = process.exitcode
                 forward(signal.SIGTERM, None)
             elif process.exitcode not in (EXIT_OK, None) and signals_seen == 0:
                 log.error("worker %d died (exit %s); starting another", slot, process.exitcode)

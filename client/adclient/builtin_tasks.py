@@ -1,0 +1,60 @@
+"""The built-in tasks, declared as any plugin declares its own (entry points in
+pyproject.toml). Their environments live in adworker; only the worker imports them."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import Field
+
+from adclient.plugins import SimulatorOptions, TaskSpec
+
+LinkName = Annotated[str, Field(min_length=1, max_length=64)]
+
+
+class StandUpOptions(SimulatorOptions):
+    lifted_link: LinkName = Field(default="b", description="The link whose centre is lifted")
+    feet_links: list[LinkName] = Field(
+        default_factory=lambda: ["a", "c"],
+        max_length=32,
+        description="The links that must touch the ground while it counts",
+    )
+
+    def link_names(self) -> list[tuple[str, str]]:
+        return [("lifted_link", self.lifted_link)] + [
+            (f"feet_links[{index}]", name) for index, name in enumerate(self.feet_links)
+        ]
+
+
+class DiagonalGestureOptions(SimulatorOptions):
+    distal_link: LinkName | None = Field(
+        default=None,
+        description="The link that points (default: c if there is one, else the child of "
+        "the last joint)",
+    )
+
+    def link_names(self) -> list[tuple[str, str]]:
+        return [("distal_link", self.distal_link)] if self.distal_link is not None else []
+
+
+STAND_UP = TaskSpec(
+    name="stand-up",
+    options=StandUpOptions,
+    description="A free three-link chain a-b-c lying on the ground lifts its middle link: "
+    "the height of b's centre while a and c both touch the ground, else 0.",
+    factory="adworker.tasks.stand_up:StandUp.make_env",
+)
+DIAGONAL_GESTURE = TaskSpec(
+    name="diagonal-gesture",
+    options=DiagonalGestureOptions,
+    description="An arm on a base link fixed upright points its distal link along "
+    "(1, 1, 1): the cosine between the two directions.",
+    factory="adworker.tasks.diagonal_gesture:DiagonalGesture.make_env",
+)
+LIFT_HIGHEST = TaskSpec(
+    name="lift-highest",
+    options=SimulatorOptions,
+    description="A free robot of any tree raises its highest point: the height of the "
+    "top of its body.",
+    factory="adworker.tasks.lift_highest:LiftHighest.make_env",
+)

@@ -1,0 +1,239 @@
+"""The catalogue of tasks and learners: declarations that plugins install through entry points.
+
+A task is a :class:`TaskSpec`: its name, a pydantic options model (the one place its
+option defaults live), a description, and the factory of its environment. A learner is
+a :class:`LearnerSpec` of the same shape. Packages declare them under the entry point
+groups ``activedesign.tasks`` and ``activedesign.learners``, the built-in ones included
+(see pyproject.toml)::
+
+    [project.entry-points."activedesign.tasks"]
+    reach = "my_robot_tasks:REACH"          # a TaskSpec, named "reach"
+
+Loading the catalogue imports only the modules that hold the declarations, so they must
+stay light: the server reads them to check study files without PyBullet or torch. A
+factory is given as an import string (``"module:attr"``) that only the worker resolves
+(:meth:`TaskSpec.load_factory`), or as a callable where importing it is cheap.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from importlib.metadata import EntryPoint, entry_points
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+TASK_GROUP = "activedesign.tasks"
+LEARNER_GROUP = "activedesign.learners"
+
+
+class PluginError(LookupError):
+    """A task or learner that is not installed, or whose plugin does not load."""
+
+
+class TaskOptions(BaseModel):
+    """``task.options`` every task understands; a task's own options model extends it.
+
+    Validated when a study is created; the study keeps the mapping as given, and the
+    worker hands the environment factory the validated model, defaults filled in."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    episode_steps: int | None = Field(default=None, ge=2, le=100_000)
+    learner_kwargs: dict[str, Any] | None = Field(
+        default=None,
+        description="Options of the learner, checked with the learner's own options model "
+        "(refused for a learner that declares none)",
+    )
+
+    def link_names(self) -> list[tuple[str, str]]:
+        """(option, link name) for each link the task will look up in the robot: a study
+        whose structures lack one is refused at creation."""
+        return []
+
+
+class SimulatorOptions(TaskOptions):
+    """The options of a task on adworker's PyBullet simulator: physics settings."""
+
+    frame_skip: int = Field(default=12, ge=1, le=1000, description="Physics steps per action")
+    time_step: float = Field(default=1.0 / 120.0, gt=0.0, le=1.0, description="Physics step (s)")
+    init_noise: float = Field(
+        default=0.05,
+        ge=0.0,
+        le=math.pi,
+        description="Largest random offset of each joint at the start of an episode (rad)",
+    )
+    rolling_friction: float = Field(
+        default=0.02, ge=0.0, le=1000.0, description="Rolling friction of the links (m)"
+    )
+    spinning_friction: float = Field(
+        default=0.0, ge=0.0, le=1000.0, description="Spinning friction of the links"
+    )
+
+
+Factory = str | Callable[..., Any]
+"""An import string ``"module:attr"`` or the callable itself."""
+
+
+def load_object(reference: str) -> Any:
+    """The object an import string ``"package.module:attr.path"`` names; a ValueError or
+    ImportError that says which part is missing."""
+    module_name, colon, path = reference.partition(":")
+    if not colon or not module_name or not path:
+        raise ValueError(f"{reference!r} is not an import string of the form 'module:attr'")
+    found: Any = importlib.import_module(module_name)
+    for part in path.split("."):
+        try:
+            found = getattr(found, part)
+        except AttributeError:
+            raise ImportError(f"{reference!r}: module {module_name!r} has no {path!r}") from None
+    return found
+
+
+def _resolve(factory: Factory, what: str) -> Callable[..., Any]:
+    found = load_object(factory) if isinstance(factory, str) else factory
+    if not callable(found):
+        raise TypeError(f"{what}: {factory!r} is not callable")
+    return found  # type: ignore[no-any-return]
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """A task: what studies name, how its options are checked, and what builds its env.
+
+    The worker calls the factory with keyword arguments ``design`` (the decoded
+    :class:`~adclient.design.Design`), ``urdf_path`` (where the worker wrote its URDF)
+    and ``options`` (an instance of ``options``); it returns the task's environment
+    (see docs/plugins.md for what the learners need of it)."""
+
+    name: str
+    options: type[TaskOptions]
+    description: str
+    factory: Factory = field(repr=False)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.options, type) and issubclass(self.options, TaskOptions)):
+            raise TypeError(f"task {self.name!r}: options must be a TaskOptions subclass")
+
+    def load_factory(self) -> Callable[..., Any]:
+        """The environment factory, imported now (the worker's side only)."""
+        return _resolve(self.factory, f"task {self.name!r}")
+
+
+@dataclass(frozen=True)
+class LearnerSpec:
+    """A learner: its name, the options model of ``task.options.learner_kwargs`` (None:
+    it takes none), and the factory the worker calls with those options (a model
+    instance, or None) to get an object with ``train(env, steps=, seed=, check=)``."""
+
+    name: str
+    description: str
+    factory: Factory = field(repr=False)
+    options: type[BaseModel] | None = None
+
+    def load_factory(self) -> Callable[..., Any]:
+        return _resolve(self.factory, f"learner {self.name!r}")
+
+
+@dataclass(frozen=True)
+class Catalogue:
+    """What is installed: tasks and learners by name, and why any plugin did not load."""
+
+    tasks: Mapping[str, TaskSpec]
+    learners: Mapping[str, LearnerSpec]
+    broken: Mapping[str, str]
+    """``"group:name"`` of each entry point that did not load: the reason."""
+
+    def task(self, name: str) -> TaskSpec:
+        return self._find(TASK_GROUP, self.tasks, name, "task")  # type: ignore[return-value]
+
+    def learner(self, name: str) -> LearnerSpec:
+        return self._find(LEARNER_GROUP, self.learners, name, "learner")  # type: ignore[return-value]
+
+    def describe(
+        self, problem: Callable[[TaskSpec | LearnerSpec], str | None] | None = None
+    ) -> list[str]:
+        """Lines listing the tasks, the learners and the broken plugins, for the CLIs;
+        ``problem`` says why a spec cannot run here (None: it can)."""
+        lines = []
+        specs: tuple[tuple[str, Mapping[str, TaskSpec | LearnerSpec]], ...] = (
+            ("tasks", self.tasks),
+            ("learners", self.learners),
+        )
+        for kind, found in specs:
+            lines.append(f"{kind}:")
+            for name, spec in sorted(found.items()):
+                why = problem(spec) if problem is not None else None
+                state = f"  [does not load: {why}]" if why else ""
+                lines.append(f"  {name:<18} {spec.description}{state}")
+        lines += [f"broken plugin {key}: {reason}" for key, reason in sorted(self.broken.items())]
+        return lines
+
+    def _find(
+        self, group: str, found: Mapping[str, TaskSpec | LearnerSpec], name: str, kind: str
+    ) -> TaskSpec | LearnerSpec:
+        if name in found:
+            return found[name]
+        reason = self.broken.get(f"{group}:{name}")
+        if reason is not None:
+            raise PluginError(f"{kind} {name!r} is installed but does not load: {reason}")
+        raise PluginError(
+            f"unknown {kind} {name!r}; the installed {kind}s are {', '.join(sorted(found))}"
+        )
+
+
+def _load_group(
+    group: str, kind: type[TaskSpec] | type[LearnerSpec], broken: dict[str, str]
+) -> dict[str, Any]:
+    """Each entry point of ``group`` that loads to a ``kind`` named as its entry point;
+    the others, and names two distributions both claim, go to ``broken``."""
+    by_name: dict[str, list[EntryPoint]] = {}
+    for point in entry_points(group=group):
+        by_name.setdefault(point.name, []).append(point)
+    loaded: dict[str, Any] = {}
+    for name, points in sorted(by_name.items()):
+        key = f"{group}:{name}"
+        if len(points) > 1:
+            owners = ", ".join(f"{_owner(point)} ({point.value})" for point in points)
+            broken[key] = f"declared more than once: {owners}"
+            continue
+        (point,) = points
+        where = f"{_owner(point)} ({point.value})"
+        try:
+            spec = point.load()
+        except Exception as error:
+            broken[key] = f"{where}: {type(error).__name__}: {error}"
+            continue
+        if not isinstance(spec, kind):
+            broken[key] = f"{where}: is a {type(spec).__name__}, not a {kind.__name__}"
+        elif spec.name != name:
+            broken[key] = f"{where}: declares the name {spec.name!r}, not {name!r}"
+        else:
+            loaded[name] = spec
+    return loaded
+
+
+def _owner(point: EntryPoint) -> str:
+    dist = point.dist
+    return f"{dist.name} {dist.version}" if dist is not None else "unknown distribution"
+
+
+@functools.cache
+def catalogue() -> Catalogue:
+    """The installed tasks and learners, read once per process."""
+    broken: dict[str, str] = {}
+    tasks = _load_group(TASK_GROUP, TaskSpec, broken)
+    learners = _load_group(LEARNER_GROUP, LearnerSpec, broken)
+    return Catalogue(tasks=tasks, learners=learners, broken=broken)
+
+
+def installed_tasks() -> Mapping[str, TaskSpec]:
+    return catalogue().tasks
+
+
+def installed_learners() -> Mapping[str, LearnerSpec]:
+    return catalogue().learners

@@ -1,0 +1,62 @@
+"""What the worker loop runs a job with, in terms light enough for any worker.
+
+The loop (:mod:`adworker.worker`) leases, heartbeats, reports and uploads; a *runner*
+turns one job into an :class:`Outcome`. Two runners exist: installed tasks
+(:class:`adworker.evaluate.TaskRunner`: simulate, train, score) and a plain Python
+callable (:class:`adworker.functions.FunctionRunner`, ``adworker --function``). This
+module imports neither PyBullet nor torch, so a function worker never does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+from adclient.plugins import LearnerSpec, TaskSpec
+from adclient.schemas import Job
+
+
+class Cancelled(Exception):
+    """The worker asked the evaluation to stop (lease lost, or shutting down)."""
+
+
+class JobError(ValueError):
+    """The job cannot be evaluated as given (no design space, unknown task...)."""
+
+
+@dataclass
+class Artifact:
+    name: str
+    content_type: str
+    data: bytes
+
+
+@dataclass
+class Outcome:
+    """What the loop reports for a job: the score, metrics, artifacts, and a log line."""
+
+    value: float
+    metrics: dict[str, float]
+    artifacts: list[Artifact] = field(default_factory=list)
+    summary: str = ""
+
+
+class Runner(Protocol):
+    def tasks(self) -> list[str]:
+        """The task names to lease: the ones this runner can run."""
+        ...
+
+    def __call__(self, job: Job, workdir: Path, check: Callable[[], None]) -> Outcome:
+        """Run one job in its own folder; ``check`` raises :class:`Cancelled` to stop."""
+        ...
+
+
+def factory_problem(spec: TaskSpec | LearnerSpec) -> str | None:
+    """Why the spec's factory does not load here (a missing simulator...), or None."""
+    try:
+        spec.load_factory()
+    except Exception as error:
+        return f"{type(error).__name__}: {error}"
+    return None
