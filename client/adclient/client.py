@@ -15,60 +15,40 @@
         batch = study.ask(count=4)               # a list of 4 Trials
         print(study.best_trial)
 
-Why the retries are safe: a request that never reached the server (connection
-refused, connect timeout) is always retried; a 5xx or 429 answer means the server
-rolled the request back, so it is retried too. A request whose answer was lost after
-it was sent (read timeout, dropped connection) is retried only where repeating it is
-harmless: reads, artifact uploads, heartbeats and tells (the server accepts a repeated
-identical tell). ``create_study``, ``ask`` and ``lease`` are not repeated in that case
-(they would create or lease a second time); they raise :class:`Unavailable` instead.
+Transport and retries: :mod:`adclient.transport`; the study handle:
+:mod:`adclient.study`; export: :mod:`adclient.export`.
 """
 
 from __future__ import annotations
 
-import csv
-import io
-import json
-import math
-import random
-import time
-from collections.abc import Callable, Iterable, Mapping
-from datetime import datetime
-from typing import Any, Literal, overload
+from collections.abc import Iterable, Mapping
+from typing import Any, Literal
 
-import httpx
 from pydantic import BaseModel, ValidationError
 
-from adclient import __version__
-from adclient.errors import ApiError, Invalid, NotFound, Unavailable, error_class
+from adclient.errors import Invalid, NotFound
+from adclient.export import ExportFormat, export_csv, export_json
 from adclient.schemas import (
     MAX_TRIAL_PAGE,
     ArtifactInfo,
     AskResponse,
     HeartbeatResponse,
     Job,
+    LearnerInfo,
     Study,
     StudyCreate,
-    StudyState,
+    TaskInfo,
     TellRequest,
     Trial,
     TrialState,
     WorkerInfo,
 )
+from adclient.study import StudyHandle, study_finished
+from adclient.transport import API, Transport
 
-API = "/api/v1"
-DEFAULT_TIMEOUT = 30.0
-DEFAULT_RETRIES = 5
-DEFAULT_BACKOFF = 0.2
-DEFAULT_MAX_BACKOFF = 5.0
-
-ExportFormat = Literal["json", "csv"]
 TrialRef = Trial | int
 
-
-CLIENT_HEADER = "X-Activedesign-Client"
-"""Sent with every request: a header a cross-site page cannot set without the server's
-leave, so the server accepts state changes only from clients that send it (or JSON)."""
+__all__ = ["Client", "StudyHandle", "TrialRef", "study_finished", "trial_id_of"]
 
 
 def trial_id_of(trial: TrialRef) -> int:
@@ -76,170 +56,9 @@ def trial_id_of(trial: TrialRef) -> int:
     return trial.id if isinstance(trial, Trial) else int(trial)
 
 
-def study_finished(study: Study) -> bool:
-    """True once a study will change no more by itself.
-
-    Its state left ``running``, or its trial budget is spent: every one of
-    ``max_trials`` trials is complete or failed.
-    """
-    if study.state != StudyState.running:
-        return True
-    if study.max_trials is None:
-        return False
-    return study.n_complete + study.n_failed >= study.max_trials
-
-
-class Client:
-    """A connection to one activedesign server.
-
-    ``url`` is the server's base URL (``http://host:port``). ``token`` is sent as
-    ``Authorization: Bearer <token>``. ``timeout`` bounds each attempt in seconds.
-    ``retries`` is how many times a failed attempt is repeated (see the module notes
-    for which failures), waiting ``backoff * 2**n`` seconds (with jitter, at most
-    ``max_backoff``, or the server's ``Retry-After``) before repeat ``n``.
-
-    Use it as a context manager, or call :meth:`close`.
-    """
-
-    def __init__(
-        self,
-        url: str,
-        token: str | None = None,
-        *,
-        timeout: float = DEFAULT_TIMEOUT,
-        retries: int = DEFAULT_RETRIES,
-        backoff: float = DEFAULT_BACKOFF,
-        max_backoff: float = DEFAULT_MAX_BACKOFF,
-        verify: bool | str = True,
-    ) -> None:
-        """``verify``: check an https server's certificate against the system's CAs (True),
-        against the CA bundle file at this path (a private or self-signed CA), or not at
-        all (False)."""
-        if retries < 0:
-            raise ValueError("retries must be >= 0")
-        self.url = url.rstrip("/")
-        self.retries = retries
-        self.backoff = backoff
-        self.max_backoff = max_backoff
-        headers = {
-            "User-Agent": f"adclient/{__version__}",
-            "Accept": "application/json",
-            CLIENT_HEADER: __version__,
-        }
-        if token:
-            headers["Authorization"] = f"Bearer {token}"
-        if isinstance(verify, str):  # httpx deprecates a path: it wants a context
-            import ssl
-
-            tls: bool | ssl.SSLContext = ssl.create_default_context(cafile=verify)
-        else:
-            tls = verify
-        self._http = httpx.Client(
-            base_url=self.url,
-            headers=headers,
-            timeout=httpx.Timeout(timeout, connect=min(timeout, 10.0)),
-            verify=tls,
-        )
-
-    # -- lifecycle -------------------------------------------------------------------
-
-    def close(self) -> None:
-        self._http.close()
-
-    def __enter__(self) -> Client:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
-
-    def __repr__(self) -> str:
-        return f"Client({self.url!r})"
-
-    # -- transport -------------------------------------------------------------------
-
-    def request(
-        self,
-        method: str,
-        path: str,
-        *,
-        json_body: Any = None,
-        content: bytes | None = None,
-        headers: Mapping[str, str] | None = None,
-        params: Mapping[str, Any] | None = None,
-        idempotent: bool | None = None,
-    ) -> httpx.Response:
-        """Send one request with retries; return the 2xx/3xx response or raise an ApiError.
-
-        ``idempotent`` (default: true for GET, HEAD, PUT and DELETE) says whether a
-        request whose answer was lost may be sent again.
-        """
-        if idempotent is None:
-            idempotent = method.upper() in {"GET", "HEAD", "PUT", "DELETE"}
-        kwargs: dict[str, Any] = {"headers": headers, "params": params}
-        if json_body is not None:
-            kwargs["json"] = json_body
-        if content is not None:
-            kwargs["content"] = content
-        where = f"{method} {path}"
-        failure: ApiError
-        for attempt in range(self.retries + 1):
-            delay = self._delay(attempt)
-            try:
-                response = self._http.request(method, path, **kwargs)
-            except (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout) as exc:
-                failure = Unavailable(
-                    None,
-                    "unreachable",
-                    f"cannot reach server at {self.url} ({_reason(exc)})",
-                    method=method,
-                    url=path,
-                )
-            except httpx.TransportError as exc:
-                failure = Unavailable(
-                    None,
-                    "no_answer",
-                    f"no answer from server at {self.url} to {where} ({_reason(exc)})",
-                    method=method,
-                    url=path,
-                )
-                if not idempotent:
-                    raise failure from exc
-            else:
-                if response.status_code < 400:
-                    return response
-                failure = self._error(response, method, path)
-                if not _retryable_status(response.status_code):
-                    raise failure
-                delay = _retry_after(response, default=delay, cap=self.max_backoff)
-            if attempt < self.retries:
-                time.sleep(delay)
-        raise failure
-
-    def _delay(self, attempt: int) -> float:
-        """Exponential backoff with 'equal jitter': between half and all of the step."""
-        step = min(self.max_backoff, self.backoff * (2**attempt))
-        return step * (0.5 + random.random() / 2)
-
-    @staticmethod
-    def _error(response: httpx.Response, method: str, path: str) -> ApiError:
-        code: str | None = None
-        detail: Any = None
-        try:
-            body = response.json()
-        except ValueError:
-            body = None
-        if isinstance(body, dict) and ("error" in body or "detail" in body):
-            code = body.get("error") if isinstance(body.get("error"), str) else None
-            detail = body.get("detail")
-        elif response.text:
-            detail = response.text[:500]
-        if detail is None or detail == "":
-            detail = f"HTTP {response.status_code} {response.reason_phrase}".strip()
-        cls = error_class(response.status_code)
-        return cls(response.status_code, code, detail, method=method, url=path)
-
-    def _get_json(self, path: str, params: Mapping[str, Any] | None = None) -> Any:
-        return self.request("GET", path, params=params).json()
+class Client(Transport):
+    """A connection to one activedesign server: studies, trials, workers' jobs,
+    artifacts and the task catalogue. Connection settings: :class:`Transport`."""
 
     # -- service ---------------------------------------------------------------------
 
@@ -251,6 +70,15 @@ class Client:
     def dashboard_url(self, study_id: int) -> str:
         """Where the study is shown in the web dashboard."""
         return f"{self.url}/#/studies/{study_id}"
+
+    def tasks(self) -> list[TaskInfo]:
+        """The tasks installed on the server (what a study's task may name), each with
+        the JSON schema of its options."""
+        return [TaskInfo.model_validate(item) for item in self._get_json(f"{API}/tasks")]
+
+    def learners(self) -> list[LearnerInfo]:
+        """The learners installed on the server, each with its options' JSON schema."""
+        return [LearnerInfo.model_validate(item) for item in self._get_json(f"{API}/learners")]
 
     # -- studies ---------------------------------------------------------------------
 
@@ -511,258 +339,6 @@ class Client:
         raise ValueError(f"unknown export format {format!r}: use 'json' or 'csv'")
 
 
-class StudyHandle:
-    """One study on the server, with Optuna-like methods.
-
-    ``ask()`` returns one :class:`Trial`; ``ask(count=n)`` returns a list of ``n``
-    (a list even for ``n == 1``), so the return type follows from the call.
-    """
-
-    def __init__(self, client: Client, study_id: int, info: Study | None = None) -> None:
-        self.client = client
-        self.id = int(study_id)
-        self._info = info
-
-    def __repr__(self) -> str:
-        name = f" {self._info.name!r}" if self._info is not None else ""
-        return f"<StudyHandle {self.id}{name}>"
-
-    @property
-    def info(self) -> Study:
-        """The study's record, fetched fresh from the server on each access."""
-        return self.refresh()
-
-    def refresh(self) -> Study:
-        self._info = self.client.study_info(self.id)
-        return self._info
-
-    @property
-    def cached_info(self) -> Study:
-        """The last fetched record (fetched once if never)."""
-        return self._info if self._info is not None else self.refresh()
-
-    @property
-    def name(self) -> str:
-        return self.cached_info.name
-
-    @property
-    def direction(self) -> str:
-        return self.cached_info.direction.value
-
-    @property
-    def dashboard_url(self) -> str:
-        return self.client.dashboard_url(self.id)
-
-    @overload
-    def ask(self) -> Trial: ...
-
-    @overload
-    def ask(self, count: int) -> list[Trial]: ...
-
-    def ask(self, count: int | None = None) -> Trial | list[Trial]:
-        """``ask()``: one new trial. ``ask(count=n)``: a list of ``n`` new trials."""
-        trials = self.client.ask(self.id, 1 if count is None else count)
-        return trials[0] if count is None else trials
-
-    def tell(
-        self,
-        trial: TrialRef,
-        value: float | None = None,
-        *,
-        state: Literal["complete", "failed"] | TrialState | str | None = None,
-        message: str | None = None,
-        metrics: Mapping[str, float] | None = None,
-    ) -> Trial:
-        """Report a result; see :meth:`Client.tell`."""
-        return self.client.tell(trial, value, state=state, message=message, metrics=metrics)
-
-    @property
-    def best_trial(self) -> Trial | None:
-        """The best complete trial, or ``None`` while none is complete."""
-        return self.client.best_trial(self.id)
-
-    @property
-    def best_value(self) -> float | None:
-        best = self.best_trial
-        return None if best is None else best.value
-
-    @property
-    def best_params(self) -> dict[str, Any] | None:
-        best = self.best_trial
-        return None if best is None else best.params
-
-    @property
-    def trials(self) -> list[Trial]:
-        """Every trial, in order of number."""
-        return self.client.trials(self.id)
-
-    def get_trials(self, state: TrialState | str | None = None) -> list[Trial]:
-        """The trials in ``state`` (all when ``None``)."""
-        return self.client.trials(self.id, state)
-
-    def optimize(
-        self,
-        func: Callable[[Trial], float | None],
-        n_trials: int,
-        *,
-        catch: Iterable[type[BaseException]] | type[BaseException] = (),
-        callbacks: Iterable[Callable[[StudyHandle, Trial], None]] = (),
-    ) -> list[Trial]:
-        """Ask, evaluate ``func(trial)`` and tell, ``n_trials`` times; return the told trials.
-
-        A value that is ``None`` or not finite is told as a failed trial. An exception
-        from ``func`` is told as a failed trial with its message; it is then swallowed
-        if its class is in ``catch``, re-raised otherwise (as Optuna does).
-        """
-        caught = tuple(catch) if not isinstance(catch, type) else (catch,)
-        told: list[Trial] = []
-        for _ in range(n_trials):
-            trial = self.ask()
-            try:
-                value = func(trial)
-            except Exception as exc:
-                message = f"{type(exc).__name__}: {exc}"
-                told.append(self.tell(trial, state="failed", message=message[:10_000]))
-                if isinstance(exc, caught):
-                    continue
-                raise
-            if value is None or not math.isfinite(float(value)):
-                finished = self.tell(trial, state="failed", message=f"objective returned {value!r}")
-            else:
-                finished = self.tell(trial, float(value))
-            told.append(finished)
-            for callback in callbacks:
-                callback(self, finished)
-        return told
-
-    def wait(
-        self,
-        *,
-        poll: float = 2.0,
-        timeout: float | None = None,
-        on_update: Callable[[Study], None] | None = None,
-    ) -> Study:
-        """Poll until the study is finished (see :func:`study_finished`); return its record.
-
-        ``on_update`` sees every polled record (for progress bars). Raises
-        :class:`TimeoutError` after ``timeout`` seconds, when one is given.
-        """
-        started = time.monotonic()
-        while True:
-            info = self.refresh()
-            if on_update is not None:
-                on_update(info)
-            if study_finished(info):
-                return info
-            if timeout is not None and time.monotonic() - started >= timeout:
-                raise TimeoutError(f"study {self.id} still running after {timeout} s")
-            time.sleep(poll)
-
-    def stop(self) -> Study:
-        """Stop the study: no new trials are proposed or leased."""
-        self._info = self.client.stop_study(self.id)
-        return self._info
-
-    def workers(self) -> list[WorkerInfo]:
-        return self.client.workers(self.id)
-
-    def export(self, format: ExportFormat = "json") -> str:
-        return self.client.export(self.id, format)
-
-
-# -- export helpers --------------------------------------------------------------------
-
-_CSV_FIELDS = [
-    "number",
-    "id",
-    "state",
-    "value",
-    "worker_id",
-    "attempts",
-    "created_at",
-    "started_at",
-    "finished_at",
-    "duration_s",
-    "message",
-]
-
-
-def export_json(study: Study, trials: list[Trial]) -> str:
-    payload = {
-        "study": study.model_dump(mode="json"),
-        "trials": [trial.model_dump(mode="json") for trial in trials],
-    }
-    return json.dumps(payload, indent=2) + "\n"
-
-
-def export_csv(trials: list[Trial]) -> str:
-    rows: list[dict[str, Any]] = []
-    param_columns: dict[str, None] = {}
-    metric_columns: dict[str, None] = {}
-    for trial in sorted(trials, key=lambda t: t.number):
-        row: dict[str, Any] = {
-            "number": trial.number,
-            "id": trial.id,
-            "state": trial.state.value,
-            "value": _cell(trial.value),
-            "worker_id": trial.worker_id or "",
-            "attempts": trial.attempts,
-            "created_at": _cell(trial.created_at),
-            "started_at": _cell(trial.started_at),
-            "finished_at": _cell(trial.finished_at),
-            "duration_s": _duration(trial.started_at, trial.finished_at),
-            "message": trial.message or "",
-        }
-        for key, value in _flatten(trial.params):
-            column = f"params_{key}"
-            param_columns.setdefault(column)
-            row[column] = _cell(value)
-        for key, metric in trial.metrics.items():
-            column = f"metrics_{key}"
-            metric_columns.setdefault(column)
-            row[column] = _cell(metric)
-        rows.append(row)
-    out = io.StringIO()
-    writer = csv.DictWriter(
-        out,
-        fieldnames=[*_CSV_FIELDS, *param_columns, *metric_columns],
-        restval="",
-        lineterminator="\n",
-    )
-    writer.writeheader()
-    writer.writerows(rows)
-    return out.getvalue()
-
-
-def _flatten(value: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
-    items: list[tuple[str, Any]] = []
-    for key, item in value.items():
-        name = f"{prefix}{key}"
-        if isinstance(item, Mapping) and item:
-            items.extend(_flatten(item, f"{name}."))
-        else:
-            items.append((name, item))
-    return items
-
-
-def _cell(value: Any) -> Any:
-    if value is None:
-        return ""
-    if isinstance(value, datetime):
-        return value.isoformat()
-    if isinstance(value, float):
-        return repr(value)
-    if isinstance(value, list | dict | tuple):
-        return json.dumps(value, separators=(",", ":"))
-    return value
-
-
-def _duration(start: datetime | None, end: datetime | None) -> str:
-    if start is None or end is None:
-        return ""
-    return f"{(end - start).total_seconds():.3f}"
-
-
 # -- small helpers ---------------------------------------------------------------------
 
 
@@ -775,28 +351,6 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [_jsonable(item) for item in value]
     return value
-
-
-def _retryable_status(status_code: int) -> bool:
-    return status_code >= 500 or status_code == 429
-
-
-def _retry_after(response: httpx.Response, *, default: float, cap: float) -> float:
-    header = response.headers.get("Retry-After")
-    if header is None:
-        return default
-    try:
-        seconds = float(header)
-    except ValueError:
-        return default
-    if not math.isfinite(seconds) or seconds < 0:
-        return default
-    return min(seconds, cap)
-
-
-def _reason(exc: Exception) -> str:
-    text = str(exc).strip()
-    return text or type(exc).__name__
 
 
 def _validation_message(exc: ValidationError) -> str:

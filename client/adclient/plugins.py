@@ -98,7 +98,7 @@ def _resolve(factory: Factory, what: str) -> Callable[..., Any]:
     found = load_object(factory) if isinstance(factory, str) else factory
     if not callable(found):
         raise TypeError(f"{what}: {factory!r} is not callable")
-    return found  # type: ignore[no-any-return]
+    return found
 
 
 @dataclass(frozen=True)

@@ -300,7 +300,7 @@ class NewTaskConfig(TaskConfig):
     @classmethod
     def _known_options(cls, options: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
         _plain_text(options, "options", finite=True)
-        task, learner = info.data.get("name"), info.data.get("learner")
+        task, learner = str(info.data.get("name")), str(info.data.get("learner"))
         installed = catalogue()
         if info.data.get("external") or task not in installed.tasks:
             return options  # the task's own, or the name's error says what is wrong
@@ -309,7 +309,7 @@ class NewTaskConfig(TaskConfig):
             parsed = model.model_validate(options)
         except ValidationError as error:
             raise ValueError("; ".join(option_problems(error, model, f"task {task!r}"))) from None
-        spec = installed.learners.get(str(learner))
+        spec = installed.learners.get(learner)
         if parsed.learner_kwargs is None or spec is None:
             return options
         if spec.options is None:

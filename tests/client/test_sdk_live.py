@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import io
 import json
+import threading
+import time
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -144,7 +146,7 @@ def test_optimize_tells_values_failures_and_reraises(client: Client) -> None:
     assert [trial.state for trial in told] == ["complete", "failed", "failed", "complete"]
     assert "RuntimeError: bad luck" in (told[1].message or "")
     assert "nan" in (told[2].message or "")
-    assert seen == [0, 2, 3]
+    assert seen == [0, 1, 2, 3], "as Optuna: callbacks see caught failures too"
 
     def broken(trial: Trial) -> float:
         raise KeyError("missing")
@@ -154,6 +156,64 @@ def test_optimize_tells_values_failures_and_reraises(client: Client) -> None:
     last = study.trials[-1]
     assert last.state == "failed" and "KeyError" in (last.message or "")
     assert study.info.n_trials == 5, "re-raised after the first failure"
+
+
+def test_optimize_runs_n_jobs_trials_at_once(client: Client) -> None:
+    study = box_study(client, "parallel", direction="minimize")
+    gate = threading.Barrier(3, timeout=60)
+    threads: set[str] = set()
+
+    def objective(trial: Trial) -> float:
+        threads.add(threading.current_thread().name)
+        gate.wait()  # passes only while three trials are evaluated at once
+        return trial.params["x"] ** 2
+
+    told = study.optimize(objective, 9, n_jobs=3)
+    assert len(told) == 9 and {trial.state for trial in told} == {"complete"}
+    assert len(threads) == 3
+    assert sorted(trial.number for trial in told) == list(range(9))
+    assert study.info.n_complete == 9
+
+
+def test_optimize_in_threads_stops_starting_trials_at_an_uncaught_error(client: Client) -> None:
+    study = box_study(client, "parallel-error")
+
+    def objective(trial: Trial) -> float:
+        if trial.number == 2:
+            raise ZeroDivisionError("boom")
+        return trial.params["x"]
+
+    with pytest.raises(ZeroDivisionError, match="boom"):
+        study.optimize(objective, 50, n_jobs=2, catch=(ValueError,))
+    info = study.info
+    assert info.n_trials < 50, "no new trials after the error"
+    assert info.n_running == 0, "every trial asked was told"
+    failed = {trial.number: trial.message for trial in study.get_trials("failed")}
+    assert list(failed) == [2] and "ZeroDivisionError: boom" in (failed[2] or "")
+
+
+def test_optimize_stops_starting_trials_at_the_timeout(client: Client) -> None:
+    study = box_study(client, "timeout")
+    started: list[float] = []
+
+    def objective(trial: Trial) -> float:
+        started.append(time.monotonic())
+        time.sleep(0.2)
+        return trial.params["x"]
+
+    begin = time.monotonic()
+    told = study.optimize(objective, timeout=1.0, n_jobs=2)
+    assert 2 <= len(told) < 40
+    assert all(moment - begin < 1.0 for moment in started), "no trial started after 1 s"
+    assert study.info.n_running == 0 and study.info.n_complete == len(told)
+
+
+def test_optimize_without_n_trials_ends_when_the_study_is_full(client: Client) -> None:
+    study = box_study(client, "until-full", max_trials=5)
+    told = study.optimize(lambda trial: trial.params["x"], n_jobs=2)
+    assert len(told) == 5 and study_finished(study.info)
+    with pytest.raises(Conflict, match="takes no new trials"):
+        study.optimize(lambda trial: trial.params["x"], 1)
 
 
 def test_wait_returns_once_the_budget_is_spent(client: Client) -> None:

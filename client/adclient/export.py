@@ -1,0 +1,106 @@
+"""A study and its trials as text: JSON, or CSV in the manner of Optuna's
+``trials_dataframe``."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Mapping
+from datetime import datetime
+from typing import Any, Literal
+
+from adclient.schemas import Study, Trial
+
+ExportFormat = Literal["json", "csv"]
+
+
+_CSV_FIELDS = [
+    "number",
+    "id",
+    "state",
+    "value",
+    "worker_id",
+    "attempts",
+    "created_at",
+    "started_at",
+    "finished_at",
+    "duration_s",
+    "message",
+]
+
+
+def export_json(study: Study, trials: list[Trial]) -> str:
+    payload = {
+        "study": study.model_dump(mode="json"),
+        "trials": [trial.model_dump(mode="json") for trial in trials],
+    }
+    return json.dumps(payload, indent=2) + "\n"
+
+
+def export_csv(trials: list[Trial]) -> str:
+    rows: list[dict[str, Any]] = []
+    param_columns: dict[str, None] = {}
+    metric_columns: dict[str, None] = {}
+    for trial in sorted(trials, key=lambda t: t.number):
+        row: dict[str, Any] = {
+            "number": trial.number,
+            "id": trial.id,
+            "state": trial.state.value,
+            "value": _cell(trial.value),
+            "worker_id": trial.worker_id or "",
+            "attempts": trial.attempts,
+            "created_at": _cell(trial.created_at),
+            "started_at": _cell(trial.started_at),
+            "finished_at": _cell(trial.finished_at),
+            "duration_s": _duration(trial.started_at, trial.finished_at),
+            "message": trial.message or "",
+        }
+        for key, value in _flatten(trial.params):
+            column = f"params_{key}"
+            param_columns.setdefault(column)
+            row[column] = _cell(value)
+        for key, metric in trial.metrics.items():
+            column = f"metrics_{key}"
+            metric_columns.setdefault(column)
+            row[column] = _cell(metric)
+        rows.append(row)
+    out = io.StringIO()
+    writer = csv.DictWriter(
+        out,
+        fieldnames=[*_CSV_FIELDS, *param_columns, *metric_columns],
+        restval="",
+        lineterminator="\n",
+    )
+    writer.writeheader()
+    writer.writerows(rows)
+    return out.getvalue()
+
+
+def _flatten(value: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    items: list[tuple[str, Any]] = []
+    for key, item in value.items():
+        name = f"{prefix}{key}"
+        if isinstance(item, Mapping) and item:
+            items.extend(_flatten(item, f"{name}."))
+        else:
+            items.append((name, item))
+    return items
+
+
+def _cell(value: Any) -> Any:
+    if value is None:
+        return ""
+    if isinstance(value, datetime):
+        return value.isoformat()
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, list | dict | tuple):
+        return json.dumps(value, separators=(",", ":"))
+    return value
+
+
+def _duration(start: datetime | None, end: datetime | None) -> str:
+    if start is None or end is None:
+        return ""
+    return f"{(end - start).total_seconds():.3f}"

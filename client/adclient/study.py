@@ -1,0 +1,242 @@
+"""A study on the server, with Optuna-like methods: ask, tell, optimize, best_trial."""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any, Literal, overload
+
+from adclient.errors import Conflict
+from adclient.export import ExportFormat
+from adclient.schemas import Study, StudyState, Trial, TrialState, WorkerInfo
+
+if TYPE_CHECKING:
+    from adclient.client import Client, TrialRef
+
+
+def study_finished(study: Study) -> bool:
+    """True once a study will change no more by itself.
+
+    Its state left ``running``, or its trial budget is spent: every one of
+    ``max_trials`` trials is complete or failed.
+    """
+    if study.state != StudyState.running:
+        return True
+    if study.max_trials is None:
+        return False
+    return study.n_complete + study.n_failed >= study.max_trials
+
+
+class StudyHandle:
+    """One study on the server, with Optuna-like methods.
+
+    ``ask()`` returns one :class:`Trial`; ``ask(count=n)`` returns a list of ``n``
+    (a list even for ``n == 1``), so the return type follows from the call.
+    """
+
+    def __init__(self, client: Client, study_id: int, info: Study | None = None) -> None:
+        self.client = client
+        self.id = int(study_id)
+        self._info = info
+
+    def __repr__(self) -> str:
+        name = f" {self._info.name!r}" if self._info is not None else ""
+        return f"<StudyHandle {self.id}{name}>"
+
+    @property
+    def info(self) -> Study:
+        """The study's record, fetched fresh from the server on each access."""
+        return self.refresh()
+
+    def refresh(self) -> Study:
+        self._info = self.client.study_info(self.id)
+        return self._info
+
+    @property
+    def cached_info(self) -> Study:
+        """The last fetched record (fetched once if never)."""
+        return self._info if self._info is not None else self.refresh()
+
+    @property
+    def name(self) -> str:
+        return self.cached_info.name
+
+    @property
+    def direction(self) -> str:
+        return self.cached_info.direction.value
+
+    @property
+    def dashboard_url(self) -> str:
+        return self.client.dashboard_url(self.id)
+
+    @overload
+    def ask(self) -> Trial: ...
+
+    @overload
+    def ask(self, count: int) -> list[Trial]: ...
+
+    def ask(self, count: int | None = None) -> Trial | list[Trial]:
+        """``ask()``: one new trial. ``ask(count=n)``: a list of ``n`` new trials."""
+        trials = self.client.ask(self.id, 1 if count is None else count)
+        return trials[0] if count is None else trials
+
+    def tell(
+        self,
+        trial: TrialRef,
+        value: float | None = None,
+        *,
+        state: Literal["complete", "failed"] | TrialState | str | None = None,
+        message: str | None = None,
+        metrics: Mapping[str, float] | None = None,
+    ) -> Trial:
+        """Report a result; see :meth:`Client.tell`."""
+        return self.client.tell(trial, value, state=state, message=message, metrics=metrics)
+
+    @property
+    def best_trial(self) -> Trial | None:
+        """The best complete trial, or ``None`` while none is complete."""
+        return self.client.best_trial(self.id)
+
+    @property
+    def best_value(self) -> float | None:
+        best = self.best_trial
+        return None if best is None else best.value
+
+    @property
+    def best_params(self) -> dict[str, Any] | None:
+        best = self.best_trial
+        return None if best is None else best.params
+
+    @property
+    def trials(self) -> list[Trial]:
+        """Every trial, in order of number."""
+        return self.client.trials(self.id)
+
+    def get_trials(self, state: TrialState | str | None = None) -> list[Trial]:
+        """The trials in ``state`` (all when ``None``)."""
+        return self.client.trials(self.id, state)
+
+    def optimize(
+        self,
+        func: Callable[[Trial], float | None],
+        n_trials: int | None = None,
+        *,
+        n_jobs: int = 1,
+        timeout: float | None = None,
+        catch: Iterable[type[Exception]] | type[Exception] = (),
+        callbacks: Iterable[Callable[[StudyHandle, Trial], None]] = (),
+    ) -> list[Trial]:
+        """Ask, evaluate ``func(trial)`` and tell, as Optuna's ``Study.optimize`` does;
+        return the told trials in the order they were told.
+
+        ``n_trials``: how many trials to run (None: until ``timeout``, or until the study
+        takes no more). ``n_jobs`` threads evaluate at once (-1: one per CPU).
+        ``timeout``: no trial starts after this many seconds; running ones finish.
+        A value that is ``None`` or not finite is told as a failed trial. An exception
+        from ``func`` is told as a failed trial with its message; it is then swallowed if
+        its class is in ``catch``, else re-raised once the running trials are told (no
+        new ones start). ``callbacks(study, trial)`` run after every trial told, failed
+        ones included, except the one whose exception is re-raised.
+        """
+        caught = (catch,) if isinstance(catch, type) else tuple(catch)
+        jobs = (os.cpu_count() or 1) if n_jobs == -1 else n_jobs
+        if jobs < 1:
+            raise ValueError(f"n_jobs must be >= 1 or -1, not {n_jobs}")
+        deadline = None if timeout is None else time.monotonic() + timeout
+        lock = threading.Lock()
+        stop = threading.Event()
+        told: list[Trial] = []
+        started = 0
+
+        def claim() -> bool:
+            nonlocal started
+            with lock:
+                over = (n_trials is not None and started >= n_trials) or (
+                    deadline is not None and time.monotonic() >= deadline
+                )
+                if over or stop.is_set():
+                    return False
+                started += 1
+                return True
+
+        def work() -> None:
+            while claim():
+                try:
+                    trial = self.ask()
+                except Conflict:
+                    if n_trials is None:  # the study is full or stopped: done
+                        stop.set()
+                        return
+                    raise
+                try:
+                    finished = self._run(func, trial, caught)
+                except BaseException:
+                    stop.set()
+                    raise
+                with lock:
+                    told.append(finished)
+                for callback in callbacks:
+                    callback(self, finished)
+
+        if jobs == 1:
+            work()
+        else:
+            with ThreadPoolExecutor(jobs, thread_name_prefix=f"study-{self.id}") as pool:
+                futures = [pool.submit(work) for _ in range(jobs)]
+            for future in futures:
+                future.result()  # the first error, if any
+        return told
+
+    def _run(
+        self, func: Callable[[Trial], float | None], trial: Trial, caught: tuple[type, ...]
+    ) -> Trial:
+        """Evaluate one trial and tell its result; re-raise what ``catch`` does not name."""
+        try:
+            value = func(trial)
+        except BaseException as exc:
+            message = f"{type(exc).__name__}: {exc}"[:10_000]
+            finished = self.tell(trial, state="failed", message=message)
+            if isinstance(exc, caught):
+                return finished
+            raise
+        if value is None or not math.isfinite(float(value)):
+            return self.tell(trial, state="failed", message=f"objective returned {value!r}")
+        return self.tell(trial, float(value))
+
+    def wait(
+        self,
+        *,
+        poll: float = 2.0,
+        timeout: float | None = None,
+        on_update: Callable[[Study], None] | None = None,
+    ) -> Study:
+        """Poll until the study is finished (see :func:`study_finished`); return its record.
+
+        ``on_update`` sees every polled record (for progress bars). Raises
+        :class:`TimeoutError` after ``timeout`` seconds, when one is given.
+        """
+        started = time.monotonic()
+        while True:
+            info = self.refresh()
+            if on_update is not None:
+                on_update(info)
+            if study_finished(info):
+                return info
+            if timeout is not None and time.monotonic() - started >= timeout:
+                raise TimeoutError(f"study {self.id} still running after {timeout} s")
+            time.sleep(poll)
+
+    def stop(self) -> Study:
+        """Stop the study: no new trials are proposed or leased."""
+        self._info = self.client.stop_study(self.id)
+        return self._info
+
+    def workers(self) -> list[WorkerInfo]:
+        return self.client.workers(self.id)
+
+    def export(self, format: ExportFormat = "json") -> str:
+        return self.client.export(self.id, format)
