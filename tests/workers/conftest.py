@@ -1,19 +1,32 @@
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import pytest
 
+from adclient.design import Design
+from adclient.plugins import catalogue
 from adworker import designs
 from tests.workers.robots import write_urdf
 
 
 @pytest.fixture
-def urdf_of(tmp_path: Path):
-    """Write one of the reference designs (by function name in adworker.designs)."""
+def env_of(tmp_path: Path):
+    """An installed task's env for a design (a Design, or the name of a reference design in
+    adworker.designs), built as the worker builds it: the task's factory, given the
+    design, its URDF and the task's options model."""
+    numbers = itertools.count()
 
-    def write(name: str, **kwargs: object) -> Path:
-        design = getattr(designs, name)(**kwargs)
-        return write_urdf(design, tmp_path / f"{name}.urdf")
+    def make(task: str, design: Design | str, render_mode: str | None = None, **options: object):
+        robot = getattr(designs, design)() if isinstance(design, str) else design
+        urdf_path = write_urdf(robot, tmp_path / f"robot-{next(numbers)}.urdf")
+        spec = catalogue().task(task)
+        return spec.load_factory()(
+            design=robot,
+            urdf_path=urdf_path,
+            options=spec.options.model_validate(options),
+            render_mode=render_mode,
+        )
 
-    return write
+    return make

@@ -10,13 +10,13 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from adworker import designs
-from adworker.tasks import TASKS, UnknownTask, get_task
-from tests.workers.robots import write_urdf
+
+BUILT_IN = ["diagonal-gesture", "lift-highest", "stand-up"]
 
 
-@pytest.mark.parametrize("task", sorted(TASKS))
-def test_env_checker_passes(task: str, urdf_of) -> None:
-    env = get_task(task)(urdf_of("crossed_chain"))
+@pytest.mark.parametrize("task", BUILT_IN)
+def test_env_checker_passes(task: str, env_of) -> None:
+    env = env_of(task, "crossed_chain")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")
@@ -27,18 +27,13 @@ def test_env_checker_passes(task: str, urdf_of) -> None:
         env.close()
 
 
-def test_unknown_task_names_the_known_ones() -> None:
-    with pytest.raises(UnknownTask, match="stand-up"):
-        get_task("juggle")
-
-
-def test_close_disconnects_and_envs_do_not_share_a_client(urdf_of) -> None:
+def test_close_disconnects_and_envs_do_not_share_a_client(env_of) -> None:
     import pybullet
 
-    first = get_task("stand-up")(urdf_of("arch_chain"))
-    second = get_task("stand-up")(urdf_of("arch_chain"))
-    first_client = first._client
-    assert first_client != second._client
+    first = env_of("stand-up", "arch_chain")
+    second = env_of("stand-up", "arch_chain")
+    first_client = first.sim.client
+    assert first_client != second.sim.client
     assert pybullet.isConnected(physicsClientId=first_client)
     first.close()
     assert not pybullet.isConnected(physicsClientId=first_client)
@@ -54,9 +49,9 @@ def _trace(env, action, seed: int) -> list[float]:
     return list(env.record.metric)
 
 
-@pytest.mark.parametrize("task", sorted(TASKS))
-def test_episodes_depend_only_on_seed_and_policy(task: str, urdf_of) -> None:
-    env = get_task(task)(urdf_of("arch_chain"))
+@pytest.mark.parametrize("task", BUILT_IN)
+def test_episodes_depend_only_on_seed_and_policy(task: str, env_of) -> None:
+    env = env_of(task, "arch_chain")
     try:
         first = _trace(env, [0.4, 0.4], seed=7)
         _trace(env, [-1.0, 1.0], seed=3)  # something else in between
@@ -68,15 +63,15 @@ def test_episodes_depend_only_on_seed_and_policy(task: str, urdf_of) -> None:
     assert first != other_seed
 
 
-def test_stand_up_arch_lifts_b_and_along_links_cannot(urdf_of) -> None:
+def test_stand_up_arch_lifts_b_and_along_links_cannot(env_of) -> None:
     action = [0.7, 0.7]  # both joints bent ~63 degrees, the same way: an arch
-    arch = get_task("stand-up")(urdf_of("arch_chain"))
-    along = get_task("stand-up")(urdf_of("along_links_chain"))
+    arch = env_of("stand-up", "arch_chain")
+    along = env_of("stand-up", "along_links_chain")
     try:
         _trace(arch, action, seed=0)
         arch_score = arch.record.score()
         snapshot = arch.snapshot()
-        a, c = arch.link_position("a"), arch.link_position("c")
+        a, c = arch.robot.link_position("a"), arch.robot.link_position("c")
         assert snapshot.touching[a] and snapshot.touching[c]
         along_scores = []
         for candidate in ([0.7, 0.7], [-0.7, -0.7], [1.0, -1.0], [0.0, 0.0]):
@@ -90,8 +85,8 @@ def test_stand_up_arch_lifts_b_and_along_links_cannot(urdf_of) -> None:
     assert max(along_scores) < radius + 0.01  # b stays lying at its radius
 
 
-def test_stand_up_counts_zero_while_a_foot_is_off_the_ground(urdf_of) -> None:
-    env = get_task("stand-up")(urdf_of("arch_chain"))
+def test_stand_up_counts_zero_while_a_foot_is_off_the_ground(env_of) -> None:
+    env = env_of("stand-up", "arch_chain")
     try:
         # Bent the other way the chain lies on b with a and c in the air (a "U").
         _trace(env, [-0.5, -0.5], seed=0)
@@ -103,9 +98,9 @@ def test_stand_up_counts_zero_while_a_foot_is_off_the_ground(urdf_of) -> None:
     assert metric[-1] == 0.0
 
 
-def test_diagonal_gesture_crossed_axes_reach_the_diagonal_parallel_ones_cannot(urdf_of) -> None:
-    crossed = get_task("diagonal-gesture")(urdf_of("crossed_chain"))
-    parallel = get_task("diagonal-gesture")(urdf_of("parallel_chain"))
+def test_diagonal_gesture_crossed_axes_reach_the_diagonal_parallel_ones_cannot(env_of) -> None:
+    crossed = env_of("diagonal-gesture", "crossed_chain")
+    parallel = env_of("diagonal-gesture", "parallel_chain")
     try:
         grid = np.linspace(-1, 1, 9)
         crossed_best = max(_score(crossed, [u, v]) for u in grid for v in grid)
@@ -123,13 +118,13 @@ def _score(env, action) -> float:
     return env.record.score()
 
 
-def test_lift_highest_works_on_a_branching_tree(tmp_path) -> None:
+def test_lift_highest_works_on_a_branching_tree(env_of) -> None:
     star = designs.tree_design(
         [("a", "b"), ("a", "c"), ("a", "d")],
         {"b": (math.pi / 2, math.pi / 2), "c": (math.pi / 2, 0.0), "d": (0.0, 0.0)},
         position={"b": 1.0, "c": 0.5, "d": 1.0},
     )
-    env = get_task("lift-highest")(write_urdf(star, tmp_path / "star.urdf"))
+    env = env_of("lift-highest", star)
     try:
         assert env.action_space.shape == (3,)
         rest = _score(env, [0.0, 0.0, 0.0])
@@ -140,8 +135,8 @@ def test_lift_highest_works_on_a_branching_tree(tmp_path) -> None:
     assert raised > rest + 0.1
 
 
-def test_render_image_is_a_picture_of_the_robot(urdf_of) -> None:
-    env = get_task("stand-up")(urdf_of("arch_chain"), render_mode="rgb_array")
+def test_render_image_is_a_picture_of_the_robot(env_of) -> None:
+    env = env_of("stand-up", "arch_chain", render_mode="rgb_array")
     try:
         env.reset(seed=0)
         image = env.render()

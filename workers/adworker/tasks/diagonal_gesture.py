@@ -14,38 +14,35 @@ contain it; two non-parallel axes (for example one along x, one along y) reach i
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
-import numpy as np
+from adclient.builtin_tasks import DiagonalGestureOptions
+from adworker.tasks.base import Task
+from adworker.tasks.robot import Robot
+from adworker.tasks.simulator import Simulator
+from adworker.tasks.snapshot import Snapshot
 
-from adworker.tasks.base import RobotEnv, Snapshot
-
-DIAGONAL = np.array([1.0, 1.0, 1.0]) / math.sqrt(3.0)
 INV_SQRT3 = 1.0 / math.sqrt(3.0)
 
 
-class DiagonalGestureEnv(RobotEnv):
-    task_name: ClassVar[str] = "diagonal-gesture"
+class DiagonalGesture(Task[DiagonalGestureOptions]):
+    name: ClassVar[str] = "diagonal-gesture"
     fixed_base: ClassVar[bool] = True
     reads_contacts: ClassVar[bool] = False
 
-    def __init__(
-        self,
-        urdf_path: Any,
-        options: dict[str, Any] | None = None,
-        render_mode: str | None = None,
-    ) -> None:
-        super().__init__(urdf_path, options, render_mode)
-        distal = self.options.get("distal_link")
+    def __init__(self, robot: Robot, sim: Simulator, options: DiagonalGestureOptions) -> None:
+        super().__init__(robot, sim, options)
+        distal = options.distal_link
         if distal is None:
-            # The deepest link: the child of the last joint in URDF (depth-first) order.
-            distal = "c" if "c" in self.link_names else self.joints[-1].child
-        self.distal = self.link_position(str(distal))
+            # The deepest link: the child of the last joint in the engine's (depth-first)
+            # order.
+            distal = "c" if "c" in robot.link_names else robot.joints[-1].child
+        self.distal = robot.link_position(distal)
 
-    def task_observation_size(self) -> int:
+    def observation_size(self) -> int:
         return 3
 
-    def task_observation(self, snapshot: Snapshot) -> list[float]:
+    def observation(self, snapshot: Snapshot) -> list[float]:
         return list(snapshot.axis(self.distal))
 
     def metric(self, snapshot: Snapshot) -> float:

@@ -14,11 +14,13 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from adworker.tasks.base import RobotEnv, Snapshot
+from adclient.plugins import SimulatorOptions
+from adworker.tasks.base import Task
+from adworker.tasks.snapshot import Snapshot
 
 
-class LiftHighestEnv(RobotEnv):
-    task_name: ClassVar[str] = "lift-highest"
+class LiftHighest(Task[SimulatorOptions]):
+    name: ClassVar[str] = "lift-highest"
     fixed_base: ClassVar[bool] = False
 
     def metric(self, snapshot: Snapshot) -> float:

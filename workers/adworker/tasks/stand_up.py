@@ -6,31 +6,29 @@ the ground (a step where either is off the ground counts as 0). The reward is th
 same quantity per step, so every learner optimises what the score measures.
 
 Parallel axes perpendicular to the chain and horizontal (theta = phi = pi/2 in the
-initial pose, see ``RobotEnv._place_robot``) fold the chain into an arch standing on
+initial pose, see ``Robot._place``) fold the chain into an arch standing on
 a and c; axes along the links only roll the cylinders, and b stays at its radius.
 """
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import ClassVar
 
-from adworker.tasks.base import RobotEnv, Snapshot
+from adclient.builtin_tasks import StandUpOptions
+from adworker.tasks.base import Task
+from adworker.tasks.robot import Robot
+from adworker.tasks.simulator import Simulator
+from adworker.tasks.snapshot import Snapshot
 
 
-class StandUpEnv(RobotEnv):
-    task_name: ClassVar[str] = "stand-up"
+class StandUp(Task[StandUpOptions]):
+    name: ClassVar[str] = "stand-up"
     fixed_base: ClassVar[bool] = False
 
-    def __init__(
-        self,
-        urdf_path: Any,
-        options: dict[str, Any] | None = None,
-        render_mode: str | None = None,
-    ) -> None:
-        super().__init__(urdf_path, options, render_mode)
-        self.lifted = self.link_position(str(self.options.get("lifted_link", "b")))
-        feet = self.options.get("feet_links", ["a", "c"])
-        self.feet = [self.link_position(str(name)) for name in feet]
+    def __init__(self, robot: Robot, sim: Simulator, options: StandUpOptions) -> None:
+        super().__init__(robot, sim, options)
+        self.lifted = robot.link_position(options.lifted_link)
+        self.feet = [robot.link_position(name) for name in options.feet_links]
 
     def metric(self, snapshot: Snapshot) -> float:
         for k in self.feet:

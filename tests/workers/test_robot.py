@@ -1,0 +1,147 @@
+"""The simulator and the robot apart from any task: the robot is the Design, and the
+engine's answers are read by the names given to their positions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet
+import pytest
+
+from adclient.design import Link
+from adworker import designs
+from adworker.tasks.robot import Robot, unit_axis
+from adworker.tasks.simulator import CONTACT_DISTANCE, CONTACT_LINK_A, JointInfo, Simulator
+from tests.workers.robots import write_urdf
+
+STAR = designs.tree_design(
+    [("a", "b"), ("a", "c"), ("c", "d")],
+    {"b": (1.1, 0.3), "c": (0.4, 2.0), "d": (2.5, 1.2)},
+    length={"a": 0.5, "b": 0.3, "c": 0.45, "d": 0.25},
+    position={"b": 1.0, "c": 0.5, "d": 1.0},
+)
+
+
+@pytest.fixture
+def sim():
+    simulator = Simulator(time_step=1 / 120, frame_skip=12)
+    yield simulator
+    simulator.close()
+
+
+def _robot(sim: Simulator, design, path) -> Robot:
+    return Robot(
+        sim,
+        design,
+        write_urdf(design, path),
+        fixed_base=False,
+        reads_contacts=True,
+        rolling_friction=0.02,
+        spinning_friction=0.0,
+    )
+
+
+def test_the_robot_is_its_design(sim, tmp_path) -> None:
+    robot = _robot(sim, STAR, tmp_path / "star.urdf")
+    assert robot.link_names[0] == STAR.root
+    assert sorted(robot.link_names) == sorted(link.name for link in STAR.links)
+    by_name = {joint.name: joint for joint in STAR.joints}
+    assert sorted(joint.name for joint in robot.joints) == sorted(by_name)
+    for joint in robot.joints:
+        designed = by_name[joint.name]
+        info = sim.joint_info(robot.body, joint.index)
+        assert info.name.decode() == joint.name
+        assert info.link_name.decode() == joint.child == designed.child
+        assert robot.link_names[robot.link_position(joint.child)] == joint.child
+        parent = info.parent_index
+        assert (
+            STAR.root if parent == -1 else sim.joint_info(robot.body, parent).link_name.decode()
+        ) == designed.parent
+        assert info.axis == pytest.approx(unit_axis(designed.axis), abs=1e-12)
+        assert (
+            (joint.lower, joint.upper)
+            == (designed.lower, designed.upper)
+            == (info.lower, info.upper)
+        )
+        assert (joint.effort, joint.velocity) == (info.max_force, info.max_velocity)
+    lengths = {link.name: link.length for link in STAR.links}
+    for g in robot.geometry:
+        assert g.length == lengths[g.name]
+        # The URDF's inertial frame sits at the shape's centre: the ends lie at +-length/2.
+        assert g.points[:, 2] == pytest.approx([-g.length / 2, g.length / 2])
+        assert g.centre == pytest.approx([0.0, 0.0, 0.0])
+
+
+def test_joint_info_names_every_position_pybullet_answers(sim, tmp_path) -> None:
+    robot = _robot(sim, STAR, tmp_path / "star.urdf")
+    raw = pybullet.getJointInfo(robot.body, 2, physicsClientId=sim.client)
+    named = sim.joint_info(robot.body, 2)
+    assert len(raw) == len(JointInfo._fields)
+    assert named.joint_index == 2
+    assert named.type == pybullet.JOINT_REVOLUTE
+    assert named.parent_index == robot.joints[1].index  # d hangs off c
+
+
+def test_a_urdf_of_another_design_is_refused(sim, tmp_path) -> None:
+    write_urdf(designs.arch_chain(), tmp_path / "arch.urdf")
+    with pytest.raises(ValueError, match="not the design's"):
+        Robot(
+            sim,
+            STAR,
+            tmp_path / "arch.urdf",
+            fixed_base=False,
+            reads_contacts=True,
+            rolling_friction=0.0,
+            spinning_friction=0.0,
+        )
+
+
+def test_contacts_are_read_by_their_named_positions(sim, tmp_path) -> None:
+    robot = _robot(sim, designs.arch_chain(), tmp_path / "arch.urdf")
+    robot.reset(np.zeros(robot.joint_count))
+    sim.step()  # the engine finds contacts as it steps
+    lying = robot.read()
+    assert lying.touching == [True, True, True]  # laid on the ground along +x
+    contacts = sim.ground_contacts(robot.body)
+    assert {contact[CONTACT_LINK_A] for contact in contacts} == {-1, 0, 1}
+    assert all(abs(contact[CONTACT_DISTANCE]) < 1e-3 for contact in contacts)
+    assert lying.centre_z == pytest.approx([0.04, 0.04, 0.04], abs=1e-3)
+    pybullet.resetBasePositionAndOrientation(
+        robot.body, [0, 0, 1.0], [0, 0, 0, 1], physicsClientId=sim.client
+    )
+    sim.step()
+    assert robot.read().touching == [False, False, False]
+
+
+def test_box_links_take_their_shape_from_the_design(sim, tmp_path) -> None:
+    design = designs.arch_chain()
+    design.links[1] = Link(name="b", shape="box", length=0.4, radius=0.05, mass=1.0)
+    robot = _robot(sim, design, tmp_path / "box.urdf")
+    b = robot.link_position("b")
+    assert robot.geometry[b].kind == "box"
+    assert len(robot.geometry[b].points) == 8
+    snapshot = robot.read()
+    # The chain lies along +x with a cylinder of radius 0.04 at each end: the box sits
+    # 2 x 0.05 tall, its bottom no lower than the ground.
+    assert snapshot.top[b] - snapshot.bottom[b] == pytest.approx(0.1, abs=1e-6)
+    assert min(snapshot.bottom) == pytest.approx(0.0, abs=2e-4)
+
+
+def test_a_simulator_steps_saves_and_restores(sim, tmp_path) -> None:
+    robot = _robot(sim, designs.arch_chain(), tmp_path / "arch.urdf")
+    assert sim.control_period == pytest.approx(0.1)
+
+    def run() -> list[float]:
+        robot.reset(np.zeros(robot.joint_count))
+        heights = []
+        for _ in range(5):
+            robot.act(np.array([0.7, 0.7], dtype=np.float32))
+            sim.step()
+            heights.append(robot.read().centre_z[1])
+        return heights
+
+    first = run()
+    assert sim.physics_steps == 5 * sim.frame_skip
+    assert max(first) > 0.1  # b rises as the arch folds
+    assert run() == first  # reset restores the saved state exactly
+    sim.close()
+    assert not sim.connected

@@ -1,0 +1,338 @@
+"""The robot: a typed Design put into a simulator, driven by joint position targets.
+
+Links, shapes, joints and limits come from the :class:`~adclient.design.Design` (the
+geometry conventions of ``adclient.design``); the URDF written from that design is only
+handed to the engine to build the body, never parsed here. What the engine decides is
+asked of the engine: each link's index and its inertial frame (the frame it reports
+poses in). The two are checked against each other, so a URDF that is not this design's
+fails at build time instead of scoring the wrong robot.
+
+Every revolute joint is driven by position control: the action, in [-1, 1] per joint,
+maps linearly onto the joint's [lower, upper] range as its target.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet
+
+from adclient.design import Design, Link
+from adworker.tasks.simulator import (
+    BODY_BASE_NAME,
+    CONTACT_DISTANCE,
+    CONTACT_LINK_A,
+    CONTACT_SLACK,
+    GROUND_FRICTION,
+    JOINT_STATE_POSITION,
+    JOINT_STATE_VELOCITY,
+    POSE_ORIENTATION,
+    POSE_POSITION,
+    Simulator,
+)
+from adworker.tasks.snapshot import LinkGeometry, Snapshot
+
+
+@dataclass
+class JointSpec:
+    index: int
+    """The engine's joint index (also the index of its child link)."""
+    name: str
+    child: str
+    lower: float
+    upper: float
+    effort: float
+    velocity: float
+
+
+def link_shape(link: Link) -> tuple[np.ndarray, np.ndarray, float]:
+    """(points, centre, radius) of a link's shape in its link frame (adclient.design:
+    the shape spans z in [0, length]; a box is 2 radius wide)."""
+    centre = np.array([0.0, 0.0, link.length / 2])
+    if link.shape == "box":
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        half = np.array([link.radius, link.radius, link.length / 2])
+        return centre + signs * half, centre, 0.0
+    ends = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, link.length]])
+    return ends, centre, link.radius
+
+
+def _to_inertial(
+    points: np.ndarray, position: tuple[float, ...], orientation: tuple[float, ...]
+) -> np.ndarray:
+    """Points in the link frame -> the link's inertial frame (given the inertial pose)."""
+    rotation = np.reshape(pybullet.getMatrixFromQuaternion(orientation), (3, 3))
+    return (points - np.asarray(position)) @ rotation
+
+
+def unit_axis(axis: tuple[float, float, float]) -> tuple[float, float, float]:
+    """A joint axis scaled to length 1, as the URDF writer writes it."""
+    norm = math.sqrt(sum(float(component) ** 2 for component in axis))
+    return (axis[0] / norm, axis[1] / norm, axis[2] / norm)
+
+
+class Robot:
+    """A Design in a Simulator: its joints, link shapes, state reads and motor commands."""
+
+    def __init__(
+        self,
+        sim: Simulator,
+        design: Design,
+        urdf_path: str | Path,
+        *,
+        fixed_base: bool,
+        reads_contacts: bool,
+        rolling_friction: float,
+        spinning_friction: float,
+    ) -> None:
+        self.sim = sim
+        self.design = design
+        self.fixed_base = fixed_base
+        self.reads_contacts = reads_contacts
+        self.body = sim.load_urdf(str(urdf_path), fixed_base=fixed_base)
+        engine_index = self._engine_indices(Path(urdf_path).name)
+        links = {link.name: link for link in design.links}
+        # The root first, then the engine's order (depth first through the tree).
+        order = sorted(engine_index, key=engine_index.__getitem__)
+        self.geometry = [self._geometry(links[name], engine_index[name]) for name in order]
+        self.link_names = order
+        self.joints = [
+            JointSpec(
+                index=engine_index[joint.child],
+                name=joint.name,
+                child=joint.child,
+                lower=joint.lower if joint.lower < joint.upper else -math.pi,
+                upper=joint.upper if joint.lower < joint.upper else math.pi,
+                effort=joint.effort,
+                velocity=joint.velocity,
+            )
+            for joint in sorted(design.joints, key=lambda joint: engine_index[joint.child])
+        ]
+        if not self.joints:
+            raise ValueError(f"{Path(urdf_path).name}: the robot has no revolute joint")
+        cid = sim.client
+        # Rolling friction: a rubber-coated link touches the ground over a patch, not at
+        # a point, and the patch resists tipping about the contact. Without it an arch
+        # standing on two rim contacts holds only when exactly planar (axes exactly
+        # perpendicular to the chain); with it the score falls off gradually as the axes
+        # tilt away: closer to a real robot, and a landscape an optimiser can climb.
+        for g in self.geometry:
+            pybullet.changeDynamics(
+                self.body,
+                g.index,
+                lateralFriction=GROUND_FRICTION,
+                rollingFriction=rolling_friction,
+                spinningFriction=spinning_friction,
+                physicsClientId=cid,
+            )
+        for joint in self.joints:
+            pybullet.changeDynamics(
+                self.body, joint.index, maxJointVelocity=joint.velocity, physicsClientId=cid
+            )
+        self.joint_indices = [joint.index for joint in self.joints]
+        self._child_indices = [g.index for g in self.geometry if g.index >= 0]
+        self.lower = np.array([joint.lower for joint in self.joints])
+        self.upper = np.array([joint.upper for joint in self.joints])
+        self._half_span = [(joint.upper - joint.lower) / 2 for joint in self.joints]
+        self._mid = [(joint.upper + joint.lower) / 2 for joint in self.joints]
+        self._inv_half = [2.0 / (joint.upper - joint.lower) for joint in self.joints]
+        self._inv_velocity = [1.0 / joint.velocity for joint in self.joints]
+        self.efforts = [joint.effort for joint in self.joints]
+        self._constants = [g.constants() for g in self.geometry]
+        self._link_slot = {g.index: k for k, g in enumerate(self.geometry)}
+        self._place()
+        self._saved_state = sim.save_state()
+
+    # ----------------------------------------------------------------- building
+
+    def _engine_indices(self, what: str) -> dict[str, int]:
+        """Each design link's engine index (the root: -1), checking that the body the
+        engine built is this design's tree."""
+        sim, design = self.sim, self.design
+        base = pybullet.getBodyInfo(self.body, physicsClientId=sim.client)[BODY_BASE_NAME]
+        if base.decode() != design.root:
+            raise ValueError(f"{what}: the URDF's root is {base.decode()!r}, not the design's")
+        parent_of = {joint.child: (joint.name, joint.parent) for joint in design.joints}
+        name_of = {-1: design.root}
+        for j in range(pybullet.getNumJoints(self.body, physicsClientId=sim.client)):
+            info = sim.joint_info(self.body, j)
+            child, name = info.link_name.decode(), info.name.decode()
+            if parent_of.get(child) != (name, name_of.get(info.parent_index)):
+                raise ValueError(f"{what}: joint {name!r} is not the design's")
+            if info.type != pybullet.JOINT_REVOLUTE:
+                raise ValueError(f"{what}: joint {name!r} is not revolute")
+            name_of[j] = child
+        if len(name_of) != len(design.links):
+            raise ValueError(
+                f"{what}: the URDF has {len(name_of)} links, the design {len(design.links)}"
+            )
+        return {name: j for j, name in name_of.items()}
+
+    def _geometry(self, link: Link, index: int) -> LinkGeometry:
+        points, centre, radius = link_shape(link)
+        dynamics = self.sim.dynamics_info(self.body, index)
+        frame = (dynamics.inertial_position, dynamics.inertial_orientation)
+        return LinkGeometry(
+            name=link.name,
+            index=index,
+            kind=link.shape,
+            centre=_to_inertial(centre[None, :], *frame)[0],
+            points=_to_inertial(points, *frame),
+            radius=radius,
+            length=link.length,
+            mass=link.mass,
+            axis=_to_inertial(np.array([[0.0, 0.0, 1.0]]), (0.0, 0.0, 0.0), frame[1])[0],
+        )
+
+    def _place(self) -> None:
+        """Lay a free robot on its side along world +x, its lowest point just touching.
+
+        The chain at rest (the root frame's +z) runs along world +x. Lying on round
+        links, the robot could rest at any roll about that line; it is laid with the
+        axis of the root's first joint horizontal, so bending that joint lifts links
+        off the ground (as anyone setting the robot down would place it). What the
+        design then decides is how the other axes sit relative to that one: parallel
+        ones fold the chain in a vertical plane, others twist it out of that plane.
+        A fixed-base robot stays where its URDF puts it: root frame at the origin.
+        """
+        if self.fixed_base:
+            return
+        cid = self.sim.client
+        roll = 0.0
+        first = next(joint for joint in self.design.joints if joint.parent == self.design.root)
+        ux, uy, _ = unit_axis(first.axis)
+        if math.hypot(ux, uy) > 1e-6:
+            # Root +x, +y, +z land on world -z, +y, +x; rolling by atan2(ux, uy) about
+            # world x brings the axis into the horizontal plane.
+            roll = math.atan2(ux, uy)
+        _, orientation = pybullet.multiplyTransforms(
+            [0, 0, 0],
+            pybullet.getQuaternionFromEuler([roll, 0.0, 0.0]),
+            [0, 0, 0],
+            pybullet.getQuaternionFromEuler([0.0, math.pi / 2, 0.0]),
+        )
+        pybullet.resetBasePositionAndOrientation(self.body, [0, 0, 1.0], orientation, cid)
+        for joint in self.joints:
+            pybullet.resetJointState(self.body, joint.index, 0.0, 0.0, cid)
+        bottom = min(self.read().bottom)
+        height = 1.0 - bottom + 1e-4
+        pybullet.resetBasePositionAndOrientation(self.body, [0, 0, height], orientation, cid)
+
+    # ---------------------------------------------------------------- stepping
+
+    @property
+    def joint_count(self) -> int:
+        return len(self.joints)
+
+    def observation_size(self) -> int:
+        """Joint positions and velocities; for a free base its tilt, height and the links'
+        heights; one ground-contact flag per link where contacts are read."""
+        size = 2 * len(self.joints)
+        if not self.fixed_base:
+            size += 4 + len(self.geometry)
+        if self.reads_contacts:
+            size += len(self.geometry)
+        return size
+
+    def reset(self, start: np.ndarray) -> Snapshot:
+        """Back to the placed pose with the joints at ``start`` (clipped to their limits),
+        holding there."""
+        cid = self.sim.client
+        self.sim.restore_state(self._saved_state, self.body)
+        start = np.clip(start, self.lower, self.upper)
+        for joint, angle in zip(self.joints, start, strict=True):
+            pybullet.resetJointState(self.body, joint.index, float(angle), 0.0, cid)
+        self._command(start.tolist())
+        return self.read()
+
+    def targets(self, action: np.ndarray) -> list[float]:
+        """Joint position targets: the action in [-1, 1] mapped onto [lower, upper]."""
+        values = action.tolist() if isinstance(action, np.ndarray) else list(action)
+        if len(values) != len(self._mid):
+            raise ValueError(f"expected {len(self._mid)} joint targets, got {len(values)}")
+        return [
+            mid + (1.0 if a > 1.0 else -1.0 if a < -1.0 else a) * half
+            for a, mid, half in zip(values, self._mid, self._half_span, strict=True)
+        ]
+
+    def act(self, action: np.ndarray) -> None:
+        """Command the joints towards the action's targets (takes effect as the simulator
+        steps)."""
+        self._command(self.targets(action))
+
+    def _command(self, targets: list[float]) -> None:
+        pybullet.setJointMotorControlArray(
+            self.body,
+            self.joint_indices,
+            pybullet.POSITION_CONTROL,
+            targetPositions=targets,
+            forces=self.efforts,
+            physicsClientId=self.sim.client,
+        )
+
+    def read(self) -> Snapshot:
+        """One read of the state: a few engine calls, float math.
+
+        Kept to plain Python floats on purpose: with three to five links, numpy's
+        per-call cost would exceed the arithmetic (see bench/evaluation.py, overhead).
+        """
+        cid = self.sim.client
+        body = self.body
+        states = pybullet.getJointStates(body, self.joint_indices, physicsClientId=cid)
+        poses = [pybullet.getBasePositionAndOrientation(body, physicsClientId=cid)]
+        if self._child_indices:
+            poses += pybullet.getLinkStates(
+                body, self._child_indices, computeForwardKinematics=1, physicsClientId=cid
+            )
+        touching = [False] * len(poses)
+        if self.reads_contacts:
+            slot = self._link_slot
+            for contact in self.sim.ground_contacts(body):
+                if contact[CONTACT_DISTANCE] <= CONTACT_SLACK:
+                    touching[slot[contact[CONTACT_LINK_A]]] = True
+        return Snapshot(
+            [s[JOINT_STATE_POSITION] for s in states],
+            [s[JOINT_STATE_VELOCITY] for s in states],
+            poses,
+            touching,
+            self.geometry,
+            self._constants,
+        )
+
+    def observe(self, snapshot: Snapshot) -> list[float]:
+        """The robot's own senses, in the order of :meth:`observation_size`."""
+        values = [
+            (q - mid) * inv
+            for q, mid, inv in zip(snapshot.q, self._mid, self._inv_half, strict=True)
+        ]
+        values += [qd * inv for qd, inv in zip(snapshot.qd, self._inv_velocity, strict=True)]
+        if not self.fixed_base:
+            # A fixed base never moves: its pose and its links' heights (functions of the
+            # joint angles) would add nothing.
+            pose = snapshot.poses[0]
+            x, y, z, w = pose[POSE_ORIENTATION]
+            # World +z seen from the root frame: the body's tilt.
+            values += (2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
+            values.append(pose[POSE_POSITION][2])
+            values += snapshot.centre_z
+        if self.reads_contacts:
+            values += snapshot.touching
+        return values
+
+    def link_position(self, name: str) -> int:
+        """Position of a link (by instance name) in the snapshot arrays."""
+        try:
+            return self.link_names.index(name)
+        except ValueError:
+            raise KeyError(f"the robot has no link named {name!r}") from None
+
+    def camera(self, snapshot: Snapshot) -> tuple[np.ndarray, float]:
+        """Where a camera should look to frame the whole robot, and from how far."""
+        centres = np.array([snapshot.centre(k) for k in range(len(self.geometry))])
+        extent = float(np.ptp(centres, axis=0).max()) + max(
+            (g.length for g in self.geometry), default=0.4
+        )
+        return centres.mean(axis=0), max(1.0, 1.6 * extent)

@@ -1,0 +1,205 @@
+"""The simulator: one PyBullet DIRECT client, its ground, its clock and its camera.
+
+Every env owns one :class:`Simulator` (no global PyBullet state; ``close()``
+disconnects it), so envs in one process never share a world. The robot and the task
+read the world through it; only the simulator connects, steps, saves and restores.
+
+PyBullet answers with plain tuples; the positions a caller reads are named here
+(:class:`JointInfo`, :class:`DynamicsInfo`, and index constants for the answers read
+on every control step, where building a named tuple would cost more than the read).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any, NamedTuple
+
+import numpy as np
+import pybullet
+
+GROUND_FRICTION = 1.0
+CONTACT_SLACK = 0.002
+"""A link touches the ground when the engine reports a contact closer than this (m)."""
+
+# Positions in the tuples PyBullet returns on every control step.
+POSE_POSITION = 0
+"""getBasePositionAndOrientation, getLinkState(s): the inertial frame's world position."""
+POSE_ORIENTATION = 1
+"""... and its world orientation, a quaternion (x, y, z, w)."""
+JOINT_STATE_POSITION = 0
+JOINT_STATE_VELOCITY = 1
+CONTACT_LINK_A = 3
+"""getContactPoints(bodyA, bodyB): the link of bodyA in contact (-1: the base)."""
+CONTACT_DISTANCE = 8
+"""... and the contact distance (negative: penetration)."""
+CAMERA_RGBA = 2
+"""getCameraImage: the RGBA pixels, row by row."""
+BODY_BASE_NAME = 0
+"""getBodyInfo: the base link's name (bytes)."""
+
+
+class JointInfo(NamedTuple):
+    """getJointInfo's answer, by name."""
+
+    joint_index: int
+    name: bytes
+    type: int
+    q_index: int
+    u_index: int
+    flags: int
+    damping: float
+    friction: float
+    lower: float
+    upper: float
+    max_force: float
+    max_velocity: float
+    link_name: bytes
+    axis: tuple[float, float, float]
+    parent_frame_position: tuple[float, float, float]
+    parent_frame_orientation: tuple[float, float, float, float]
+    parent_index: int
+
+
+class DynamicsInfo(NamedTuple):
+    """getDynamicsInfo's answer, by name."""
+
+    mass: float
+    lateral_friction: float
+    inertia_diagonal: tuple[float, float, float]
+    inertial_position: tuple[float, float, float]
+    inertial_orientation: tuple[float, float, float, float]
+    restitution: float
+    rolling_friction: float
+    spinning_friction: float
+    contact_damping: float
+    contact_stiffness: float
+    body_type: int
+    collision_margin: float
+
+
+class Simulator:
+    """A PyBullet DIRECT client with gravity, a ground plane and a fixed control period.
+
+    One control step is ``frame_skip`` physics steps of ``time_step`` seconds.
+    """
+
+    def __init__(self, *, time_step: float, frame_skip: int) -> None:
+        if frame_skip < 1 or time_step <= 0:
+            raise ValueError("frame_skip >= 1 and time_step > 0 required")
+        self.time_step = time_step
+        self.frame_skip = frame_skip
+        self.physics_steps = 0
+        self.client = pybullet.connect(pybullet.DIRECT)
+        try:
+            self.ground = self._build_world()
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def control_period(self) -> float:
+        """Seconds of simulated time per control step."""
+        return self.time_step * self.frame_skip
+
+    def _build_world(self) -> int:
+        cid = self.client
+        pybullet.resetSimulation(physicsClientId=cid)
+        pybullet.setGravity(0, 0, -9.81, physicsClientId=cid)
+        pybullet.setPhysicsEngineParameter(
+            fixedTimeStep=self.time_step, deterministicOverlappingPairs=1, physicsClientId=cid
+        )
+        shape = pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=cid)
+        visual = pybullet.createVisualShape(
+            pybullet.GEOM_BOX,
+            halfExtents=[5, 5, 0.001],
+            visualFramePosition=[0, 0, -0.001],
+            rgbaColor=[0.85, 0.85, 0.82, 1],
+            physicsClientId=cid,
+        )
+        ground = pybullet.createMultiBody(0, shape, visual, physicsClientId=cid)
+        pybullet.changeDynamics(ground, -1, lateralFriction=GROUND_FRICTION, physicsClientId=cid)
+        return int(ground)
+
+    def load_urdf(self, path: str, *, fixed_base: bool) -> int:
+        """A body from a URDF file, its inertias as written and its cylinders exact."""
+        return int(
+            pybullet.loadURDF(
+                path,
+                useFixedBase=fixed_base,
+                flags=pybullet.URDF_USE_INERTIA_FROM_FILE | pybullet.URDF_USE_IMPLICIT_CYLINDER,
+                physicsClientId=self.client,
+            )
+        )
+
+    def joint_info(self, body: int, joint: int) -> JointInfo:
+        return JointInfo(*pybullet.getJointInfo(body, joint, physicsClientId=self.client))
+
+    def dynamics_info(self, body: int, link: int) -> DynamicsInfo:
+        return DynamicsInfo(*pybullet.getDynamicsInfo(body, link, physicsClientId=self.client))
+
+    def step(self) -> None:
+        """One control step: ``frame_skip`` physics steps."""
+        cid = self.client
+        for _ in range(self.frame_skip):
+            pybullet.stepSimulation(physicsClientId=cid)
+        self.physics_steps += self.frame_skip
+
+    def save_state(self) -> int:
+        return int(pybullet.saveState(physicsClientId=self.client))
+
+    def restore_state(self, state: int, body: int) -> None:
+        """Restore a saved state with no contact cached from before.
+
+        Bullet keeps contact manifolds across restoreState: points cached from the last
+        episode would seed the next one's contacts. Lifting ``body`` clear and running
+        collision detection once drops them, so every episode starts alike.
+        """
+        cid = self.client
+        pybullet.resetBasePositionAndOrientation(body, [0, 0, 100.0], [0, 0, 0, 1], cid)
+        pybullet.performCollisionDetection(physicsClientId=cid)
+        pybullet.restoreState(state, physicsClientId=cid)
+
+    def ground_contacts(self, body: int) -> list[Any]:
+        """The engine's contact points between ``body`` and the ground (raw tuples)."""
+        return list(pybullet.getContactPoints(body, self.ground, physicsClientId=self.client))
+
+    def render(
+        self, target: np.ndarray, distance: float, width: int = 320, height: int = 240
+    ) -> np.ndarray:
+        """The world seen from a fixed angle at ``distance`` from ``target``: an RGB array,
+        through PyBullet's software renderer (works headless)."""
+        cid = self.client
+        view = pybullet.computeViewMatrixFromYawPitchRoll(
+            cameraTargetPosition=target.tolist(),
+            distance=distance,
+            yaw=35.0,
+            pitch=-25.0,
+            roll=0.0,
+            upAxisIndex=2,
+            physicsClientId=cid,
+        )
+        projection = pybullet.computeProjectionMatrixFOV(
+            fov=50.0, aspect=width / height, nearVal=0.02, farVal=20.0, physicsClientId=cid
+        )
+        image = pybullet.getCameraImage(
+            width,
+            height,
+            viewMatrix=view,
+            projectionMatrix=projection,
+            renderer=pybullet.ER_TINY_RENDERER,
+            lightDirection=[1.0, 1.0, 2.0],
+            shadow=1,
+            physicsClientId=cid,
+        )
+        rgba = np.reshape(np.asarray(image[CAMERA_RGBA], dtype=np.uint8), (height, width, 4))
+        return rgba[:, :, :3].copy()
+
+    @property
+    def connected(self) -> bool:
+        return self.client >= 0
+
+    def close(self) -> None:
+        if self.client >= 0:
+            with contextlib.suppress(pybullet.error):
+                pybullet.disconnect(physicsClientId=self.client)
+            self.client = -1
