@@ -1,8 +1,8 @@
-"""Worker evaluation benchmark (issue 5): time per stage, harness overhead, score quality.
+"""Worker evaluation benchmark (issues 5, 14): time per stage, harness overhead, quality.
 
-    .venv/bin/python bench/evaluation.py                 # everything (about 15 min)
+    .venv/bin/python bench/evaluation.py                 # everything (about 20 min)
     .venv/bin/python bench/evaluation.py --quick         # fewer repeats and seeds
-    .venv/bin/python bench/evaluation.py --part timing   # or overhead, quality
+    .venv/bin/python bench/evaluation.py --part timing   # or overhead, quality, split
 
 1. timing: ``evaluate_job`` on a real job per task and learner at the learner's
    default budget, run one at a time in this process (torch on one thread, as in a
@@ -17,9 +17,17 @@
 3. quality: for stand-up, the arch design (parallel axes perpendicular to the chain)
    and the along-links design (axes along the links), trained and evaluated by every
    learner over several seeds: the two score distributions.
+4. split (issue 14): the cost of ``env.step`` with the simulator, robot and task apart
+   against the harness before the split (commit ``PRE_SPLIT``, extracted with git
+   archive and put first on PYTHONPATH), side by side: one bench/step_cost.py process
+   per harness, both asked for the same episodes (designs, seeds, actions) in turn,
+   alternating which goes first, so load on the shared cores falls on both alike;
+   thread CPU time per control step, and the median of the per-episode ratios. The two
+   must also simulate the same: their metric traces are compared bit for bit.
 
 Results go to ``bench/results/evaluation.json`` and, with ``--write``, replace the
-section "## Evaluation (issue 5)" of bench/RESULTS.md.
+sections "## Evaluation (issue 5)" and "## Simulator, robot and task apart (issue 14)"
+of bench/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ import json
 import math
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -46,16 +55,39 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from adclient.decode import encode, identity_representation  # noqa: E402
+from adclient.design import Design  # noqa: E402
+from adclient.plugins import catalogue  # noqa: E402
 from adclient.schemas import Job, StudyCreate, TaskConfig  # noqa: E402
 from adclient.urdf import design_to_urdf  # noqa: E402
 from adworker import designs  # noqa: E402
 from adworker.evaluate import evaluate_job  # noqa: E402
-from adworker.learners import LEARNERS, evaluate_policy, get_learner  # noqa: E402
-from adworker.tasks import get_task  # noqa: E402
+from adworker.learners import Learner, evaluate_policy  # noqa: E402
+from adworker.tasks.base import RobotEnv  # noqa: E402
+from bench.paperlib import snapshot, snapshot_paths  # noqa: E402
+from bench.step_cost import CASES  # noqa: E402
 
 HALF_PI = math.pi / 2
 LEARNER_ORDER = ["fast", "ddpg", "td3", "sac", "ppo"]
 SECTION = "## Evaluation (issue 5)"
+SPLIT_SECTION = "## Simulator, robot and task apart (issue 14)"
+PRE_SPLIT = "e54847e667c9c34779b03b97a868169e9ade0e89"
+"""The last commit with the pre-split harness (one RobotEnv per task, from the URDF)."""
+SPLIT_GOAL = 1.05
+"""The split may cost at most 5% more per control step."""
+
+
+def make_env(task: str, design: Design, urdf: Path) -> RobotEnv:
+    """The task's env with its default options, as the worker builds it."""
+    spec = catalogue().task(task)
+    env: RobotEnv = spec.load_factory()(design=design, urdf_path=urdf, options=spec.options())
+    return env
+
+
+def make_learner(name: str) -> Learner:
+    """A learner with its default options, as the worker makes it."""
+    spec = catalogue().learner(name)
+    learner: Learner = spec.load_factory()(None if spec.options is None else spec.options())
+    return learner
 
 
 def load_study(name: str) -> StudyCreate:
@@ -160,15 +192,18 @@ def bench_overhead(episodes: int) -> list[dict[str, Any]]:
     rows = []
     workdir = Path(tempfile.mkdtemp())
     for task, design_name in cases:
+        design = getattr(designs, design_name)()
         urdf = workdir / f"{design_name}.urdf"
-        urdf.write_text(design_to_urdf(getattr(designs, design_name)()))
-        env = get_task(task)(urdf)
+        urdf.write_text(design_to_urdf(design))
+        env = make_env(task, design, urdf)
         rng = np.random.default_rng(0)
         actions = rng.uniform(-1, 1, (episodes, env.action_space.shape[0])).astype(np.float32)
         harness, bare = [], []
-        cid, robot, ground = env._client, env.robot, env.ground
-        joints, links = env._joint_indices, env._child_indices
-        forces, frame_skip, contacts = env._efforts, env.frame_skip, env.reads_contacts
+        cid, robot, ground = env.sim.client, env.robot.body, env.sim.ground
+        joints = env.robot.joint_indices
+        links = [g.index for g in env.robot.geometry if g.index >= 0]
+        forces, frame_skip = env.robot.efforts, env.sim.frame_skip
+        contacts = env.robot.reads_contacts
         steps = env.episode_steps
         for episode, action in enumerate(actions):
             env.reset(seed=episode)
@@ -177,7 +212,7 @@ def bench_overhead(episodes: int) -> list[dict[str, Any]]:
                 env.step(action)
             harness.append(time.thread_time() - started)
             env.reset(seed=episode)
-            targets = env.targets(action)
+            targets = env.robot.targets(action)
             started = time.thread_time()
             for _ in range(steps):
                 pybullet.setJointMotorControlArray(
@@ -229,12 +264,13 @@ def bench_quality(learners: list[str], seeds: int) -> list[dict[str, Any]]:
     workdir = Path(tempfile.mkdtemp())
     for learner_name in learners:
         for design_name in ("arch_chain", "along_links_chain"):
+            design = getattr(designs, design_name)()
             urdf = workdir / f"{design_name}.urdf"
-            urdf.write_text(design_to_urdf(getattr(designs, design_name)()))
+            urdf.write_text(design_to_urdf(design))
             scores = []
             for seed in range(seeds):
-                env = get_task("stand-up")(urdf)
-                learner = get_learner(learner_name)
+                env = make_env("stand-up", design, urdf)
+                learner = make_learner(learner_name)
                 trained = learner.train(env, steps=learner.default_steps, seed=seed)
                 eval_seeds = [(seed + 1) * 10_000 + k for k in range(3)]
                 episodes = evaluate_policy(env, trained.policy, eval_seeds)
@@ -257,6 +293,138 @@ def bench_quality(learners: list[str], seeds: int) -> list[dict[str, Any]]:
                 flush=True,
             )
     return rows
+
+
+# ----------------------------------------------------------------------- split
+
+
+def bench_split(episodes: int) -> dict[str, Any]:
+    """bench/step_cost.py with the pre-split harness and with the installed one, both
+    running at once and asked for the same episodes in turn; see the module docstring."""
+    old_code = snapshot(PRE_SPLIT)
+    clean = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    environments = {
+        "before": {**clean, "PYTHONPATH": os.pathsep.join(snapshot_paths(old_code))},
+        "after": clean,
+    }
+    script = ROOT / "bench" / "step_cost.py"
+    sides = {
+        side: subprocess.Popen(
+            [sys.executable, str(script)], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE
+        )
+        for side, env in environments.items()
+    }
+
+    def ask(side: str, request: dict[str, Any]) -> dict[str, Any]:
+        process = sides[side]
+        assert process.stdin is not None and process.stdout is not None
+        process.stdin.write(json.dumps(request).encode() + b"\n")
+        process.stdin.flush()
+        answer: dict[str, Any] = json.loads(process.stdout.readline())
+        return answer
+
+    try:
+        codes = {side: ask_first_line(process) for side, process in sides.items()}
+        if codes["before"] == codes["after"]:
+            raise SystemExit(f"both sides imported the same harness: {codes}")
+        rows = []
+        for case in CASES:
+            runs: dict[str, list[dict[str, Any]]] = {"before": [], "after": []}
+            for episode in range(-3, episodes):  # three warm-up episodes first
+                order = ("before", "after") if episode % 2 == 0 else ("after", "before")
+                for side in order:
+                    answer = ask(side, {"case": case, "episode": episode + 3})
+                    if episode >= 0:
+                        runs[side].append(answer)
+            rows.append(_split_row(case, runs))
+    finally:
+        for process in sides.values():
+            assert process.stdin is not None
+            process.stdin.close()
+            process.wait()
+    return {
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "load": os.getloadavg()[0],
+        "episodes": episodes,
+        "code": {side: Path(code).relative_to(ROOT).as_posix() for side, code in codes.items()},
+        "rows": rows,
+    }
+
+
+def ask_first_line(process: subprocess.Popen[bytes]) -> str:
+    """Where a bench/step_cost.py process imported its harness from."""
+    assert process.stdout is not None
+    return str(json.loads(process.stdout.readline())["code"])
+
+
+def _split_row(case: str, runs: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    per_step = {
+        side: [1e6 * run["seconds"] / run["steps"] for run in side_runs]
+        for side, side_runs in runs.items()
+    }
+    paired = sorted(
+        after / before for after, before in zip(per_step["after"], per_step["before"], strict=True)
+    )
+    quarter = len(paired) // 4
+    row = {
+        "case": case,
+        "before_us_per_step": statistics.median(per_step["before"]),
+        "after_us_per_step": statistics.median(per_step["after"]),
+        "ratio": statistics.median(paired),
+        "ratio_quartiles": [paired[quarter], paired[-1 - quarter]],
+        "same_metric_traces": [run["metric"] for run in runs["before"]]
+        == [run["metric"] for run in runs["after"]],
+    }
+    print(
+        f"  {case:32s} before {row['before_us_per_step']:7.1f} us/step"
+        f"  after {row['after_us_per_step']:7.1f} us/step  ratio {row['ratio']:.3f}"
+        f" (quartiles {paired[quarter]:.3f} to {paired[-1 - quarter]:.3f})"
+        f"  same traces: {row['same_metric_traces']}",
+        flush=True,
+    )
+    return row
+
+
+def split_report(split: dict[str, Any]) -> str:
+    worst = max(row["ratio"] for row in split["rows"])
+    lines = [
+        SPLIT_SECTION,
+        "",
+        "Command: `.venv/bin/python bench/evaluation.py --part split --write` (last run"
+        f" {split['date']}, load average {split['load']:.1f} at the end on {os.cpu_count()}"
+        " cores shared with other engineers' work).",
+        "",
+        "Thread CPU time of `env.step` per control step (12 physics steps, state read,"
+        " metric, reward, observation) before the split (the harness of commit"
+        f" {PRE_SPLIT[:7]}, imported from {split['code']['before']}) and after it"
+        f" (simulator, robot and task apart, from {split['code']['after']}): one"
+        " bench/step_cost.py process per harness, both running the same episodes in turn"
+        f" (alternating which goes first), {split['episodes']} episodes of 32 steps per"
+        " case after three warm-up ones. Median per step, and the median (quartiles) of"
+        " the per-episode ratio after / before:",
+        "",
+        "```",
+        f"{'case':32s} {'before':>9s} {'after':>9s} {'ratio':>6s}  {'quartiles':>11s}  traces",
+    ]
+    for row in split["rows"]:
+        low, high = row["ratio_quartiles"]
+        lines.append(
+            f"{row['case']:32s} {row['before_us_per_step']:6.1f} us"
+            f" {row['after_us_per_step']:6.1f} us {row['ratio']:6.3f}  {low:.3f}-{high:.3f}"
+            f"  {'same' if row['same_metric_traces'] else 'DIFFER'}"
+        )
+    lines += [
+        "```",
+        "",
+        f"- Goal (the split costs at most {100 * (SPLIT_GOAL - 1):.0f}% more per control"
+        f" step): {'met' if worst <= SPLIT_GOAL else 'not met'}, worst case"
+        f" {100 * (worst - 1):+.1f}%.",
+        "- traces: every episode's per-step metric, compared bit for bit between the two"
+        " harnesses (same designs, seeds and actions): the split simulates exactly what the"
+        " code before it did.",
+        "",
+    ]
+    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------- report
@@ -363,14 +531,14 @@ def report(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
+def write_section(heading: str, text: str) -> None:
     path = ROOT / "bench" / "RESULTS.md"
     current = path.read_text() if path.exists() else "# Benchmark results\n"
-    start = current.find(SECTION)
+    start = current.find(heading)
     if start < 0:
         updated = current.rstrip("\n") + "\n\n" + text.rstrip("\n") + "\n"
     else:
-        end = current.find("\n## ", start + len(SECTION))
+        end = current.find("\n## ", start + len(heading))
         tail = current[end:] if end >= 0 else "\n"
         updated = current[:start] + text.rstrip("\n") + "\n" + tail
     path.write_text(updated)
@@ -378,12 +546,15 @@ def write_section(text: str) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--part", choices=["all", "timing", "overhead", "quality"], default="all")
+    parser.add_argument(
+        "--part", choices=["all", "timing", "overhead", "quality", "split"], default="all"
+    )
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--tasks", default="stand-up,diagonal-gesture,lift-highest")
     parser.add_argument("--learners", default=",".join(LEARNER_ORDER))
     parser.add_argument("--repeats", type=int, default=None)
     parser.add_argument("--seeds", type=int, default=None)
+    parser.add_argument("--episodes", type=int, default=None, help="split: episodes per case")
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     parser.add_argument(
         "--report-only", action="store_true", help="rewrite the report from the saved JSON"
@@ -391,22 +562,19 @@ def main() -> int:
     args = parser.parse_args()
     out = ROOT / "bench" / "results" / "evaluation.json"
     if args.report_only:
-        text = report(json.loads(out.read_text()))
-        print(text)
-        if args.write:
-            write_section(text)
+        write_reports(json.loads(out.read_text()), write=args.write)
         return 0
     learners = [name for name in args.learners.split(",") if name]
     for name in learners:
-        if name not in LEARNERS:
+        if name not in catalogue().learners:
             parser.error(f"unknown learner {name}")
     repeats = args.repeats or (1 if args.quick else 3)
     seeds = args.seeds or (2 if args.quick else 4)
-    results: dict[str, Any] = {
-        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "load_start": os.getloadavg()[0],
-        "quick": args.quick,
-    }
+    results: dict[str, Any] = {}
+    if args.part != "split":  # the split part dates its own section
+        results["date"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+        results["load_start"] = os.getloadavg()[0]
+        results["quick"] = args.quick
     import torch
 
     torch.set_num_threads(1)
@@ -419,6 +587,9 @@ def main() -> int:
     if args.part in ("all", "quality"):
         print("score quality (stand-up):", flush=True)
         results["quality"] = bench_quality(learners, seeds)
+    if args.part in ("all", "split"):
+        print("env.step before and after the split:", flush=True)
+        results["split"] = bench_split(args.episodes or (40 if args.quick else 400))
     out.parent.mkdir(parents=True, exist_ok=True)
     previous = json.loads(out.read_text()) if out.exists() else {}
     keys = {
@@ -439,12 +610,19 @@ def main() -> int:
                 results[part].sort(key=lambda row: tasks.index(row["task"]))
     previous.update(results)
     out.write_text(json.dumps(previous, indent=1))
-    text = report(previous)
-    print()
-    print(text)
-    if args.write:
-        write_section(text)
+    write_reports(previous, write=args.write)
     return 0
+
+
+def write_reports(results: dict[str, Any], *, write: bool) -> None:
+    sections = [(SECTION, report(results))]
+    if "split" in results:
+        sections.append((SPLIT_SECTION, split_report(results["split"])))
+    for heading, text in sections:
+        print()
+        print(text)
+        if write:
+            write_section(heading, text)
 
 
 if __name__ == "__main__":
