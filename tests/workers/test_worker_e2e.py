@@ -3,11 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
-import subprocess
-import sys
-import time
 import xml.etree.ElementTree as ElementTree
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -17,44 +13,10 @@ import pytest
 from adclient import Client
 from adclient.schemas import Trial
 from tests.servers import ServerProcess
+from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e
-
-ADWORKER = Path(sys.executable).with_name("adworker")
-PATIENCE = 300.0
-"""A bound on waits so a broken build fails instead of hanging; not a speed check."""
-
-
-class WorkerProcess:
-    """One ``adworker`` process with its log file."""
-
-    def __init__(self, server: ServerProcess, workdir: Path, worker_id: str, *args: str) -> None:
-        self.worker_id = worker_id
-        self.log_path = workdir / f"{worker_id}.log"
-        env = {**os.environ, "AD_SERVER_URL": server.url}
-        env.pop("AD_TOKEN", None)
-        with self.log_path.open("ab") as log:
-            self.process = subprocess.Popen(
-                [str(ADWORKER), "--worker-id", worker_id, "--poll", "0.2", *args],
-                env=env,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-            )
-
-    def log(self) -> str:
-        return self.log_path.read_text(errors="replace")
-
-    def wait(self, timeout: float = PATIENCE) -> int:
-        return self.process.wait(timeout=timeout)
-
-    def signal(self, signum: int) -> None:
-        self.process.send_signal(signum)
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait()
 
 
 @pytest.fixture
@@ -92,16 +54,6 @@ def stand_up_study(client: Client, *, max_trials: int, **task: object):
     body["max_trials"] = max_trials
     body["task"].update(task)
     return client.create_study(body)
-
-
-def wait_for(condition: Callable[[], object], what: str, poll: float = 0.05) -> object:
-    deadline = time.monotonic() + PATIENCE
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(poll)
-    raise AssertionError(f"gave up waiting for {what}")
 
 
 def running_trial(client: Client, study_id: int, worker_id: str) -> Trial | None:
@@ -207,7 +159,7 @@ def test_evaluation_error_becomes_a_failed_tell_and_the_worker_goes_on(server_fa
         trials = study.trials
         assert [trial.state for trial in trials] == ["failed", "failed"]
         assert all("'dreamer'" in (trial.message or "") for trial in trials)
-        assert all(trial.message.startswith("UnknownLearner") for trial in trials)
+        assert all(trial.message.startswith("JobError: unknown learner") for trial in trials)
 
 
 def test_adworker_leaves_tasks_it_does_not_have_to_other_workers(server_factory, workers):

@@ -1,0 +1,34 @@
+"""The declarations only: light, so a server can read them without PyBullet."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from adclient.plugins import LearnerSpec, SimulatorOptions, TaskSpec
+
+
+class ReachUpOptions(SimulatorOptions):
+    tip_link: str = Field(default="c", min_length=1, description="The link whose top is scored")
+
+    def link_names(self) -> list[tuple[str, str]]:
+        return [("tip_link", self.tip_link)]
+
+
+class HoldOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    pose: float = Field(default=0.0, ge=-1.0, le=1.0, description="Every joint's target")
+
+
+REACH_UP = TaskSpec(
+    name="reach-up",
+    options=ReachUpOptions,
+    description="An arm on a fixed base raises the top of its tip link as high as it can.",
+    factory="adplugin_reach.env:ReachUp.make_env",
+)
+HOLD = LearnerSpec(
+    name="hold",
+    description="No training: every joint holds one target.",
+    factory="adplugin_reach.learner:Hold",
+    options=HoldOptions,
+)

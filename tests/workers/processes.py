@@ -1,0 +1,64 @@
+"""Real ``adworker`` processes for tests, and a bounded wait."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from tests.servers import ServerProcess
+
+ADWORKER = Path(sys.executable).with_name("adworker")
+PATIENCE = 300.0
+"""A bound on waits so a broken build fails instead of hanging; not a speed check."""
+
+
+class WorkerProcess:
+    """One ``adworker`` process with its log file; ``env`` adds to the environment."""
+
+    def __init__(
+        self,
+        server: ServerProcess,
+        workdir: Path,
+        worker_id: str,
+        *args: str,
+        env: dict[str, str] | None = None,
+    ) -> None:
+        self.worker_id = worker_id
+        self.log_path = workdir / f"{worker_id}.log"
+        environment = {**os.environ, "AD_SERVER_URL": server.url, **(env or {})}
+        environment.pop("AD_TOKEN", None)
+        with self.log_path.open("ab") as log:
+            self.process = subprocess.Popen(
+                [str(ADWORKER), "--worker-id", worker_id, "--poll", "0.2", *args],
+                env=environment,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def wait(self, timeout: float = PATIENCE) -> int:
+        return self.process.wait(timeout=timeout)
+
+    def signal(self, signum: int) -> None:
+        self.process.send_signal(signum)
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+
+def wait_for(condition: Callable[[], object], what: str, poll: float = 0.05) -> object:
+    deadline = time.monotonic() + PATIENCE
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(poll)
+    raise AssertionError(f"gave up waiting for {what}")

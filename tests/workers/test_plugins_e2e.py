@@ -1,0 +1,138 @@
+"""A third-party plugin package, really pip-installed, runs a managed study end to end:
+a real adserver checks the study with the plugin's declarations, a real adworker runs
+its task with its learner, and a worker without the plugin leaves its trials alone.
+
+The package (tests/workers/plugin_fixture) is installed into a folder of its own that
+only the spawned server and worker processes see (PYTHONPATH), so the venv, and every
+other test, stays as it was."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import yaml
+
+from adclient import Client
+from tests.servers import ServerProcess
+from tests.workers.processes import PATIENCE, WorkerProcess
+
+pytestmark = pytest.mark.e2e
+
+FIXTURE = Path(__file__).resolve().parent / "plugin_fixture"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+BUILT_IN = ["diagonal-gesture", "lift-highest", "stand-up"]
+
+
+@pytest.fixture(scope="module")
+def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The plugin as ``pip install`` leaves it: a package and its dist-info with the
+    entry points, in a folder of its own (built from a copy: the build writes files)."""
+    work = tmp_path_factory.mktemp("plugin")
+    source = shutil.copytree(FIXTURE, work / "source")
+    site = work / "site"
+    offline = ["--quiet", "--no-deps", "--no-index", "--no-build-isolation"]
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", *offline, "--target", str(site), str(source)],
+        check=True,
+    )
+    assert (site / "adplugin_reach").is_dir()
+    return site
+
+
+@pytest.fixture
+def server(plugin_site: Path, tmp_path: Path) -> Iterator[ServerProcess]:
+    process = ServerProcess(
+        database_url=f"sqlite:///{tmp_path / 'studies.db'}",
+        workdir=tmp_path,
+        env={"PYTHONPATH": str(plugin_site)},
+    ).start()
+    yield process
+    process.stop()
+
+
+def reach_up_study(**task: Any) -> dict[str, Any]:
+    """diagonal-gesture's arm with searched link lengths, scored by the plugin's task."""
+    body = yaml.safe_load((EXAMPLES / "diagonal-gesture.yaml").read_text())
+    body["name"] = "reach"
+    body["space"]["parts"]["link"]["length"] = {"low": 0.2, "high": 0.6}
+    body["proposer"] = {"name": "random", "seed": 1}
+    body["task"] = {"name": "reach-up", "learner": "hold", "eval_episodes": 1, **task}
+    body["max_trials"] = 3
+    return body
+
+
+def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerProcess) -> None:
+    with Client(server.url) as client:
+        tasks = {task.name: task for task in client.tasks()}
+        learners = {learner.name: learner for learner in client.learners()}
+    assert sorted(tasks) == sorted([*BUILT_IN, "reach-up"])
+    reach = tasks["reach-up"]
+    assert "fixed base" in reach.description
+    tip = reach.options_schema["properties"]["tip_link"]
+    assert (tip["default"], tip["minLength"]) == ("c", 1)
+    assert reach.options_schema["properties"]["frame_skip"]["default"] == 12
+    assert tasks["stand-up"].options_schema["properties"]["feet_links"]["default"] == ["a", "c"]
+    assert learners["hold"].options_schema is not None
+    assert learners["hold"].options_schema["properties"]["pose"]["maximum"] == 1.0
+    assert learners["fast"].options_schema is None
+    assert learners["ppo"].options_schema is not None
+
+
+@pytest.mark.parametrize(
+    ("task", "named"),
+    [
+        ({"name": "reach-down"}, ["task.name", "unknown task 'reach-down'", "reach-up, stand-up"]),
+        ({"learner": "grasp"}, ["task.learner", "unknown learner 'grasp'", "fast, hold, ppo"]),
+        ({"options": {"tip_link": ""}}, ["task.options: tip_link:", "at least 1 character"]),
+        ({"options": {"reach": 2}}, ["unknown option of task 'reach-up'", "tip_link"]),
+        ({"options": {"learner_kwargs": {"pose": 2}}}, ["learner_kwargs.pose:", "1"]),
+        ({"options": {"tip_link": "hand"}}, ["looks up link 'hand' (task.options.tip_link)"]),
+    ],
+)
+def test_a_study_of_the_plugin_is_checked_with_its_declarations(
+    server: ServerProcess, task: dict[str, Any], named: list[str]
+) -> None:
+    answer = httpx.post(f"{server.url}/api/v1/studies", json=reach_up_study(**task), timeout=60)
+    assert answer.status_code == 422, answer.text
+    detail = answer.json()["detail"]
+    for text in named:
+        assert text in detail, (text, detail)
+
+
+def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
+    server: ServerProcess, plugin_site: Path, tmp_path: Path
+) -> None:
+    started: list[WorkerProcess] = []
+    try:
+        with Client(server.url) as client:
+            study = client.create_study(reach_up_study(options={"learner_kwargs": {"pose": 0}}))
+            without = WorkerProcess(server, tmp_path, "without", "--idle-exit", "3")
+            started.append(without)
+            assert without.wait() == 0, without.log()
+            assert "reach-up" not in without.log().split("tasks", 1)[1].splitlines()[0]
+            assert client.study_info(study.id).n_trials == 0, "leased by a worker without it"
+
+            env = {"PYTHONPATH": str(plugin_site)}
+            with_it = WorkerProcess(server, tmp_path, "with", "--max-jobs", "3", env=env)
+            started.append(with_it)
+            assert with_it.wait() == 0, with_it.log()
+            final = study.wait(poll=0.2, timeout=PATIENCE)
+            assert final.n_complete == 3, [trial.message for trial in study.trials]
+            for trial in study.trials:
+                assert trial.worker_id == "with"
+                assert trial.metrics["train_steps"] == 0  # the hold learner's
+                # Held straight up on its fixed base: the tip's top is the arm's length.
+                length = sum(trial.params[f"{link}.length"] for link in "abc")
+                assert trial.value == pytest.approx(length, abs=0.01), trial.params
+                names = {artifact.name for artifact in client.artifacts(trial)}
+                assert names == {"robot.urdf", "robot.png", "curve.json"}
+    finally:
+        for worker in started:
+            worker.stop()
