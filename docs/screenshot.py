@@ -87,15 +87,21 @@ def synthetic_score(params: dict[str, Any], rng: random.Random) -> float:
     return 0.5 * params["b.length"] * across * parallel * (0.6 + 0.4 * feet) + rng.gauss(0, 0.004)
 
 
-def render_png(urdf: str, workdir: Path) -> bytes:
-    """The design at rest through the stand-up task's PyBullet software renderer."""
+def render_png(job: dict[str, Any], urdf: str, workdir: Path) -> bytes:
+    """The job's design at rest through the stand-up task's PyBullet software renderer."""
     from PIL import Image
 
-    from adworker.tasks import get_task
+    from adclient.plugins import catalogue
+    from adclient.schemas import Job
+    from adworker.evaluate import decode_job
 
     path = workdir / "render.urdf"
     path.write_text(urdf)
-    env = get_task("stand-up")(path)
+    task = catalogue().task("stand-up")
+    make_env = task.load_factory()
+    env = make_env(
+        design=decode_job(Job.model_validate(job)), urdf_path=path, options=task.options()
+    )
     try:
         env.reset(seed=0)
         pixels = env.render_image(width=480, height=360)
@@ -149,7 +155,7 @@ def run_demo(client: httpx.Client, trials: int, workdir: Path) -> int:
             trial_id = job["trial_id"]
             urdf = client.get(f"/api/v1/trials/{trial_id}/urdf").raise_for_status().text
             uploads = {
-                "robot.png": (render_png(urdf, workdir), "image/png"),
+                "robot.png": (render_png(job, urdf, workdir), "image/png"),
                 "robot.urdf": (urdf.encode(), "application/xml"),
                 "curve.json": (json.dumps(curve(rng, best)).encode(), "application/json"),
             }
