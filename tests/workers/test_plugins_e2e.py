@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from adclient import Client
+from adclient.plugins import catalogue
 from tests.servers import ServerProcess
 from tests.workers.processes import PATIENCE, WorkerProcess
 
@@ -27,7 +28,6 @@ pytestmark = pytest.mark.e2e
 
 FIXTURE = Path(__file__).resolve().parent / "plugin_fixture"
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-BUILT_IN = ["diagonal-gesture", "lift-highest", "stand-up"]
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +72,7 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerPr
     with Client(server.url) as client:
         tasks = {task.name: task for task in client.tasks()}
         learners = {learner.name: learner for learner in client.learners()}
-    assert sorted(tasks) == sorted([*BUILT_IN, "reach-up"])
+    assert sorted(tasks) == sorted([*catalogue().tasks, "reach-up"])
     reach = tasks["reach-up"]
     assert "fixed base" in reach.description
     tip = reach.options_schema["properties"]["tip_link"]
