@@ -43,6 +43,7 @@ class Chromium:
                 "--headless",
                 "--no-sandbox",  # tests may run as root, where the sandbox refuses to start
                 "--disable-gpu",
+                "--enable-unsafe-swiftshader",  # WebGL (the 3D robot view) drawn on the CPU
                 "--no-first-run",
                 "--no-default-browser-check",
                 "--disable-background-timer-throttling",

@@ -7,6 +7,7 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
+from adservice.app import STATIC_DIR as STATIC
 from tests.service.conftest import BOX_STUDY
 
 
@@ -99,5 +100,12 @@ def test_the_page_is_served_at_the_root(api: TestClient) -> None:
     page = api.get("/")
     assert page.status_code == 200 and "text/html" in page.headers["content-type"]
     assert 'src="js/app.js"' in page.text and "ad_token" not in page.text
-    for asset in ("/dashboard.css", "/js/app.js", "/js/charts.js", "/js/api.js"):
-        assert api.get(asset).status_code == 200, asset
+    assert api.get("/dashboard.css").status_code == 200
+    # Every module (one per panel) and the vendored 3D bundle, as JavaScript: a browser
+    # runs an ES module only when it comes with a JavaScript type.
+    modules = sorted(path.relative_to(STATIC).as_posix() for path in STATIC.glob("js/*.js"))
+    assert {"js/app.js", "js/study.js", "js/robot-view.js"} <= set(modules)
+    for asset in [*modules, "vendor/three-urdf.js"]:
+        response = api.get(f"/{asset}")
+        assert response.status_code == 200, asset
+        assert "javascript" in response.headers["content-type"], asset

@@ -1,4 +1,4 @@
-// HTTP helpers: JSON reads and the sign-in session.
+// HTTP helpers: JSON and text reads, and the sign-in session.
 // With auth on, the page signs in once: the token is sent to POST /api/v1/session, which
 // answers with an HttpOnly cookie. The page never keeps the token (no storage, no URL);
 // it keeps only the session's CSRF token, in memory, for the few changes it makes.
@@ -32,6 +32,17 @@ export async function getJSON(path, { withTotal = false } = {}) {
   const body = await response.json();
   if (!withTotal) return body;
   return { body, total: Number(response.headers.get('X-Total-Count') ?? body.length) };
+}
+
+/** GET a text body (a URDF). */
+export async function getText(path) {
+  return (await request(path)).text();
+}
+
+/** The artifact names of some trials of a study: {trial id: [names]}. */
+export async function artifactNames(studyId, trialIds) {
+  if (trialIds.length === 0) return {};
+  return getJSON(`/api/v1/dashboard/studies/${studyId}/artifacts?trial_ids=${trialIds.join(',')}`);
 }
 
 function remember(info) {

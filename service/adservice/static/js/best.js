@@ -1,0 +1,121 @@
+// The best-design card: the best trial's score, link, params and URDF, its robot in 3D
+// (when it has a URDF) and the image its worker rendered (when it uploaded one).
+
+import { artifactNames, getJSON } from './api.js';
+import { formatNumber } from './charts.js';
+import { element, esc, finder, paramsTable, urdfLink, urdfUrl } from './html.js';
+import { RobotView } from './robot-view.js';
+
+/** The params that vary across the study (and text ones like the structure) first; the
+ * fixed ones folded away. */
+function bestParams(params, searched) {
+  const entries = Object.entries(params ?? {});
+  const shown = entries.filter(([k, v]) => searched.has(k) || typeof v === 'string');
+  const folded = entries.filter(([k, v]) => !(searched.has(k) || typeof v === 'string'));
+  if (shown.length === 0) return `<div class="params-scroll">${paramsTable(params)}</div>`;
+  const more = folded.length
+    ? `<details><summary>${folded.length} more (fixed) params</summary>
+        ${paramsTable(Object.fromEntries(folded))}</details>`
+    : '';
+  return `<div class="params-scroll">${paramsTable(Object.fromEntries(shown))}${more}</div>`;
+}
+
+export class BestCard {
+  constructor(page) {
+    this.page = page;
+    this.trial = null;
+    this.artifacts = [];
+    this.key = null;
+    this.model = null;
+    this.root = element(`<section class="card best" data-best-card>
+      <h2>Best design</h2>
+      <div class="best-body">
+        <p class="placeholder" data-best-placeholder>No complete trial yet</p>
+        <figure class="robot" data-best-figure hidden>
+          <div data-best-model hidden></div>
+          <img data-best-image alt="The best trial's rendered design" hidden>
+        </figure>
+        <div data-best></div>
+      </div>
+    </section>`);
+    this.$ = finder(this.root);
+  }
+
+  /** Whether the best trial may still get its image (uploads do not touch the study). */
+  get awaitsImage() {
+    return this.trial !== null && !this.artifacts.includes('robot.png');
+  }
+
+  async load() {
+    const id = this.page.study.best_trial_id;
+    if (id === null || id === undefined) {
+      this.trial = null;
+      this.artifacts = [];
+      return;
+    }
+    if (this.trial?.id !== id) {
+      const [trial, names] = await Promise.all([
+        getJSON(`/api/v1/trials/${id}`),
+        artifactNames(this.page.studyId, [id]),
+      ]);
+      this.trial = trial;
+      this.artifacts = names[id] ?? [];
+    } else if (this.awaitsImage) {
+      this.artifacts = (await artifactNames(this.page.studyId, [id]))[id] ?? [];
+    }
+  }
+
+  render() {
+    const { study, searched } = this.page;
+    const trial = this.trial;
+    const key = trial ? `${trial.id}|${this.artifacts.join(',')}|${searched.size}` : '';
+    if (key === this.key) return;
+    this.key = key;
+    // A plain URL (the sign-in cookie authenticates it): the server serves an artifact
+    // inline only when its bytes are a raster image, so the page never wraps one itself.
+    const imageUrl =
+      trial && this.artifacts.includes('robot.png') ? `/api/v1/trials/${trial.id}/artifacts/robot.png` : null;
+    const modelUrl = trial && urdfUrl(study, trial, this.artifacts);
+    this.$('best-placeholder').hidden = trial !== null;
+    this.$('best-figure').hidden = !imageUrl && !modelUrl;
+    const image = this.$('best-image');
+    image.hidden = !imageUrl;
+    if (!imageUrl) image.removeAttribute('src');
+    else if (image.getAttribute('src') !== imageUrl) image.src = imageUrl;
+    this.showModel(modelUrl);
+    if (!trial) {
+      this.$('best').innerHTML = '';
+      return;
+    }
+    const urdf = urdfLink(study, trial, this.artifacts, 'Download URDF');
+    this.$('best').innerHTML = `
+      <p class="best-value">${formatNumber(trial.value)}</p>
+      <p>trial <a href="#" data-open-trial="${trial.id}">#${trial.number}</a>
+        ${trial.worker_id ? `· by ${esc(trial.worker_id)}` : ''} ${urdf ? `· ${urdf}` : ''}</p>
+      ${bestParams(trial.params, searched)}`;
+  }
+
+  showModel(url) {
+    const holder = this.$('best-model');
+    holder.hidden = !url;
+    if (!url) return;
+    if (!this.model) {
+      this.model = new RobotView();
+      holder.append(this.model.root);
+    }
+    this.model.show(url);
+  }
+
+  imageLoaded() {
+    const image = this.$('best-image');
+    if (image.hidden || !image.src || image.complete) return Promise.resolve();
+    return new Promise((resolve) => {
+      image.addEventListener('load', resolve, { once: true });
+      image.addEventListener('error', resolve, { once: true });
+    });
+  }
+
+  dispose() {
+    this.model?.dispose();
+  }
+}

@@ -1,0 +1,135 @@
+// The score-by-trial panel: every complete trial's score, the best so far, ticks for
+// failed and open trials; hovering names a point, clicking opens its trial.
+
+import { drawXAxis, drawYAxis, extent, formatNumber, message, prepare } from './charts.js';
+import { element, finder } from './html.js';
+
+/**
+ * Every complete trial's score against its number, the best-so-far curve over them,
+ * and ticks for failed (red) and unfinished (grey) trials along the bottom.
+ * Leaves on the canvas what hovering needs (`canvas.hit`), and `data-points`,
+ * `data-failed` and `data-best-so-far` (the curve's last value) for tests.
+ */
+function drawHistory(canvas, series, direction) {
+  const { ctx, width, height } = prepare(canvas);
+  const pad = { left: 58, right: 14, top: 10, bottom: 28 };
+  const numbers = series.complete.map((i) => series.number[i]);
+  const values = series.complete.map((i) => series.value[i]);
+  const failed = [];
+  const open = [];
+  for (let i = 0; i < series.number.length; i++) {
+    const state = series.state[i];
+    if (state === 'failed') failed.push(series.number[i]);
+    else if (state !== 'complete' || series.value[i] === null) open.push(series.number[i]);
+  }
+  canvas.dataset.points = String(values.length);
+  canvas.dataset.failed = String(failed.length);
+  canvas.dataset.bestSoFar = '';
+  canvas.hit = null;
+  if (series.number.length === 0) {
+    message(ctx, width, height, 'No trials yet');
+    return;
+  }
+  const lastNumber = series.number[series.number.length - 1];
+  const xHigh = Math.max(lastNumber, 1);
+  const [yLow, yHigh] = extent(values);
+  const left = pad.left;
+  const right = width - pad.right;
+  const top = pad.top;
+  const bottom = height - pad.bottom;
+  const x = (n) => left + ((n - 0) / (xHigh - 0 || 1)) * (right - left);
+  const y = (v) => bottom - ((v - yLow) / (yHigh - yLow)) * (bottom - top);
+
+  drawYAxis(ctx, left, top, bottom, right, yLow, yHigh, y);
+  drawXAxis(ctx, left, right, bottom, 0, xHigh, x, true);
+
+  ctx.fillStyle = 'rgba(37, 99, 235, 0.5)';
+  const size = values.length > 2000 ? 2 : 4;
+  for (let i = 0; i < values.length; i++) {
+    ctx.fillRect(x(numbers[i]) - size / 2, y(values[i]) - size / 2, size, size);
+  }
+  ctx.fillStyle = 'rgba(220, 38, 38, 0.8)';
+  for (const n of failed) ctx.fillRect(x(n) - 0.75, bottom - 7, 1.5, 7);
+  ctx.fillStyle = 'rgba(107, 114, 128, 0.6)';
+  for (const n of open) ctx.fillRect(x(n) - 0.75, bottom - 4, 1.5, 4);
+
+  if (values.length > 0) {
+    const better = direction === 'maximize' ? (a, b) => a > b : (a, b) => a < b;
+    let best = values[0];
+    ctx.strokeStyle = '#ea580c';
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.moveTo(x(numbers[0]), y(best));
+    for (let i = 1; i < values.length; i++) {
+      if (better(values[i], best)) {
+        ctx.lineTo(x(numbers[i]), y(best));
+        best = values[i];
+        ctx.lineTo(x(numbers[i]), y(best));
+      }
+    }
+    ctx.lineTo(x(lastNumber), y(best));
+    ctx.stroke();
+    ctx.lineWidth = 1;
+    canvas.dataset.bestSoFar = String(best);
+  }
+  canvas.hit = { numbers, values, x, y };
+}
+
+/** The complete trial nearest the pointer (within 12 px), as {number, value}. */
+function nearestPoint(canvas, offsetX, offsetY) {
+  const hit = canvas.hit;
+  if (!hit) return null;
+  let best = null;
+  let bestDistance = 144;
+  for (let i = 0; i < hit.numbers.length; i++) {
+    const dx = hit.x(hit.numbers[i]) - offsetX;
+    const dy = hit.y(hit.values[i]) - offsetY;
+    const distance = dx * dx + dy * dy;
+    if (distance < bestDistance) {
+      bestDistance = distance;
+      best = { number: hit.numbers[i], value: hit.values[i] };
+    }
+  }
+  return best;
+}
+
+export class HistoryPanel {
+  constructor(page) {
+    this.page = page;
+    this.root = element(`<section class="card">
+      <h2>Score by trial
+        <span class="legend"><i class="dot"></i>score <i class="line"></i>best so far
+        <i class="tick failed"></i>failed <i class="tick open"></i>queued/running</span></h2>
+      <div class="chart-wrap">
+        <canvas class="chart" data-history></canvas>
+        <div class="tooltip" data-tooltip hidden></div>
+      </div>
+    </section>`);
+    const $ = finder(this.root);
+    this.canvas = $('history');
+    const tooltip = $('tooltip');
+    this.canvas.addEventListener('mousemove', (event) => {
+      const point = nearestPoint(this.canvas, event.offsetX, event.offsetY);
+      this.canvas.style.cursor = point ? 'pointer' : 'default';
+      if (!point) {
+        tooltip.hidden = true;
+        return;
+      }
+      tooltip.hidden = false;
+      tooltip.textContent = `trial #${point.number}: ${formatNumber(point.value)}`;
+      tooltip.style.left = `${event.offsetX + 12}px`;
+      tooltip.style.top = `${event.offsetY - 8}px`;
+    });
+    this.canvas.addEventListener('mouseleave', () => {
+      tooltip.hidden = true;
+    });
+    this.canvas.addEventListener('click', (event) => {
+      const point = nearestPoint(this.canvas, event.offsetX, event.offsetY);
+      if (point) page.openTrialByNumber(point.number);
+    });
+  }
+
+  draw() {
+    drawHistory(this.canvas, this.page.series, this.page.study.direction);
+  }
+}

@@ -1,0 +1,239 @@
+// The params-and-score panel: parallel coordinates, slice plots and rank correlations of
+// the varying params with the score, over complete trials, one tab each.
+
+import {
+  AXIS,
+  FONT,
+  PALETTE,
+  bucket,
+  drawXAxis,
+  drawYAxis,
+  extent,
+  formatNumber,
+  goodness,
+  message,
+  prepare,
+} from './charts.js';
+import { element, esc, finder } from './html.js';
+
+const PARALLEL_AXES = 8;
+const SLICE_PLOTS = 12;
+
+function clipText(ctx, text, width) {
+  if (ctx.measureText(text).width <= width) return text;
+  let cut = text;
+  while (cut.length > 1 && ctx.measureText(`…${cut}`).width > width) cut = cut.slice(1);
+  return `…${cut}`;
+}
+
+const MAX_LINES = 2500;
+
+/**
+ * Polylines across the axes `names` and the score, coloured by rank of score (yellow =
+ * best), drawn worst first so the best lie on top. Past MAX_LINES complete trials it
+ * draws the best half of that many and an even sample of the rest (rasterising
+ * thousands of translucent lines is what costs), and says so in its return value.
+ */
+function drawParallel(canvas, series, names, direction) {
+  const { ctx, width, height } = prepare(canvas);
+  const { complete } = series;
+  canvas.dataset.lines = String(complete.length);
+  if (complete.length === 0 || names.length === 0) {
+    message(ctx, width, height, complete.length ? 'No numeric params vary yet' : 'No complete trials yet');
+    canvas.dataset.drawn = '0';
+    return { drawn: 0, total: complete.length, best: 0 };
+  }
+  const allGood = goodness(complete.map((i) => series.value[i]), direction);
+  let rows = complete;
+  let kept = null;
+  let best = complete.length;
+  if (complete.length > MAX_LINES) {
+    best = MAX_LINES / 2;
+    const threshold = 1 - best / complete.length;
+    const others = complete.length - best;
+    const stride = others / (MAX_LINES - best);
+    kept = [];
+    let seen = 0;
+    let next = 0;
+    complete.forEach((_, r) => {
+      if (allGood[r] >= threshold) kept.push(r);
+      else if (seen++ >= next) {
+        kept.push(r);
+        next += stride;
+      }
+    });
+    rows = kept.map((r) => complete[r]);
+  }
+  canvas.dataset.drawn = String(rows.length);
+  const pad = { left: 40, right: 48, top: 34, bottom: 22 };
+  const columns = [...names.map((name) => series.params[name]), series.value];
+  const labels = [...names, 'score'];
+  const ranges = columns.map((column) => extent(rows.map((i) => column[i])));
+  const span = (width - pad.left - pad.right) / Math.max(columns.length - 1, 1);
+  const axisX = columns.map((_, k) => pad.left + k * span);
+  const top = pad.top;
+  const bottom = height - pad.bottom;
+  const y = (k, v) => bottom - ((v - ranges[k][0]) / (ranges[k][1] - ranges[k][0])) * (bottom - top);
+
+  const good = kept ? kept.map((r) => allGood[r]) : allGood;
+  const paths = PALETTE.map(() => new Path2D());
+  rows.forEach((i, r) => {
+    const path = paths[bucket(good[r])];
+    let pen = false;
+    columns.forEach((column, k) => {
+      const value = column[i];
+      if (value === null || value === undefined) {
+        pen = false;
+        return;
+      }
+      if (pen) path.lineTo(axisX[k], y(k, value));
+      else path.moveTo(axisX[k], y(k, value));
+      pen = true;
+    });
+  });
+  ctx.globalAlpha = rows.length <= 50 ? 0.85 : Math.max(0.06, 6 / Math.sqrt(rows.length));
+  ctx.lineWidth = 1;
+  paths.forEach((path, b) => {
+    ctx.strokeStyle = PALETTE[b];
+    ctx.stroke(path);
+  });
+  ctx.globalAlpha = 1;
+
+  ctx.textBaseline = 'middle';
+  columns.forEach((_, k) => {
+    const px = Math.round(axisX[k]) + 0.5;
+    ctx.strokeStyle = '#111827';
+    ctx.beginPath();
+    ctx.moveTo(px, top);
+    ctx.lineTo(px, bottom);
+    ctx.stroke();
+    ctx.fillStyle = '#111827';
+    ctx.textAlign = k === 0 ? 'left' : k === columns.length - 1 ? 'right' : 'center';
+    const anchor = k === 0 ? px - 8 : k === columns.length - 1 ? px + 8 : px;
+    ctx.font = `600 ${FONT}`;
+    ctx.fillText(clipText(ctx, labels[k], Math.max(span - 8, 40)), anchor, 12);
+    ctx.font = FONT;
+    ctx.fillStyle = AXIS;
+    ctx.fillText(formatNumber(ranges[k][1]), anchor, top - 10);
+    ctx.fillText(formatNumber(ranges[k][0]), anchor, bottom + 11);
+  });
+  return { drawn: rows.length, total: complete.length, best };
+}
+
+/** Small scatter plots of each param in `names` against the score, early trials pale. */
+function drawSlices(container, series, names) {
+  const rows = series.complete;
+  const wanted = names.join('\n');
+  if (container.dataset.names !== wanted) {
+    container.replaceChildren(
+      ...names.map((name) => {
+        const figure = document.createElement('figure');
+        figure.className = 'slice';
+        const caption = document.createElement('figcaption');
+        caption.textContent = name;
+        caption.title = name;
+        figure.append(caption, document.createElement('canvas'));
+        return figure;
+      }),
+    );
+    container.dataset.names = wanted;
+  }
+  if (names.length === 0) {
+    container.textContent = 'No numeric params vary yet';
+    container.dataset.names = '';
+    return;
+  }
+  const lastNumber = series.number.length ? series.number[series.number.length - 1] : 1;
+  const [yLow, yHigh] = extent(rows.map((i) => series.value[i]));
+  container.querySelectorAll('canvas').forEach((canvas, k) => {
+    const column = series.params[names[k]];
+    const { ctx, width, height } = prepare(canvas);
+    const pad = { left: 44, right: 8, top: 6, bottom: 22 };
+    const [xLow, xHigh] = extent(rows.map((i) => column[i]));
+    const x = (v) => pad.left + ((v - xLow) / (xHigh - xLow)) * (width - pad.left - pad.right);
+    const y = (v) => height - pad.bottom - ((v - yLow) / (yHigh - yLow)) * (height - pad.top - pad.bottom);
+    drawYAxis(ctx, pad.left, pad.top, height - pad.bottom, width - pad.right, yLow, yHigh, y);
+    drawXAxis(ctx, pad.left, width - pad.right, height - pad.bottom, xLow, xHigh, x, false);
+    const groups = PALETTE.map(() => []);
+    for (const i of rows) {
+      if (column[i] === null || column[i] === undefined) continue;
+      groups[bucket(1 - series.number[i] / Math.max(lastNumber, 1))].push(i);
+    }
+    ctx.globalAlpha = 0.7;
+    groups.forEach((group, b) => {
+      ctx.fillStyle = PALETTE[b];
+      for (const i of group) ctx.fillRect(x(column[i]) - 1.5, y(series.value[i]) - 1.5, 3, 3);
+    });
+    ctx.globalAlpha = 1;
+  });
+}
+
+export class ParamsPanel {
+  constructor(page) {
+    this.page = page;
+    this.tab = 'parallel';
+    this.root = element(`<section class="card">
+      <h2>Params and score</h2>
+      <nav class="tabs" data-tabs>
+        <button data-tab="parallel" class="active">Parallel coordinates</button>
+        <button data-tab="slices">Slices</button>
+        <button data-tab="correlation">Rank correlation</button>
+      </nav>
+      <p class="meta" data-params-note></p>
+      <canvas class="chart tall" data-parallel></canvas>
+      <div class="slices" data-slices hidden></div>
+      <div class="correlation" data-correlation hidden></div>
+    </section>`);
+    this.$ = finder(this.root);
+    const tabs = this.$('tabs');
+    tabs.addEventListener('click', (event) => {
+      const button = event.target.closest('button[data-tab]');
+      if (!button) return;
+      this.tab = button.dataset.tab;
+      for (const b of tabs.querySelectorAll('button')) b.classList.toggle('active', b === button);
+      this.draw();
+    });
+  }
+
+  draw() {
+    const { series, study, correlations } = this.page;
+    const parallel = this.$('parallel');
+    const slices = this.$('slices');
+    const correlation = this.$('correlation');
+    parallel.hidden = this.tab !== 'parallel';
+    slices.hidden = this.tab !== 'slices';
+    correlation.hidden = this.tab !== 'correlation';
+    const names = correlations.map((c) => c.name);
+    const shown = this.tab === 'slices' ? SLICE_PLOTS : PARALLEL_AXES;
+    const notes = [];
+    if (names.length > shown && this.tab !== 'correlation') {
+      notes.push(`The ${shown} of ${names.length} varying params most rank-correlated with the score.`);
+    }
+    if (this.tab === 'parallel') {
+      const lines = drawParallel(parallel, series, names.slice(0, PARALLEL_AXES), study.direction);
+      if (lines.drawn < lines.total) {
+        notes.push(
+          `Lines: the best ${lines.best.toLocaleString()} of ${lines.total.toLocaleString()} ` +
+            `complete trials and an even sample of the rest (${lines.drawn.toLocaleString()} in all).`,
+        );
+      }
+    } else if (this.tab === 'slices') {
+      drawSlices(slices, series, names.slice(0, SLICE_PLOTS));
+      notes.push('Colour: trial number, yellow early to purple late.');
+    }
+    this.$('params-note').textContent = notes.join(' ');
+    if (this.tab === 'correlation') {
+      correlation.innerHTML = correlations.length
+        ? correlations
+            .map(
+              (c) => `<div class="corr-row"><span class="name" title="${esc(c.name)}">${esc(c.name)}</span>
+                <span class="corr-bar"><span class="${c.rho < 0 ? 'negative' : 'positive'}"
+                  style="width:${(Math.abs(c.rho) * 100).toFixed(1)}%"></span></span>
+                <span class="num">${c.rho.toFixed(2)}</span></div>`,
+            )
+            .join('') +
+          '<p class="meta">Spearman rank correlation of each param with the score over complete trials.</p>'
+        : '<p class="meta">Not enough complete trials yet.</p>';
+    }
+  }
+}

@@ -1,0 +1,239 @@
+// An interactive 3D view of a robot from its URDF: drag to orbit, scroll to zoom,
+// right-drag to pan, one slider per movable joint. three and urdf-loader come from one
+// vendored ES module (../vendor/three-urdf.js, see vendor/README.md), loaded the first
+// time a view shows a robot. It draws primitive shapes (box, cylinder, sphere) and fetches
+// nothing but the URDF: the mesh files a URDF names are left out (the view says how many),
+// and its textures (colours stay). It renders on demand (a move, a slider, a resize).
+
+import { getText } from './api.js';
+import { formatNumber } from './charts.js';
+import { element, esc, finder } from './html.js';
+
+const BACKGROUND = 0xf9fafb;
+const UNITS = { revolute: 'rad', continuous: 'rad', prismatic: 'm' };
+
+let vendor = null;
+
+function loadVendor() {
+  vendor ??= import('../vendor/three-urdf.js');
+  return vendor;
+}
+
+/** A joint's slider range, or null for a joint that cannot move along one axis. */
+function sliderRange(joint) {
+  if (joint.jointType === 'continuous') return [-Math.PI, Math.PI];
+  if (joint.jointType !== 'revolute' && joint.jointType !== 'prismatic') return null;
+  const { lower, upper } = joint.limit;
+  return upper > lower ? [lower, upper] : null;
+}
+
+function disposeObject(object) {
+  object.traverse((part) => {
+    part.geometry?.dispose();
+    for (const material of [part.material ?? []].flat()) material.dispose();
+  });
+}
+
+export class RobotView {
+  constructor() {
+    this.root = element(`<div class="robot-view">
+      <div class="robot-stage">
+        <canvas data-robot-canvas
+          aria-label="The robot in 3D: drag to turn it, scroll to zoom, right-drag to move"></canvas>
+        <button type="button" class="robot-reset" data-robot-reset
+          title="Joints back to zero, camera back to the whole robot">Reset</button>
+      </div>
+      <p class="meta" data-robot-note hidden></p>
+      <div class="joints" data-sliders></div>
+    </div>`);
+    const $ = finder(this.root);
+    this.canvas = $('robot-canvas');
+    this.sliders = $('sliders');
+    this.noteText = $('robot-note');
+    this.url = null;
+    this.requests = 0;
+    this.robot = null;
+    this.sliders.addEventListener('input', (event) => this.moveJoint(event.target));
+    $('robot-reset').addEventListener('click', () => this.reset());
+  }
+
+  /** Show the robot whose URDF is at `url`; a later call wins over one still loading. */
+  async show(url) {
+    if (url === this.url) return;
+    this.url = url;
+    const request = ++this.requests;
+    this.root.dataset.url = url;
+    delete this.canvas.dataset.ready;
+    try {
+      const [three, urdf] = await Promise.all([loadVendor(), getText(url)]);
+      if (request !== this.requests) return;
+      this.setUp(three);
+      this.setRobot(urdf);
+    } catch (error) {
+      if (request !== this.requests) return;
+      this.url = null;
+      this.note(`No 3D view: ${error.message}`);
+    }
+  }
+
+  setUp(three) {
+    if (this.renderer) return;
+    this.three = three;
+    this.renderer = new three.WebGLRenderer({
+      canvas: this.canvas,
+      antialias: true,
+      preserveDrawingBuffer: true, // what is drawn stays readable: "save image", tests
+    });
+    this.renderer.setPixelRatio(window.devicePixelRatio || 1);
+    this.renderer.setClearColor(BACKGROUND);
+    this.scene = new three.Scene();
+    this.scene.add(new three.AmbientLight(0xffffff, 1.6));
+    this.camera = new three.PerspectiveCamera(40, 1, 0.01, 100);
+    const headlight = new three.DirectionalLight(0xffffff, 2.2);
+    headlight.position.set(0.5, 1, 0.5);
+    this.camera.add(headlight);
+    this.scene.add(this.camera);
+    this.controls = new three.OrbitControls(this.camera, this.canvas);
+    this.controls.addEventListener('change', () => this.render());
+    this.resizer = new ResizeObserver(() => this.resize());
+    this.resizer.observe(this.canvas);
+  }
+
+  setRobot(urdf) {
+    const three = this.three;
+    const xml = new DOMParser().parseFromString(urdf, 'text/xml');
+    if (xml.documentElement.nodeName !== 'robot') throw new Error('not a URDF (no <robot> element)');
+    if (this.robot) {
+      this.scene.remove(this.robot);
+      disposeObject(this.robot);
+    }
+    const manager = new three.LoadingManager();
+    manager.setURLModifier(() => 'data:,'); // a texture file a URDF names: not fetched
+    const loader = new three.URDFLoader(manager);
+    const meshes = [];
+    loader.loadMeshCb = (path, _manager, _material, done) => {
+      meshes.push(path);
+      done(null);
+    };
+    this.robot = loader.parse(xml);
+    this.robot.traverse((part) => {
+      if (part.material?.map) part.material.map = null; // its file was not fetched: colour only
+    });
+    this.robot.rotation.x = -Math.PI / 2; // URDF is z-up, three is y-up
+    this.scene.add(this.robot);
+
+    const movable = Object.values(this.robot.joints)
+      .map((joint) => [joint, sliderRange(joint)])
+      .filter(([, range]) => range);
+    this.sliders.innerHTML = movable
+      .map(([joint, [low, high]]) => {
+        const unit = UNITS[joint.jointType];
+        return `<label class="joint"><span title="${esc(joint.name)} (${esc(joint.jointType)})">${esc(joint.name)}</span>
+          <input type="range" data-joint="${esc(joint.name)}" data-unit="${unit}" min="${low}" max="${high}"
+            step="any">
+          <output></output></label>`;
+      })
+      .join('');
+    this.canvas.dataset.links = String(Object.keys(this.robot.links).length);
+    this.canvas.dataset.joints = String(movable.length);
+    this.zeroJoints();
+    this.resize();
+    const shapes = this.fit();
+    const notes = [];
+    if (meshes.length) {
+      notes.push(`${meshes.length} mesh file(s) not drawn: this view draws boxes, cylinders and spheres.`);
+    }
+    if (!shapes) notes.push('This URDF has no shapes to draw.');
+    this.note(notes.join(' '));
+    this.render();
+    this.canvas.dataset.ready = 'true';
+  }
+
+  /** Every joint at zero, or at the limit nearest zero. */
+  zeroJoints() {
+    for (const input of this.sliders.querySelectorAll('input[data-joint]')) {
+      input.value = String(Math.min(Number(input.max), Math.max(Number(input.min), 0)));
+      this.setJoint(input);
+    }
+  }
+
+  setJoint(input) {
+    const value = Number(input.value);
+    this.robot.setJointValue(input.dataset.joint, value);
+    // Shown to a millimetre or a milliradian.
+    input.nextElementSibling.textContent = `${formatNumber(Number(value.toFixed(3)))} ${input.dataset.unit}`;
+  }
+
+  moveJoint(input) {
+    if (!input.matches('input[data-joint]') || !this.robot) return;
+    this.setJoint(input);
+    this.render();
+  }
+
+  /** The camera on the whole robot, a grid under it; false when it has nothing to draw. */
+  fit() {
+    const { Box3, GridHelper, Vector3 } = this.three;
+    if (this.grid) {
+      this.scene.remove(this.grid);
+      this.grid.dispose();
+    }
+    this.robot.updateMatrixWorld(true);
+    const box = new Box3().setFromObject(this.robot);
+    const empty = box.isEmpty();
+    const center = empty ? new Vector3() : box.getCenter(new Vector3());
+    const radius = empty ? 0.5 : Math.max(box.getSize(new Vector3()).length() / 2, 0.05);
+    const halfFov = (this.camera.fov * Math.PI) / 360;
+    const halfWidth = Math.atan(Math.tan(halfFov) * this.camera.aspect);
+    const distance = (radius / Math.sin(Math.min(halfFov, halfWidth))) * 1.2;
+    const direction = new Vector3(1, 0.7, 1.4).normalize();
+    this.camera.position.copy(center).addScaledVector(direction, distance);
+    this.camera.near = distance / 100;
+    this.camera.far = distance * 100;
+    this.camera.updateProjectionMatrix();
+    this.controls.target.copy(center);
+    this.controls.update();
+    const size = Math.max(1, Math.ceil(radius * 4));
+    this.grid = new GridHelper(size, size * 4, 0x9ca3af, 0xd1d5db);
+    this.grid.position.set(center.x, empty ? 0 : box.min.y, center.z);
+    this.scene.add(this.grid);
+    return !empty;
+  }
+
+  reset() {
+    if (!this.robot) return;
+    this.zeroJoints();
+    this.fit();
+    this.render();
+  }
+
+  resize() {
+    const width = this.canvas.clientWidth;
+    const height = this.canvas.clientHeight;
+    if (!this.renderer || !width || !height) return;
+    this.renderer.setSize(width, height, false);
+    this.camera.aspect = width / height;
+    this.camera.updateProjectionMatrix();
+    this.render();
+  }
+
+  render() {
+    if (!this.robot) return;
+    this.renderer.render(this.scene, this.camera);
+  }
+
+  note(text) {
+    this.noteText.textContent = text;
+    this.noteText.hidden = !text;
+  }
+
+  /** Let go of the GPU context and the listeners; the view is not used again. */
+  dispose() {
+    this.requests += 1;
+    this.resizer?.disconnect();
+    this.controls?.dispose();
+    if (this.robot) disposeObject(this.robot);
+    this.grid?.dispose();
+    this.renderer?.dispose();
+    this.renderer?.forceContextLoss();
+  }
+}

@@ -1,0 +1,161 @@
+// A study's chart columns (number, state, value, params), kept current by deltas: the
+// first load reads them all, a poll only the new trials and those last seen open. The
+// rows the charts draw (complete trials with a score) are found once per load, here.
+
+import { getJSON } from './api.js';
+
+/** Row indices of the complete trials that have a score. */
+function completeRows(series) {
+  const rows = [];
+  for (let i = 0; i < series.number.length; i++) {
+    if (series.state[i] === 'complete' && series.value[i] !== null) rows.push(i);
+  }
+  return rows;
+}
+
+export class Series {
+  constructor(studyId) {
+    this.url = `/api/v1/dashboard/studies/${studyId}/series`;
+    this.loaded = false;
+    this.number = [];
+    this.state = [];
+    this.value = [];
+    this.params = {};
+    this.index = new Map();
+    /** Row indices of the complete trials with a score, in trial order. */
+    this.complete = [];
+  }
+
+  /** Everything the first time, then a delta: new trials and the ones last seen open. */
+  async load() {
+    if (!this.loaded) {
+      const [first, ...rest] = await this.pages(this.url);
+      this.setColumns(first);
+      rest.forEach((page) => this.merge(page));
+      this.loaded = true;
+    } else {
+      const open = [];
+      for (let i = 0; i < this.number.length; i++) {
+        if (this.state[i] === 'queued' || this.state[i] === 'running') open.push(this.number[i]);
+      }
+      let after = this.number.length ? this.number[this.number.length - 1] + 1 : 0;
+      let numbers = open;
+      if (open.length > 500) {
+        after = Math.min(after, open[0]);
+        numbers = [];
+      }
+      const pages = await this.pages(`${this.url}?after=${after}&numbers=${numbers.join(',')}`);
+      pages.forEach((page) => this.merge(page));
+    }
+    this.complete = completeRows(this);
+  }
+
+  // Chart columns from `first` on: the server answers a page at a time, and each page's
+  // `next` is where the following one starts (null after the last).
+  async pages(first) {
+    const pages = [await getJSON(first)];
+    while (pages[pages.length - 1].next != null) {
+      pages.push(await getJSON(`${this.url}?after=${pages[pages.length - 1].next}`));
+    }
+    return pages;
+  }
+
+  setColumns({ number, state, value, params }) {
+    this.number = number;
+    this.state = state;
+    this.value = value;
+    this.params = params;
+    this.index = new Map(number.map((n, i) => [n, i]));
+  }
+
+  merge(delta) {
+    const known = this.number.length;
+    for (const name of Object.keys(delta.params)) {
+      if (!(name in this.params)) this.params[name] = new Array(known).fill(null);
+    }
+    const columns = Object.entries(this.params);
+    let ordered = true;
+    delta.number.forEach((number, j) => {
+      let i = this.index.get(number);
+      if (i === undefined) {
+        i = this.number.length;
+        if (i > 0 && number < this.number[i - 1]) ordered = false;
+        this.number.push(number);
+        this.state.push(null);
+        this.value.push(null);
+        for (const [, column] of columns) column.push(null);
+        this.index.set(number, i);
+      }
+      this.state[i] = delta.state[j];
+      this.value[i] = delta.value[j];
+      for (const [name, column] of columns) column[i] = delta.params[name]?.[j] ?? null;
+    });
+    if (!ordered) {
+      const order = this.number.map((_, i) => i).sort((a, b) => this.number[a] - this.number[b]);
+      const pick = (column) => order.map((i) => column[i]);
+      this.setColumns({
+        number: pick(this.number),
+        state: pick(this.state),
+        value: pick(this.value),
+        params: Object.fromEntries(columns.map(([name, column]) => [name, pick(column)])),
+      });
+    }
+  }
+}
+
+function ranks(values) {
+  const order = values.map((_, index) => index).sort((a, b) => values[a] - values[b]);
+  const result = new Float64Array(values.length);
+  order.forEach((index, rank) => {
+    result[index] = rank;
+  });
+  return result;
+}
+
+function pearson(a, b) {
+  const n = a.length;
+  let ma = 0;
+  let mb = 0;
+  for (let i = 0; i < n; i++) {
+    ma += a[i];
+    mb += b[i];
+  }
+  ma /= n;
+  mb /= n;
+  let sab = 0;
+  let saa = 0;
+  let sbb = 0;
+  for (let i = 0; i < n; i++) {
+    sab += (a[i] - ma) * (b[i] - mb);
+    saa += (a[i] - ma) ** 2;
+    sbb += (b[i] - mb) ** 2;
+  }
+  return saa > 0 && sbb > 0 ? sab / Math.sqrt(saa * sbb) : 0;
+}
+
+/**
+ * Spearman rank correlation of each varying numeric param with the score over complete
+ * trials, strongest first: a cheap guide to which params matter (not a causal importance).
+ */
+export function paramCorrelations(series) {
+  const result = [];
+  for (const [name, column] of Object.entries(series.params)) {
+    const xs = [];
+    const ys = [];
+    for (const i of series.complete) {
+      if (column[i] !== null && column[i] !== undefined) {
+        xs.push(column[i]);
+        ys.push(series.value[i]);
+      }
+    }
+    let [low, high] = [Infinity, -Infinity];
+    for (const value of xs) {
+      if (value < low) low = value;
+      if (value > high) high = value;
+    }
+    if (xs.length < 2 || !(high > low)) continue;
+    result.push({ name, rho: xs.length >= 3 ? pearson(ranks(xs), ranks(ys)) : 0, n: xs.length });
+  }
+  result.sort((a, b) => Math.abs(b.rho) - Math.abs(a.rho) || a.name.localeCompare(b.name));
+  return result;
+}

@@ -1,0 +1,55 @@
+// The studies list (#/): every study with its state, progress, best score and activity.
+
+import { getJSON } from './api.js';
+import { formatNumber } from './charts.js';
+import { countsText, progressBar } from './header.js';
+import { ago, badge, element, esc } from './html.js';
+import { setCrumbs } from './shell.js';
+
+export class StudiesPage {
+  constructor(view) {
+    this.root = element(`<div>
+      <section class="card"><h2>Studies</h2><div class="table-wrap" data-list>Loading…</div></section>
+    </div>`);
+    view.replaceChildren(this.root);
+    this.alive = true;
+    document.title = 'Studies · activedesign';
+    setCrumbs('');
+  }
+
+  async start() {
+    await this.poll();
+  }
+
+  async poll() {
+    const studies = await getJSON('/api/v1/studies');
+    if (!this.alive) return;
+    const target = this.root.querySelector('[data-list]');
+    if (studies.length === 0) {
+      target.innerHTML =
+        '<p class="meta">No studies yet. Create one with <code>adclient</code> or POST /api/v1/studies.</p>';
+      return;
+    }
+    const rows = studies
+      .slice()
+      .sort((a, b) => b.id - a.id)
+      .map(
+        (s) => `<tr>
+          <td><a href="#/studies/${s.id}">${esc(s.name)}</a> <span class="meta">#${s.id}</span>
+            ${s.task ? `<span class="tag">${esc(s.task.name)}</span>` : ''}</td>
+          <td>${badge(s.state)}</td>
+          <td class="progress-cell">${progressBar(s, 'small')}<span class="meta">${esc(countsText(s))}</span></td>
+          <td class="num">${formatNumber(s.best_value)} <span class="meta">${s.direction === 'maximize' ? '↑' : '↓'}</span></td>
+          <td title="${esc(s.updated_at)}">${ago(s.updated_at)}</td>
+        </tr>`,
+      )
+      .join('');
+    target.innerHTML = `<table class="studies">
+      <thead><tr><th>Study</th><th>State</th><th>Progress</th><th>Best</th><th>Last activity</th></tr></thead>
+      <tbody>${rows}</tbody></table>`;
+  }
+
+  stop() {
+    this.alive = false;
+  }
+}

@@ -1,0 +1,163 @@
+// A study's page (#/studies/ID): its panels, kept current by polling. A poll re-fetches
+// only what changed: the study itself every poll (one small read), and the chart columns,
+// the table page and the best design only when the study's counts or updated_at moved;
+// chart columns come as a delta (new trials and the ones last seen open), so a
+// 10,000-trial study stays cheap to follow.
+
+import { getJSON } from './api.js';
+import { BestCard } from './best.js';
+import { StudyHeader } from './header.js';
+import { HistoryPanel } from './history.js';
+import { element } from './html.js';
+import { ParamsPanel } from './params.js';
+import { Series, paramCorrelations } from './series.js';
+import { showError } from './shell.js';
+import { openTrialDialog } from './trial-dialog.js';
+import { TrialsPanel } from './trials.js';
+import { WorkersPanel } from './workers.js';
+
+/** Timings the browser tests read: ms since navigation for the first full render of a
+ * study page, and for each live update the ms from poll start to the next frame. */
+const metrics = (window.adMetrics = { firstRenderMs: null, renders: [], updates: [] });
+
+function nextFrame() {
+  return new Promise((resolve) => requestAnimationFrame(() => setTimeout(resolve, 0)));
+}
+
+function signatureOf(study) {
+  return [
+    study.updated_at,
+    study.state,
+    study.n_trials,
+    study.n_queued,
+    study.n_running,
+    study.n_complete,
+    study.n_failed,
+    study.best_trial_id,
+  ].join('|');
+}
+
+export class StudyPage {
+  constructor(view, studyId) {
+    this.studyId = studyId;
+    this.alive = true;
+    this.study = null;
+    this.signature = null;
+    this.series = new Series(studyId);
+    /** The varying params by rank correlation with the score, and their names. */
+    this.correlations = [];
+    this.searched = new Set();
+    this.polls = 0;
+    this.header = new StudyHeader(studyId);
+    this.history = new HistoryPanel(this);
+    this.best = new BestCard(this);
+    this.params = new ParamsPanel(this);
+    this.workers = new WorkersPanel(this);
+    this.trials = new TrialsPanel(this);
+    this.root = element('<div class="study"><div class="grid"></div></div>');
+    this.root.querySelector('.grid').append(this.history.root, this.best.root);
+    this.root.prepend(this.header.root);
+    this.root.append(this.params.root, this.workers.root, this.trials.root);
+    view.replaceChildren(this.root);
+    this.root.addEventListener('click', (event) => {
+      const opener = event.target.closest('a[data-open-trial]');
+      if (opener && !opener.closest('[data-trials]')) {
+        event.preventDefault();
+        this.openTrial(Number(opener.dataset.openTrial));
+      }
+    });
+    this.resizer = new ResizeObserver(() => {
+      clearTimeout(this.resizeTimer);
+      this.resizeTimer = setTimeout(() => this.series.loaded && this.drawCharts(), 120);
+    });
+    this.resizer.observe(this.root);
+  }
+
+  api(path) {
+    return `/api/v1/studies/${this.studyId}${path}`;
+  }
+
+  async start() {
+    const started = performance.now();
+    this.study = await getJSON(this.api(''));
+    this.signature = signatureOf(this.study);
+    this.header.render(this.study);
+    await Promise.all([this.series.load(), this.trials.load(), this.best.load(), this.workers.load()]);
+    if (!this.alive) return;
+    this.drawCharts();
+    this.trials.render();
+    this.best.render();
+    this.workers.render();
+    await this.best.imageLoaded();
+    await nextFrame();
+    metrics.renders.push(performance.now() - started);
+    if (metrics.firstRenderMs === null) metrics.firstRenderMs = performance.now();
+    this.root.dataset.ready = 'true';
+  }
+
+  async poll() {
+    const started = performance.now();
+    this.polls += 1;
+    const study = await getJSON(this.api(''));
+    if (!this.alive) return;
+    const changed = signatureOf(study) !== this.signature;
+    const scoresChanged = study.n_complete !== this.study.n_complete;
+    this.study = study;
+    this.signature = signatureOf(study);
+    const work = [this.workers.load()];
+    if (changed) {
+      work.push(this.series.load(), this.trials.load(), this.best.load());
+    } else {
+      // Uploads do not touch the study: look for images that may have arrived since.
+      if (this.best.awaitsImage) work.push(this.best.load());
+      if (this.polls % 5 === 0) work.push(this.trials.loadArtifacts());
+    }
+    await Promise.all(work);
+    if (!this.alive) return;
+    const fetched = performance.now();
+    this.header.render(study);
+    if (changed) this.drawCharts({ scoresChanged });
+    this.trials.render();
+    this.best.render();
+    this.workers.render();
+    if (changed) {
+      await nextFrame();
+      const done = performance.now();
+      metrics.updates.push({
+        ms: done - started,
+        fetchMs: fetched - started,
+        renderMs: done - fetched,
+        trials: this.series.number.length,
+      });
+    }
+  }
+
+  stop() {
+    this.alive = false;
+    this.resizer.disconnect();
+    this.best.dispose();
+  }
+
+  /** The history always; the params charts only when scores changed (new complete
+   * trials), since they show complete trials only. */
+  drawCharts({ scoresChanged = true } = {}) {
+    this.history.draw();
+    if (!scoresChanged) return;
+    this.correlations = paramCorrelations(this.series);
+    this.searched = new Set(this.correlations.map((c) => c.name));
+    this.params.draw();
+  }
+
+  async openTrialByNumber(number) {
+    const [trial] = await getJSON(this.api(`/trials?offset=${number}&limit=1&order_by=number`));
+    if (trial && trial.number === number) this.openTrial(trial.id);
+  }
+
+  async openTrial(trialId) {
+    try {
+      await openTrialDialog(this.study, trialId);
+    } catch (error) {
+      showError(error);
+    }
+  }
+}

@@ -1,0 +1,223 @@
+// The trials panel: a page of trials, sorted and filtered by the server, with each row's
+// files; a row opens its trial.
+
+import { artifactNames, getJSON } from './api.js';
+import { formatNumber } from './charts.js';
+import { ago, badge, duration, element, esc, finder, formatParam, urdfLink } from './html.js';
+import { showError } from './shell.js';
+
+const COLUMNS = [
+  { key: 'number', label: '#', sort: 'number' },
+  { key: 'state', label: 'State', sort: 'state' },
+  { key: 'value', label: 'Score', sort: 'value' },
+  { key: 'worker', label: 'Worker', sort: 'worker_id' },
+  { key: 'attempts', label: 'Attempts', sort: 'attempts' },
+  { key: 'duration', label: 'Duration', sort: 'duration' },
+  { key: 'finished', label: 'Finished', sort: 'finished_at' },
+  { key: 'params', label: 'Params', sort: null },
+  { key: 'files', label: 'Files', sort: null },
+];
+
+/** Params in the order a reader wants them: those searched (varying) first. */
+function searchedFirst(params, searched) {
+  const entries = Object.entries(params ?? {});
+  return [
+    ...entries.filter(([k]) => searched.has(k)),
+    ...entries.filter(([k]) => !searched.has(k)),
+  ];
+}
+
+export class TrialsPanel {
+  constructor(page) {
+    this.page = page;
+    this.table = { offset: 0, limit: 25, orderBy: 'number', desc: true, state: '' };
+    this.rows = [];
+    this.total = 0;
+    this.rowArtifacts = {};
+    const heads = COLUMNS.map(
+      (c) => `<th${c.sort ? ` data-sort="${c.sort}" class="sortable"` : ''}>${c.label}</th>`,
+    ).join('');
+    this.root = element(`<section class="card">
+      <h2>Trials</h2>
+      <div class="toolbar">
+        <label>State <select data-filter>
+          <option value="">all</option><option>complete</option><option>running</option>
+          <option>queued</option><option>failed</option></select></label>
+        <label>Rows <select data-page-size><option selected>25</option><option>50</option>
+          <option>100</option><option>200</option></select></label>
+        <label>Sort by param <select data-sort-param><option value="">—</option></select></label>
+        <button data-sort-direction title="Reverse the param order" disabled>▲</button>
+        <span class="spacer"></span>
+        <button data-page="first" title="First page">«</button>
+        <button data-page="prev" title="Previous page">‹</button>
+        <span class="meta" data-page-info></span>
+        <button data-page="next" title="Next page">›</button>
+        <button data-page="last" title="Last page">»</button>
+      </div>
+      <div class="table-wrap">
+        <table class="trials" data-trials><thead><tr>${heads}</tr></thead><tbody></tbody></table>
+      </div>
+    </section>`);
+    this.$ = finder(this.root);
+    this.bindEvents();
+  }
+
+  bindEvents() {
+    this.$('trials').addEventListener('click', (event) => {
+      const head = event.target.closest('th[data-sort]');
+      if (head) {
+        const key = head.dataset.sort;
+        this.table.desc = this.table.orderBy === key ? !this.table.desc : key !== 'number';
+        this.table.orderBy = key;
+        this.table.offset = 0;
+        this.refresh();
+        return;
+      }
+      if (event.target.closest('a[data-download]')) return;
+      const opener = event.target.closest('[data-open-trial]');
+      const row = event.target.closest('tr[data-trial-id]');
+      if (opener || row) {
+        event.preventDefault();
+        this.page.openTrial(Number((opener ?? row).dataset.openTrial ?? row.dataset.trialId));
+      }
+    });
+    this.$('filter').addEventListener('change', (event) => {
+      this.table.state = event.target.value;
+      this.table.offset = 0;
+      this.refresh();
+    });
+    this.$('sort-param').addEventListener('change', (event) => {
+      const name = event.target.value;
+      this.table.orderBy = name ? `param:${name}` : 'number';
+      this.table.desc = !name;
+      this.table.offset = 0;
+      this.refresh();
+    });
+    this.$('sort-direction').addEventListener('click', () => {
+      this.table.desc = !this.table.desc;
+      this.table.offset = 0;
+      this.refresh();
+    });
+    this.$('page-size').addEventListener('change', (event) => {
+      this.table.limit = Number(event.target.value);
+      this.table.offset = 0;
+      this.refresh();
+    });
+    this.root.querySelector('.toolbar').addEventListener('click', (event) => {
+      const button = event.target.closest('button[data-page]');
+      if (!button) return;
+      const { limit } = this.table;
+      const lastOffset = Math.max(0, Math.floor((this.total - 1) / limit) * limit);
+      const moves = {
+        first: 0,
+        prev: Math.max(0, this.table.offset - limit),
+        next: Math.min(lastOffset, this.table.offset + limit),
+        last: lastOffset,
+      };
+      this.table.offset = moves[button.dataset.page];
+      this.refresh();
+    });
+  }
+
+  async load() {
+    const t = this.table;
+    const query = new URLSearchParams({
+      offset: t.offset,
+      limit: t.limit,
+      order_by: t.orderBy,
+      desc: t.desc,
+    });
+    if (t.state) query.set('state', t.state);
+    const { body, total } = await getJSON(this.page.api(`/trials?${query}`), { withTotal: true });
+    if (body.length === 0 && total > 0 && t.offset > 0) {
+      t.offset = Math.floor((total - 1) / t.limit) * t.limit;
+      return this.load();
+    }
+    this.rows = body;
+    this.total = total;
+    await this.loadArtifacts();
+  }
+
+  /** Uploads do not touch the study: the page asks now and then for new files. */
+  async loadArtifacts() {
+    this.rowArtifacts = await artifactNames(
+      this.page.studyId,
+      this.rows.map((row) => row.id),
+    );
+  }
+
+  async refresh() {
+    try {
+      await this.load();
+      if (this.page.alive) this.render();
+    } catch (error) {
+      showError(error);
+    }
+  }
+
+  /** The params one can sort the table by (searched ones first), and the current one. */
+  renderSortParam(searched) {
+    const select = this.$('sort-param');
+    const names = Object.keys(this.page.series.params);
+    const ordered = [...names.filter((n) => searched.has(n)), ...names.filter((n) => !searched.has(n))];
+    const current = this.table.orderBy.startsWith('param:') ? this.table.orderBy.slice(6) : '';
+    const signature = ordered.join('\n');
+    if (select.dataset.names !== signature) {
+      select.dataset.names = signature;
+      select.innerHTML = ['<option value="">—</option>', ...ordered.map((n) => `<option>${esc(n)}</option>`)].join('');
+    }
+    select.value = current;
+    const direction = this.$('sort-direction');
+    direction.disabled = !current;
+    direction.textContent = current && this.table.desc ? '▼' : '▲';
+  }
+
+  render() {
+    const { study, searched } = this.page;
+    const { offset, limit, orderBy, desc } = this.table;
+    const body = this.rows
+      .map((trial) => {
+        const artifacts = this.rowArtifacts[trial.id] ?? [];
+        const files = [];
+        if (artifacts.includes('robot.png')) {
+          files.push(`<a href="#" data-open-trial="${trial.id}" data-image>image</a>`);
+        }
+        const urdf = urdfLink(study, trial, artifacts);
+        if (urdf) files.push(urdf);
+        const others = artifacts.filter((n) => n !== 'robot.png' && n !== 'robot.urdf').length;
+        if (others) files.push(`<span class="meta">+${others}</span>`);
+        const params = searchedFirst(trial.params, searched)
+          .map(([k, v]) => `${k}=${formatParam(v)}`)
+          .join('  ');
+        const best = trial.id === study.best_trial_id;
+        return `<tr data-trial-id="${trial.id}" class="${best ? 'is-best' : ''}">
+          <td class="num">${trial.number}${best ? ' <span title="best">★</span>' : ''}</td>
+          <td>${badge(trial.state)}</td>
+          <td class="num">${formatNumber(trial.value)}</td>
+          <td>${esc(trial.worker_id ?? '—')}</td>
+          <td class="num">${trial.attempts}</td>
+          <td class="num">${duration(trial)}</td>
+          <td title="${esc(trial.finished_at ?? '')}">${trial.finished_at ? ago(trial.finished_at) : '—'}</td>
+          <td class="params" title="${esc(params)}">${esc(params)}</td>
+          <td class="files">${files.join(' ')}</td>
+        </tr>`;
+      })
+      .join('');
+    const trials = this.$('trials');
+    trials.tBodies[0].innerHTML = body || `<tr><td colspan="${COLUMNS.length}" class="meta">No trials</td></tr>`;
+    this.renderSortParam(searched);
+    for (const head of trials.querySelectorAll('th[data-sort]')) {
+      const active = head.dataset.sort === orderBy;
+      head.classList.toggle('sorted', active);
+      head.setAttribute('aria-sort', active ? (desc ? 'descending' : 'ascending') : 'none');
+      head.dataset.arrow = active ? (desc ? '▼' : '▲') : '';
+    }
+    const first = this.total ? offset + 1 : 0;
+    this.$('page-info').textContent = `${first}–${offset + this.rows.length} of ${this.total}`;
+    trials.dataset.total = String(this.total);
+    this.root.querySelector('[data-page="prev"]').disabled = offset === 0;
+    this.root.querySelector('[data-page="first"]').disabled = offset === 0;
+    this.root.querySelector('[data-page="next"]').disabled = offset + limit >= this.total;
+    this.root.querySelector('[data-page="last"]').disabled = offset + limit >= this.total;
+  }
+}
