@@ -8,11 +8,12 @@ import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
-from adclient.schemas import BoxParam, BoxSpace
-from adworker.evaluate import Cancelled, JobError, evaluate_job, evaluation_seeds
-from adworker.learners import LEARNERS, UnknownLearner, evaluate_policy, get_learner
-from adworker.tasks import get_task
+from adclient.schemas import BoxParam, BoxSpace, NewTaskConfig
+from adworker.evaluate import evaluate_job, evaluation_seeds
+from adworker.learners import ConstantTargetSearch, evaluate_policy
+from adworker.runner import Cancelled, JobError
 from tests.workers.robots import HALF_PI, make_job, stand_up_specs
 
 SEEDS = [0, 1, 2]
@@ -21,15 +22,16 @@ SEEDS = [0, 1, 2]
 def _fast_scores(env, seeds: list[int]) -> list[float]:
     scores = []
     for seed in seeds:
-        trained = get_learner("fast").train(env, steps=get_learner("fast").default_steps, seed=seed)
+        fast = ConstantTargetSearch()
+        trained = fast.train(env, steps=fast.default_steps, seed=seed)
         episodes = evaluate_policy(env, trained.policy, [1000 + 10 * seed + k for k in range(3)])
         scores.append(float(np.mean([episode.score for episode in episodes])))
     return scores
 
 
-def test_fast_learner_separates_arch_from_along_links_on_every_seed(urdf_of) -> None:
-    arch = get_task("stand-up")(urdf_of("arch_chain"))
-    along = get_task("stand-up")(urdf_of("along_links_chain"))
+def test_fast_learner_separates_arch_from_along_links_on_every_seed(env_of) -> None:
+    arch = env_of("stand-up", "arch_chain")
+    along = env_of("stand-up", "along_links_chain")
     try:
         arch_scores = _fast_scores(arch, SEEDS)
         along_scores = _fast_scores(along, SEEDS)
@@ -40,9 +42,9 @@ def test_fast_learner_separates_arch_from_along_links_on_every_seed(urdf_of) -> 
     assert max(along_scores) < 0.05, along_scores  # b lies at its radius, 0.04
 
 
-def test_fast_learner_separates_crossed_from_parallel_axes_on_the_diagonal(urdf_of) -> None:
-    crossed = get_task("diagonal-gesture")(urdf_of("crossed_chain"))
-    parallel = get_task("diagonal-gesture")(urdf_of("parallel_chain"))
+def test_fast_learner_separates_crossed_from_parallel_axes_on_the_diagonal(env_of) -> None:
+    crossed = env_of("diagonal-gesture", "crossed_chain")
+    parallel = env_of("diagonal-gesture", "parallel_chain")
     try:
         crossed_scores = _fast_scores(crossed, SEEDS)
         parallel_scores = _fast_scores(parallel, SEEDS)
@@ -53,20 +55,14 @@ def test_fast_learner_separates_crossed_from_parallel_axes_on_the_diagonal(urdf_
     assert max(parallel_scores) < math.sqrt(2 / 3) + 0.01, parallel_scores
 
 
-def test_fast_learner_stays_within_its_budget(urdf_of) -> None:
-    env = get_task("stand-up")(urdf_of("arch_chain"))
+def test_fast_learner_stays_within_its_budget(env_of) -> None:
+    env = env_of("stand-up", "arch_chain")
     try:
-        trained = get_learner("fast").train(env, steps=10 * env.episode_steps, seed=0)
+        trained = ConstantTargetSearch().train(env, steps=10 * env.episode_steps, seed=0)
     finally:
         env.close()
     assert trained.train_steps <= 10 * env.episode_steps
     assert len(trained.curve) == trained.train_steps // env.episode_steps
-
-
-def test_unknown_learner_names_the_known_ones() -> None:
-    with pytest.raises(UnknownLearner, match="ddpg"):
-        get_learner("hill-climb")
-    assert {"fast", "ddpg", "td3", "sac", "ppo"} <= set(LEARNERS)
 
 
 def test_evaluate_job_reports_score_metrics_and_artifacts(tmp_path) -> None:
@@ -77,7 +73,7 @@ def test_evaluate_job_reports_score_metrics_and_artifacts(tmp_path) -> None:
     metrics = evaluation.metrics
     assert metrics["score_mean"] == evaluation.value
     assert metrics["eval_episodes"] == job.task.eval_episodes
-    assert metrics["train_steps"] == get_learner("fast").default_steps
+    assert metrics["train_steps"] == ConstantTargetSearch.default_steps
     assert metrics["sim_steps"] > 0
     for stage in ("decode", "urdf", "env", "train", "evaluate", "render"):
         assert metrics[f"time_{stage}_s"] >= 0
@@ -92,7 +88,7 @@ def test_evaluate_job_reports_score_metrics_and_artifacts(tmp_path) -> None:
     assert artifacts["robot.png"].content_type == "image/png"
     curve = json.loads(artifacts["curve.json"].data)
     assert [point["seed"] for point in curve["evaluation"]] == evaluation_seeds(job.task)
-    assert len(curve["train"]) == get_learner("fast").default_steps // 32
+    assert len(curve["train"]) == ConstantTargetSearch.default_steps // 32
     assert np.mean([point["score"] for point in curve["evaluation"]]) == pytest.approx(
         evaluation.value
     )
@@ -154,10 +150,36 @@ def test_evaluate_job_refuses_a_box_space(tmp_path) -> None:
         evaluate_job(job, tmp_path)
 
 
-def test_evaluate_job_rejects_an_unknown_learner(tmp_path) -> None:
-    job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), learner="nope")
-    with pytest.raises(UnknownLearner):
+def test_evaluate_job_rejects_an_unknown_learner_naming_the_installed_ones(tmp_path) -> None:
+    job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), learner="hill-climb")
+    with pytest.raises(JobError, match=r"unknown learner .hill-climb.*ddpg, fast, ppo, sac, td3"):
         evaluate_job(job, tmp_path)
+
+
+def test_evaluate_job_rejects_an_unknown_task_and_kwargs_for_fast(tmp_path) -> None:
+    job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI))
+    unknown = job.model_copy(update={"task": job.task.model_copy(update={"name": "juggle"})})
+    with pytest.raises(JobError, match=r"unknown task .juggle.*stand-up"):
+        evaluate_job(unknown, tmp_path)
+    tuned = job.task.model_copy(update={"options": {"learner_kwargs": {"gamma": 0.9}}})
+    with pytest.raises(JobError, match="learner 'fast' takes no learner_kwargs"):
+        evaluate_job(job.model_copy(update={"task": tuned}), tmp_path)
+
+
+def test_learner_kwargs_reach_the_stable_baselines_model(env_of) -> None:
+    from adworker.evaluate import make_learner, task_options
+
+    job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), learner="ppo")
+    options = {"learner_kwargs": {"gamma": 0.5, "n_epochs": 2}}
+    task = job.task.model_copy(update={"options": options})
+    learner = make_learner(task, task_options(task))
+    env = env_of("stand-up", "arch_chain")
+    try:
+        model = learner.make_model(env, steps=2048, seed=0)
+    finally:
+        env.close()
+    assert (model.gamma, model.n_epochs) == (0.5, 2)
+    assert model.learning_rate == 1e-3  # the learner's own default where not overridden
 
 
 @pytest.mark.slow
@@ -171,3 +193,22 @@ def test_stable_baselines_learner_trains_at_a_small_budget(learner: str, tmp_pat
     assert len(evaluation.train.curve) == steps // 32  # one score per training episode
     assert math.isfinite(evaluation.value)
     assert 0.0 <= evaluation.value < 1.0
+
+
+def test_the_shortest_episode_allowed_is_the_shortest_the_simulator_runs(tmp_path) -> None:
+    shortest = NewTaskConfig.model_fields["episode_steps"].metadata[0].ge
+    assert shortest == 2
+    with pytest.raises(ValidationError, match="episode_steps"):
+        NewTaskConfig(name="stand-up", episode_steps=shortest - 1)
+    job = make_job(
+        "stand-up",
+        stand_up_specs(HALF_PI, HALF_PI),
+        episode_steps=shortest,
+        train_steps=4 * shortest,
+        eval_episodes=1,
+    )
+    evaluation = evaluate_job(job, tmp_path / "shortest", render=False)
+    assert evaluation.metrics["eval_episodes"] == 1.0
+    too_short = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), episode_steps=shortest - 1)
+    with pytest.raises(ValueError, match="episode_steps"):
+        evaluate_job(too_short, tmp_path / "too-short", render=False)
