@@ -15,7 +15,7 @@ LinkName = Annotated[str, Field(min_length=1, max_length=64)]
 class StandUpOptions(SimulatorOptions):
     lifted_link: LinkName = Field(default="b", description="The link whose centre is lifted")
     feet_links: list[LinkName] = Field(
-        default_factory=lambda: ["a", "c"],
+        default=["a", "c"],
         max_length=32,
         description="The links that must touch the ground while it counts",
     )
