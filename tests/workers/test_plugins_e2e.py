@@ -8,6 +8,7 @@ other test, stays as it was."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -72,7 +73,7 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerPr
     with Client(server.url) as client:
         tasks = {task.name: task for task in client.tasks()}
         learners = {learner.name: learner for learner in client.learners()}
-    assert sorted(tasks) == sorted([*catalogue().tasks, "reach-up"])
+    assert sorted(tasks) == sorted([*catalogue().tasks, "reach-up", "reach-elsewhere"])
     reach = tasks["reach-up"]
     assert "fixed base" in reach.description
     tip = reach.options_schema["properties"]["tip_link"]
@@ -106,6 +107,24 @@ def test_a_study_of_the_plugin_is_checked_with_its_declarations(
         assert text in detail, (text, detail)
 
 
+def test_the_command_lines_list_the_plugin_and_what_does_not_load_here(plugin_site: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(plugin_site)}
+    bin_dir = Path(sys.executable).parent
+    listed = {}
+    for command in ("adserver", "adworker"):
+        done = subprocess.run(
+            [str(bin_dir / command), "tasks"], env=env, capture_output=True, text=True, check=True
+        )
+        listed[command] = {line.split()[0]: line for line in done.stdout.splitlines()}
+    assert "does not load" not in "".join(listed["adserver"].values()), "the server imports none"
+    worker = listed["adworker"]
+    assert "fixed base" in worker["reach-up"] and "does not load" not in worker["reach-up"]
+    assert "hold" in worker and "does not load" not in worker["hold"]
+    elsewhere = worker["reach-elsewhere"]
+    assert "does not load: ModuleNotFoundError" in elsewhere
+    assert "simulator_that_is_not_installed" in elsewhere
+
+
 def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
     server: ServerProcess, plugin_site: Path, tmp_path: Path
 ) -> None:
@@ -113,6 +132,7 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
     try:
         with Client(server.url) as client:
             study = client.create_study(reach_up_study(options={"learner_kwargs": {"pose": 0}}))
+            elsewhere = client.create_study(reach_up_study(name="reach-elsewhere"))
             without = WorkerProcess(server, tmp_path, "without", "--idle-exit", "3")
             started.append(without)
             assert without.wait() == 0, without.log()
@@ -123,6 +143,10 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
             with_it = WorkerProcess(server, tmp_path, "with", "--max-jobs", "3", env=env)
             started.append(with_it)
             assert with_it.wait() == 0, with_it.log()
+            leased = with_it.log().split("tasks", 1)[1].splitlines()[0]
+            assert "'reach-up'" in leased and "reach-elsewhere" not in leased
+            assert "task reach-elsewhere: its environment does not load" in with_it.log()
+            assert client.study_info(elsewhere.id).n_trials == 0
             final = study.wait(poll=0.2, timeout=PATIENCE)
             assert final.n_complete == 3, [trial.message for trial in study.trials]
             for trial in study.trials:

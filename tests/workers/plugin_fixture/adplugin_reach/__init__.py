@@ -26,6 +26,12 @@ REACH_UP = TaskSpec(
     description="An arm on a fixed base raises the top of its tip link as high as it can.",
     factory="adplugin_reach.env:ReachUp.make_env",
 )
+REACH_ELSEWHERE = TaskSpec(
+    name="reach-elsewhere",
+    options=ReachUpOptions,
+    description="reach-up on a simulator this machine does not have.",
+    factory="adplugin_reach.elsewhere:make_env",
+)
 HOLD = LearnerSpec(
     name="hold",
     description="No training: every joint holds one target.",
