@@ -145,3 +145,51 @@ def test_a_simulator_steps_saves_and_restores(sim, tmp_path) -> None:
     assert run() == first  # reset restores the saved state exactly
     sim.close()
     assert not sim.connected
+
+
+def _energy(sim: Simulator, robot: Robot) -> float:
+    """Kinetic (of the centres of mass) plus potential energy of the robot (J)."""
+    cid, body = sim.client, robot.body
+    linear = [pybullet.getBaseVelocity(body, physicsClientId=cid)[0]]
+    heights = [pybullet.getBasePositionAndOrientation(body, physicsClientId=cid)[0][2]]
+    links = [g.index for g in robot.geometry if g.index >= 0]
+    for state in pybullet.getLinkStates(
+        body, links, computeLinkVelocity=1, computeForwardKinematics=1, physicsClientId=cid
+    ):
+        linear.append(state[6])
+        heights.append(state[0][2])
+    masses = [g.mass for g in robot.geometry]
+    return sum(
+        m * (0.5 * sum(v * v for v in velocity) + 9.81 * z)
+        for m, velocity, z in zip(masses, linear, heights, strict=True)
+    )
+
+
+def test_a_free_robot_gains_no_energy_its_motors_did_not_give(sim, tmp_path) -> None:
+    """Joints swinging fast and hard: the body's energy stays within the motors' work,
+    and every joint within its speed limit (set once, kept across resets and commands).
+    The old velocity clamp on the whole body (maxJointVelocity) failed it: 31 J of 78."""
+    design = designs.tree_design(
+        [("a", "b"), ("b", "c"), ("c", "d")],
+        {"b": (2.17, 0.02), "c": (0.56, 0.82), "d": (1.24, 1.32)},
+        effort=4.0,
+        velocity=3.0,
+    )
+    robot = _robot(sim, design, tmp_path / "chain.urdf")
+    for episode in range(2):
+        robot.reset(np.zeros(robot.joint_count))
+        start, work, fastest, surplus = _energy(sim, robot), 0.0, 0.0, 0.0
+        for step in range(24):
+            swing = 1.0 if (step // 3 + episode) % 2 == 0 else -1.0
+            robot.act(np.array([swing, -swing, swing], dtype=np.float32))
+            for _ in range(sim.frame_skip):
+                pybullet.stepSimulation(physicsClientId=sim.client)
+                states = pybullet.getJointStates(
+                    robot.body, robot.joint_indices, physicsClientId=sim.client
+                )
+                work += sim.time_step * sum(abs(s[1] * s[3]) for s in states)
+                fastest = max(fastest, *(abs(s[1]) for s in states))
+            surplus = max(surplus, _energy(sim, robot) - start - work)
+        assert work > 5.0  # the motors did work hard
+        assert surplus < 0.05 * work, (surplus, work)
+        assert fastest < 3.3  # the motor holds it to its limit, give or take an impact

@@ -129,8 +129,19 @@ class Robot:
                 physicsClientId=cid,
             )
         for joint in self.joints:
-            pybullet.changeDynamics(
-                self.body, joint.index, maxJointVelocity=joint.velocity, physicsClientId=cid
+            # A joint's speed limit is its motor's. changeDynamics(maxJointVelocity) would
+            # set Bullet's one velocity clamp of the whole body, which holds every
+            # coordinate, a free base's six velocities included, to the limit: momentum
+            # is not conserved and a fast gait gains energy from nowhere (measured: 20 J
+            # in its first 0.1 s). Set once here; the per-step array commands keep it.
+            pybullet.setJointMotorControl2(
+                self.body,
+                joint.index,
+                pybullet.POSITION_CONTROL,
+                targetPosition=0.0,
+                force=joint.effort,
+                maxVelocity=joint.velocity,
+                physicsClientId=cid,
             )
         self.joint_indices = [joint.index for joint in self.joints]
         self._child_indices = [g.index for g in self.geometry if g.index >= 0]
