@@ -21,7 +21,15 @@ from starlette.concurrency import run_in_threadpool
 
 T = TypeVar("T")
 
-MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
+def _migrations_dir() -> Path:
+    """The Alembic scripts: ``adservice/migrations`` in an installed wheel (setup.py copies
+    them there), else ``migrations/`` at the top of the source tree (an editable install)."""
+    package = Path(__file__).resolve().parent
+    packaged = package / "migrations"
+    return packaged if (packaged / "env.py").is_file() else package.parents[1] / "migrations"
+
+
+MIGRATIONS_DIR = _migrations_dir()
 
 
 def is_sqlite(engine: Engine) -> bool:
