@@ -21,6 +21,7 @@ from starlette.concurrency import run_in_threadpool
 
 T = TypeVar("T")
 
+
 def _migrations_dir() -> Path:
     """The Alembic scripts: ``adservice/migrations`` in an installed wheel (setup.py copies
     them there), else ``migrations/`` at the top of the source tree (an editable install)."""
