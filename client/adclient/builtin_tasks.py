@@ -58,3 +58,29 @@ LIFT_HIGHEST = TaskSpec(
     "top of its body.",
     factory="adworker.tasks.lift_highest:LiftHighest.make_env",
 )
+
+
+class WalkForwardOptions(SimulatorOptions):
+    gait_period: float = Field(
+        default=0.8,
+        gt=0.0,
+        le=60.0,
+        description="Seconds per cycle of the gait clock the policy sees (the fast learner "
+        "searches gaits of this period)",
+    )
+    max_height: float = Field(
+        default=3.0,
+        gt=0.0,
+        le=1000.0,
+        description="The episode ends when the centre of mass rises above this (m): a robot "
+        "flung off the ground, or a diverged simulation, travels no further",
+    )
+
+
+WALK_FORWARD = TaskSpec(
+    name="walk-forward",
+    options=WalkForwardOptions,
+    description="A free robot lying on the ground travels along +x: the distance its "
+    "centre of mass has moved at the end of the episode (m).",
+    factory="adworker.tasks.walk_forward:WalkForward.make_env",
+)

@@ -11,7 +11,7 @@ from gymnasium.utils.env_checker import check_env
 
 from adworker import designs
 
-BUILT_IN = ["diagonal-gesture", "lift-highest", "stand-up"]
+BUILT_IN = ["diagonal-gesture", "lift-highest", "stand-up", "walk-forward"]
 
 
 @pytest.mark.parametrize("task", BUILT_IN)

@@ -27,6 +27,7 @@ direction long enough to find a pose.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -34,7 +35,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
-from adworker.tasks.base import RobotEnv, episode_score
+from adworker.tasks.base import RobotEnv
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
@@ -76,8 +77,7 @@ def evaluate_policy(
         while not (terminated or truncated):
             observation, reward, terminated, truncated, _ = env.step(policy(observation))
             total += reward
-        metric = list(env.record.metric)
-        results.append(EpisodeResult(seed, episode_score(metric), total, metric))
+        results.append(EpisodeResult(seed, env.record.score(), total, list(env.record.metric)))
     return results
 
 
@@ -108,6 +108,10 @@ class ConstantTargetSearch(Learner):
     best few candidates run again with other seeds and the best mean wins, so a pose
     that only holds from one starting state (an arch on the edge of tipping over)
     loses to one that holds from all.
+
+    A task with a gait clock (``env.gait_period``, walking) is not done by holding a
+    pose: there the same search runs over periodic gaits (:func:`_gait`, three numbers
+    per joint), so a design that can move is seen to move.
     """
 
     name: ClassVar[str] = "fast"
@@ -116,7 +120,8 @@ class ConstantTargetSearch(Learner):
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
     ) -> TrainResult:
-        joints = env.joint_count
+        dims = env.joint_count if env.gait_period is None else 3 * env.joint_count
+        policy_of = _constant if env.gait_period is None else _gait
         episodes = max(1, steps // env.episode_steps)
         validate_seeds = 2 if episodes >= 8 else 0
         validate_count = max(1, episodes // 4 // validate_seeds) if validate_seeds else 0
@@ -128,19 +133,19 @@ class ConstantTargetSearch(Learner):
 
         def score_of(action: np.ndarray, episode_seed: int) -> float:
             nonlocal used
-            result = evaluate_policy(env, _constant(action), [episode_seed], check)[0]
+            result = evaluate_policy(env, policy_of(action), [episode_seed], check)[0]
             used += env.episode_steps
             curve.append({"steps": float(used), "score": result.score})
             return result.score
 
         tried: list[tuple[float, np.ndarray]] = []
-        candidates = [np.zeros(joints), *(_halton(explore - 1, joints, rng) * 2.0 - 1.0)]
+        candidates = [np.zeros(dims), *(_halton(explore - 1, dims, rng) * 2.0 - 1.0)]
         for action in candidates:
             tried.append((score_of(action, seed), action))
         best_score, best_action = max(tried, key=lambda pair: pair[0])
         sigma = 0.3
         for _ in range(search - len(candidates)):
-            trial = np.clip(best_action + rng.normal(0.0, sigma, joints), -1.0, 1.0)
+            trial = np.clip(best_action + rng.normal(0.0, sigma, dims), -1.0, 1.0)
             score = score_of(trial, seed)
             tried.append((score, trial))
             if score > best_score:
@@ -157,7 +162,7 @@ class ConstantTargetSearch(Learner):
             if mean > best_mean:
                 best_mean, best_action = mean, action
         return TrainResult(
-            policy=_constant(best_action),
+            policy=policy_of(best_action),
             train_steps=used,
             curve=curve,
             info={"best_train_score": float(best_mean), "action": best_action.tolist()},
@@ -196,6 +201,29 @@ def _constant(action: np.ndarray, ramp: float = RAMP_PER_STEP) -> Policy:
     def policy(observation: np.ndarray) -> np.ndarray:
         current = observation[:joints]
         return np.clip(fixed, current - ramp, current + ramp).astype(np.float32)
+
+    return policy
+
+
+def _gait(gait: np.ndarray) -> Policy:
+    """Swing each joint on the env's gait clock: target = offset + amplitude sin(clock +
+    phase), from ``gait`` in [-1, 1]^(3 joints): offsets, then amplitudes (mapped onto
+    [0, 1]), then phases (onto [-pi, pi]).
+
+    The clock is the observation's last two values, (sin, cos) of its phase (see
+    ``RobotEnv``), so the policy needs no state: sin(clock + phase) = sin(clock)
+    cos(phase) + cos(clock) sin(phase). All zeros: every joint swinging in step,
+    half its range about the middle.
+    """
+    joints = gait.shape[0] // 3
+    offset = gait[:joints]
+    amplitude = (gait[joints : 2 * joints] + 1.0) / 2.0
+    phase = math.pi * gait[2 * joints :]
+    by_sin, by_cos = amplitude * np.cos(phase), amplitude * np.sin(phase)
+
+    def policy(observation: np.ndarray) -> np.ndarray:
+        sin, cos = float(observation[-2]), float(observation[-1])
+        return np.clip(offset + sin * by_sin + cos * by_cos, -1.0, 1.0).astype(np.float32)
 
     return policy
 

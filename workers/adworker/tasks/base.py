@@ -20,6 +20,7 @@ the policy, never on what ran before it.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,6 +76,9 @@ class Task(Generic[OptionsT]):
         self.robot = robot
         self.sim = sim
         self.options = options
+        self.gait_period: float | None = None
+        """Seconds per cycle of a gait clock the policy sees, for a task done by repeating a
+        motion (walking); None: no clock. See :class:`RobotEnv`."""
 
     @classmethod
     def make_env(
@@ -120,8 +124,11 @@ class Task(Generic[OptionsT]):
 class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     """One design doing one task in its own simulator; see the module docstring.
 
-    Observation: the robot's (``Robot.observe``), then the task's extras. Action: one
-    value in [-1, 1] per joint (``Robot.targets``).
+    Observation: the robot's (``Robot.observe``), then the task's extras, then, for a
+    task with a ``gait_period``, a clock: (sin, cos) of the phase 2 pi t / period, t the
+    time since the episode began. A policy without memory (an MLP, a periodic gait)
+    can then repeat a motion. Action: one value in [-1, 1] per joint
+    (``Robot.targets``).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -160,7 +167,14 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.action_space = gym.spaces.Box(
             -1.0, 1.0, shape=(self.robot.joint_count,), dtype=np.float32
         )
+        self.gait_period = self.task.gait_period
+        self._phase_per_step = (
+            None
+            if self.gait_period is None
+            else 2.0 * math.pi * self.sim.control_period / self.gait_period
+        )
         size = self.robot.observation_size() + self.task.observation_size()
+        size += 0 if self.gait_period is None else 2
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
         self.record = EpisodeRecord(self.task.score)
         self._step_count = 0
@@ -178,6 +192,9 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     def _observe(self, snapshot: Snapshot) -> np.ndarray:
         values = self.robot.observe(snapshot)
         values += self.task.observation(snapshot)
+        if self._phase_per_step is not None:
+            phase = self._phase_per_step * self._step_count
+            values += (math.sin(phase), math.cos(phase))
         return np.array(values, dtype=np.float32)
 
     def reset(
