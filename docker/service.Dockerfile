@@ -1,5 +1,19 @@
 # The activedesign server: `adserver` on 0.0.0.0:8000, migrating its database at start.
 # Build from the repository root: docker build -f docker/service.Dockerfile -t activedesign-service .
+
+# The wheel, built from the source: it carries the Alembic migrations (as
+# adservice/migrations) and the dashboard's files, so the image needs no source tree.
+FROM python:3.11-slim AS wheel
+ENV PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+WORKDIR /src
+COPY pyproject.toml setup.py MANIFEST.in README.md alembic.ini ./
+COPY client client
+COPY service service
+COPY workers workers
+COPY migrations migrations
+RUN pip wheel --no-deps --wheel-dir /wheels .
+
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -10,16 +24,12 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 # The CPU build of torch first, pinned: an unpinned torch pulls several GB of CUDA packages.
 RUN pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 
-WORKDIR /opt/activedesign
-COPY pyproject.toml README.md alembic.ini ./
-COPY client client
-COPY service service
-COPY workers workers
-COPY migrations migrations
-# Editable, so the server finds the Alembic migrations beside its package.
-RUN pip install -e ".[service]"
+# The built wheel with the service extra (not editable: nothing of the source is here).
+COPY --from=wheel /wheels /tmp/wheels
+RUN pip install "$(ls /tmp/wheels/activedesign-*.whl)[service]" && rm -rf /tmp/wheels
 
-RUN useradd --system --create-home --home-dir /home/activedesign activedesign \
+# A fixed uid, so Kubernetes can check runAsNonRoot (deploy/k8s runs it as 10001).
+RUN useradd --system --uid 10001 --create-home --home-dir /home/activedesign activedesign \
     && mkdir -p /data/artifacts \
     && chown -R activedesign /data
 USER activedesign

@@ -1,5 +1,18 @@
 # A simulation worker: `adworker` leases jobs from AD_SERVER_URL with the token AD_TOKEN.
 # Build from the repository root: docker build -f docker/worker.Dockerfile -t activedesign-worker .
+
+# The wheel, built from the source (the same wheel as the server image's).
+FROM python:3.11-slim AS wheel
+ENV PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+WORKDIR /src
+COPY pyproject.toml setup.py MANIFEST.in README.md alembic.ini ./
+COPY client client
+COPY service service
+COPY workers workers
+COPY migrations migrations
+RUN pip wheel --no-deps --wheel-dir /wheels .
+
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -10,14 +23,12 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 # The CPU build of torch first, pinned: an unpinned torch pulls several GB of CUDA packages.
 RUN pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 
-WORKDIR /opt/activedesign
-COPY pyproject.toml README.md ./
-COPY client client
-COPY service service
-COPY workers workers
-RUN pip install ".[worker]"
+# The built wheel with the worker extra.
+COPY --from=wheel /wheels /tmp/wheels
+RUN pip install "$(ls /tmp/wheels/activedesign-*.whl)[worker]" && rm -rf /tmp/wheels
 
-RUN useradd --system --create-home --home-dir /home/activedesign activedesign
+# A fixed uid, so Kubernetes can check runAsNonRoot (deploy/k8s runs it as 10001).
+RUN useradd --system --uid 10001 --create-home --home-dir /home/activedesign activedesign
 USER activedesign
 WORKDIR /home/activedesign
 

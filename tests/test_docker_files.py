@@ -1,7 +1,7 @@
 """What can be checked of docker/ without a container engine: the compose file parses and
-wires PostgreSQL, one server and scalable workers with health checks; the images install
-the right extras after a pinned CPU torch; every command and AD_* variable they use is
-one the real CLIs and settings know."""
+wires PostgreSQL, one server and scalable workers with health checks; the images build the
+wheel in a first stage and install it, with the right extra, after a pinned CPU torch;
+every command and AD_* variable they use is one the real CLIs and settings know."""
 
 from __future__ import annotations
 
@@ -92,6 +92,16 @@ def instructions(text: str) -> list[tuple[str, str]]:
     ]
 
 
+def stages(text: str) -> list[list[tuple[str, str]]]:
+    """The build stages, each from its FROM on."""
+    found: list[list[tuple[str, str]]] = []
+    for step in instructions(text):
+        if step[0] == "FROM":
+            found.append([])
+        found[-1].append(step)
+    return found
+
+
 def exec_form(arguments: str) -> list[str]:
     value = json.loads(arguments)
     assert isinstance(value, list) and all(isinstance(part, str) for part in value)
@@ -142,15 +152,23 @@ def test_compose_commands_and_variables_match_the_clis(
 
 
 @pytest.mark.parametrize("image", list(EXTRAS))
-def test_image_installs_cpu_torch_first_then_its_extra(image: str) -> None:
-    steps = instructions(dockerfile(image))
-    assert steps[0] == ("FROM", "python:3.11-slim")
-    runs = [arguments for kind, arguments in steps if kind == "RUN"]
+def test_image_builds_the_wheel_then_installs_it_after_cpu_torch(image: str) -> None:
+    build, final = stages(dockerfile(image))
+    assert build[0] == ("FROM", "python:3.11-slim AS wheel")
+    build_runs = [arguments for kind, arguments in build if kind == "RUN"]
+    assert build_runs == ["pip wheel --no-deps --wheel-dir /wheels ."]
+    assert final[0] == ("FROM", "python:3.11-slim")
+    runs = [arguments for kind, arguments in final if kind == "RUN"]
     torch = next(i for i, run in enumerate(runs) if "torch" in run)
     assert "torch==2.13.0" in runs[torch] and "/whl/cpu" in runs[torch]
-    package = next(i for i, run in enumerate(runs) if f'".[{EXTRAS[image]}]"' in run)
+    package = next(i for i, run in enumerate(runs) if "activedesign-*.whl" in run)
+    assert f'.whl)[{EXTRAS[image]}]"' in runs[package]
     assert torch < package
-    assert ("USER", "root") not in steps and any(kind == "USER" for kind, _ in steps)
+    assert not [run for run in runs if "pip install -e" in run or '".[' in run]
+    # The final image gets the wheel and nothing of the source tree.
+    copies = [arguments.split() for kind, arguments in final if kind == "COPY"]
+    assert copies == [["--from=wheel", "/wheels", "/tmp/wheels"]]
+    assert ("USER", "root") not in final and any(kind == "USER" for kind, _ in final)
 
 
 @pytest.mark.parametrize("image", list(EXTRAS))
@@ -174,23 +192,28 @@ def test_image_copies_only_what_exists_and_is_not_ignored(image: str) -> None:
     ignore = (DOCKER / f"{image}.dockerignore").read_text().splitlines()
     allowed = {line[1:] for line in ignore if line.startswith("!")}
     for kind, arguments in steps:
-        if kind == "COPY":
+        if kind == "COPY" and not arguments.startswith("--from="):
             *sources, _target = arguments.split()
             for source in sources:
                 assert (REPO / source).exists(), source
                 assert source in allowed, f"{source} is excluded by the .dockerignore"
 
 
-def test_the_server_image_finds_its_migrations() -> None:
-    """The server looks for migrations beside its package source (``adservice.db``), so
-    its image installs the project editable and copies ``migrations/`` beside it."""
+@pytest.mark.parametrize("image", list(EXTRAS))
+def test_the_wheel_is_built_from_everything_it_ships(image: str) -> None:
+    """The wheel carries the migrations (setup.py copies migrations/ into
+    adservice/migrations, tests/test_wheel.py), so its build stage copies them, setup.py and
+    MANIFEST.in; in this checkout (an editable install) the server reads migrations/."""
     from adservice.db import MIGRATIONS_DIR
 
     assert MIGRATIONS_DIR == REPO / "migrations"
-    runs = [a for kind, a in instructions(dockerfile("service.Dockerfile")) if kind == "RUN"]
-    assert any('pip install -e ".[service]"' in run for run in runs)
-    copies = [a.split() for k, a in instructions(dockerfile("service.Dockerfile")) if k == "COPY"]
-    assert ["migrations", "migrations"] in copies
+    build, _final = stages(dockerfile(image))
+    copied = {
+        source for kind, arguments in build if kind == "COPY" for source in arguments.split()[:-1]
+    }
+    assert copied >= {"setup.py", "MANIFEST.in", "pyproject.toml", "migrations", "service"}
+    ignore = (DOCKER / f"{image}.dockerignore").read_text().splitlines()
+    assert "**/node_modules" in ignore
 
 
 def test_readme_explains_scaling_out() -> None:
