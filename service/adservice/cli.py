@@ -168,6 +168,19 @@ def revoke_token(token_id: int, database_url: str | None = DATABASE_OPTION) -> N
     typer.echo(f"revoked token {token_id}")
 
 
+@app.command("migrate")
+def migrate(database_url: str | None = DATABASE_OPTION) -> None:
+    """Bring the database schema to the newest revision, then exit. The server does this at
+    start too; run it first where a deployment should not start servers on an old schema
+    (Kubernetes: an init container). On PostgreSQL processes that migrate at once take
+    turns (an advisory lock), so every replica may run it."""
+    from adservice.db import upgrade_to_head
+
+    settings = _settings(database_url=database_url)
+    upgrade_to_head(settings.database_url)
+    typer.echo("adserver: the database schema is up to date")
+
+
 @app.command("tasks")
 def list_tasks() -> None:
     """List the tasks and learners that studies may name (the installed plugins)."""

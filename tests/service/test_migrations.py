@@ -14,6 +14,7 @@ from alembic.migration import MigrationContext
 
 from adservice.db import upgrade_to_head
 from adservice.models import Base
+from tests.servers import ADSERVER
 
 TABLES = {"studies", "trials", "artifacts", "workers", "tokens", "alembic_version"}
 
@@ -30,6 +31,22 @@ def test_upgrade_head_matches_models(database_url: str) -> None:
 def test_upgrade_is_idempotent(database_url: str) -> None:
     upgrade_to_head(database_url)
     upgrade_to_head(database_url)
+    engine = sa.create_engine(database_url)
+    tables = set(sa.inspect(engine).get_table_names())
+    engine.dispose()
+    assert tables >= TABLES
+
+
+def test_adserver_migrate_brings_the_schema_to_head_and_exits(database_url: str) -> None:
+    """What deploy/k8s's init container runs before each server replica starts."""
+    for _ in range(2):
+        done = subprocess.run(
+            [str(ADSERVER), "migrate", "--database-url", database_url],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 0, done.stderr
     engine = sa.create_engine(database_url)
     tables = set(sa.inspect(engine).get_table_names())
     engine.dispose()
