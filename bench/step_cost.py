@@ -1,6 +1,6 @@
 """One side of bench/evaluation.py's split comparison: the CPU cost of ``env.step``.
 
-    python bench/step_cost.py    # then one JSON request per line on stdin
+    python bench/step_cost.py [--whole-body-clamp]    # then one JSON request per line
 
 Runs with whatever harness the interpreter imports: the installed one, or the
 pre-split code put first on PYTHONPATH by bench/evaluation.py (``--part split``). It
@@ -10,10 +10,16 @@ It first prints where that harness was imported from; then, for each request
 random action drawn from seed k) and prints the thread CPU seconds of its steps (reset
 excluded) and its metric trace, so the two sides can be checked to simulate the same.
 A long-lived process per side lets the caller alternate the sides episode by episode.
+
+``--whole-body-clamp`` puts back, in the installed harness, the joint speed limit the
+pre-split code used (changeDynamics maxJointVelocity: Bullet's one velocity clamp of
+the whole body, since replaced by each motor's limit, commit 35fc49d), so that it
+simulates exactly what the old code did and its cost is the harness's alone.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -37,7 +43,7 @@ CASES = [
 ]
 
 
-def build_env(case: str, workdir: Path) -> Any:
+def build_env(case: str, workdir: Path, whole_body_clamp: bool) -> Any:
     task, design_name = case.split("/")
     design = getattr(designs, design_name)()
     urdf = workdir / f"{task}-{design_name}.urdf"
@@ -50,7 +56,26 @@ def build_env(case: str, workdir: Path) -> Any:
     from adclient.plugins import catalogue
 
     spec = catalogue().task(task)
-    return spec.load_factory()(design=design, urdf_path=urdf, options=spec.options())
+    env = spec.load_factory()(design=design, urdf_path=urdf, options=spec.options())
+    if whole_body_clamp:
+        import pybullet
+
+        robot, cid = env.robot, env.sim.client
+        for joint in robot.joints:
+            pybullet.changeDynamics(
+                robot.body, joint.index, maxJointVelocity=joint.velocity, physicsClientId=cid
+            )
+            pybullet.setJointMotorControl2(
+                robot.body,
+                joint.index,
+                pybullet.POSITION_CONTROL,
+                targetPosition=0.0,
+                force=joint.effort,
+                maxVelocity=1e30,
+                physicsClientId=cid,
+            )
+        robot._saved_state = env.sim.save_state()
+    return env
 
 
 def run_episode(env: Any, episode: int) -> dict[str, Any]:
@@ -65,6 +90,9 @@ def run_episode(env: Any, episode: int) -> dict[str, Any]:
 
 
 def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--whole-body-clamp", action="store_true")
+    args = parser.parse_args()
     import adworker.tasks
 
     print(json.dumps({"code": str(Path(adworker.tasks.__file__).parent)}), flush=True)
@@ -74,7 +102,7 @@ def main() -> int:
             request = json.loads(line)
             case = request["case"]
             if case not in envs:
-                envs[case] = build_env(case, Path(scratch))
+                envs[case] = build_env(case, Path(scratch), args.whole_body_clamp)
             print(json.dumps(run_episode(envs[case], request["episode"])), flush=True)
         for env in envs.values():
             env.close()
