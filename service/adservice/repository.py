@@ -19,6 +19,7 @@ from sqlalchemy.orm import Session
 
 from adclient.schemas import StudyCreate, TellRequest, Trial, TrialState
 from adservice import principals
+from adservice.db import scope_connection
 from adservice.errors import (
     ConflictError,
     ForbiddenError,
@@ -213,7 +214,7 @@ def reserve_numbers(session: Session, *, study_id: int, count: int) -> int:
     """Claim the next ``count`` trial numbers of a running study with room; returns the
     first. One conditional UPDATE: it checks, reserves and (on PostgreSQL) row-locks."""
     reserved = (
-        session.connection()
+        scope_connection(session)
         .execute(_RESERVE, {"sid": study_id, "count": count, "now": utcnow()})
         .scalar_one_or_none()
     )
@@ -264,7 +265,7 @@ def insert_trials(
         }
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
-    ids = session.connection().execute(_INSERT_TRIALS, values).scalars().all()
+    ids = scope_connection(session).execute(_INSERT_TRIALS, values).scalars().all()
     if worker_id:
         _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
     return [
@@ -430,7 +431,7 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Pr
     The common case is two conditional UPDATEs (trial, then study counters and best);
     only a tell that changes nothing takes the slow path that finds out why. The UPDATEs
     are prebuilt Core statements run on the session's connection, in its transaction."""
-    connection = session.connection()
+    connection = scope_connection(session)
     now = utcnow()
     complete = body.state == "complete"
     finished = connection.execute(
