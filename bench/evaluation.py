@@ -419,7 +419,7 @@ def split_report(split: dict[str, Any]) -> str:
         "",
         "```",
         f"{'case':31s} {'before':>9s}  "
-        + "  ".join(f"{label:>27s}" for label in SPLIT_SIDES.values()),
+        + "  ".join(f"{label:<28s}" for label in SPLIT_SIDES.values()).rstrip(),
     ]
     for row in split["rows"]:
         cells = [f"{row['case']:31s} {row['before_us_per_step']:6.1f} us"]
@@ -430,7 +430,7 @@ def split_report(split: dict[str, Any]) -> str:
                 f"{row[side]['us_per_step']:6.1f} us {row[side]['ratio']:.3f}"
                 f" ({low:.2f}-{high:.2f}){same}"
             )
-        lines.append("  ".join(cells))
+        lines.append("  ".join(cells).rstrip())
     lines += [
         "```",
         "",
