@@ -29,6 +29,7 @@ from pydantic_core import CoreSchema
 
 from adclient.design import DesignSpace, Representation
 from adclient.plugins import PluginError, catalogue
+from adclient.pruning import PrunerConfig
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$"
 """Names of studies, params, metrics and artifacts: safe in URLs, file names and XML."""
@@ -62,6 +63,7 @@ class TrialState(StrEnum):
     running = "running"
     complete = "complete"
     failed = "failed"
+    pruned = "pruned"
 
 
 class _Strict(BaseModel):
@@ -338,6 +340,7 @@ class StudyCreate(_Strict):
     direction: Direction = Direction.maximize
     space: Space
     proposer: NewProposerConfig = Field(default_factory=NewProposerConfig)
+    pruner: PrunerConfig = Field(default_factory=PrunerConfig)
     task: NewTaskConfig | None = None
     max_trials: int | None = Field(default=None, ge=1, le=1_000_000)
     max_attempts: int = Field(default=3, ge=1, le=100)
@@ -420,6 +423,7 @@ class Study(BaseModel):
     managed: bool
     space: Space
     proposer: ProposerConfig
+    pruner: PrunerConfig = Field(default_factory=PrunerConfig)
     task: TaskConfig | None
     max_trials: int | None
     max_attempts: int
@@ -428,6 +432,7 @@ class Study(BaseModel):
     n_running: int
     n_complete: int
     n_failed: int
+    n_pruned: int = 0
     best_value: float | None
     best_trial_id: int | None
     metadata: StoredJsonObject
@@ -484,13 +489,15 @@ class AskResponse(BaseModel):
 
 
 class TellRequest(_Strict):
-    """``{"value": v}`` completes a trial; ``{"state": "failed", "message": m}`` fails it.
+    """``{"value": v}`` completes a trial; ``{"state": "failed", "message": m}`` fails it;
+    ``{"state": "pruned"}`` (optionally with its last ``value``) ends it early, as its
+    study's pruner asked.
 
     The published JSON schema says exactly that (one of two shapes), so generated
     clients and fuzzers see the same rule the validator enforces."""
 
     value: float | None = None
-    state: Literal["complete", "failed"] = "complete"
+    state: Literal["complete", "failed", "pruned"] = "complete"
     message: str | None = Field(default=None, max_length=10_000, pattern=NO_NUL_PATTERN)
     worker_id: str | None = Field(
         default=None, min_length=1, max_length=128, pattern=NO_NUL_PATTERN
@@ -503,6 +510,9 @@ class TellRequest(_Strict):
             if self.value is None:
                 raise ValueError("value is required to complete a trial")
             _finite(self.value, "value")
+        elif self.state == "pruned":
+            if self.value is not None:
+                _finite(self.value, "value")
         elif self.value is not None:
             raise ValueError("a failed trial carries no value")
         for key, metric in self.metrics.items():
@@ -535,7 +545,18 @@ class TellRequest(_Strict):
             "required": ["state"],
             "additionalProperties": False,
         }
-        return {"title": "TellRequest", "description": cls.__doc__, "oneOf": [complete, failed]}
+        pruned = {
+            "type": "object",
+            "title": "TellPruned",
+            "properties": {"state": {"const": "pruned"}, "value": {"type": "number"}, **common},
+            "required": ["state"],
+            "additionalProperties": False,
+        }
+        return {
+            "title": "TellRequest",
+            "description": cls.__doc__,
+            "oneOf": [complete, failed, pruned],
+        }
 
 
 class LeaseRequest(_Strict):

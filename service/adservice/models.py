@@ -44,6 +44,7 @@ class StudyRow(Base):
     state: Mapped[str] = mapped_column(sa.String(16), default="running")
     space: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
     proposer: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
+    pruner: Mapped[dict[str, Any]] = mapped_column(sa.JSON, default=lambda: {"name": "none"})
     # none_as_null: a study without a task must be SQL NULL, not the JSON text 'null',
     # or "managed studies" (task IS NOT NULL) would take in every study.
     task: Mapped[dict[str, Any] | None] = mapped_column(sa.JSON(none_as_null=True), nullable=True)
@@ -55,6 +56,7 @@ class StudyRow(Base):
     n_trials: Mapped[int] = mapped_column(default=0)
     n_complete: Mapped[int] = mapped_column(default=0)
     n_failed: Mapped[int] = mapped_column(default=0)
+    n_pruned: Mapped[int] = mapped_column(default=0)
     best_value: Mapped[float | None] = mapped_column(sa.Double, nullable=True)
     best_trial_id: Mapped[int | None] = mapped_column(nullable=True)
     metadata_: Mapped[dict[str, Any]] = mapped_column("metadata", sa.JSON, default=dict)
@@ -95,6 +97,22 @@ class TrialRow(Base):
     lease_token_id: Mapped[int | None] = mapped_column(nullable=True)
     """The token that holds the lease (None with auth off, where ``worker_id`` alone
     names the holder): only it may heartbeat, release, upload for or tell the trial."""
+
+
+class TrialReportRow(Base):
+    """One intermediate value of a trial (``POST /trials/{id}/report``); ``study_id`` is
+    kept here too so a pruner reads a study's curves with one indexed query."""
+
+    __tablename__ = "trial_reports"
+    __table_args__ = (sa.Index("ix_trial_reports_study_step", "study_id", "step"),)
+
+    trial_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("trials.id", ondelete="CASCADE"), primary_key=True
+    )
+    step: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
+    study_id: Mapped[int] = mapped_column(sa.ForeignKey("studies.id", ondelete="CASCADE"))
+    value: Mapped[float] = mapped_column(sa.Double)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
 class ArtifactRow(Base):

@@ -32,6 +32,7 @@ from adservice.models import (
     SessionRow,
     StudyRow,
     TokenRow,
+    TrialReportRow,
     TrialRow,
     WorkerRow,
     utcnow,
@@ -93,6 +94,7 @@ def create_study(
         state="running",
         space=body.space.model_dump(mode="json"),
         proposer=body.proposer.model_dump(mode="json"),
+        pruner=body.pruner.model_dump(mode="json"),
         task=body.task.model_dump(mode="json") if body.task else None,
         representation=representation,
         max_trials=body.max_trials,
@@ -167,13 +169,18 @@ class History:
     pending: np.ndarray
 
 
-def study_history(session: Session, *, study_id: int, dim: int) -> History:
+def study_history(
+    session: Session, *, study_id: int, dim: int, pruned_as_observed: bool = True
+) -> History:
+    """``pruned_as_observed``: a pruned trial with a value (its last report) counts as an
+    observation of that value; otherwise it is left out (docs/pruning.md)."""
     rows = session.execute(
         sa.select(TrialRow.state, TrialRow.vector, TrialRow.value)
         .where(TrialRow.study_id == study_id)
         .order_by(TrialRow.number)
     ).all()
-    complete = [(v, y) for s, v, y in rows if s == TrialState.complete]
+    observed = {TrialState.complete, TrialState.pruned if pruned_as_observed else "complete"}
+    complete = [(v, y) for s, v, y in rows if s in observed and y is not None]
     empty = np.zeros((0, dim))
 
     def stack(vectors: list[list[float]]) -> np.ndarray:
@@ -335,9 +342,10 @@ def best_trial(session: Session, *, study_id: int) -> TrialRow:
 def _same_tell(trial: TrialRow, body: TellRequest) -> bool:
     if trial.state != body.state:
         return False
-    if body.state == "failed":
+    if body.state == "failed" or (body.state == "pruned" and body.value is None):
         return True
-    assert trial.value is not None and body.value is not None
+    if trial.value is None or body.value is None:
+        return False
     return trial.value == body.value or math.isclose(trial.value, body.value, rel_tol=1e-12)
 
 
@@ -374,8 +382,13 @@ def _finish_statement(*, by_worker: bool, checked: bool) -> sa.Update:
     )
 
 
-def _count_statement(*, complete: bool) -> sa.Update:
-    counter = _studies.c.n_complete if complete else _studies.c.n_failed
+def _count_statement(*, state: str) -> sa.Update:
+    complete = state == TrialState.complete
+    counter = {
+        TrialState.complete: _studies.c.n_complete,
+        TrialState.failed: _studies.c.n_failed,
+        TrialState.pruned: _studies.c.n_pruned,
+    }[TrialState(state)]
     updates: dict[Any, Any] = {counter: counter + 1, _studies.c.updated_at: sa.bindparam("now")}
     if complete:
         value = sa.bindparam("value", type_=sa.Double)
@@ -390,7 +403,8 @@ def _count_statement(*, complete: bool) -> sa.Update:
         updates[_studies.c.best_trial_id] = sa.case(
             (better, sa.bindparam("tid")), else_=_studies.c.best_trial_id
         )
-    done = _studies.c.n_complete + _studies.c.n_failed + 1 >= _studies.c.max_trials
+    finished = _studies.c.n_complete + _studies.c.n_failed + _studies.c.n_pruned
+    done = finished + 1 >= _studies.c.max_trials
     updates[_studies.c.state] = sa.case(
         (sa.and_(_studies.c.state == "running", done), "complete"), else_=_studies.c.state
     )
@@ -420,7 +434,7 @@ _FINISH = {
     for by_worker in (False, True)
     for checked in (False, True)
 }
-_COUNT = {complete: _count_statement(complete=complete) for complete in (False, True)}
+_COUNT = {state: _count_statement(state=state) for state in ("complete", "failed", "pruned")}
 _WORKER_COUNT = {complete: _worker_statement(complete=complete) for complete in (False, True)}
 
 
@@ -433,7 +447,10 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Pr
     are prebuilt Core statements run on the session's connection, in its transaction."""
     connection = scope_connection(session)
     now = utcnow()
-    complete = body.state == "complete"
+    complete = body.state != "failed"  # a pruned trial did its job: the worker's jobs_done
+    value = body.value
+    if body.state == "pruned" and value is None:
+        value = _last_reported_value(session, trial_id=trial_id)
     finished = connection.execute(
         _FINISH[body.worker_id is not None, caller.checked],
         {
@@ -441,7 +458,7 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Pr
             "wid": body.worker_id,
             "tok": caller.token_id,
             "state": body.state,
-            "value": body.value,
+            "value": value,
             "message": body.message,
             "metrics": dict(body.metrics),
             "now": now,
@@ -450,14 +467,25 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Pr
     if finished is None:
         return _explain_refused_tell(session, trial_id=trial_id, body=body, caller=caller)
     connection.execute(
-        _COUNT[complete],
-        {"sid": finished.study_id, "tid": trial_id, "value": body.value, "now": now},
+        _COUNT[body.state],
+        {"sid": finished.study_id, "tid": trial_id, "value": value, "now": now},
     )
     if finished.worker_id is not None:
         connection.execute(
             _WORKER_COUNT[complete], {"wid": finished.worker_id, "tid": trial_id, "now": now}
         )
     return Trial.model_validate(dict(finished._mapping))
+
+
+def _last_reported_value(session: Session, *, trial_id: int) -> float | None:
+    """The value at a trial's last reported step: what a pruned tell without a value
+    keeps (only that tell runs this query)."""
+    return session.scalar(
+        sa.select(TrialReportRow.value)
+        .where(TrialReportRow.trial_id == trial_id)
+        .order_by(TrialReportRow.step.desc())
+        .limit(1)
+    )
 
 
 def _explain_refused_tell(
@@ -474,10 +502,10 @@ def _explain_refused_tell(
             )
         study = get_study(session, study_id=trial.study_id)
         check_manager(study, caller)
-    if trial.state in (TrialState.complete, TrialState.failed):
+    if trial.state in (TrialState.complete, TrialState.failed, TrialState.pruned):
         if _same_tell(trial, body):
             return Trial.model_validate(trial, from_attributes=True)
-        told = f"value {trial.value}" if trial.state == TrialState.complete else "failed"
+        told = f"value {trial.value}" if trial.state != TrialState.failed else "failed"
         raise ConflictError(f"trial {trial_id} is already {trial.state} ({told})")
     raise LeaseLostError(f"worker {body.worker_id!r} does not hold the lease of trial {trial_id}")
 
@@ -486,7 +514,7 @@ def _finish_study_if_done(study: StudyRow) -> None:
     if (
         study.state == "running"
         and study.max_trials is not None
-        and study.n_complete + study.n_failed >= study.max_trials
+        and study.n_complete + study.n_failed + study.n_pruned >= study.max_trials
     ):
         study.state = "complete"
 

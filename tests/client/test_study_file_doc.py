@@ -16,6 +16,7 @@ from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from adclient.design import Bound, DesignSpace, JointType, PartInstance, PartType
 from adclient.plugins import SimulatorOptions, catalogue
+from adclient.pruning import PrunerConfig
 from adclient.schemas import (
     BoxParam,
     BoxSpace,
@@ -36,6 +37,7 @@ TABLES: dict[str, type[BaseModel]] = {
     "JointType": JointType,
     "PartInstance": PartInstance,
     "ProposerConfig": ProposerConfig,
+    "PrunerConfig": PrunerConfig,
     "NewTaskConfig": NewTaskConfig,
     "SimulatorOptions": SimulatorOptions,
 }

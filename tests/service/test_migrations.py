@@ -3,9 +3,11 @@ PostgreSQL; upgrading twice, or from several processes at once, is harmless."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 import sqlalchemy as sa
@@ -16,7 +18,15 @@ from adservice.db import upgrade_to_head
 from adservice.models import Base
 from tests.servers import ADSERVER
 
-TABLES = {"studies", "trials", "artifacts", "workers", "tokens", "alembic_version"}
+TABLES = {
+    "studies",
+    "trials",
+    "trial_reports",
+    "artifacts",
+    "workers",
+    "tokens",
+    "alembic_version",
+}
 
 
 def test_upgrade_head_matches_models(database_url: str) -> None:
@@ -72,3 +82,47 @@ def test_processes_starting_at_once_migrate_one_after_the_other(
         tables = set(sa.inspect(connection).get_table_names())
     engine.dispose()
     assert versions == 1 and tables >= TABLES
+
+
+def _alembic(url: str) -> Any:
+    from alembic.config import Config
+
+    from adservice.db import MIGRATIONS_DIR
+
+    config = Config()
+    config.set_main_option("script_location", str(MIGRATIONS_DIR))
+    config.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
+    return config
+
+
+def test_0005_gives_old_studies_no_pruner_and_goes_back_down(database_url: str) -> None:
+    """A study stored before pruning reads as ``pruner: none`` with 0 pruned; the
+    reports table comes and goes with the revision."""
+    from alembic import command
+
+    config = _alembic(database_url)
+    command.upgrade(config, "0004")
+    engine = sa.create_engine(database_url)
+    with engine.begin() as connection:
+        connection.execute(
+            sa.text(
+                "INSERT INTO studies (name, direction, state, space, proposer, max_attempts,"
+                " n_trials, n_complete, n_failed, metadata, created_at, updated_at) VALUES"
+                " ('old', 'maximize', 'running', '{}', '{}', 3, 0, 0, 0, '{}',"
+                " '2024-01-01 00:00:00', '2024-01-01 00:00:00')"
+            )
+        )
+    command.upgrade(config, "head")
+    with engine.connect() as connection:
+        pruner, pruned = connection.execute(
+            sa.text("SELECT pruner, n_pruned FROM studies WHERE name = 'old'")
+        ).one()
+        assert "trial_reports" in sa.inspect(connection).get_table_names()
+    assert (json.loads(pruner) if isinstance(pruner, str) else pruner) == {"name": "none"}
+    assert pruned == 0
+    command.downgrade(config, "0004")
+    with engine.connect() as connection:
+        assert "trial_reports" not in sa.inspect(connection).get_table_names()
+        columns = {c["name"] for c in sa.inspect(connection).get_columns("studies")}
+    engine.dispose()
+    assert "n_pruned" not in columns and "pruner" not in columns

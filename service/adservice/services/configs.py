@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import logging
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
 
 from adclient.design import DesignSpace, Representation
+from adclient.pruning import PrunerConfig
 from adclient.schemas import ProposerConfig, TaskConfig, option_problems
 from adservice import repository
 from adservice.db import Database
@@ -55,6 +56,8 @@ class StudyConfig:
     search: SearchStructure | None = None
     """What a design vector's coordinates mean, for proposers that model them."""
     proposer_error: InvalidError | None = None
+    pruner: PrunerConfig = field(default_factory=PrunerConfig)
+    """The study's pruner; ``pruner.pruned_as`` says how its proposer sees pruned trials."""
     """Why the stored proposer settings cannot be used (a study stored before they were
     checked at creation): asking such a study answers 409 naming the problem."""
 
@@ -93,6 +96,7 @@ class StudyConfig:
             bounds=bounds,
             search=search,
             proposer_error=proposer_error,
+            pruner=PrunerConfig.model_validate(row.pruner or {}),
         )
 
     @property

@@ -143,7 +143,12 @@ def propose_trials(
         with db.read() as session:
             study = repository.get_study(session, study_id=study_id)
             repository.check_room(study, count=count)
-            history = repository.study_history(session, study_id=study_id, dim=config.dim)
+            history = repository.study_history(
+                session,
+                study_id=study_id,
+                dim=config.dim,
+                pruned_as_observed=config.pruner.pruned_as == "last_value",
+            )
         if worker_id is None and budget is not None and budget.memory_bytes is not None:
             check_ask_memory(
                 config,

@@ -1,0 +1,121 @@
+"""The pruning contract: a study's pruner and a trial's intermediate reports.
+
+A worker (or an SDK loop) reports ``(step, value)`` while a trial runs
+(``POST /api/v1/trials/{id}/report``); the server answers whether the study's pruner
+would stop the trial there. A stopped trial is told ``{"state": "pruned"}``. Values are
+on the objective's scale (a learner's evaluation score at that step), so a pruned
+trial's last value can stand for it in the model (see docs/pruning.md).
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+MAX_STEP = 2**31 - 1
+"""Steps are INTEGER columns (32-bit on PostgreSQL)."""
+
+PRUNERS = ("none", "median", "asha")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class NoneOptions(_Strict):
+    """Never stop a trial (reports are still recorded)."""
+
+
+class MedianOptions(_Strict):
+    """Optuna's MedianPruner: stop a trial whose best value so far is worse than the
+    median of the complete trials' values at the same step."""
+
+    n_startup_trials: int = Field(
+        default=5, ge=0, le=1_000_000, description="complete trials before any pruning"
+    )
+    n_warmup_steps: int = Field(
+        default=0, ge=0, le=MAX_STEP, description="steps of a trial before it can be pruned"
+    )
+    interval_steps: int = Field(
+        default=1, ge=1, le=MAX_STEP, description="check every this many steps after warm-up"
+    )
+    n_min_trials: int = Field(
+        default=1, ge=1, le=1_000_000, description="complete trials with a value at the step"
+    )
+
+
+class AshaOptions(_Strict):
+    """Asynchronous successive halving (Optuna's SuccessiveHalvingPruner): rungs at
+    ``min_resource * reduction_factor**k`` learner steps; a trial reaching a rung goes on
+    only if its value there is in the top ``1/reduction_factor`` of every trial's value at
+    that rung so far."""
+
+    min_resource: int = Field(default=1000, ge=1, le=MAX_STEP, description="first rung's step")
+    reduction_factor: int = Field(default=3, ge=2, le=100)
+    min_early_stopping_rate: int = Field(default=0, ge=0, le=30)
+    max_resource: int | None = Field(
+        default=None, ge=1, le=MAX_STEP, description="no rung at or beyond this step"
+    )
+    bootstrap_count: int = Field(
+        default=0, ge=0, le=1000, description="trials a rung needs before it promotes any"
+    )
+
+
+PRUNER_OPTIONS: dict[str, type[_Strict]] = {
+    "none": NoneOptions,
+    "median": MedianOptions,
+    "asha": AshaOptions,
+}
+
+
+class PrunerConfig(_Strict):
+    """A study's pruner (study file ``pruner:``). ``pruned_as`` says what a pruned trial
+    means to the proposer: its last reported value as an observation (the default), or
+    nothing (left out, as Optuna's GP sampler does)."""
+
+    name: Literal["none", "median", "asha"] = "none"
+    options: dict[str, Any] = Field(default_factory=dict)
+    pruned_as: Literal["last_value", "left_out"] = "last_value"
+
+    @model_validator(mode="after")
+    def _known_options(self) -> PrunerConfig:
+        model = PRUNER_OPTIONS[self.name]
+        self.options = model.model_validate(self.options).model_dump()
+        return self
+
+    def parsed(self) -> MedianOptions | AshaOptions | NoneOptions:
+        return PRUNER_OPTIONS[self.name].model_validate(self.options)  # type: ignore[return-value]
+
+
+def _finite(value: float) -> float:
+    if not math.isfinite(value):
+        raise ValueError(f"value must be a finite number, not {value!r}")
+    return value
+
+
+class ReportRequest(_Strict):
+    """One intermediate value of a running trial: ``{"step": s, "value": v}``."""
+
+    step: int = Field(ge=0, le=MAX_STEP, description="learner steps (or any increasing count)")
+    value: float = Field(description="the objective's value at this step, finite")
+    worker_id: str | None = Field(default=None, min_length=1, max_length=128, pattern=r"^[^\x00]*$")
+
+    @field_validator("value")
+    @classmethod
+    def _finite_value(cls, value: float) -> float:
+        return _finite(value)
+
+
+class ReportResponse(BaseModel):
+    should_stop: bool = Field(description="the study's pruner would stop the trial here")
+
+
+class TrialReport(BaseModel):
+    """One point of a trial's reported curve (``GET /api/v1/trials/{id}/reports``)."""
+
+    step: int
+    value: float
+    created_at: datetime

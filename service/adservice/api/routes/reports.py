@@ -1,0 +1,29 @@
+"""Intermediate reports of a running trial, and the curve a trial reported."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from adclient.pruning import ReportRequest, ReportResponse, TrialReport
+from adservice import repository_reports
+from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, TrialId, WorkerDep
+from adservice.services import reports as report_service
+
+router = APIRouter(prefix="/api/v1/trials", tags=["reports"])
+
+
+@router.post("/{trial_id}/report")
+def report(
+    trial_id: TrialId, body: ReportRequest, db: DatabaseDep, caller: WorkerDep
+) -> ReportResponse:
+    """Record the trial's value at ``step``; ``should_stop`` says whether the study's
+    pruner would stop it there (then tell it ``{"state": "pruned"}``). Repeating a report
+    is harmless; a finished trial or a lost lease is 409; another token's trial 403."""
+    return report_service.report(db, trial_id=trial_id, body=body, caller=caller)
+
+
+@router.get("/{trial_id}/reports")
+def reports(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> list[TrialReport]:
+    """The trial's reported curve, in order of step."""
+    rows = repository_reports.trial_reports(session, trial_id=trial_id)
+    return [TrialReport(step=row.step, value=row.value, created_at=row.created_at) for row in rows]
