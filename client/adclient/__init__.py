@@ -10,6 +10,8 @@ __version__ = "0.1.0"
 _LAZY = {
     "Client": "adclient.client",
     "StudyHandle": "adclient.client",
+    "LiveTrial": "adclient.study",
+    "TrialPruned": "adclient.pruning",
     "ActiveDesignError": "adclient.errors",
     "ApiError": "adclient.errors",
     "Invalid": "adclient.errors",

@@ -257,12 +257,14 @@ def _status_table(info: Study, dashboard: str) -> Table:
         ("managed", "yes" if info.managed else "no"),
         ("space", info.space.type),
         ("proposer", info.proposer.name),
+        ("pruner", info.pruner.name),
         ("task", info.task.name if info.task is not None else ""),
         ("trials", f"{info.n_trials}{budget}"),
         ("queued", str(info.n_queued)),
         ("running", str(info.n_running)),
         ("complete", str(info.n_complete)),
         ("failed", str(info.n_failed)),
+        ("pruned", str(info.n_pruned)),
         ("best value", _num(info.best_value)),
         ("best trial", "" if info.best_trial_id is None else str(info.best_trial_id)),
         ("created", _when(info.created_at)),
@@ -322,7 +324,7 @@ def submit(
         out = _out()
         out.print(
             f"study {study.id} {info.state.value}: {info.n_complete} complete, "
-            f"{info.n_failed} failed"
+            f"{info.n_failed} failed, {info.n_pruned} pruned"
         )
         if best is None:
             out.print("no complete trial")
@@ -347,7 +349,7 @@ def _follow(study: StudyHandle, poll: float) -> Study:
         def update(current: Study) -> None:
             progress.update(
                 bar,
-                completed=current.n_complete + current.n_failed,
+                completed=current.n_complete + current.n_failed + current.n_pruned,
                 total=current.max_trials,
                 best=_num(current.best_value) or "-",
             )
@@ -373,7 +375,8 @@ def studies(
         _print_json(items)
         return
     table = Table(title="studies")
-    for column in ("id", "name", "direction", "state", "trials", "complete", "failed", "best"):
+    columns = ("id", "name", "direction", "state", "trials", "complete", "failed", "pruned")
+    for column in (*columns, "best"):
         left = column in {"name", "direction", "state"}
         table.add_column(column, justify="left" if left else "right")
     for info in items:
@@ -386,6 +389,7 @@ def studies(
             f"{info.n_trials}{budget}",
             str(info.n_complete),
             str(info.n_failed),
+            str(info.n_pruned),
             _num(info.best_value),
         )
     _out().print(table)
@@ -467,13 +471,16 @@ def tell(
     trial_id: int = typer.Argument(..., metavar="TRIAL"),
     value: float | None = typer.Argument(None, help="The trial's score (omit with --failed)."),
     failed: bool = typer.Option(False, "--failed", help="Report the trial as failed."),
+    pruned: bool = typer.Option(
+        False, "--pruned", help="End the trial as pruned (VALUE optional: else its last report)."
+    ),
     message: str | None = typer.Option(None, "--message", "-m", help="Why it failed."),
     metric: list[str] = typer.Option([], "--metric", help="Extra metric NAME=NUMBER (repeatable)."),
 ) -> None:
-    """Tell a trial's result: a VALUE, or --failed with a --message."""
-    if failed and value is not None:
+    """Tell a trial's result: a VALUE, --failed with a --message, or --pruned."""
+    if failed and (value is not None or pruned):
         fail("give either a VALUE or --failed, not both", code=2)
-    if not failed and value is None:
+    if not failed and not pruned and value is None:
         fail("missing VALUE (or --failed for a failed trial)", code=2)
     metrics: dict[str, float] = {}
     for item in metric:
@@ -488,7 +495,7 @@ def tell(
         trial = client.tell(
             trial_id,
             value,
-            state="failed" if failed else "complete",
+            state="failed" if failed else "pruned" if pruned else "complete",
             message=message,
             metrics=metrics,
         )

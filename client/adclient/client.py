@@ -28,6 +28,7 @@ from pydantic import BaseModel, ValidationError
 
 from adclient.errors import Invalid, NotFound
 from adclient.export import ExportFormat, export_csv, export_json
+from adclient.pruning import ReportRequest, ReportResponse, TrialReport
 from adclient.schemas import (
     MAX_TRIAL_PAGE,
     ArtifactInfo,
@@ -162,7 +163,7 @@ class Client(Transport):
         trial: TrialRef,
         value: float | None = None,
         *,
-        state: Literal["complete", "failed"] | TrialState | str | None = None,
+        state: Literal["complete", "failed", "pruned"] | TrialState | str | None = None,
         message: str | None = None,
         metrics: Mapping[str, float] | None = None,
         worker_id: str | None = None,
@@ -170,9 +171,11 @@ class Client(Transport):
         """Report a trial's result and return the finished trial.
 
         ``state`` defaults to ``complete`` when a value is given and to ``failed``
-        otherwise. The body is checked here first (a finite value, finite metrics), so
-        a NaN never travels; such mistakes raise :class:`Invalid`. Repeating an
-        identical tell is harmless; a contradicting one raises :class:`Conflict`.
+        otherwise; ``pruned`` ends a trial its pruner stopped (with ``value``, or the
+        server keeps its last reported value). The body is checked here first (a
+        finite value, finite metrics), so a NaN never travels; such mistakes raise
+        :class:`Invalid`. Repeating an identical tell is harmless; a contradicting one
+        raises :class:`Conflict`.
         """
         if value is not None:
             value = float(value)  # numpy scalars and ints alike
@@ -226,6 +229,29 @@ class Client(Transport):
                 break
             params.update(offset=0, after=found[-1].number + 1)
         return found
+
+    def report(
+        self, trial: TrialRef, step: int, value: float, *, worker_id: str | None = None
+    ) -> bool:
+        """Report a running trial's intermediate ``value`` at ``step``; returns whether
+        the study's pruner would stop it there (then tell it ``state="pruned"``). A
+        repeat is harmless; a finished trial or a lost lease raises :class:`Conflict`."""
+        try:
+            body = ReportRequest(step=int(step), value=float(value), worker_id=worker_id)
+        except ValidationError as exc:
+            raise Invalid(None, "invalid", _validation_message(exc)) from exc
+        data = self.request(
+            "POST",
+            f"{API}/trials/{trial_id_of(trial)}/report",
+            json_body=body.model_dump(mode="json", exclude_none=True),
+            idempotent=True,
+        ).json()
+        return ReportResponse.model_validate(data).should_stop
+
+    def reports(self, trial: TrialRef) -> list[TrialReport]:
+        """A trial's reported curve, in order of step."""
+        data = self._get_json(f"{API}/trials/{trial_id_of(trial)}/reports")
+        return [TrialReport.model_validate(item) for item in data]
 
     def get_trial(self, trial: TrialRef) -> Trial:
         """One trial's current record."""

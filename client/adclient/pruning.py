@@ -119,3 +119,13 @@ class TrialReport(BaseModel):
     step: int
     value: float
     created_at: datetime
+
+
+class TrialPruned(Exception):
+    """Raise from an objective to end its trial as ``pruned`` (``study.optimize`` tells
+    it so, with ``value`` or else the trial's last reported value), as Optuna's
+    ``TrialPruned`` does."""
+
+    def __init__(self, message: str = "", value: float | None = None) -> None:
+        super().__init__(message)
+        self.value = value

@@ -10,8 +10,11 @@ from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any, Literal, overload
 
+from pydantic import PrivateAttr
+
 from adclient.errors import Conflict
 from adclient.export import ExportFormat
+from adclient.pruning import TrialPruned
 from adclient.schemas import Study, StudyState, Trial, TrialState, WorkerInfo
 
 if TYPE_CHECKING:
@@ -22,13 +25,49 @@ def study_finished(study: Study) -> bool:
     """True once a study will change no more by itself.
 
     Its state left ``running``, or its trial budget is spent: every one of
-    ``max_trials`` trials is complete or failed.
+    ``max_trials`` trials is complete, failed or pruned.
     """
     if study.state != StudyState.running:
         return True
     if study.max_trials is None:
         return False
-    return study.n_complete + study.n_failed >= study.max_trials
+    return study.n_complete + study.n_failed + study.n_pruned >= study.max_trials
+
+
+class LiveTrial(Trial):
+    """A trial asked through a :class:`StudyHandle`: while it runs it can report
+    intermediate values, as Optuna's ``trial.report`` / ``trial.should_prune``::
+
+        for step in range(0, 10_000, 1000):
+            if trial.report(step, evaluate(model)):
+                raise TrialPruned()   # study.optimize tells it pruned
+    """
+
+    _client: Client | None = PrivateAttr(default=None)
+    _should_stop: bool = PrivateAttr(default=False)
+
+    @classmethod
+    def bound(cls, trial: Trial, client: Client) -> LiveTrial:
+        live = cls.model_validate(trial.model_dump())
+        live._client = client
+        return live
+
+    def report(self, step: int, value: float) -> bool:
+        """Report ``value`` at ``step``; returns (and keeps in :attr:`should_stop`)
+        whether the study's pruner would stop the trial here."""
+        if self._client is None:
+            raise RuntimeError("this trial is not bound to a client: ask it from a study")
+        self._should_stop = self._client.report(self, step, value)
+        return self._should_stop
+
+    @property
+    def should_stop(self) -> bool:
+        """The answer to the last :meth:`report` (False before any)."""
+        return self._should_stop
+
+    def should_prune(self) -> bool:
+        """Optuna's name for :attr:`should_stop`."""
+        return self._should_stop
 
 
 class StudyHandle:
@@ -74,14 +113,16 @@ class StudyHandle:
         return self.client.dashboard_url(self.id)
 
     @overload
-    def ask(self) -> Trial: ...
+    def ask(self) -> LiveTrial: ...
 
     @overload
-    def ask(self, count: int) -> list[Trial]: ...
+    def ask(self, count: int) -> list[LiveTrial]: ...
 
-    def ask(self, count: int | None = None) -> Trial | list[Trial]:
-        """``ask()``: one new trial. ``ask(count=n)``: a list of ``n`` new trials."""
-        trials = self.client.ask(self.id, 1 if count is None else count)
+    def ask(self, count: int | None = None) -> LiveTrial | list[LiveTrial]:
+        """``ask()``: one new trial. ``ask(count=n)``: a list of ``n`` new trials. Each
+        can :meth:`LiveTrial.report` intermediate values while it runs."""
+        asked = self.client.ask(self.id, 1 if count is None else count)
+        trials = [LiveTrial.bound(trial, self.client) for trial in asked]
         return trials[0] if count is None else trials
 
     def tell(
@@ -89,7 +130,7 @@ class StudyHandle:
         trial: TrialRef,
         value: float | None = None,
         *,
-        state: Literal["complete", "failed"] | TrialState | str | None = None,
+        state: Literal["complete", "failed", "pruned"] | TrialState | str | None = None,
         message: str | None = None,
         metrics: Mapping[str, float] | None = None,
     ) -> Trial:
@@ -122,7 +163,7 @@ class StudyHandle:
 
     def optimize(
         self,
-        func: Callable[[Trial], float | None],
+        func: Callable[[LiveTrial], float | None],
         n_trials: int | None = None,
         *,
         n_jobs: int = 1,
@@ -136,7 +177,9 @@ class StudyHandle:
         ``n_trials``: how many trials to run (None: until ``timeout``, or until the study
         takes no more). ``n_jobs`` threads evaluate at once (-1: one per CPU).
         ``timeout``: no trial starts after this many seconds; running ones finish.
-        A value that is ``None`` or not finite is told as a failed trial. An exception
+        A value that is ``None`` or not finite is told as a failed trial;
+        :class:`~adclient.pruning.TrialPruned` raised after ``trial.report(step, value)``
+        said to stop is told as pruned. An exception
         from ``func`` is told as a failed trial with its message; it is then swallowed if
         its class is in ``catch``, else re-raised once the running trials are told (no
         new ones start). ``callbacks(study, trial)`` run after every trial told, failed
@@ -192,11 +235,13 @@ class StudyHandle:
         return told
 
     def _run(
-        self, func: Callable[[Trial], float | None], trial: Trial, caught: tuple[type, ...]
+        self, func: Callable[[LiveTrial], float | None], trial: LiveTrial, caught: tuple[type, ...]
     ) -> Trial:
         """Evaluate one trial and tell its result; re-raise what ``catch`` does not name."""
         try:
             value = func(trial)
+        except TrialPruned as pruned:
+            return self.tell(trial, pruned.value, state="pruned")
         except BaseException as exc:
             message = f"{type(exc).__name__}: {exc}"[:10_000]
             finished = self.tell(trial, state="failed", message=message)
