@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -14,6 +15,21 @@ from tests.servers import ServerProcess
 ADWORKER = Path(sys.executable).with_name("adworker")
 PATIENCE = 300.0
 """A bound on waits so a broken build fails instead of hanging; not a speed check."""
+
+
+def pip_install_target(source: Path, work: Path) -> Path:
+    """A package folder as ``pip install`` leaves it (the package and its dist-info with
+    its entry points), in ``work/site``, a folder that only the processes given it on
+    their PYTHONPATH see. Built from a copy (the build writes files), offline, without
+    its dependencies: what it needs must be in the venv already."""
+    copy = shutil.copytree(source, work / "source", ignore=shutil.ignore_patterns("__pycache__"))
+    site = work / "site"
+    offline = ["--quiet", "--no-deps", "--no-index", "--no-build-isolation"]
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", *offline, "--target", str(site), str(copy)],
+        check=True,
+    )
+    return site
 
 
 class WorkerProcess:

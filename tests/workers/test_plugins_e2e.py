@@ -9,7 +9,6 @@ other test, stays as it was."""
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -23,7 +22,7 @@ import yaml
 from adclient import Client
 from adclient.plugins import catalogue
 from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess
+from tests.workers.processes import PATIENCE, WorkerProcess, pip_install_target
 
 pytestmark = pytest.mark.e2e
 
@@ -35,14 +34,7 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The plugin as ``pip install`` leaves it: a package and its dist-info with the
     entry points, in a folder of its own (built from a copy: the build writes files)."""
-    work = tmp_path_factory.mktemp("plugin")
-    source = shutil.copytree(FIXTURE, work / "source")
-    site = work / "site"
-    offline = ["--quiet", "--no-deps", "--no-index", "--no-build-isolation"]
-    subprocess.run(
-        [sys.executable, "-m", "pip", "install", *offline, "--target", str(site), str(source)],
-        check=True,
-    )
+    site = pip_install_target(FIXTURE, tmp_path_factory.mktemp("plugin"))
     assert (site / "adplugin_reach").is_dir()
     return site
 
