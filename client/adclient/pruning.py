@@ -79,6 +79,13 @@ class PrunerConfig(_Strict):
     name: Literal["none", "median", "asha"] = "none"
     options: dict[str, Any] = Field(default_factory=dict)
     pruned_as: Literal["last_value", "left_out"] = "last_value"
+    report_every: int | None = Field(
+        default=None,
+        ge=1,
+        le=MAX_STEP,
+        description="learner steps between adworker's intermediate evaluations (each "
+        "reported); default: a tenth of the training budget. Only with a pruner",
+    )
 
     @model_validator(mode="after")
     def _known_options(self) -> PrunerConfig:

@@ -600,6 +600,11 @@ class Job(BaseModel):
     space: Space
     representation: Representation | None
     lease_expires_at: datetime
+    pruner: PrunerConfig = Field(
+        default_factory=PrunerConfig,
+        description="the study's pruner: with one, adworker evaluates and reports while "
+        "it trains (every pruner.report_every steps) and stops when told",
+    )
 
 
 class TaskInfo(BaseModel):

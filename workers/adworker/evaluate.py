@@ -21,14 +21,22 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from adclient.design import Design, DesignSpace
 from adclient.plugins import PluginError, TaskOptions, catalogue
 from adclient.schemas import Job, TaskConfig
-from adworker.learners import EpisodeResult, Learner, TrainResult, evaluate_policy
-from adworker.runner import Artifact, JobError, Outcome, factory_problem
+from adworker.learners import (
+    EpisodeResult,
+    Learner,
+    Policy,
+    Reporting,
+    TrainResult,
+    evaluate_policy,
+)
+from adworker.runner import Artifact, JobError, Outcome, Report, factory_problem, no_report
 
 log = logging.getLogger("adworker")
 
@@ -101,8 +109,11 @@ def evaluate_job(
     *,
     render: bool = True,
     check: Callable[[], None] | None = None,
+    report: Report | None = None,
 ) -> Evaluation:
-    """Evaluate one job; ``check`` is called between episodes and raises to cancel."""
+    """Evaluate one job; ``check`` is called between episodes and raises to cancel.
+    With ``report`` and a study pruner, the learner reports its policy's score every
+    ``pruner.report_every`` steps (``report`` raises ``Pruned`` to stop it)."""
     from adclient.urdf import design_to_urdf
 
     check = check or (lambda: None)
@@ -129,9 +140,23 @@ def evaluate_job(
     urdf_path.write_text(urdf_text)
     t = lap("urdf", t)
     env = make_env(design=design, urdf_path=urdf_path, options=options)
+    interim_envs: list[Any] = []
     try:
         t = lap("env", t)
         steps = task.train_steps if task.train_steps is not None else learner.default_steps
+        if report is not None and job.pruner.name != "none":
+
+            def interim(policy: Policy) -> float:
+                """The task's evaluation episodes on an env apart from training's."""
+                if not interim_envs:
+                    interim_envs.append(
+                        make_env(design=design, urdf_path=urdf_path, options=options)
+                    )
+                episodes = evaluate_policy(interim_envs[0], policy, evaluation_seeds(task), check)
+                return float(np.mean([episode.score for episode in episodes]))
+
+            every = job.pruner.report_every or max(1, steps // 10)
+            learner.reporting = Reporting(every=every, evaluate=interim, report=report)
         trained = learner.train(env, steps=steps, seed=task.seed, check=check)
         t = lap("train", t)
         episodes = evaluate_policy(env, trained.policy, evaluation_seeds(task), check=check)
@@ -144,9 +169,11 @@ def evaluate_job(
             # The last evaluation episode has just ended: its final pose.
             artifacts.append(Artifact("robot.png", "image/png", _png(env.render_image())))
         t = lap("render", t)
-        sim_steps = env.sim_steps
+        sim_steps = env.sim_steps + sum(other.sim_steps for other in interim_envs)
     finally:
         env.close()
+        for other in interim_envs:
+            other.close()
     total = time.perf_counter() - started
     scores = np.array([episode.score for episode in episodes])
     metrics = {
@@ -207,8 +234,10 @@ class TaskRunner:
     def tasks(self) -> list[str]:
         return list(self._tasks)
 
-    def __call__(self, job: Job, workdir: Path, check: Callable[[], None]) -> Outcome:
-        evaluation = evaluate_job(job, workdir, render=self.render, check=check)
+    def __call__(
+        self, job: Job, workdir: Path, check: Callable[[], None], report: Report = no_report
+    ) -> Outcome:
+        evaluation = evaluate_job(job, workdir, render=self.render, check=check, report=report)
         timings = ", ".join(
             f"{stage} {seconds:.2f}" for stage, seconds in evaluation.timings.items()
         )

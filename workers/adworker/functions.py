@@ -23,7 +23,7 @@ from typing import Any
 from adclient.design import Design, DesignSpace
 from adclient.plugins import load_object
 from adclient.schemas import NAME_PATTERN, Job, TaskConfig
-from adworker.runner import Artifact, Outcome
+from adworker.runner import Artifact, Outcome, Report, no_report
 
 CONTENT_TYPES = {
     ".json": "application/json",
@@ -56,6 +56,7 @@ class FunctionJob:
     """The design's URDF, written by the worker (design spaces only)."""
     reports: list[tuple[int, float]] = field(default_factory=list)
     _check: Callable[[], None] = field(default=lambda: None, repr=False)
+    _report: Report = field(default=no_report, repr=False)
 
     @property
     def options(self) -> dict[str, Any]:
@@ -66,11 +67,15 @@ class FunctionJob:
         return self.task.seed
 
     def report(self, step: int, value: float) -> None:
-        """An intermediate value (a learning curve point), kept in order of the calls and
-        uploaded as ``curve.json``. Also stops a job whose lease is lost or whose worker
-        is shutting down (raises :class:`~adworker.runner.Cancelled`)."""
+        """An intermediate value (a learning curve point), kept in order of the calls,
+        sent to the server and uploaded as ``curve.json``. Raises
+        :class:`~adworker.runner.Pruned` when the study's pruner stops the trial here
+        (adworker then tells it pruned, with this value), and
+        :class:`~adworker.runner.Cancelled` when the lease is lost or the worker is
+        shutting down."""
         self.reports.append((int(step), float(value)))
         self._check()
+        self._report(int(step), float(value))
 
     def check(self) -> None:
         """Raise :class:`~adworker.runner.Cancelled` when the job should stop."""
@@ -94,7 +99,9 @@ class FunctionRunner:
     def tasks(self) -> list[str]:
         return [self.task]
 
-    def __call__(self, job: Job, workdir: Path, check: Callable[[], None]) -> Outcome:
+    def __call__(
+        self, job: Job, workdir: Path, check: Callable[[], None], report: Report = no_report
+    ) -> Outcome:
         from adclient.decode import decode, identity_representation
         from adclient.urdf import design_to_urdf
 
@@ -110,6 +117,7 @@ class FunctionRunner:
             task=job.task,
             artifact_dir=artifact_dir,
             _check=check,
+            _report=report,
         )
         if isinstance(job.space, DesignSpace):
             representation = job.representation or identity_representation(job.space)

@@ -61,6 +61,26 @@ def _no_check() -> None:
     return None
 
 
+@dataclass
+class Reporting:
+    """Intermediate reports while a learner trains (a study with a pruner): every
+    ``every`` steps the learner scores its current policy (``evaluate``: the task's
+    evaluation episodes on an env of its own) and ``report``s it, which raises
+    ``adworker.runner.Pruned`` when the study's pruner stops the trial there."""
+
+    every: int
+    evaluate: Callable[[Policy], float]
+    report: Callable[[int, float], None]
+    due: int = 0
+
+    def __post_init__(self) -> None:
+        self.due = self.every
+
+    def send(self, steps: int, value: float) -> None:
+        self.due = (steps // self.every + 1) * self.every
+        self.report(steps, value)
+
+
 def evaluate_policy(
     env: RobotEnv, policy: Policy, seeds: list[int], check: Callable[[], None] = _no_check
 ) -> list[EpisodeResult]:
@@ -90,6 +110,8 @@ class Learner:
 
     def __init__(self, options: BaseModel | None = None) -> None:
         self.options = options
+        self.reporting: Reporting | None = None
+        """Set by the worker for a study with a pruner; learners that report use it."""
 
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
@@ -131,11 +153,16 @@ class ConstantTargetSearch(Learner):
         curve: list[dict[str, float]] = []
         used = 0
 
+        reporting = self.reporting
+
         def score_of(action: np.ndarray, episode_seed: int) -> float:
             nonlocal used
             result = evaluate_policy(env, policy_of(action), [episode_seed], check)[0]
             used += env.episode_steps
             curve.append({"steps": float(used), "score": result.score})
+            if reporting is not None and reporting.due <= used < steps:
+                # The best candidate's score so far: what the search would pick now.
+                reporting.send(used, max(point["score"] for point in curve))
             return result.score
 
         tried: list[tuple[float, np.ndarray]] = []
@@ -288,11 +315,16 @@ class StableBaselinesLearner(Learner):
 
         torch.set_num_threads(1)
         curve: list[dict[str, float]] = []
+        reporting = self.reporting
 
         class EpisodeScores(BaseCallback):
             def _on_step(self) -> bool:
                 if self.num_timesteps % 64 == 0:
                     check()
+                if reporting is not None and reporting.due <= self.num_timesteps < steps:
+                    # The current deterministic policy, scored as the final one will be.
+                    value = reporting.evaluate(_deterministic(self.model))
+                    reporting.send(self.num_timesteps, value)
                 for info in self.locals.get("infos", []):
                     if "score" in info:
                         curve.append(
@@ -303,17 +335,20 @@ class StableBaselinesLearner(Learner):
         model = self.make_model(env, steps=steps, seed=seed)
         if steps > 0:
             model.learn(total_timesteps=steps, callback=EpisodeScores(), progress_bar=False)
-
-        def policy(observation: np.ndarray) -> np.ndarray:
-            action, _ = model.predict(observation, deterministic=True)
-            return np.asarray(action, dtype=np.float32)
-
         return TrainResult(
-            policy=policy,
+            policy=_deterministic(model),
             train_steps=int(model.num_timesteps),
             curve=curve,
             info={"algorithm": self.algorithm},
         )
+
+
+def _deterministic(model: Any) -> Policy:
+    def policy(observation: np.ndarray) -> np.ndarray:
+        action, _ = model.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+    return policy
 
 
 def _action_noise(env: RobotEnv, kind: str = "normal", sigma: float = 0.3, **kwargs: Any) -> Any:

@@ -22,6 +22,24 @@ class Cancelled(Exception):
     """The worker asked the evaluation to stop (lease lost, or shutting down)."""
 
 
+class Pruned(Exception):
+    """The study's pruner stopped the trial at ``step`` (its report of ``value``)."""
+
+    def __init__(self, step: int, value: float) -> None:
+        super().__init__(f"pruned at step {step} (value {value:.6g})")
+        self.step = step
+        self.value = value
+
+
+Report = Callable[[int, float], None]
+"""Reports an intermediate value (step, value); raises :class:`Pruned` when the study's
+pruner stops the trial there, :class:`Cancelled` when the lease is lost."""
+
+
+def no_report(step: int, value: float) -> None:
+    return None
+
+
 class JobError(ValueError):
     """The job cannot be evaluated as given (no design space, unknown task...)."""
 
@@ -48,8 +66,11 @@ class Runner(Protocol):
         """The task names to lease: the ones this runner can run."""
         ...
 
-    def __call__(self, job: Job, workdir: Path, check: Callable[[], None]) -> Outcome:
-        """Run one job in its own folder; ``check`` raises :class:`Cancelled` to stop."""
+    def __call__(
+        self, job: Job, workdir: Path, check: Callable[[], None], report: Report = no_report
+    ) -> Outcome:
+        """Run one job in its own folder; ``check`` raises :class:`Cancelled` to stop;
+        ``report`` sends intermediate values (and raises :class:`Pruned` to stop)."""
         ...
 
 

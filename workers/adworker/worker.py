@@ -16,6 +16,11 @@ The rules it keeps:
   cancelled at its next check and nothing is reported.
 - An exception inside the evaluation (a bad design, a physics or training failure)
   becomes a ``failed`` tell carrying the error; the worker goes on.
+- Intermediate values (a learner's evaluation every ``pruner.report_every`` steps, a
+  function's ``job.report``) are reported as they come; when the study's pruner says
+  stop, training stops there and the trial is told ``pruned`` with its last value. A
+  report that fails for a network reason is skipped (the job goes on); a 409 on one is
+  a lost lease, as on a heartbeat.
 - SIGTERM/SIGINT: stop leasing, finish the current job, report it, exit 0. A second
   one abandons the current job, gives its lease back (the server queues the trial for
   another worker at once, without counting the attempt; if that call fails the lease
@@ -36,14 +41,14 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from adclient.client import Client
 from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized, Unavailable
 from adclient.schemas import Job
-from adworker.runner import Artifact, Cancelled, Runner
+from adworker.heartbeat import Heartbeat
+from adworker.runner import Artifact, Cancelled, Pruned, Runner
 
 log = logging.getLogger("adworker")
 
@@ -117,54 +122,6 @@ class Rates:
         if self.sim_steps:
             line += f", {self.sim_steps / max(self.busy_seconds, 1e-9):,.0f} sim steps/s while busy"
         return line
-
-
-class Heartbeat:
-    """Extends one job's lease from a background thread until stopped or lost."""
-
-    def __init__(self, client: Client, job: Job, worker_id: str) -> None:
-        self.client = client
-        self.job = job
-        self.worker_id = worker_id
-        self.lost = threading.Event()
-        self.reason = ""
-        self._stop = threading.Event()
-        self._thread = threading.Thread(
-            target=self._run, name=f"heartbeat-{job.trial_id}", daemon=True
-        )
-
-    def _interval(self, expires_at: datetime) -> float:
-        remaining = (expires_at - datetime.now(UTC)).total_seconds()
-        if not 0 < remaining < 24 * 3600:  # clock skew or nonsense: a safe default
-            remaining = 15.0
-        return max(0.2, min(remaining / 3, 20.0))
-
-    def _run(self) -> None:
-        interval = self._interval(self.job.lease_expires_at)
-        while not self._stop.wait(interval):
-            try:
-                answer = self.client.heartbeat(self.job.trial_id, self.worker_id)
-            except (Conflict, NotFound) as exc:
-                self.reason = f"lease lost: {exc}"
-                self.lost.set()
-                return
-            except (Unauthorized, Forbidden) as exc:
-                self.reason = f"heartbeat refused: {exc}"
-                self.lost.set()
-                return
-            except ApiError as exc:
-                log.warning("trial %s: heartbeat failed (%s); retrying", self.job.trial_id, exc)
-                interval = max(0.2, interval / 2)
-                continue
-            interval = self._interval(answer.lease_expires_at)
-
-    def __enter__(self) -> Heartbeat:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=10)
 
 
 class Worker:
@@ -276,7 +233,8 @@ class Worker:
     # ---------------------------------------------------------------------- job
 
     def process(self, job: Job) -> str:
-        """Evaluate and report one job; returns 'complete', 'failed' or 'abandoned'."""
+        """Evaluate and report one job; returns 'complete', 'failed', 'pruned' or
+        'abandoned'."""
         label = f"trial {job.trial_id} (study {job.study_id} #{job.number}, attempt {job.attempt})"
         log.info("%s: task %s", label, job.task.name)
         jobdir = self.workdir / f"trial-{job.trial_id}-attempt-{job.attempt}"
@@ -289,12 +247,31 @@ class Worker:
                 if self.abandon.is_set():
                     raise Cancelled("worker shutting down")
 
+            def report(step: int, value: float) -> None:
+                check()
+                if self._reported(job, label, step, value):
+                    raise Pruned(step, value)
+
             try:
-                outcome = self.runner(job, jobdir, check)
+                outcome = self.runner(job, jobdir, check, report)
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
                 result = "abandoned"
                 unreported = True
+            except Pruned as exc:
+                busy = time.monotonic() - started
+                self.rates.jobs += 1
+                self.rates.busy_seconds += busy
+                result = "pruned"
+                log.info("%s: %s after %.1f s; %s", label, exc, busy, self.rates.line())
+                unreported = not self._report(
+                    job,
+                    label,
+                    state="pruned",
+                    value=exc.value,
+                    metrics={"train_steps": float(exc.step), "time_total_s": busy},
+                    worker_id=self.config.worker_id,
+                )
             except Exception as exc:
                 message = _failure_message(exc)
                 log.error("%s: evaluation failed: %s", label, message.splitlines()[0])
@@ -328,6 +305,19 @@ class Worker:
         if not self.config.keep_files:
             shutil.rmtree(jobdir, ignore_errors=True)
         return result
+
+    def _reported(self, job: Job, label: str, step: int, value: float) -> bool:
+        """Report an intermediate value; whether the study's pruner stops the trial. A
+        lost lease cancels the job; a report the server cannot take now is skipped."""
+        try:
+            return self.client.report(job.trial_id, step, value, worker_id=self.config.worker_id)
+        except (Conflict, NotFound) as exc:
+            raise Cancelled(f"lease lost: {exc}") from exc
+        except (Unauthorized, Forbidden) as exc:
+            raise Cancelled(f"report refused: {exc}") from exc
+        except ApiError as exc:
+            log.warning("%s: report at step %d skipped (%s)", label, step, exc)
+            return False
 
     def _release(self, job: Job, label: str) -> None:
         """Hand the lease back so the trial is queued now, not when the lease expires."""

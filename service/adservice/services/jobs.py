@@ -90,5 +90,6 @@ def _job(configs: StudyConfigs, trial: Trial) -> Job:
             "space": config.space,
             "representation": config.representation,
             "lease_expires_at": trial.lease_expires_at,
+            "pruner": config.pruner,
         }
     )

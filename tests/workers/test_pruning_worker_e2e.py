@@ -1,0 +1,113 @@
+"""Pruning with real ``adworker`` processes and a real adserver: a function worker's
+``job.report`` and the learners' evaluations while they train reach the server, and a
+trial the study's pruner stops ends ``pruned`` with its last value, no further steps."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from adclient import Client
+from tests.servers import ServerProcess
+from tests.workers.processes import PATIENCE, WorkerProcess
+
+pytestmark = pytest.mark.e2e
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+CURVES = '''
+def curve(job):
+    """Even trials learn (10 per step), odd ones do not (0): odd ones are pruned at their
+    first report once one even trial is complete (median, one startup trial)."""
+    slope = 10.0 if job.number % 2 == 0 else 0.0
+    for step in range(1, 6):
+        job.report(step, slope * step)
+    return slope * 5
+'''
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[ServerProcess]:
+    process = ServerProcess(
+        database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path
+    ).start()
+    yield process
+    process.stop()
+
+
+def test_a_function_workers_trials_are_pruned_by_the_median(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    app = tmp_path / "app"
+    app.mkdir()
+    (app / "curves.py").write_text(CURVES)
+    args = ["--app-dir", str(app), "--function", "curves:curve", "--task", "curve"]
+    worker = WorkerProcess(server, tmp_path, "fn", *args, "--max-jobs", "4")
+    try:
+        with Client(server.url) as client:
+            study = client.create_study(
+                name="curves",
+                space={"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
+                proposer={"name": "random"},
+                pruner={"name": "median", "options": {"n_startup_trials": 1}},
+                task={"name": "curve", "external": True},
+                max_trials=4,
+            )
+            info = study.wait(poll=0.2, timeout=PATIENCE)
+            assert (info.n_complete, info.n_pruned, info.n_failed) == (2, 2, 0), worker.log()
+            for trial in study.trials:
+                reports = [(r.step, r.value) for r in client.reports(trial)]
+                if trial.number % 2 == 0:
+                    assert trial.state == "complete" and trial.value == 50.0
+                    assert reports == [(s, 10.0 * s) for s in range(1, 6)]
+                else:  # stopped at its first report: no later step was run
+                    assert trial.state == "pruned" and trial.value == 0.0
+                    assert reports == [(1, 0.0)]
+                    assert trial.metrics["train_steps"] == 1.0
+            assert worker.wait() == 0, worker.log()
+            assert "pruned at step 1" in worker.log()
+    finally:
+        worker.stop()
+
+
+def stand_up(learner: str, train_steps: int, pruner: dict[str, Any]) -> dict[str, Any]:
+    body = yaml.safe_load((EXAMPLES / "stand-up.yaml").read_text())
+    body["proposer"] = {"name": "random", "seed": 4}
+    body["task"] = {
+        "name": "stand-up",
+        "learner": learner,
+        "train_steps": train_steps,
+        "eval_episodes": 1,
+    }
+    return {**body, "name": f"pruned-{learner}", "max_trials": 2, "pruner": pruner}
+
+
+@pytest.mark.parametrize("learner", ["ppo", "fast"])
+def test_learners_report_while_training_and_stop_when_told(
+    server: ServerProcess, tmp_path: Path, learner: str
+) -> None:
+    """Every trial of a first ASHA rung that needs more values than a study can have
+    (bootstrap_count) is stopped there: the learner stops training at the first report
+    past 128 steps and the trial is told pruned with the score it reported."""
+    pruner = {
+        "name": "asha",
+        "options": {"min_resource": 128, "bootstrap_count": 1000},
+        "report_every": 64,
+    }
+    with Client(server.url) as client:
+        study = client.create_study(stand_up(learner, 1024, pruner))
+        worker = WorkerProcess(server, tmp_path, learner, "--max-jobs", "2", "--no-render")
+        try:
+            info = study.wait(poll=0.2, timeout=PATIENCE)
+            assert (info.n_pruned, info.n_complete, info.n_failed) == (2, 0, 0), worker.log()
+            for trial in study.trials:
+                reports = [(r.step, r.value) for r in client.reports(trial)]
+                assert [step for step, _ in reports] == [64, 128], reports
+                assert trial.value == reports[-1][1]
+                assert trial.metrics["train_steps"] == 128.0
+            assert worker.wait() == 0, worker.log()
+        finally:
+            worker.stop()
