@@ -771,3 +771,30 @@ def test_scripted_artifacts_run_no_script(
     assert browser.evaluate("localStorage.getItem('probe')") == "1"
     # And the dashboard itself never wrapped an artifact in a blob or data URL.
     assert not [url for url in browser.requested if url.startswith(("blob:", "data:image/svg"))]
+
+
+def test_pruned_trials_in_the_progress_bar_counts_and_filter(
+    live_server: ServerProcess, browser: Chromium
+) -> None:
+    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+        body = {**MANAGED_BOX, "name": "pruned-box", "max_trials": 10}
+        body["pruner"] = {"name": "median", "options": {"n_startup_trials": 1}}
+        study_id = http.post("/api/v1/studies", json=body).raise_for_status().json()["id"]
+        asked = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 4}).json()["trials"]
+        tell(http, asked[0]["id"], value=1.0)
+        for trial in asked[1:3]:
+            http.post(f"/api/v1/trials/{trial['id']}/report", json={"step": 5, "value": 0.25})
+            tell(http, trial["id"], state="pruned")
+        browser.navigate(f"{live_server.url}/#/studies/{study_id}")
+        browser.wait_for(STUDY_PAGE_READY)
+        counts = browser.evaluate("document.querySelector('[data-counts]').textContent")
+        assert "2 pruned" in counts and "1 complete" in counts
+        segments = browser.evaluate(
+            "[...document.querySelectorAll('.study [data-progress] .segment')]"
+            ".map(s => [s.classList[1], parseFloat(s.style.width)])"
+        )
+        assert dict(segments) == pytest.approx({"complete": 10, "pruned": 20, "running": 10})
+        options = browser.evaluate(
+            "[...document.querySelectorAll('[data-filter] option')].map(o => o.textContent)"
+        )
+        assert "pruned" in options

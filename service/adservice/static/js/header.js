@@ -8,7 +8,7 @@ export function countsText(study) {
   const of = study.max_trials ? ` of ${study.max_trials}` : '';
   return (
     `${study.n_complete} complete · ${study.n_running} running · ${study.n_queued} queued · ` +
-    `${study.n_failed} failed${of}`
+    `${study.n_failed} failed${study.n_pruned ? ` · ${study.n_pruned} pruned` : ''}${of}`
   );
 }
 
@@ -20,7 +20,8 @@ export function progressBar(study, extraClass = '') {
            title="${count} ${state}"></span>`
       : '';
   return `<div class="progress ${extraClass}" role="img" aria-label="${esc(countsText(study))}">
-    ${segment(study.n_complete, 'complete')}${segment(study.n_failed, 'failed')}
+    ${segment(study.n_complete, 'complete')}${segment(study.n_pruned ?? 0, 'pruned')}
+    ${segment(study.n_failed, 'failed')}
     ${segment(study.n_running, 'running')}${segment(study.n_queued, 'queued')}</div>`;
 }
 
@@ -56,6 +57,7 @@ export class StudyHeader {
       `<span class="count running">${s.n_running} running</span>` +
       `<span class="count queued">${s.n_queued} queued</span>` +
       `<span class="count failed">${s.n_failed} failed</span>` +
+      (s.n_pruned ? `<span class="count pruned">${s.n_pruned} pruned</span>` : '') +
       `<span class="meta">${s.n_trials} asked${s.max_trials ? ` of ${s.max_trials}` : ''}</span>`;
   }
 }

@@ -33,6 +33,7 @@ function signatureOf(study) {
     study.n_running,
     study.n_complete,
     study.n_failed,
+    study.n_pruned,
     study.best_trial_id,
   ].join('|');
 }
