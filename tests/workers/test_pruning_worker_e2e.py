@@ -8,17 +8,20 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 import yaml
 
 from adclient import Client
-from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess
+from tests.servers import SDK_HEADERS, ServerProcess
+from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
 
 pytestmark = pytest.mark.e2e
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 CURVES = '''
+import time
+
 def curve(job):
     """Even trials learn (10 per step), odd ones do not (0): odd ones are pruned at their
     first report once one even trial is complete (median, one startup trial)."""
@@ -26,6 +29,14 @@ def curve(job):
     for step in range(1, 6):
         job.report(step, slope * step)
     return slope * 5
+
+
+def slow(job):
+    """Reports, pauses (the test takes the lease away meanwhile), reports again."""
+    job.report(1, 1.0)
+    time.sleep(2)
+    job.report(2, 2.0)
+    return 2.0
 '''
 
 
@@ -69,6 +80,45 @@ def test_a_function_workers_trials_are_pruned_by_the_median(
                     assert trial.metrics["train_steps"] == 1.0
             assert worker.wait() == 0, worker.log()
             assert "pruned at step 1" in worker.log()
+    finally:
+        worker.stop()
+
+
+def test_a_report_after_the_lease_is_lost_cancels_the_job(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """The trial is taken back (an admin's release) while the function runs: its next
+    report is a 409, the worker drops the job unreported, then leases the trial again
+    and finishes it; the repeated reports are harmless."""
+    app = tmp_path / "app"
+    app.mkdir()
+    (app / "curves.py").write_text(CURVES)
+    args = ["--app-dir", str(app), "--function", "curves:slow", "--task", "slow"]
+    worker = WorkerProcess(server, tmp_path, "slow", *args, "--max-jobs", "1")
+    try:
+        with Client(server.url) as client:
+            study = client.create_study(
+                name="slow",
+                space={"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
+                proposer={"name": "random"},
+                pruner={"name": "median"},
+                task={"name": "slow", "external": True},
+                max_trials=1,
+            )
+            wait_for(lambda: study.trials, "the trial to be leased")
+            trial = study.trials[0]
+            wait_for(lambda: client.reports(trial), "the first report")
+            released = httpx.post(
+                f"{server.url}/api/v1/trials/{trial.id}/release", json={}, headers=SDK_HEADERS
+            )
+            assert released.status_code == 200 and released.json()["state"] == "queued"
+            info = study.wait(poll=0.2, timeout=PATIENCE)
+            assert info.n_complete == 1, worker.log()
+            assert worker.wait() == 0, worker.log()
+            log = worker.log()
+            assert "lease lost" in log and "abandoned" in log, log
+            assert [(r.step, r.value) for r in client.reports(trial)] == [(1, 1.0), (2, 2.0)]
+            assert client.get_trial(trial).value == 2.0
     finally:
         worker.stop()
 
