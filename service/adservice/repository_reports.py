@@ -90,7 +90,8 @@ def record_report(
     ).all()
     study = get_study(session, study_id=trial.study_id)
     maximize = study.direction == "maximize"
-    values = [value for _, value in earlier]
+    # Up to this step: a retried attempt's later steps are stale until it reaches them.
+    values = [value for step, value in earlier if step <= body.step]
     return Recorded(
         study=study,
         trial=trial,
