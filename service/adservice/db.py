@@ -49,7 +49,7 @@ def make_engine(url: str) -> Engine:
 
     @sa.event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection: Any, _record: Any) -> None:
-        # Let SQLAlchemy's "begin" event emit BEGIN itself (pysqlite's own is deferred-only).
+        # The transaction scope emits BEGIN itself (pysqlite's own is deferred-only).
         dbapi_connection.isolation_level = None
         cursor = dbapi_connection.cursor()
         cursor.execute("PRAGMA journal_mode=WAL")
@@ -57,15 +57,6 @@ def make_engine(url: str) -> Engine:
         cursor.execute("PRAGMA foreign_keys=ON")
         cursor.execute("PRAGMA busy_timeout=30000")
         cursor.close()
-
-    @sa.event.listens_for(engine, "begin")
-    def _on_begin(connection: sa.Connection) -> None:
-        # Straight to the driver: a statement through SQLAlchemy's execution machinery
-        # cost a fifth of a write's database time (cProfile, bench/throughput.py).
-        immediate = connection.get_execution_options().get("ad_write", False)
-        connection.connection.driver_connection.execute(  # type: ignore[union-attr]
-            "BEGIN IMMEDIATE" if immediate else "BEGIN"
-        )
 
     return engine
 
@@ -76,8 +67,10 @@ class Database:
     def __init__(self, url: str) -> None:
         self.url = url
         self.engine = make_engine(url)
-        self._write_engine = self.engine.execution_options(ad_write=True)
-        self._write_lock = threading.Lock() if is_sqlite(self.engine) else None
+        sqlite = is_sqlite(self.engine)
+        self._write_lock = threading.Lock() if sqlite else None
+        self._begin_read = "BEGIN" if sqlite else None
+        self._begin_write = "BEGIN IMMEDIATE" if sqlite else None
         self._writer: sa.Connection | None = None
         """SQLite: the connection every write goes through, used under ``_write_lock``
         (writes take turns anyway): no pool check-out, check-in and reset per write."""
@@ -88,7 +81,10 @@ class Database:
 
     @contextmanager
     def read(self) -> Iterator[Session]:
-        with self.engine.connect() as connection, _transaction(connection) as session:
+        with (
+            self.engine.connect() as connection,
+            _transaction(connection, self._begin_read) as session,
+        ):
             yield session
 
     @contextmanager
@@ -96,14 +92,14 @@ class Database:
         """A write transaction that commits on success and rolls back on any exception:
         every write of the service goes through here."""
         if self._write_lock is None:
-            with self._write_engine.connect() as connection, _transaction(connection) as session:
+            with self.engine.connect() as connection, _transaction(connection, None) as session:
                 yield session
             return
         with self._write_lock:
             if self._writer is None:
-                self._writer = self._write_engine.connect()
+                self._writer = self.engine.connect()
             try:
-                with _transaction(self._writer) as session:
+                with _transaction(self._writer, self._begin_write) as session:
                     yield session
             finally:
                 if self._writer.invalidated:
@@ -146,11 +142,19 @@ def scope_connection(session: Session) -> sa.Connection:
 
 
 @contextmanager
-def _transaction(connection: sa.Connection) -> Iterator[Session]:
+def _transaction(connection: sa.Connection, begin: str | None) -> Iterator[Session]:
     """A session on a connection whose transaction this scope owns: the session flushes
     into it, the connection commits (or rolls back) it. Measured: a session that runs its
-    own transaction costs about 0.1 ms more per write, a tenth of a tell on the hot path."""
+    own transaction costs about 0.1 ms more per write, a tenth of a tell on the hot path.
+
+    ``begin``: on SQLite, the statement that opens the transaction, sent straight to the
+    driver (pysqlite's own BEGIN is deferred-only). SQLAlchemy's recipe sends it from a
+    "begin" event instead; but any listener on the engine makes every statement dispatch
+    its execution events, and through SQLAlchemy the BEGIN itself cost a fifth of a
+    write's database time (cProfile, bench/throughput.py)."""
     with connection.begin():
+        if begin is not None:
+            connection.connection.driver_connection.execute(begin)  # type: ignore[union-attr]
         session = Session(bind=connection, expire_on_commit=False, info={_CONNECTION: connection})
         try:
             yield session
