@@ -11,6 +11,7 @@ request limits), so we keep httptools and count the bytes ourselves.
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from typing import Any
 
 import uvicorn
@@ -38,19 +39,35 @@ class _OneWritePerResponse:
     reads the head and the body in two system calls. One write per answer: half the
     server's context switches and 2 to 3% less client CPU per ask/tell cycle
     (bench/RESULTS.md, issue 13: throughput).
+
+    A head written while the request's body is still arriving says ``connection: close``
+    (``closes_after`` is asked then): the server closes such a connection after the
+    answer, and a client that read the whole answer at once must not send its next
+    request down it.
     """
 
-    __slots__ = ("_held", "_loop", "_started", "_transport")
+    __slots__ = ("_awaiting_head", "_closes_after", "_held", "_loop", "_transport")
 
-    def __init__(self, transport: asyncio.Transport, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(
+        self,
+        transport: asyncio.Transport,
+        loop: asyncio.AbstractEventLoop,
+        closes_after: Callable[[], bool],
+    ) -> None:
         self._transport = transport
         self._loop = loop
-        self._started = False
+        self._closes_after = closes_after
+        self._awaiting_head = True
         self._held: bytes | None = None
 
     def write(self, data: bytes) -> None:
-        if not self._started:
-            self._started = True
+        if self._awaiting_head:
+            if data.startswith(b"HTTP/1.1 100 "):  # an interim answer: the head comes later
+                self._transport.write(data)
+                return
+            self._awaiting_head = False
+            if self._closes_after() and b"\r\nconnection: close\r\n" not in data.lower():
+                data = data[:-2] + b"connection: close\r\n\r\n"
             self._held = data
             self._loop.call_soon(self._flush)
             return
@@ -117,8 +134,17 @@ class LimitedHttpToolsProtocol(HttpToolsProtocol):
         self._awaiting_headers = False
         self._cancel_header_timer()
         super().on_headers_complete()
-        if self.cycle is not None and self.cycle.scope is self.scope:
-            self.cycle.transport = _OneWritePerResponse(self.transport, self.loop)  # type: ignore[assignment]
+        cycle = self.cycle
+        if cycle is not None and cycle.scope is self.scope:
+
+            def closes_after() -> bool:
+                """Whether this answer ends the connection: its request's body is still
+                arriving (``on_response_complete`` closes it then)."""
+                if cycle.more_body:
+                    cycle.keep_alive = False
+                return not cycle.keep_alive
+
+            cycle.transport = _OneWritePerResponse(self.transport, self.loop, closes_after)  # type: ignore[assignment]
 
     def on_message_complete(self) -> None:
         super().on_message_complete()

@@ -46,10 +46,8 @@ async def app(scope: dict[str, Any], receive: Any, send: Any) -> None:
     await response(scope, receive, send)
 
 
-async def serve_and_ask(paths: list[str]) -> tuple[list[bytes], list[tuple[float, bytes]]]:
-    """Ask ``paths`` on one keep-alive connection; returns the server's socket writes and
-    what the client read, with when it read it."""
-    writes: list[bytes] = []
+async def counted_server(writes: list[bytes]) -> tuple[asyncio.Server, int]:
+    """The server's protocol on a loopback port; its socket writes land in ``writes``."""
     config = uvicorn.Config(app, log_level="warning", lifespan="off")
     config.load()
     base = protocol_class(Settings())
@@ -59,11 +57,18 @@ async def serve_and_ask(paths: list[str]) -> tuple[list[bytes], list[tuple[float
             super().connection_made(CountedWrites(transport, writes))
 
     state = ServerState()
-    loop = asyncio.get_running_loop()
-    server = await loop.create_server(
+    server = await asyncio.get_running_loop().create_server(
         lambda: Counted(config=config, server_state=state, app_state={}), "127.0.0.1", 0
     )
-    port = server.sockets[0].getsockname()[1]
+    return server, server.sockets[0].getsockname()[1]
+
+
+async def serve_and_ask(paths: list[str]) -> tuple[list[bytes], list[tuple[float, bytes]]]:
+    """Ask ``paths`` on one keep-alive connection; returns the server's socket writes and
+    what the client read, with when it read it."""
+    writes: list[bytes] = []
+    server, port = await counted_server(writes)
+    loop = asyncio.get_running_loop()
     reads: list[tuple[float, bytes]] = []
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     try:
@@ -103,3 +108,34 @@ def test_a_streamed_answer_sends_its_head_before_a_slow_body() -> None:
     last_read_at, _ = reads[-1]
     assert b"first;" in first
     assert last_read_at - first_read_at >= 0.2  # the head and first chunk came before the pause
+
+
+async def answer_before_body() -> tuple[bytes, bytes]:
+    """A POST whose body has not come when the app answers (as a refused token is): what
+    the client reads, and what it reads after sending the body and a second request."""
+    server, port = await counted_server([])
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(b"POST /early HTTP/1.1\r\nhost: 127.0.0.1\r\ncontent-length: 8\r\n\r\n")
+        answer = b""
+        while not answer.endswith(b'{"status":"ok"}'):
+            chunk = await asyncio.wait_for(reader.read(65_536), 10)
+            assert chunk, "closed before the answer"
+            answer += chunk
+        writer.write(b"{'x': 1}GET /again HTTP/1.1\r\nhost: 127.0.0.1\r\n\r\n")
+        after = await asyncio.wait_for(reader.read(65_536), 10)
+    finally:
+        writer.close()
+        server.close()
+        await server.wait_closed()
+    return answer, after
+
+
+def test_an_answer_before_its_request_body_ends_the_connection_and_says_so() -> None:
+    """The server closes a connection whose body it never read; the answer must say so,
+    or a client that read it whole sends its next request into a reset."""
+    answer, after = asyncio.run(answer_before_body())
+    head = answer.partition(b"\r\n\r\n")[0].lower()
+    assert head.startswith(b"http/1.1 200 ok")
+    assert b"\r\nconnection: close" in head
+    assert after == b""  # closed: the second request got no answer on this connection
