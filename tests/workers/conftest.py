@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -8,7 +9,18 @@ import pytest
 from adclient.design import Design
 from adclient.plugins import catalogue
 from adworker import designs
+from tests.servers import ServerProcess
 from tests.workers.robots import write_urdf
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[ServerProcess]:
+    """A real adserver on a fresh SQLite file (test_plugins_e2e has its own)."""
+    process = ServerProcess(
+        database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path
+    ).start()
+    yield process
+    process.stop()
 
 
 @pytest.fixture

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import signal
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -38,15 +37,6 @@ def arm_length(job):
     assert job.urdf_path.read_text().startswith("<?xml")
     return sum(link.length for link in job.design.links) + job.options["offset"]
 '''
-
-
-@pytest.fixture
-def server(tmp_path: Path) -> Iterator[ServerProcess]:
-    process = ServerProcess(
-        database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path
-    ).start()
-    yield process
-    process.stop()
 
 
 @pytest.fixture

@@ -4,7 +4,6 @@ trial the study's pruner stops ends ``pruned`` with its last value, no further s
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -38,15 +37,6 @@ def slow(job):
     job.report(2, 2.0)
     return 2.0
 '''
-
-
-@pytest.fixture
-def server(tmp_path: Path) -> Iterator[ServerProcess]:
-    process = ServerProcess(
-        database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path
-    ).start()
-    yield process
-    process.stop()
 
 
 def test_a_function_workers_trials_are_pruned_by_the_median(
