@@ -5,11 +5,17 @@ Each run: a fresh server on a SQLite file, one managed study (stand-up from
 examples/stand-up.yaml, lift-highest from examples/multi-structure.yaml) with an SB3
 learner at a budget where early stopping matters (``--train-steps``, 20,000 by default),
 ``--trials`` trials, proposer ``qei`` with the run's seed, and ``--workers`` adworker
-processes (one job each at a time). What is measured per trial: its worker seconds
-(``time_total_s``, which complete and pruned trials both carry) and, for complete
-trials, the score. From those: the best score, total worker seconds, and the
-time-to-target curve (best complete score so far against worker seconds spent, trials
-in the order they finished).
+processes (one job each at a time). What is measured per trial: its worker CPU seconds
+(``time_cpu_s``: the worker process's CPU time for the job, interim evaluations and
+checkpoints included; a paused trial's resumed job adds its earlier seconds; CPU rather
+than wall time, so a busy shared machine slows no arm more than another), its wall
+seconds (``time_total_s``) and, for complete trials, the score. From those: the best
+score, total worker seconds, and the time-to-target curve (best complete score so far
+against worker CPU seconds spent, trials in the order they finished).
+
+Variants: ``none``, ``median``, ``asha`` (a trial stopped at a rung is pruned) and
+``asha-promotion`` (ASHA with ``promotion: true``: it is paused with its SB3 checkpoint
+and resumes from it if promoted later; docs/pruning.md).
 
 Goal (issue 15): the same best score within the seeds' spread with at least 2x less
 total worker time (moonshot 4x).
@@ -60,6 +66,9 @@ def pruner_of(variant: str, train_steps: int) -> dict[str, Any]:
     if variant == "asha":
         options = {"min_resource": 2 * every, "reduction_factor": 3}
         return {"name": "asha", "options": options, "report_every": every}
+    if variant == "asha-promotion":
+        asha = pruner_of("asha", train_steps)
+        return {**asha, "options": {**asha["options"], "promotion": True}}
     if variant == "asha-left-out":
         return {**pruner_of("asha", train_steps), "pruned_as": "left_out"}
     raise ValueError(f"unknown variant {variant!r}")
@@ -103,6 +112,8 @@ def run_one(task: str, variant: str, seed: int, args: argparse.Namespace) -> dic
                         "state": t.state.value,
                         "value": t.value,
                         "seconds": t.metrics.get("time_total_s"),
+                        "cpu_seconds": t.metrics.get("time_cpu_s"),
+                        "resumed_from_step": t.metrics.get("resumed_from_step"),
                         "train_steps": t.metrics.get("train_steps"),
                         "finished_at": t.finished_at.isoformat() if t.finished_at else None,
                     }
@@ -125,15 +136,17 @@ def run_one(task: str, variant: str, seed: int, args: argparse.Namespace) -> dic
         "n_failed": info.n_failed,
         "wall_s": wall,
         "worker_s": sum(t["seconds"] or 0.0 for t in trials),
+        "worker_cpu_s": sum(t["cpu_seconds"] or 0.0 for t in trials),
+        "n_resumed": sum(1 for t in trials if t["resumed_from_step"]),
     }
 
 
 def time_to_target(run: dict[str, Any]) -> list[tuple[float, float]]:
-    """(worker seconds spent, best complete score so far) after each finished trial."""
+    """(worker CPU seconds spent, best complete score so far) after each finished trial."""
     done = sorted((t for t in run["trials"] if t["finished_at"]), key=lambda t: t["finished_at"])
     spent, best, points = 0.0, float("-inf"), []
     for trial in done:
-        spent += trial["seconds"] or 0.0
+        spent += trial["cpu_seconds"] or 0.0
         if trial["state"] == "complete" and trial["value"] is not None:
             best = max(best, trial["value"])
         if best > float("-inf"):
@@ -142,32 +155,42 @@ def time_to_target(run: dict[str, Any]) -> list[tuple[float, float]]:
 
 
 def report(runs: list[dict[str, Any]]) -> str:
-    """Medians over seeds per task and variant, and ratios of worker time to no pruner."""
+    """Medians over seeds per task and variant, ratios of worker CPU time to no pruner,
+    and the goal: a median best within the seeds' spread of no pruner's bests (at least
+    its lowest) with at least 2x less worker CPU time."""
     lines = [
-        "| task | variant | seeds | best (median, min..max) | worker s (median) | "
-        "time vs none | pruned |",
-        "|---|---|---|---|---|---|---|",
+        "| task | variant | seeds | best (median, min..max) | worker CPU s (median) | "
+        "wall s (median) | CPU vs none | pruned | resumed | goal |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for run in runs:
         groups.setdefault((run["task"], run["variant"]), []).append(run)
     for (task, variant), group in sorted(groups.items()):
         bests = [r["best"] for r in group if r["best"] is not None]
-        seconds = statistics.median(r["worker_s"] for r in group)
+        cpu = statistics.median(r["worker_cpu_s"] for r in group)
+        wall = statistics.median(r["worker_s"] for r in group)
         baseline = groups.get((task, "none"))
-        ratio = (
-            f"{statistics.median(r['worker_s'] for r in baseline) / seconds:.2f}x less"
-            if baseline and seconds > 0
-            else "-"
-        )
+        ratio, goal = "-", "-"
+        if baseline and variant != "none" and cpu > 0:
+            less = statistics.median(r["worker_cpu_s"] for r in baseline) / cpu
+            ratio = f"{less:.2f}x less"
+            floor = min(r["best"] for r in baseline if r["best"] is not None)
+            same = bool(bests) and statistics.median(bests) >= floor
+            goal = "met" if same and less >= 2 else "missed"
         best = (
             f"{statistics.median(bests):.4f} ({min(bests):.4f}..{max(bests):.4f})" if bests else "-"
         )
         pruned = statistics.median(r["n_pruned"] for r in group)
+        resumed = statistics.median(r.get("n_resumed", 0) for r in group)
         lines.append(
-            f"| {task} | {variant} | {len(group)} | {best} | {seconds:.0f} | {ratio} | {pruned} |"
+            f"| {task} | {variant} | {len(group)} | {best} | {cpu:.0f} | {wall:.0f} | {ratio} "
+            f"| {pruned:g} | {resumed:g} | {goal} |"
         )
     return "\n".join(lines)
+
+
+COLOURS = {"none": "black", "median": "tab:blue", "asha": "tab:orange", "asha-promotion": "tab:red"}
 
 
 def plot(runs: list[dict[str, Any]], path: Path) -> None:
@@ -178,18 +201,17 @@ def plot(runs: list[dict[str, Any]], path: Path) -> None:
 
     tasks = sorted({run["task"] for run in runs})
     figure, axes = plt.subplots(1, len(tasks), figsize=(6 * len(tasks), 4), squeeze=False)
-    colours = {"none": "black", "median": "tab:blue", "asha": "tab:orange"}
     for axis, task in zip(axes[0], tasks, strict=True):
         for run in (r for r in runs if r["task"] == task):
             points = time_to_target(run)
             if points:
                 xs, ys = zip(*points, strict=True)
-                colour = colours.get(run["variant"], "tab:green")
+                colour = COLOURS.get(run["variant"], "tab:green")
                 axis.step(xs, ys, where="post", color=colour, alpha=0.6, label=run["variant"])
         handles, labels = axis.get_legend_handles_labels()
         unique = dict(zip(labels, handles, strict=True))
         axis.legend(unique.values(), unique.keys())
-        axis.set(title=task, xlabel="worker seconds", ylabel="best complete score")
+        axis.set(title=task, xlabel="worker CPU seconds", ylabel="best complete score")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
 
@@ -199,10 +221,13 @@ def _key(run: dict[str, Any]) -> tuple[Any, ...]:
     return tuple(run[field] for field in fields)
 
 
-def load() -> list[dict[str, Any]]:
+def load(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The stored runs at this command's learner, budget and trial count."""
     if not RESULTS.exists():
         return []
-    return [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
+    runs = [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
+    setting = (args.learner, args.train_steps, args.trials)
+    return [r for r in runs if (r["learner"], r["train_steps"], r["max_trials"]) == setting]
 
 
 def main() -> None:
@@ -210,6 +235,7 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", default=list(EXAMPLES), choices=list(EXAMPLES))
     parser.add_argument("--variants", nargs="+", default=["none", "median", "asha"])
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--trials", type=int, default=20)
     parser.add_argument("--train-steps", type=int, default=20_000)
     parser.add_argument("--learner", default="ppo")
@@ -222,10 +248,8 @@ def main() -> None:
         args.tasks, args.seeds, args.trials = ["stand-up"], 1, 4
         args.train_steps, args.learner = 640, "fast"
     if not args.report:
-        done = {
-            (r["task"], r["variant"], r["seed"], r["learner"], r["train_steps"]) for r in load()
-        }
-        for seed in range(args.seeds):
+        done = {_key(run) for run in load(args)}
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             for task in args.tasks:
                 for variant in args.variants:
                     key = (task, variant, seed, args.learner, args.train_steps, args.trials)
@@ -234,14 +258,15 @@ def main() -> None:
                     run = run_one(task, variant, seed, args)
                     print(
                         f"{task} {variant} seed {seed}: best {run['best']}, "
-                        f"{run['worker_s']:.0f} worker s, {run['n_pruned']} pruned",
+                        f"{run['worker_cpu_s']:.0f} worker CPU s, {run['worker_s']:.0f} wall s, "
+                        f"{run['n_pruned']} pruned, {run['n_resumed']} resumed",
                         flush=True,
                     )
                     if not args.quick:
                         RESULTS.parent.mkdir(parents=True, exist_ok=True)
                         with RESULTS.open("a") as out:
                             out.write(json.dumps(run) + "\n")
-    runs = load() if not args.quick else []
+    runs = load(args) if not args.quick else []
     if runs:
         print(report(runs))
         plot(runs, FIGURE)

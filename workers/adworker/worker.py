@@ -238,7 +238,7 @@ class Worker:
         label = f"trial {job.trial_id} (study {job.study_id} #{job.number}, attempt {job.attempt})"
         log.info("%s: task %s", label, job.task.name)
         jobdir = self.workdir / f"trial-{job.trial_id}-attempt-{job.attempt}"
-        started = time.monotonic()
+        started, cpu_started = time.monotonic(), time.process_time()
         with Heartbeat(self.client, job, self.config.worker_id) as heartbeat:
 
             def check() -> None:
@@ -269,7 +269,11 @@ class Worker:
                     label,
                     state="pruned",
                     value=exc.value,
-                    metrics={"train_steps": float(exc.step), "time_total_s": busy},
+                    metrics={
+                        "train_steps": float(exc.step),
+                        "time_total_s": busy,
+                        "time_cpu_s": time.process_time() - cpu_started,
+                    },
                     worker_id=self.config.worker_id,
                 )
             except Exception as exc:
@@ -292,11 +296,12 @@ class Worker:
                 self.rates.busy_seconds += busy
                 result = "complete"
                 self._upload(job, heartbeat, label, outcome.artifacts)
+                cpu = time.process_time() - cpu_started
                 unreported = not self._report(
                     job,
                     label,
                     value=outcome.value,
-                    metrics=outcome.metrics,
+                    metrics={**outcome.metrics, "time_cpu_s": cpu},
                     worker_id=self.config.worker_id,
                 )
                 log.info("%s: %s in %.1f s; %s", label, outcome.summary, busy, self.rates.line())
