@@ -24,6 +24,7 @@ import kubernetes_validate
 import pytest
 import yaml
 
+from adservice.metrics import DATABASE_GAUGES
 from adservice.security import BrowserEdge
 from adservice.settings import Settings
 from tests.kustomize import Resource, load_documents, render
@@ -357,6 +358,13 @@ def test_workers_scale_on_the_queue_depth(build: tuple[str, list[Resource]]) -> 
     assert trigger["type"] == "prometheus"
     query = trigger["metadata"]["query"]
     assert "activedesign_queue_depth" in query and "activedesign_leases_active" in query
+    # Every metric the query reads is one the server exposes, grouped by labels it has;
+    # a selector names only ``job``, the label Prometheus' scrape adds.
+    for name, selector in re.findall(r"(activedesign_\w+)\{([^}]*)\}", query):
+        assert name in DATABASE_GAUGES, name
+        assert re.findall(r"(\w+)\s*=", selector) == ["job"], selector
+    for labels, name in re.findall(r"by \(([^)]*)\)\s*\((activedesign_\w+)", query):
+        assert {label.strip() for label in labels.split(",")} <= set(DATABASE_GAUGES[name][1])
     # One worker per job its pod runs at once.
     command = container(workers, "adworker")["command"]
     concurrency = command[command.index("--concurrency") + 1]

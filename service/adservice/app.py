@@ -28,6 +28,7 @@ from adservice.api.routes import (
     health,
     jobs,
     learners,
+    metrics,
     reports,
     session,
     studies,
@@ -48,6 +49,7 @@ from adservice.errors import (
 )
 from adservice.limits import BodyLimits
 from adservice.locks import StudyLocks
+from adservice.metrics import install_metrics
 from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
 from adservice.security import BrowserEdge
 from adservice.services.configs import StudyConfigs
@@ -242,6 +244,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             expose_headers=["X-Total-Count"],
         )
     app.add_middleware(BrowserEdge, allowed_hosts=settings.resolved_allowed_hosts())
+    install_metrics(app)
     # The hot routes first: a request is matched against the routes in this order.
     for module in (
         trials,
@@ -254,6 +257,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         tasks,
         learners,
         health,
+        metrics,
         docs,
     ):
         app.include_router(module.router)

@@ -46,6 +46,8 @@ SESSION_COOKIE = "ad_session"
 CSRF_HEADER = "x-csrf-token"
 PUBLIC_API_PATHS = frozenset({"/api/v1/session"})
 """API paths that answer without a principal (signing in, asking whether one is needed)."""
+SCRAPED_PATHS = frozenset({"/metrics"})
+"""Paths outside /api that need a principal too: Prometheus scrapes with a reader token."""
 
 
 def new_token() -> str:
@@ -181,7 +183,11 @@ class Authentication:
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         path = scope.get("path", "")
-        if scope["type"] != "http" or not path.startswith("/api/") or path in PUBLIC_API_PATHS:
+        if (
+            scope["type"] != "http"
+            or not (path.startswith("/api/") or path in SCRAPED_PATHS)
+            or path in PUBLIC_API_PATHS
+        ):
             await self.app(scope, receive, send)
             return
         try:

@@ -1,17 +1,19 @@
 """In-process app on a real database (SQLite file, then PostgreSQL: see ``database_url``),
-for contract tests that need no separate process."""
+for contract tests that need no separate process; two server processes on one PostgreSQL."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 from fastapi.testclient import TestClient
 
 from adservice.app import create_app
 from adservice.settings import Settings
-from tests.servers import SDK_HEADERS
+from tests.servers import SDK_HEADERS, ServerProcess
 
 LOCAL = "http://localhost"
 """The in-process app answers only Host names it is served under (loopback by default)."""
@@ -39,3 +41,27 @@ BOX_STUDY = {
     },
     "proposer": {"name": "random", "seed": 3},
 }
+
+
+@pytest.fixture
+def two_servers(
+    new_postgres_url: Callable[[], str], tmp_path: Path
+) -> Iterator[tuple[ServerProcess, ServerProcess]]:
+    """Two servers on one fresh database, started at the same time (both migrate)."""
+    url = new_postgres_url()
+    servers = [
+        ServerProcess(database_url=url, workdir=tmp_path, env={"AD_LEASE_SECONDS": "120"})
+        for _ in range(2)
+    ]
+    starters = [threading.Thread(target=server.start) for server in servers]
+    for starter in starters:
+        starter.start()
+    for starter in starters:
+        starter.join()
+    try:
+        for server in servers:
+            assert httpx.get(f"{server.url}/healthz", timeout=10).status_code == 200
+        yield servers[0], servers[1]
+    finally:
+        for server in servers:
+            server.stop()

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
-from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -21,30 +19,6 @@ BOX = {
     "type": "box",
     "params": [{"name": "x", "low": 0.0, "high": 1.0}, {"name": "y", "low": 0.0, "high": 1.0}],
 }
-
-
-@pytest.fixture
-def two_servers(
-    new_postgres_url: Callable[[], str], tmp_path: Path
-) -> Iterator[tuple[ServerProcess, ServerProcess]]:
-    """Two servers on one fresh database, started at the same time (both migrate)."""
-    url = new_postgres_url()
-    servers = [
-        ServerProcess(database_url=url, workdir=tmp_path, env={"AD_LEASE_SECONDS": "120"})
-        for _ in range(2)
-    ]
-    starters = [threading.Thread(target=server.start) for server in servers]
-    for starter in starters:
-        starter.start()
-    for starter in starters:
-        starter.join()
-    try:
-        for server in servers:
-            assert httpx.get(f"{server.url}/healthz", timeout=10).status_code == 200
-        yield servers[0], servers[1]
-    finally:
-        for server in servers:
-            server.stop()
 
 
 def test_workers_across_two_servers_lose_and_duplicate_nothing(
