@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 
 from adclient.schemas import StudyCreate, TellRequest, Trial, TrialState
 from adservice import principals
-from adservice.db import scope_connection
+from adservice.db import Prepared
 from adservice.errors import (
     ConflictError,
     ForbiddenError,
@@ -202,7 +202,7 @@ _trials = cast(sa.Table, TrialRow.__table__)
 _workers = cast(sa.Table, WorkerRow.__table__)
 
 # Hot-path statements, built once: ask and tell run these on every request.
-_RESERVE = (
+_RESERVE = Prepared(
     sa.update(_studies)
     .where(
         _studies.c.id == sa.bindparam("sid"),
@@ -220,18 +220,14 @@ _RESERVE = (
 def reserve_numbers(session: Session, *, study_id: int, count: int) -> int:
     """Claim the next ``count`` trial numbers of a running study with room; returns the
     first. One conditional UPDATE: it checks, reserves and (on PostgreSQL) row-locks."""
-    reserved = (
-        scope_connection(session)
-        .execute(_RESERVE, {"sid": study_id, "count": count, "now": utcnow()})
-        .scalar_one_or_none()
-    )
+    reserved = _RESERVE.row(session, {"sid": study_id, "count": count, "now": utcnow()})
     if reserved is None:
         check_room(get_study(session, study_id=study_id), count=count)
         raise ConflictError(f"study {study_id} takes no new trials")  # changed meanwhile
-    return int(reserved) - count
+    return int(reserved["n_trials"]) - count
 
 
-_INSERT_TRIALS = sa.insert(_trials).returning(_trials.c.id, sort_by_parameter_order=True)
+_INSERT_TRIALS = Prepared(sa.insert(_trials).returning(_trials.c.id, sort_by_parameter_order=True))
 
 
 def insert_trials(
@@ -247,8 +243,8 @@ def insert_trials(
     lease_seconds: float = 60.0,
 ) -> list[Trial]:
     """New trials numbered from ``first_number`` (see :func:`reserve_numbers`), in state
-    ``running`` and leased to ``worker_id`` (and its token) when given. Prebuilt Core
-    statements on the session's connection: no ORM bookkeeping per trial."""
+    ``running`` and leased to ``worker_id`` (and its token) when given. A ``Prepared``
+    statement in the session's transaction: no ORM bookkeeping per trial."""
     now = utcnow()
     values = [
         {
@@ -272,7 +268,7 @@ def insert_trials(
         }
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
-    ids = scope_connection(session).execute(_INSERT_TRIALS, values).scalars().all()
+    ids = [row["id"] for row in _INSERT_TRIALS.rows(session, values)]
     if worker_id:
         _touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
     return [
@@ -362,7 +358,12 @@ def _finish_statement(*, by_worker: bool, checked: bool) -> sa.Update:
         if checked:
             holder.append(_trials.c.lease_token_id == sa.bindparam("tok"))
     else:
-        holder = [_trials.c.state.in_((TrialState.queued.value, TrialState.running.value))]
+        holder = [  # not IN: a prepared statement takes no expanding parameters
+            sa.or_(
+                _trials.c.state == TrialState.queued.value,
+                _trials.c.state == TrialState.running.value,
+            )
+        ]
         if checked:
             owned = sa.select(_studies.c.id).where(_studies.c.owner_token_id == sa.bindparam("tok"))
             holder += [_trials.c.worker_id.is_(None), _trials.c.study_id.in_(owned)]
@@ -430,12 +431,16 @@ def _worker_statement(*, complete: bool) -> sa.Update:
 
 
 _FINISH = {
-    (by_worker, checked): _finish_statement(by_worker=by_worker, checked=checked)
+    (by_worker, checked): Prepared(_finish_statement(by_worker=by_worker, checked=checked))
     for by_worker in (False, True)
     for checked in (False, True)
 }
-_COUNT = {state: _count_statement(state=state) for state in ("complete", "failed", "pruned")}
-_WORKER_COUNT = {complete: _worker_statement(complete=complete) for complete in (False, True)}
+_COUNT = {
+    state: Prepared(_count_statement(state=state)) for state in ("complete", "failed", "pruned")
+}
+_WORKER_COUNT = {
+    complete: Prepared(_worker_statement(complete=complete)) for complete in (False, True)
+}
 
 
 def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Principal) -> Trial:
@@ -444,15 +449,14 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Pr
 
     The common case is two conditional UPDATEs (trial, then study counters and best);
     only a tell that changes nothing takes the slow path that finds out why. The UPDATEs
-    are prebuilt Core statements run on the session's connection, in its transaction."""
-    connection = scope_connection(session)
+    are ``Prepared`` statements, run in the session's transaction."""
     now = utcnow()
     complete = body.state != "failed"  # a pruned trial did its job: the worker's jobs_done
     value = body.value
     if body.state == "pruned" and value is None:
         value = _last_reported_value(session, trial_id=trial_id)
-    finished = connection.execute(
-        _FINISH[body.worker_id is not None, caller.checked],
+    finished = _FINISH[body.worker_id is not None, caller.checked].row(
+        session,
         {
             "tid": trial_id,
             "wid": body.worker_id,
@@ -463,18 +467,17 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Pr
             "metrics": dict(body.metrics),
             "now": now,
         },
-    ).one_or_none()
+    )
     if finished is None:
         return _explain_refused_tell(session, trial_id=trial_id, body=body, caller=caller)
-    connection.execute(
-        _COUNT[body.state],
-        {"sid": finished.study_id, "tid": trial_id, "value": value, "now": now},
+    _COUNT[body.state].rows(
+        session, [{"sid": finished["study_id"], "tid": trial_id, "value": value, "now": now}]
     )
-    if finished.worker_id is not None:
-        connection.execute(
-            _WORKER_COUNT[complete], {"wid": finished.worker_id, "tid": trial_id, "now": now}
+    if finished["worker_id"] is not None:
+        _WORKER_COUNT[complete].rows(
+            session, [{"wid": finished["worker_id"], "tid": trial_id, "now": now}]
         )
-    return Trial.model_validate(dict(finished._mapping))
+    return Trial.model_validate(finished)
 
 
 def _last_reported_value(session: Session, *, trial_id: int) -> float | None:
