@@ -12,6 +12,7 @@ import typer
 import uvicorn
 from pydantic import ValidationError
 
+from adclient.devices import device_problem
 from adservice.settings import Settings
 
 app = typer.Typer(add_completion=False, help="The activedesign server.")
@@ -87,6 +88,14 @@ def serve(
         ssl_certfile=ssl_certfile,
         ssl_keyfile=ssl_keyfile,
     )
+    problem = device_problem(settings.proposer_device)
+    if problem is not None:
+        typer.echo(
+            f"adserver: AD_PROPOSER_DEVICE={settings.proposer_device} cannot be used: {problem}; "
+            "set AD_PROPOSER_DEVICE=cpu to fit proposals on the CPU",
+            err=True,
+        )
+        raise typer.Exit(2)
     host = settings.host
     loopback = is_loopback(host)
     if settings.auth is None:

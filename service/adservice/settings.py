@@ -50,6 +50,9 @@ class Settings(BaseSettings):
     log_level: Literal["critical", "error", "warning", "info", "debug", "trace"] = "info"
     torch_threads: int = 1
     """torch's intra-op threads in a model-based ask (one: requests run side by side)."""
+    proposer_device: Literal["cpu", "cuda"] = "cpu"
+    """The torch device of qEI's model fits (a study's ``device`` option overrides it).
+    cuda needs a GPU and a CUDA build of torch: ``adserver`` refuses to start without."""
     max_header_bytes: int = 65_536
     """A request line and headers longer than this: 431, and the connection is closed."""
     header_timeout: float = 10.0

@@ -82,8 +82,8 @@ Decisions worth knowing:
   optimum up to the optimiser's tolerance, so candidates agree closely but are
   not guaranteed bit-identical to those of the server that warm-started. Set
   ``options["warm_start"] = False`` for strict restart-independence.
-- The GPU is used when ``torch.cuda.is_available()`` (``options["device"]`` may
-  force ``"cpu"``); everything runs in float64.
+- The device is the server's ``AD_PROPOSER_DEVICE`` (``cpu`` unless set to ``cuda``);
+  ``options["device"]`` overrides it for one study. Everything runs in float64.
 - Threads: torch's intra-op pool is set to one thread (``AD_TORCH_THREADS``
   overrides). These are small matrices; on a shared two-core machine two torch
   threads competing with other processes made asks 5 to 20 times slower, and the
@@ -130,6 +130,7 @@ _DISTINCT_TOL = 1e-9
 _DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
 _TORCH_THREADS = get_settings().torch_threads
+_PROPOSER_DEVICE = get_settings().proposer_device
 
 
 def clear_caches() -> None:
@@ -209,7 +210,7 @@ class QEIOptions(ProposerOptions):
     )
     warm_start: bool = True
     device: Literal["cpu", "cuda"] | None = Field(
-        default=None, description="Default: cuda when available"
+        default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"
     )
 
     @model_validator(mode="after")
@@ -476,8 +477,7 @@ class QLogEIProposer:
         )
 
         _limit_threads(torch)
-        device_name = options.device or ("cuda" if torch.cuda.is_available() else "cpu")
-        device = torch.device(device_name)
+        device = torch.device(options.device or _PROPOSER_DEVICE)
         tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
         search = request.structure
         seed = derived_seed(request.seed, request.n_issued)

@@ -1,0 +1,53 @@
+"""The proposer's torch device is a server setting (``AD_PROPOSER_DEVICE``): qEI fits on
+the CPU by default, and a server asked for cuda where there is none does not start."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+import pytest
+import torch
+
+from tests.servers import ADSERVER, ServerProcess, free_port
+
+pytestmark = pytest.mark.e2e
+
+BOX = {"type": "box", "params": [{"name": f"x{i}", "low": 0.0, "high": 1.0} for i in range(2)]}
+
+
+def test_qei_fits_on_the_cpu_by_default(server_factory: Callable[..., ServerProcess]) -> None:
+    server = server_factory()
+    with httpx.Client(base_url=server.url, timeout=300) as http:
+        body = {"name": "q", "space": BOX, "proposer": {"name": "qei", "n_initial": 2}}
+        study = http.post("/api/v1/studies", json=body).json()["id"]
+        for value, trial in enumerate(
+            http.post(f"/api/v1/studies/{study}/ask", json={"count": 3}).json()["trials"]
+        ):
+            assert http.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": value}).is_success
+        (fitted,) = http.post(f"/api/v1/studies/{study}/ask", json={"count": 1}).json()["trials"]
+    assert not fitted["info"]["method"].startswith("sobol"), fitted["info"]
+    assert fitted["info"]["device"] == "cpu"
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA GPU")
+def test_a_server_asked_for_cuda_without_a_gpu_exits_saying_why(tmp_path: Path) -> None:
+    done = subprocess.run(
+        [
+            str(ADSERVER),
+            *("--port", str(free_port())),
+            *("--database-url", f"sqlite:///{tmp_path / 'studies.db'}"),
+        ],
+        env={**os.environ, "AD_PROPOSER_DEVICE": "cuda"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2
+    assert done.stderr.startswith("adserver: AD_PROPOSER_DEVICE=cuda cannot be used: ")
+    assert "AD_PROPOSER_DEVICE=cpu" in done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+    assert not (tmp_path / "studies.db").exists()  # refused before touching the database
