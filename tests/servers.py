@@ -32,6 +32,8 @@ class ServerProcess:
     env: dict[str, str] = field(default_factory=dict)
     port: int = field(default_factory=free_port)
     process: subprocess.Popen[bytes] | None = None
+    program: list[str] = field(default_factory=lambda: [str(ADSERVER)])
+    """The command that runs adserver (a bench runs it through a launcher of its own)."""
 
     @property
     def url(self) -> str:
@@ -55,7 +57,7 @@ class ServerProcess:
         log = self.log_path.open("ab")
         self.process = subprocess.Popen(
             [
-                str(ADSERVER),
+                *self.program,
                 "--host",
                 "127.0.0.1",
                 "--port",
@@ -118,3 +120,14 @@ def make_token(server: ServerProcess, role: str, name: str = "") -> str:
         check=True,
     )
     return done.stdout.strip().splitlines()[-1]
+
+
+def refused_at_start(command: list[str], code: int, **env: str) -> str:
+    """Run a program that must stop at start: assert its exit ``code`` and that it said
+    why without a traceback; returns what it wrote to stderr."""
+    done = subprocess.run(
+        command, env={**os.environ, **env}, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == code, done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+    return done.stderr

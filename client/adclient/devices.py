@@ -3,6 +3,10 @@ so a missing GPU stops them at start with the reason, not at the first ask or jo
 
 from __future__ import annotations
 
+LEARNER_DEVICE_VARIABLE = "AD_LEARNER_DEVICE"
+"""The torch device a learner trains on, in every job process: ``adworker
+--learner-device`` sets it (a learner plugin with a network reads it too)."""
+
 
 def device_problem(device: str) -> str | None:
     """Why torch cannot use ``device`` here, or None when it can (cpu always can)."""

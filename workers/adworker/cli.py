@@ -10,19 +10,21 @@ in PyBullet (or calls the function), and reports the score with its metrics and
 artifacts (URDF, picture, curve). SIGTERM or Ctrl-C: finish the current job and exit;
 a second one: abandon it and exit now. Exit status 0 when stopped, 2 when the server
 refused the token, 3 when the worker could not start (a function that does not
-import). An https server with a private or self-signed certificate needs
-``--ca-bundle`` (env ``AD_CA_BUNDLE``).
+import, ``--learner-device cuda`` without a GPU). An https server with a private or
+self-signed certificate needs ``--ca-bundle`` (env ``AD_CA_BUNDLE``).
 """
 
 from __future__ import annotations
 
 import logging
 import os
+from enum import StrEnum
 from pathlib import Path
 
 import typer
 
 from adclient.cli import CA_BUNDLE_OPTION
+from adclient.devices import LEARNER_DEVICE_VARIABLE, device_problem
 from adworker.worker import (
     EXIT_SETUP,
     Worker,
@@ -31,6 +33,14 @@ from adworker.worker import (
     default_worker_id,
     run_pool,
 )
+
+
+class Device(StrEnum):
+    """Where learners train (``--learner-device``)."""
+
+    cpu = "cpu"
+    cuda = "cuda"
+
 
 app = typer.Typer(
     name="adworker",
@@ -83,6 +93,12 @@ def run(
     app_dir: Path = typer.Option(
         Path("."), "--app-dir", help="Where --function's module is imported from."
     ),
+    learner_device: Device = typer.Option(
+        Device.cpu,
+        "--learner-device",
+        envvar=LEARNER_DEVICE_VARIABLE,
+        help="The torch device learners train on: cpu, or cuda (a GPU, checked at start).",
+    ),
     log_level: str = typer.Option("info", "--log-level", envvar="AD_LOG_LEVEL"),
 ) -> None:
     """Lease and evaluate jobs until stopped."""
@@ -96,6 +112,15 @@ def run(
     level = logging.getLevelNamesMapping().get(log_level.upper())
     if level is None:
         raise typer.BadParameter(f"unknown log level {log_level!r}", param_hint="--log-level")
+    problem = device_problem(learner_device.value)
+    if problem is not None:
+        typer.echo(
+            f"adworker: --learner-device {learner_device.value} cannot be used: {problem}; "
+            f"train on the CPU with --learner-device cpu ({LEARNER_DEVICE_VARIABLE}=cpu)",
+            err=True,
+        )
+        raise typer.Exit(EXIT_SETUP)
+    os.environ[LEARNER_DEVICE_VARIABLE] = learner_device.value  # the learners read it, pool's too
     base_id = worker_id or default_worker_id()
     config = WorkerConfig(
         server=server,

@@ -28,6 +28,7 @@ direction long enough to find a pose.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -35,6 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adworker.tasks.base import RobotEnv
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -305,7 +307,7 @@ class StableBaselinesLearner(Learner):
         if noise is not None:
             kwargs["action_noise"] = _action_noise(env, **noise)
         cls = getattr(stable_baselines3, self.algorithm)
-        return cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)
+        return cls("MlpPolicy", env, seed=seed, device=learner_device(), verbose=0, **kwargs)
 
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
@@ -341,6 +343,12 @@ class StableBaselinesLearner(Learner):
             curve=curve,
             info={"algorithm": self.algorithm},
         )
+
+
+def learner_device() -> str:
+    """The torch device networks train on: ``adworker --learner-device``, which sets it
+    for every job process (stable-baselines3 itself would fall back to cpu silently)."""
+    return os.environ.get(LEARNER_DEVICE_VARIABLE, "cpu")
 
 
 def _deterministic(model: Any) -> Policy:
