@@ -28,7 +28,13 @@ from pydantic import BaseModel, ValidationError
 
 from adclient.errors import Invalid, NotFound
 from adclient.export import ExportFormat, export_csv, export_json
-from adclient.pruning import ReportRequest, ReportResponse, TrialReport
+from adclient.pruning import (
+    CHECKPOINT_ARTIFACT,
+    PauseRequest,
+    ReportRequest,
+    ReportResponse,
+    TrialReport,
+)
 from adclient.schemas import (
     MAX_TRIAL_PAGE,
     ArtifactInfo,
@@ -236,6 +242,13 @@ class Client(Transport):
         """Report a running trial's intermediate ``value`` at ``step``; returns whether
         the study's pruner would stop it there (then tell it ``state="pruned"``). A
         repeat is harmless; a finished trial or a lost lease raises :class:`Conflict`."""
+        return self.report_answer(trial, step, value, worker_id=worker_id).should_stop
+
+    def report_answer(
+        self, trial: TrialRef, step: int, value: float, *, worker_id: str | None = None
+    ) -> ReportResponse:
+        """:meth:`report`'s whole answer: ``pause`` says a worker should pause the trial
+        with a checkpoint (:meth:`pause`) rather than tell it pruned."""
         try:
             body = ReportRequest(step=int(step), value=float(value), worker_id=worker_id)
         except ValidationError as exc:
@@ -246,7 +259,38 @@ class Client(Transport):
             json_body=body.model_dump(mode="json", exclude_none=True),
             idempotent=True,
         ).json()
-        return ReportResponse.model_validate(data).should_stop
+        return ReportResponse.model_validate(data)
+
+    def pause(
+        self,
+        trial: TrialRef,
+        *,
+        worker_id: str,
+        step: int,
+        checkpoint: str = CHECKPOINT_ARTIFACT,
+        value: float | None = None,
+        metrics: Mapping[str, float] | None = None,
+    ) -> Trial:
+        """Pause a held trial at ``step`` with the checkpoint artifact it uploaded (its
+        study's ASHA pruner said ``pause``); it waits for promotion. A repeat is
+        harmless; a lost lease raises :class:`Conflict`."""
+        try:
+            body = PauseRequest(
+                worker_id=worker_id,
+                step=int(step),
+                checkpoint=checkpoint,
+                value=value,
+                metrics=dict(metrics or {}),
+            )
+        except ValidationError as exc:
+            raise Invalid(None, "invalid", _validation_message(exc)) from exc
+        data = self.request(
+            "POST",
+            f"{API}/trials/{trial_id_of(trial)}/pause",
+            json_body=body.model_dump(mode="json", exclude_none=True),
+            idempotent=True,
+        ).json()
+        return Trial.model_validate(data)
 
     def reports(self, trial: TrialRef) -> list[TrialReport]:
         """A trial's reported curve, in order of step."""

@@ -62,6 +62,12 @@ class AshaOptions(_Strict):
     bootstrap_count: int = Field(
         default=0, ge=0, le=1000, description="trials a rung needs before it promotes any"
     )
+    promotion: bool = Field(
+        default=False,
+        description="pause a trial stopped at a rung (adworker keeps its SB3 checkpoint as "
+        "an artifact) instead of pruning it; promote it later, when it is in the rung's "
+        "top 1/reduction_factor, and resume it from the checkpoint (docs/pruning.md)",
+    )
 
 
 PRUNER_OPTIONS: dict[str, type[_Strict]] = {
@@ -118,6 +124,56 @@ class ReportRequest(_Strict):
 
 class ReportResponse(BaseModel):
     should_stop: bool = Field(description="the study's pruner would stop the trial here")
+    pause: bool = Field(
+        default=False,
+        description="stop by pausing (ASHA with promotion, a worker's report): upload a "
+        "checkpoint artifact, then POST /trials/{id}/pause; a worker that cannot checkpoint "
+        "tells the trial pruned instead",
+    )
+
+
+CHECKPOINT_ARTIFACT = "checkpoint.zip"
+"""The artifact adworker keeps a paused trial's learner state in."""
+
+
+class Checkpoint(BaseModel):
+    """Where a paused trial resumes from (``Trial.checkpoint``, ``Job.resume``)."""
+
+    artifact: str = Field(description="the trial's artifact holding the learner's state")
+    step: int = Field(description="learner steps trained when it paused")
+    rung: int = Field(description="the ASHA rung it waits at (its promotion is judged there)")
+    metrics: dict[str, float] = Field(
+        default_factory=dict,
+        description="its metrics when it paused; a resumed job adds its own time to "
+        "time_total_s and time_cpu_s",
+    )
+
+
+class PauseRequest(_Strict):
+    """The lease holder pauses its trial at ``step`` with the checkpoint it uploaded
+    (``POST /api/v1/trials/{id}/pause``), as its study's ASHA pruner asked."""
+
+    worker_id: str = Field(min_length=1, max_length=128, pattern=r"^[^\x00]*$")
+    step: int = Field(ge=0, le=MAX_STEP, description="learner steps in the checkpoint")
+    checkpoint: str = Field(
+        default=CHECKPOINT_ARTIFACT,
+        pattern=r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$",
+        description="the name of the trial's artifact holding the checkpoint",
+    )
+    value: float | None = Field(default=None, description="default: the last reported value")
+    metrics: dict[str, float] = Field(default_factory=dict, max_length=256)
+
+    @field_validator("value")
+    @classmethod
+    def _finite_value(cls, value: float | None) -> float | None:
+        return None if value is None else _finite(value)
+
+    @field_validator("metrics")
+    @classmethod
+    def _finite_metrics(cls, metrics: dict[str, float]) -> dict[str, float]:
+        for metric in metrics.values():
+            _finite(metric)
+        return metrics
 
 
 class TrialReport(BaseModel):

@@ -19,9 +19,11 @@ from pydantic import (
     ConfigDict,
     Field,
     GetJsonSchemaHandler,
+    SerializerFunctionWrapHandler,
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_serializer,
     model_validator,
 )
 from pydantic.json_schema import JsonSchemaValue
@@ -29,7 +31,7 @@ from pydantic_core import CoreSchema
 
 from adclient.design import DesignSpace, Representation
 from adclient.plugins import PluginError, catalogue
-from adclient.pruning import PrunerConfig
+from adclient.pruning import Checkpoint, PrunerConfig
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$"
 """Names of studies, params, metrics and artifacts: safe in URLs, file names and XML."""
@@ -64,6 +66,9 @@ class TrialState(StrEnum):
     complete = "complete"
     failed = "failed"
     pruned = "pruned"
+    paused = "paused"
+    """Stopped at an ASHA rung with its checkpoint, waiting for promotion (queued again
+    then) or the study's end (pruned then); not finished."""
 
 
 class _Strict(BaseModel):
@@ -167,18 +172,105 @@ StoredJsonObject = Annotated[dict[str, Any], AfterValidator(_shown_json)]
 """The same fields in answers, which must serialise whatever an older server stored."""
 
 
+Choice = Annotated[str | bool | int | float, Field(description="a choice")]
+"""A categorical param's choice: text, a boolean or a number, kept exactly as given."""
+_NUMERIC_FIELDS = ("low", "high", "log", "step")
+
+
 class BoxParam(_Strict):
+    """One searched param: a float (``log`` scale and a ``step`` grid optional), an int
+    (the same options) or a categorical one of ``choices``. Without ``type`` it is a
+    float, which is all a box param was before types."""
+
     name: str = Field(pattern=NAME_PATTERN)
-    low: float
-    high: float
+    type: Literal["float", "int", "categorical"] = "float"
+    low: int | float | None = None
+    high: int | float | None = None
+    log: bool = Field(default=False, description="searched on a log scale (low > 0)")
+    step: int | float | None = Field(
+        default=None, description="values only on the grid low, low + step, ..., high"
+    )
+    choices: list[Choice] | None = Field(
+        default=None, max_length=1000, description="a categorical param's values"
+    )
 
     @model_validator(mode="after")
     def _check_bounds(self) -> BoxParam:
-        _finite(self.low, f"param {self.name!r}: low")
-        _finite(self.high, f"param {self.name!r}: high")
+        where = f"param {self.name!r}"
+        if self.type == "categorical":
+            return self._check_choices(where)
+        if self.choices is not None:
+            raise ValueError(f"{where}: choices belong to a categorical param, not {self.type}")
+        if self.low is None or self.high is None:
+            missing = " and ".join(f for f in ("low", "high") if getattr(self, f) is None)
+            article = "an" if self.type == "int" else "a"
+            raise ValueError(f"{where}: {article} {self.type} param needs {missing}")
+        _finite(self.low, f"{where}: low")
+        _finite(self.high, f"{where}: high")
         if not self.low < self.high:
-            raise ValueError(f"param {self.name!r}: low ({self.low}) must be < high ({self.high})")
+            raise ValueError(f"{where}: low ({self.low}) must be < high ({self.high})")
+        if self.log and self.low <= 0:
+            raise ValueError(f"{where}: a log scale needs low > 0, got {self.low}")
+        if self.type == "int":
+            for bound in ("low", "high", "step"):
+                value = getattr(self, bound)
+                if value is not None and not float(value).is_integer():
+                    raise ValueError(
+                        f"{where}: an int param's {bound} must be an integer, got {value}"
+                    )
+                if value is not None:
+                    setattr(self, bound, int(value))
+        if self.step is not None:
+            self._check_step(where)
         return self
+
+    def _check_step(self, where: str) -> None:
+        assert self.step is not None and self.low is not None and self.high is not None
+        _finite(self.step, f"{where}: step")
+        if self.step <= 0:
+            raise ValueError(f"{where}: step must be > 0, got {self.step}")
+        if self.log:
+            raise ValueError(f"{where}: step and log do not go together (a grid is linear)")
+        intervals = (self.high - self.low) / self.step
+        if abs(intervals - round(intervals)) > 1e-9 * max(1.0, intervals) or round(intervals) < 1:
+            raise ValueError(
+                f"{where}: step ({self.step}) does not divide the range "
+                f"[{self.low}, {self.high}] into whole steps"
+            )
+
+    def _check_choices(self, where: str) -> BoxParam:
+        given = [name for name in _NUMERIC_FIELDS if name in self.model_fields_set]
+        if given and (given != ["log"] or self.log):
+            verb = "does" if len(given) == 1 else "do"
+            raise ValueError(f"{where}: {', '.join(given)} {verb} not apply to a categorical param")
+        if not self.choices:
+            raise ValueError(f"{where}: a categorical param needs a non-empty list of choices")
+        kinds = {
+            "text" if isinstance(c, str) else "boolean" if isinstance(c, bool) else "number"
+            for c in self.choices
+        }
+        if len(kinds) > 1:
+            raise ValueError(
+                f"{where}: choices must all be of one type, got {' and '.join(sorted(kinds))}"
+            )
+        for choice in self.choices:
+            if isinstance(choice, float):
+                _finite(choice, f"{where}: choice")
+        seen: list[Any] = []
+        for choice in self.choices:
+            if choice in seen:
+                raise ValueError(f"{where}: choice {choice!r} appears twice")
+            seen.append(choice)
+        _plain_text(self.choices, f"{where}: choices")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _without_unset(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Fields that do not apply to the type are left out (no nulls in answers)."""
+        data: dict[str, Any] = handler(self)
+        if self.type == "categorical":
+            data.pop("log", None)
+        return {key: value for key, value in data.items() if value is not None}
 
 
 class BoxSpace(_Strict):
@@ -372,7 +464,11 @@ class StudyCreate(_Strict):
         """Each searched range's width must be a number too (high - low of two huge
         bounds overflows, and every proposed value would then be the upper bound)."""
         if isinstance(space, BoxSpace):
-            ranges = [(f"param {p.name!r}", p.low, p.high) for p in space.params]
+            ranges = [
+                (f"param {p.name!r}", p.low, p.high)
+                for p in space.params
+                if p.low is not None and p.high is not None
+            ]
         else:
             names, bounds = space.spec_slots()
             ranges = [
@@ -433,6 +529,7 @@ class Study(BaseModel):
     n_complete: int
     n_failed: int
     n_pruned: int = 0
+    n_paused: int = 0
     best_value: float | None
     best_trial_id: int | None
     metadata: StoredJsonObject
@@ -482,6 +579,9 @@ class Trial(BaseModel):
     finished_at: datetime | None = None
     heartbeat_at: datetime | None = None
     lease_expires_at: datetime | None = None
+    checkpoint: Checkpoint | None = Field(
+        default=None, description="where a paused (or promoted) trial resumes from"
+    )
 
 
 class AskResponse(BaseModel):
@@ -604,6 +704,11 @@ class Job(BaseModel):
         default_factory=PrunerConfig,
         description="the study's pruner: with one, adworker evaluates and reports while "
         "it trains (every pruner.report_every steps) and stops when told",
+    )
+    resume: Checkpoint | None = Field(
+        default=None,
+        description="a promoted trial: download this checkpoint artifact and train on from "
+        "its step to the budget instead of starting over",
     )
 
 

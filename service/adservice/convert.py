@@ -26,6 +26,7 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             "n_complete": row.n_complete,
             "n_failed": row.n_failed,
             "n_pruned": row.n_pruned,
+            "n_paused": counts.get("paused", 0),
             "best_value": row.best_value,
             "best_trial_id": row.best_trial_id,
             "metadata": row.metadata_,

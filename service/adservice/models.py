@@ -97,6 +97,11 @@ class TrialRow(Base):
     lease_token_id: Mapped[int | None] = mapped_column(nullable=True)
     """The token that holds the lease (None with auth off, where ``worker_id`` alone
     names the holder): only it may heartbeat, release, upload for or tell the trial."""
+    checkpoint: Mapped[dict[str, Any] | None] = mapped_column(
+        sa.JSON(none_as_null=True), nullable=True
+    )
+    """Where a paused trial resumes from (``adclient.pruning.Checkpoint``); kept after it
+    is promoted, so a resumed job that loses its lease resumes from it again."""
 
 
 class TrialReportRow(Base):

@@ -100,11 +100,9 @@ def record_report(
     )
 
 
-def study_curves(
-    session: Session, *, study_id: int, maximize: bool, excluding: int | None = None
-) -> list[Curve]:
-    """Every trial's reported curve in a study (values oriented: larger is better), with
-    its state; one indexed query."""
+def curves_by_trial(session: Session, *, study_id: int, maximize: bool) -> dict[int, Curve]:
+    """Every trial's reported curve in a study by trial id (values oriented: larger is
+    better), with its state; one indexed query."""
     report = TrialReportRow
     rows = session.execute(
         sa.select(report.trial_id, TrialRow.state, report.step, report.value)
@@ -115,20 +113,18 @@ def study_curves(
     sign = 1.0 if maximize else -1.0
     grouped: dict[int, tuple[str, list[int], list[float]]] = defaultdict(lambda: ("", [], []))
     for trial_id, state, step, value in rows:
-        if trial_id == excluding:
-            continue
         _, steps, values = grouped[trial_id]
         steps.append(step)
         values.append(sign * value)
         grouped[trial_id] = (state, steps, values)
-    return [
-        Curve(
+    return {
+        trial_id: Curve(
             state=state,
             steps=np.asarray(steps, dtype=np.int64),
             values=np.asarray(values, dtype=np.float64),
         )
-        for state, steps, values in grouped.values()
-    ]
+        for trial_id, (state, steps, values) in grouped.items()
+    }
 
 
 def trial_reports(session: Session, *, trial_id: int) -> list[TrialReportRow]:

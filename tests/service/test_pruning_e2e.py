@@ -205,7 +205,7 @@ def test_only_the_lease_holder_reports_and_a_lost_lease_is_409(secured: ServerPr
         job = w1.post("/api/v1/jobs/lease", json={"worker_id": "w1"}).json()
         url = f"/api/v1/trials/{job['trial_id']}/report"
         ok = w1.post(url, json={"step": 1, "value": 1.0, "worker_id": "w1"})
-        assert ok.status_code == 200 and ok.json() == {"should_stop": False}
+        assert ok.status_code == 200 and ok.json() == {"should_stop": False, "pause": False}
         stolen = stranger.post(url, json={"step": 1, "value": 1.0, "worker_id": "w1"})
         assert stolen.status_code == 403, stolen.text
         nameless = w1.post(url, json={"step": 2, "value": 1.0})

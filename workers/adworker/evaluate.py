@@ -113,7 +113,8 @@ def evaluate_job(
 ) -> Evaluation:
     """Evaluate one job; ``check`` is called between episodes and raises to cancel.
     With ``report`` and a study pruner, the learner reports its policy's score every
-    ``pruner.report_every`` steps (``report`` raises ``Pruned`` to stop it)."""
+    ``pruner.report_every`` steps (``report`` raises ``Pruned`` to stop it). A promoted
+    job (``job.resume``) trains on from the checkpoint file of that name in ``workdir``."""
     from adclient.urdf import design_to_urdf
 
     check = check or (lambda: None)
@@ -131,6 +132,8 @@ def evaluate_job(
     options = task_options(task)
     make_env = catalogue().task(task.name).load_factory()
     learner = make_learner(task, options)
+    if job.resume is not None:  # a promoted trial: the worker put its checkpoint here
+        learner.resume_from = (workdir / job.resume.artifact).read_bytes()
 
     t = time.perf_counter()
     design = decode_job(job)

@@ -23,12 +23,18 @@ class Cancelled(Exception):
 
 
 class Pruned(Exception):
-    """The study's pruner stopped the trial at ``step`` (its report of ``value``)."""
+    """The study's pruner stopped the trial at ``step`` (its report of ``value``).
 
-    def __init__(self, step: int, value: float) -> None:
-        super().__init__(f"pruned at step {step} (value {value:.6g})")
+    ``pause``: the pruner would rather pause it (ASHA with promotion); a learner that can
+    resume attaches its state as ``checkpoint`` (bytes) while the exception unwinds,
+    and the worker then pauses the trial with it instead of telling it pruned."""
+
+    def __init__(self, step: int, value: float, *, pause: bool = False) -> None:
+        super().__init__(f"{'paused' if pause else 'pruned'} at step {step} (value {value:.6g})")
         self.step = step
         self.value = value
+        self.pause = pause
+        self.checkpoint: bytes | None = None
 
 
 Report = Callable[[int, float], None]

@@ -21,6 +21,10 @@ The rules it keeps:
   stop, training stops there and the trial is told ``pruned`` with its last value. A
   report that fails for a network reason is skipped (the job goes on); a 409 on one is
   a lost lease, as on a heartbeat.
+- When it says pause (ASHA with promotion), a learner that can resume (the SB3 ones)
+  hands over its checkpoint: the worker uploads it as the trial's ``checkpoint.zip``
+  and pauses the trial (else tells it pruned). A promoted trial's job (``job.resume``)
+  downloads that checkpoint first and trains on from it.
 - SIGTERM/SIGINT: stop leasing, finish the current job, report it, exit 0. A second
   one abandons the current job, gives its lease back (the server queues the trial for
   another worker at once, without counting the attempt; if that call fails the lease
@@ -46,6 +50,7 @@ from typing import Any
 
 from adclient.client import Client
 from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized, Unavailable
+from adclient.pruning import CHECKPOINT_ARTIFACT, ReportResponse
 from adclient.schemas import Job
 from adworker.heartbeat import Heartbeat
 from adworker.runner import Artifact, Cancelled, Pruned, Runner
@@ -60,6 +65,8 @@ EXIT_OK = 0
 EXIT_AUTH = 2
 EXIT_SETUP = 3
 """The runner could not be made (a --function that does not import...)."""
+TIMES = ("time_total_s", "time_cpu_s")
+"""The metrics of a trial's time, summed over a paused trial's attempts."""
 
 
 class AuthError(Exception):
@@ -233,8 +240,8 @@ class Worker:
     # ---------------------------------------------------------------------- job
 
     def process(self, job: Job) -> str:
-        """Evaluate and report one job; returns 'complete', 'failed', 'pruned' or
-        'abandoned'."""
+        """Evaluate and report one job; returns 'complete', 'failed', 'pruned', 'paused'
+        or 'abandoned'."""
         label = f"trial {job.trial_id} (study {job.study_id} #{job.number}, attempt {job.attempt})"
         log.info("%s: task %s", label, job.task.name)
         jobdir = self.workdir / f"trial-{job.trial_id}-attempt-{job.attempt}"
@@ -249,10 +256,13 @@ class Worker:
 
             def report(step: int, value: float) -> None:
                 check()
-                if self._reported(job, label, step, value):
-                    raise Pruned(step, value)
+                answer = self._reported(job, label, step, value)
+                if answer.should_stop:
+                    raise Pruned(step, value, pause=answer.pause)
 
             try:
+                if job.resume is not None:
+                    self._fetch_checkpoint(job, jobdir)
                 outcome = self.runner(job, jobdir, check, report)
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
@@ -262,20 +272,40 @@ class Worker:
                 busy = time.monotonic() - started
                 self.rates.jobs += 1
                 self.rates.busy_seconds += busy
-                result = "pruned"
                 log.info("%s: %s after %.1f s; %s", label, exc, busy, self.rates.line())
-                unreported = not self._report(
+                metrics = _spent(
                     job,
-                    label,
-                    state="pruned",
-                    value=exc.value,
-                    metrics={
+                    {
                         "train_steps": float(exc.step),
                         "time_total_s": busy,
                         "time_cpu_s": time.process_time() - cpu_started,
                     },
-                    worker_id=self.config.worker_id,
                 )
+                checkpoint = Artifact(CHECKPOINT_ARTIFACT, "application/zip", exc.checkpoint or b"")
+                if exc.checkpoint is not None and self._upload(job, heartbeat, label, [checkpoint]):
+                    result = "paused"
+                    step, value = exc.step, exc.value
+
+                    def pause() -> object:
+                        return self.client.pause(
+                            job.trial_id,
+                            worker_id=self.config.worker_id,
+                            step=step,
+                            value=value,
+                            metrics=metrics,
+                        )
+
+                    unreported = not self._deliver(label, pause)
+                else:
+                    result = "pruned"
+                    unreported = not self._report(
+                        job,
+                        label,
+                        state="pruned",
+                        value=exc.value,
+                        metrics=metrics,
+                        worker_id=self.config.worker_id,
+                    )
             except Exception as exc:
                 message = _failure_message(exc)
                 log.error("%s: evaluation failed: %s", label, message.splitlines()[0])
@@ -301,7 +331,7 @@ class Worker:
                     job,
                     label,
                     value=outcome.value,
-                    metrics={**outcome.metrics, "time_cpu_s": cpu},
+                    metrics=_spent(job, {**outcome.metrics, "time_cpu_s": cpu}),
                     worker_id=self.config.worker_id,
                 )
                 log.info("%s: %s in %.1f s; %s", label, outcome.summary, busy, self.rates.line())
@@ -311,18 +341,35 @@ class Worker:
             shutil.rmtree(jobdir, ignore_errors=True)
         return result
 
-    def _reported(self, job: Job, label: str, step: int, value: float) -> bool:
-        """Report an intermediate value; whether the study's pruner stops the trial. A
-        lost lease cancels the job; a report the server cannot take now is skipped."""
+    def _reported(self, job: Job, label: str, step: int, value: float) -> ReportResponse:
+        """Report an intermediate value; whether the study's pruner stops (or pauses) the
+        trial. A lost lease cancels the job; a report the server cannot take now is
+        skipped."""
         try:
-            return self.client.report(job.trial_id, step, value, worker_id=self.config.worker_id)
+            return self.client.report_answer(
+                job.trial_id, step, value, worker_id=self.config.worker_id
+            )
         except (Conflict, NotFound) as exc:
             raise Cancelled(f"lease lost: {exc}") from exc
         except (Unauthorized, Forbidden) as exc:
             raise Cancelled(f"report refused: {exc}") from exc
         except ApiError as exc:
             log.warning("%s: report at step %d skipped (%s)", label, step, exc)
-            return False
+            return ReportResponse(should_stop=False)
+
+    def _fetch_checkpoint(self, job: Job, jobdir: Path) -> None:
+        """A promoted trial's checkpoint into its job folder, where the runner reads it;
+        a download that fails leaves the job (its lease expires and it is retried)."""
+        assert job.resume is not None
+        try:
+            data = self.client.get_artifact(job.trial_id, job.resume.artifact)
+        except (Unauthorized, Forbidden) as exc:
+            raise AuthError(str(exc)) from exc
+        except ApiError as exc:
+            raise Cancelled(f"checkpoint {job.resume.artifact!r} not downloaded: {exc}") from exc
+        jobdir.mkdir(parents=True, exist_ok=True)
+        (jobdir / job.resume.artifact).write_bytes(data)
+        log.info("trial %s: resuming from step %d", job.trial_id, job.resume.step)
 
     def _release(self, job: Job, label: str) -> None:
         """Hand the lease back so the trial is queued now, not when the lease expires."""
@@ -335,10 +382,12 @@ class Worker:
 
     def _upload(
         self, job: Job, heartbeat: Heartbeat, label: str, artifacts: list[Artifact]
-    ) -> None:
+    ) -> bool:
+        """Store the artifacts while the lease holds; whether all were stored."""
+        stored = True
         for artifact in artifacts:
             if heartbeat.lost.is_set() or self.abandon.is_set():
-                return
+                return False
             try:
                 self.client.put_artifact(
                     job.trial_id,
@@ -351,9 +400,16 @@ class Worker:
                 raise AuthError(str(exc)) from exc
             except ApiError as exc:
                 log.warning("%s: artifact %s not stored (%s)", label, artifact.name, exc)
+                stored = False
+        return stored
 
     def _report(self, job: Job, label: str, **tell: Any) -> bool:
         """Tell the result; False only when shutting down before it was told."""
+        return self._deliver(label, lambda: self.client.tell(job.trial_id, **tell))
+
+    def _deliver(self, label: str, send: Callable[[], object]) -> bool:
+        """Send a job's result (a tell, a pause), retried while the server is away;
+        False only when shutting down before it was sent."""
         deadline = time.monotonic() + TELL_PATIENCE
         pause = 1.0
         while True:
@@ -361,7 +417,7 @@ class Worker:
                 log.warning("%s: shutting down before the result was reported", label)
                 return False
             try:
-                self.client.tell(job.trial_id, **tell)
+                send()
                 return True
             except (Unauthorized, Forbidden) as exc:
                 raise AuthError(str(exc)) from exc
@@ -378,6 +434,19 @@ class Worker:
             except ApiError as exc:
                 log.error("%s: result refused: %s", label, exc)
                 return True
+
+
+def _spent(job: Job, metrics: dict[str, float]) -> dict[str, float]:
+    """A resumed job's times count its trial's attempts up to the pause too, so a trial's
+    ``time_total_s`` and ``time_cpu_s`` are all it took; it says where it resumed."""
+    if job.resume is None:
+        return metrics
+    earlier = job.resume.metrics
+    return {
+        **metrics,
+        **{key: metrics.get(key, 0.0) + earlier.get(key, 0.0) for key in TIMES},
+        "resumed_from_step": float(job.resume.step),
+    }
 
 
 def _failure_message(exc: BaseException) -> str:

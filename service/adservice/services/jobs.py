@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from adclient.schemas import Job, Trial
-from adservice import repository
+from adservice import repository, repository_promotion
 from adservice.errors import ConflictError
 from adservice.principals import Principal
 from adservice.services.configs import StudyConfigs
@@ -21,7 +21,8 @@ async def lease_job(
     tasks: Sequence[str] | None = None,
 ) -> Job | None:
     """A queued trial if there is one, else a freshly proposed one from a managed study
-    with room; None when there is no work (of ``tasks``, when given). Leasing a queued
+    with room; None when there is no work (of ``tasks``, when given). Paused trials of
+    studies whose budget is spent are ended first (pruned). Leasing a queued
     trial is one short write that never waits for a proposal; a model-based proposal
     runs in the proposal threads, preferring a study with none under way."""
     db, configs, locks, proposals = (
@@ -33,6 +34,7 @@ async def lease_job(
 
     def queued() -> Job | None:
         with db.write() as session:
+            repository_promotion.settle_spent_studies(session)
             row = repository.lease_queued_trial(
                 session,
                 worker_id=worker_id,
@@ -91,5 +93,6 @@ def _job(configs: StudyConfigs, trial: Trial) -> Job:
             "representation": config.representation,
             "lease_expires_at": trial.lease_expires_at,
             "pruner": config.pruner,
+            "resume": trial.checkpoint,
         }
     )

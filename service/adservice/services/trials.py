@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from adclient.schemas import Trial
-from adservice import repository
+from adservice import repository, repository_promotion
 from adservice.db import Database
 from adservice.errors import StudyConfigError
 from adservice.locks import StudyLocks
@@ -53,6 +53,7 @@ def _request(
         noisy=noisy if noisy is not None else config.task is not None,
         options=config.proposer.options,
         structure=config.search,
+        box=config.box,
         seconds=budget.seconds if budget else None,
         memory_bytes=budget.memory_bytes if budget else None,
     )
@@ -73,7 +74,7 @@ def _record(
     with db.write() as session:
         first = repository.reserve_numbers(session, study_id=config.study_id, count=count)
         proposal = propose(first)
-        candidates = np.clip(proposal.candidates, config.bounds[0], config.bounds[1])
+        candidates = config.canonical(proposal.candidates)
         return repository.insert_trials(
             session,
             study_id=config.study_id,
@@ -149,6 +150,12 @@ def propose_trials(
                 dim=config.dim,
                 pruned_as_observed=config.pruner.pruned_as == "last_value",
             )
+            if config.pruner.pruned_as == "last_value" and repository_promotion.asha_promotion(
+                config.pruner
+            ):
+                history = repository_promotion.with_paused(
+                    session, history=history, study_id=study_id, dim=config.dim
+                )
         if worker_id is None and budget is not None and budget.memory_bytes is not None:
             check_ask_memory(
                 config,

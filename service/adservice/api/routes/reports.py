@@ -1,10 +1,12 @@
-"""Intermediate reports of a running trial, and the curve a trial reported."""
+"""Intermediate reports of a running trial, the curve a trial reported, and pausing a
+trial at an ASHA rung."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter
 
-from adclient.pruning import ReportRequest, ReportResponse, TrialReport
+from adclient.pruning import PauseRequest, ReportRequest, ReportResponse, TrialReport
+from adclient.schemas import Trial
 from adservice import repository_reports
 from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, TrialId, WorkerDep
 from adservice.services import reports as report_service
@@ -27,3 +29,12 @@ def reports(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> list[TrialR
     """The trial's reported curve, in order of step."""
     rows = repository_reports.trial_reports(session, trial_id=trial_id)
     return [TrialReport(step=row.step, value=row.value, created_at=row.created_at) for row in rows]
+
+
+@router.post("/{trial_id}/pause")
+def pause(trial_id: TrialId, body: PauseRequest, db: DatabaseDep, caller: WorkerDep) -> Trial:
+    """The lease holder pauses its trial at ``step`` with the checkpoint artifact it
+    uploaded (a report answered ``pause``); the trial waits at its ASHA rung until it is
+    promoted (queued again) or the study's budget is spent (pruned). A repeat is
+    harmless; a lost lease, a study that does not pause or a missing checkpoint is 409."""
+    return report_service.pause(db, trial_id=trial_id, body=body, caller=caller)

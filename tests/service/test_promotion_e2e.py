@@ -1,0 +1,196 @@
+"""ASHA promotion against a real ``adserver`` process, over plain HTTP: a worker's trial
+stopped at a rung pauses with its checkpoint artifact, waits, is promoted (queued, its
+job carrying the checkpoint) once it is in its rung's top fraction, and ends pruned
+when the study's budget is spent; the pause contract's errors."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.servers import SDK_HEADERS, ServerProcess
+
+pytestmark = pytest.mark.e2e
+
+PROMOTION = {
+    "name": "asha",
+    "options": {"min_resource": 10, "reduction_factor": 2, "promotion": True},
+}
+
+
+def managed(pruner: dict[str, Any], max_trials: int) -> dict[str, Any]:
+    """A box study that workers of the external task ``curve`` lease."""
+    return {
+        "name": "promoted",
+        "direction": "maximize",
+        "space": {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
+        "proposer": {"name": "random", "seed": 1},
+        "task": {"name": "curve", "external": True},
+        "pruner": pruner,
+        "max_trials": max_trials,
+    }
+
+
+@pytest.fixture
+def http(live_server: ServerProcess) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=live_server.url, headers=SDK_HEADERS, timeout=30) as client:
+        yield client
+
+
+def create(http: httpx.Client, body: dict[str, Any]) -> int:
+    created = http.post("/api/v1/studies", json=body)
+    assert created.status_code == 201, created.text
+    return int(created.json()["id"])
+
+
+def lease(http: httpx.Client, worker: str) -> dict[str, Any] | None:
+    leased = http.post("/api/v1/jobs/lease", json={"worker_id": worker, "tasks": ["curve"]})
+    assert leased.status_code in (200, 204), leased.text
+    return leased.json() if leased.status_code == 200 else None
+
+
+def report(http: httpx.Client, trial: int, worker: str, step: int, value: float) -> dict[str, Any]:
+    answer = http.post(
+        f"/api/v1/trials/{trial}/report", json={"step": step, "value": value, "worker_id": worker}
+    )
+    assert answer.status_code == 200, answer.text
+    return dict(answer.json())
+
+
+def upload_checkpoint(http: httpx.Client, trial: int, worker: str) -> None:
+    stored = http.put(
+        f"/api/v1/trials/{trial}/artifacts/checkpoint.zip",
+        params={"worker_id": worker},
+        content=b"learner state",
+        headers={"Content-Type": "application/zip"},
+    )
+    assert stored.status_code in (200, 201), stored.text
+
+
+def pause(http: httpx.Client, trial: int, worker: str, step: int, **extra: Any) -> httpx.Response:
+    return http.post(
+        f"/api/v1/trials/{trial}/pause", json={"worker_id": worker, "step": step, **extra}
+    )
+
+
+def paused_at_rung(http: httpx.Client, worker: str, value: float) -> int:
+    """A new trial leased by ``worker``, reported at rung 10, paused there."""
+    job = lease(http, worker)
+    assert job is not None
+    answer = report(http, job["trial_id"], worker, 10, value)
+    assert answer == {"should_stop": True, "pause": True}, answer
+    upload_checkpoint(http, job["trial_id"], worker)
+    paused = pause(http, job["trial_id"], worker, 10)
+    assert paused.status_code == 200, paused.text
+    return int(job["trial_id"])
+
+
+def trial(http: httpx.Client, trial_id: int) -> dict[str, Any]:
+    return dict(http.get(f"/api/v1/trials/{trial_id}").json())
+
+
+def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(http: httpx.Client) -> None:
+    study = create(http, managed(PROMOTION, max_trials=4))
+    a = lease(http, "wa")
+    assert a is not None and a["resume"] is None
+    assert report(http, a["trial_id"], "wa", 10, 1.0) == {"should_stop": False, "pause": False}
+
+    b = lease(http, "wb")
+    assert b is not None
+    assert report(http, b["trial_id"], "wb", 10, 0.5) == {"should_stop": True, "pause": True}
+    below = pause(http, b["trial_id"], "wb", 5)
+    assert below.status_code == 422 and "below study" in below.json()["detail"], below.text
+    missing = pause(http, b["trial_id"], "wb", 10)
+    assert missing.status_code == 409 and "checkpoint.zip" in missing.json()["detail"]
+    upload_checkpoint(http, b["trial_id"], "wb")
+    paused = pause(http, b["trial_id"], "wb", 10, metrics={"time_total_s": 3.0})
+    assert paused.status_code == 200, paused.text
+    record = paused.json()
+    assert (record["state"], record["value"], record["worker_id"]) == ("paused", 0.5, None)
+    assert record["checkpoint"] == {
+        "artifact": "checkpoint.zip",
+        "step": 10,
+        "rung": 10,
+        "metrics": {"time_total_s": 3.0},
+    }
+    again = pause(http, b["trial_id"], "wb", 10, metrics={"time_total_s": 3.0})
+    assert again.status_code == 200 and again.json()["state"] == "paused"
+    late = http.post(
+        f"/api/v1/trials/{b['trial_id']}/report",
+        json={"step": 20, "value": 9.0, "worker_id": "wb"},
+    )
+    assert late.status_code == 409 and late.json()["error"] == "lease_lost", late.text
+    info = http.get(f"/api/v1/studies/{study}").json()
+    assert (info["n_paused"], info["n_running"], info["n_pruned"]) == (1, 1, 0)
+    listed = http.get(f"/api/v1/studies/{study}/trials", params={"state": "paused"}).json()
+    assert [t["id"] for t in listed] == [b["trial_id"]]
+
+    # Rung 10 holds [1.0, 0.5, 0.2]: 3 // 2 - 1 < 0, so only the best goes on; b waits.
+    paused_at_rung(http, "wc", 0.2)
+    assert trial(http, b["trial_id"])["state"] == "paused"
+    # A fourth value: 4 // 2 - 1 = 1, the top two go on: 0.5 is the second best now.
+    paused_at_rung(http, "wd", 0.1)
+    assert trial(http, b["trial_id"])["state"] == "queued"
+
+    resumed = lease(http, "we")
+    assert resumed is not None and resumed["trial_id"] == b["trial_id"], resumed
+    assert resumed["resume"] == record["checkpoint"]
+    assert resumed["attempt"] == 1  # the paused attempt did not count against max_attempts
+    checkpoint = http.get(f"/api/v1/trials/{b['trial_id']}/artifacts/checkpoint.zip")
+    assert checkpoint.content == b"learner state"
+
+
+def test_paused_trials_end_pruned_with_their_value_once_the_budget_is_spent(
+    http: httpx.Client,
+) -> None:
+    study = create(http, managed(PROMOTION, max_trials=2))
+    a = lease(http, "wa")
+    assert a is not None
+    report(http, a["trial_id"], "wa", 10, 1.0)
+    b = paused_at_rung(http, "wb", 0.5)
+    assert lease(http, "wc") is None  # no room for a new trial, b waits, a still runs
+    assert trial(http, b)["state"] == "paused"
+    told = http.post(f"/api/v1/trials/{a['trial_id']}/tell", json={"value": 2.0, "worker_id": "wa"})
+    assert told.status_code == 200, told.text
+    assert lease(http, "wc") is None  # nothing can reach rung 10 any more: b ends
+    ended = trial(http, b)
+    assert (ended["state"], ended["value"]) == ("pruned", 0.5)
+    assert "budget" in ended["message"]
+    info = http.get(f"/api/v1/studies/{study}").json()
+    assert (info["state"], info["n_complete"], info["n_pruned"], info["n_paused"]) == (
+        "complete",
+        1,
+        1,
+        0,
+    )
+
+
+def test_only_asha_with_promotion_pauses_and_only_a_workers_trial(http: httpx.Client) -> None:
+    plain = {"name": "asha", "options": {"min_resource": 10, "reduction_factor": 2}}
+    create(http, managed(plain, max_trials=2))
+    first, second = lease(http, "wa"), lease(http, "wb")
+    assert first is not None and second is not None
+    report(http, first["trial_id"], "wa", 10, 1.0)
+    assert report(http, second["trial_id"], "wb", 10, 0.5) == {
+        "should_stop": True,
+        "pause": False,
+    }
+    upload_checkpoint(http, second["trial_id"], "wb")
+    refused = pause(http, second["trial_id"], "wb", 10)
+    assert refused.status_code == 409 and "promotion" in refused.json()["detail"], refused.text
+    assert trial(http, second["trial_id"])["state"] == "running"
+
+    # An owner's asked trial has no worker to resume it: it is stopped, not paused.
+    asked_study = create(http, {**managed(PROMOTION, max_trials=2), "task": None})
+    asked = [
+        http.post(f"/api/v1/studies/{asked_study}/ask", json={"count": 1}).json()["trials"][0]
+        for _ in range(2)
+    ]
+    answers = [
+        http.post(f"/api/v1/trials/{t['id']}/report", json={"step": 10, "value": v}).json()
+        for t, v in zip(asked, (1.0, 0.5), strict=True)
+    ]
+    assert answers[1] == {"should_stop": True, "pause": False}, answers
