@@ -42,7 +42,8 @@ export class TrialsPanel {
       <div class="toolbar">
         <label>State <select data-filter>
           <option value="">all</option><option>complete</option><option>running</option>
-          <option>queued</option><option>failed</option><option>pruned</option></select></label>
+          <option>queued</option><option>failed</option><option>pruned</option>
+          <option>paused</option></select></label>
         <label>Rows <select data-page-size><option selected>25</option><option>50</option>
           <option>100</option><option>200</option></select></label>
         <label>Sort by param <select data-sort-param><option value="">—</option></select></label>
