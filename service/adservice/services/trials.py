@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from sqlalchemy.orm import Session
 
 from adclient.schemas import Trial
 from adservice import repository, repository_promotion
@@ -88,6 +89,20 @@ def _record(
         )
 
 
+def proposer_history(session: Session, config: StudyConfig) -> History:
+    """The study's trials as its proposer sees them: pruned and paused trials are their
+    last values (or left out, as ``pruner.pruned_as`` says), each trial counted once."""
+    observed = config.pruner.pruned_as == "last_value"
+    history = repository.study_history(
+        session, study_id=config.study_id, dim=config.dim, pruned_as_observed=observed
+    )
+    if observed and repository_promotion.asha_promotion(config.pruner):
+        history = repository_promotion.with_paused(
+            session, history=history, study_id=config.study_id, dim=config.dim
+        )
+    return history
+
+
 def proposes_instantly(configs: StudyConfigs, study_id: int) -> bool:
     """Whether an ask of this study is only a few short writes: its configuration is
     cached (no read needed) and its proposer needs no history (random, sobol)."""
@@ -144,18 +159,7 @@ def propose_trials(
         with db.read() as session:
             study = repository.get_study(session, study_id=study_id)
             repository.check_room(study, count=count)
-            history = repository.study_history(
-                session,
-                study_id=study_id,
-                dim=config.dim,
-                pruned_as_observed=config.pruner.pruned_as == "last_value",
-            )
-            if config.pruner.pruned_as == "last_value" and repository_promotion.asha_promotion(
-                config.pruner
-            ):
-                history = repository_promotion.with_paused(
-                    session, history=history, study_id=study_id, dim=config.dim
-                )
+            history = proposer_history(session, config)
         if worker_id is None and budget is not None and budget.memory_bytes is not None:
             check_ask_memory(
                 config,
