@@ -15,6 +15,18 @@ the specs continuous (model inputs ``z = [structure index, u]``, see ``gpmodel``
    start that gains by switching is optimised again (``DISCRETE_ROUNDS`` times at
    most). This is what finds good structures among many (``structures: all``).
 
+A box of typed params (``DiscreteColumns``: ints, stepped floats, categoricals) is
+searched the way BoTorch's ``optimize_acqf_mixed_alternating`` searches one: the raw
+samples are snapped to valid values (or, when the whole space has no more points
+than raw samples, are every point of it), L-BFGS-B moves only the continuous
+columns, and a discrete step tries every start's neighbours (an ordinal column one
+step down or up, a categorical column every other choice) and moves to the best,
+alternating with the continuous step until neither gains (``BOX_ROUNDS`` at most).
+The acquisition is this module's own callable (analytic LogEI with Kriging
+believers), not a BoTorch acquisition object, hence this loop rather than that
+function. With ``taken`` points (observed and pending, noise-free studies) the answer
+is the best point found that is not one of them, when there is one.
+
 Past a ``deadline`` (the ask's time budget) the raw samples not yet scored are left
 out, a local search stops at its starts' best points so far, and no discrete round
 begins; the best point found is still returned.
@@ -22,15 +34,20 @@ begins; the best point found is still returned.
 
 from __future__ import annotations
 
+import itertools
 import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from scipy.optimize import minimize
 from scipy.stats import qmc
+
+if TYPE_CHECKING:
+    from adclient.boxspace import BoxEncoding
 
 # Set once, not per call: catch_warnings swaps the process's filter list, which is not
 # safe while other threads propose.
@@ -41,6 +58,9 @@ ENUMERATE_LIMIT = 16
 DISCRETE_ROUNDS = 2
 INCUMBENTS = 1
 """Best observed designs started from directly."""
+BOX_ROUNDS = 8
+"""Discrete-then-continuous rounds at most for a box of typed params."""
+_TAKEN_TOL = 1e-9
 _CHUNK = 1024
 
 
@@ -53,19 +73,87 @@ def past(deadline: float | None) -> bool:
 
 
 @dataclass(frozen=True)
+class DiscreteColumns:
+    """A typed box's discrete columns in model-input units (``u``, the unit box of the
+    encoded bounds): snapping and one-step moves, through its ``BoxEncoding``."""
+
+    box: BoxEncoding
+    low: np.ndarray
+    width: np.ndarray
+
+    def _encoded(self, U: np.ndarray) -> np.ndarray:
+        return self.low + U * self.width
+
+    def _unit(self, X: np.ndarray) -> np.ndarray:
+        return (X - self.low) / self.width
+
+    def snap(self, U: np.ndarray) -> np.ndarray:
+        return self._unit(self.box.snap(self._encoded(U)))
+
+    def moves(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every snapped row's neighbours (one discrete column changed by one step, or
+        to another choice) and the row each came from."""
+        X = self.box.snap(self._encoded(U))
+        variants, owners = [], []
+        for column in self.box.ordinal:
+            for shifted in self.box.neighbours(X, column):
+                keep = np.isfinite(shifted)
+                moved = X[keep].copy()
+                moved[:, column] = shifted[keep]
+                variants.append(moved)
+                owners.append(np.flatnonzero(keep))
+        for column, count in self.box.categorical.items():
+            for choice in range(count):
+                keep = X[:, column] != choice
+                moved = X[keep].copy()
+                moved[:, column] = choice
+                variants.append(moved)
+                owners.append(np.flatnonzero(keep))
+        if not variants:
+            return U[:0], np.zeros(0, dtype=np.int64)
+        return self._unit(np.concatenate(variants)), np.concatenate(owners)
+
+    def every_point(self) -> np.ndarray:
+        """Each point of a space with no continuous column (small: see ``maximise``)."""
+        columns = []
+        for i, param in enumerate(self.box.params):
+            if i in self.box.categorical:
+                columns.append(np.arange(self.box.categorical[i], dtype=np.float64))
+            else:
+                assert param.low is not None and param.high is not None
+                step = float(param.step or 1)
+                values = np.arange(param.low, param.high + step / 2, step, dtype=np.float64)
+                columns.append(np.log(values) if param.log else values)
+        grid = np.array(list(itertools.product(*columns)), dtype=np.float64)
+        return self._unit(self.box.snap(grid))
+
+
+@dataclass(frozen=True)
 class MixedDomain:
-    """Which spec slots each structure uses (S x p), and the value of the others."""
+    """Which spec slots each structure uses (S x p), the value of the others, and a
+    typed box's discrete columns (None: every slot continuous)."""
 
     used: np.ndarray
     pad: float
+    discrete: DiscreteColumns | None = None
 
     @property
     def n_structures(self) -> int:
         return int(self.used.shape[0])
 
+    @property
+    def free(self) -> np.ndarray:
+        """Which spec slots a continuous optimiser may move."""
+        if self.discrete is None:
+            return np.ones(self.used.shape[1], dtype=bool)
+        return self.discrete.box.continuous
+
     def canonical(self, Z: np.ndarray) -> np.ndarray:
         index = Z[:, 0].astype(np.int64)
-        return np.column_stack([Z[:, 0], np.where(self.used[index], Z[:, 1:], self.pad)])
+        specs = np.where(self.used[index], Z[:, 1:], self.pad)
+        if self.discrete is not None:
+            specs = self.discrete.snap(specs)
+        return np.column_stack([Z[:, 0], specs])
 
 
 Acquisition = Callable[[torch.Tensor], torch.Tensor]
@@ -94,7 +182,12 @@ def _evaluate(
 
 
 def raw_samples(domain: MixedDomain, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Sobol spec vectors dealt round-robin to the structures, canonical."""
+    """Sobol spec vectors dealt round-robin to the structures, canonical; every point of
+    a typed box that has no more points than ``count``."""
+    box = domain.discrete.box if domain.discrete is not None else None
+    if domain.discrete is not None and box is not None and (box.n_points or count + 1) <= count:
+        specs = domain.discrete.every_point()
+        return np.column_stack([np.zeros(len(specs)), specs])
     p = domain.used.shape[1]
     specs = qmc.Sobol(p, scramble=True, rng=rng).random(count) if p else np.zeros((count, 0))
     index = (np.arange(count) + rng.integers(domain.n_structures)) % domain.n_structures
@@ -133,7 +226,7 @@ def _local(
     the optimiser's vector); (points, values). Past ``deadline``, each start's best
     point evaluated so far."""
     b, p = starts.shape[0], starts.shape[1] - 1
-    used = domain.used[starts[:, 0].astype(np.int64)]
+    used = domain.used[starts[:, 0].astype(np.int64)] & domain.free
     if p == 0 or not used.any():
         return starts, _evaluate(acqf, starts, tkw)
     full = torch.as_tensor(starts, **tkw)
@@ -189,12 +282,14 @@ def maximise(
     incumbents: np.ndarray,
     tkw: dict,
     deadline: float | None = None,
+    taken: np.ndarray | None = None,
 ) -> Optimum:
-    """The best point found (see the module docstring)."""
+    """The best point found, not one of ``taken`` if any other was found (see the
+    module docstring)."""
     rng = np.random.default_rng(seed)
     S = domain.n_structures
     raw = raw_samples(domain, raw_count, rng)
-    values = _evaluate(acqf, raw, tkw, deadline)
+    values = raw_values = _evaluate(acqf, raw, tkw, deadline)
     chosen = starts(raw, values, num_restarts, rng, 1 < S <= ENUMERATE_LIMIT)
     initial = np.concatenate([raw[chosen], domain.canonical(incumbents[:INCUMBENTS])])
     points, values = _local(acqf, domain, initial, maxiter, tkw, deadline)
@@ -213,5 +308,48 @@ def maximise(
         switched += int(better.sum())
         moved = variants.reshape(len(points), S, -1)[better, best[better]]
         points[better], values[better] = _local(acqf, domain, moved, maxiter, tkw, deadline)
-    top = int(np.argmax(values))
+    if domain.discrete is not None:
+        points, values = _discrete_rounds(acqf, domain, points, values, maxiter, tkw, deadline)
+        points, values = np.concatenate([points, raw]), np.concatenate([values, raw_values])
+    order = np.argsort(-values, kind="stable")
+    top = int(order[0])
+    if taken is not None and len(taken):
+        fresh = [int(i) for i in order if _distance(taken, points[i]) > _TAKEN_TOL]
+        top = fresh[0] if fresh else top
     return Optimum(z=points[top], value=float(values[top]), structures_switched=switched)
+
+
+def _distance(points: np.ndarray, point: np.ndarray) -> float:
+    return float(np.min(np.max(np.abs(points - point), axis=1)))
+
+
+def _discrete_rounds(
+    acqf: Acquisition,
+    domain: MixedDomain,
+    points: np.ndarray,
+    values: np.ndarray,
+    maxiter: int,
+    tkw: dict,
+    deadline: float | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A typed box's discrete steps: each point moves to its best neighbour while that
+    gains, its continuous columns optimised again after each move."""
+    assert domain.discrete is not None
+    points, values = points.copy(), values.copy()
+    for _ in range(BOX_ROUNDS):
+        if past(deadline):
+            break
+        moves, owners = domain.discrete.moves(points[:, 1:])
+        if len(moves) == 0:
+            break
+        scores = _evaluate(acqf, np.column_stack([np.zeros(len(moves)), moves]), tkw)
+        best = np.full(len(points), -np.inf)
+        pick = np.full(len(points), -1)
+        for index in np.argsort(scores, kind="stable"):  # the best move of each owner last
+            best[owners[index]], pick[owners[index]] = scores[index], index
+        better = best > values + 1e-9 * (1 + np.abs(values))
+        if not better.any():
+            break
+        moved = np.column_stack([np.zeros(int(better.sum())), moves[pick[better]]])
+        points[better], values[better] = _local(acqf, domain, moved, maxiter, tkw, deadline)
+    return points, values

@@ -17,11 +17,14 @@ BoTorch and Optuna are imported inside ``propose``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict
+
+if TYPE_CHECKING:
+    from adclient.boxspace import BoxEncoding
 
 FloatArray = NDArray[np.float64]
 
@@ -108,6 +111,10 @@ class ProposalRequest:
     bounds: (2, d) search box. n_issued: how many trials the study has created so
     far (a position in a space-filling sequence). seed: the study's seed.
     structure: what the coordinates of a design vector mean (None: a plain box).
+    box: for a box of typed params (int, log, step, categorical), how its vectors
+    encode them (``adclient.boxspace``): proposers search ``bounds``, the service snaps
+    what they return; X, failed and pending hold snapped vectors. None: every
+    coordinate is a plain float.
     seconds, memory_bytes: the server's budget for this ask (None: no limit); a
     proposer that models stops at the time budget and keeps within the memory one,
     recording in the info what it gave up (see ``qei``).
@@ -125,6 +132,7 @@ class ProposalRequest:
     noisy: bool = False
     options: dict[str, Any] = field(default_factory=dict)
     structure: SearchStructure | None = None
+    box: BoxEncoding | None = None
     seconds: float | None = None
     memory_bytes: int | None = None
 

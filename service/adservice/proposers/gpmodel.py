@@ -11,7 +11,14 @@ within a structure and never act as noise dimensions.
   in [0, 1] like a spec's), or, for a sign-invariant axis, as the line through it
   (the outer product u u^T, whose distance sqrt(2 - 2 (u.v)^2) / sqrt(2) ignores the
   sign). One length scale per spec and one per axis (ARD over groups), with
-  BoTorch's dimension-scaled log-normal prior (Hvarfner et al., 2024).
+  BoTorch's dimension-scaled log-normal prior (Hvarfner et al., 2024). A box's
+  categorical param (``categories``: column -> number of choices) enters as the
+  one-hot vector of its choice divided by sqrt(2): any two different choices are one
+  length scale apart and no choice lies between two others (the Hamming distance of
+  Optuna's GPSampler and of BoTorch's categorical kernel, here inside the same
+  Matern or RBF as the other params, so it is fitted with them). Ints, stepped and
+  log-scaled floats are plain specs of their encoded value (ordered; the acquisition
+  keeps ints and choices discrete).
 - ``StructureKernel`` is an RBF over the structures' coordinates in the fused
   geometry (``adservice.representation``), with one learned length scale: as it
   shrinks to 0 the kernel becomes the identity (every structure unrelated: the
@@ -53,10 +60,18 @@ warnings.filterwarnings("ignore", category=NumericalWarning)
 class SpecFeatures:
     """u -> the spec kernel's features, and which length-scale group each one has."""
 
-    def __init__(self, search: SearchStructure | None, spec_dim: int, **tkw: object) -> None:
+    def __init__(
+        self,
+        search: SearchStructure | None,
+        spec_dim: int,
+        categories: dict[int, int] | None = None,
+        **tkw: object,
+    ) -> None:
         axes = search.axes if search is not None else ()
+        self.categories = sorted((categories or {}).items())
         on_axis = {column for axis in axes for column in (axis.theta, axis.phi) if column >= 0}
-        self.plain = [k for k in range(spec_dim) if k not in on_axis]
+        skip = on_axis | {column for column, _ in self.categories}
+        self.plain = [k for k in range(spec_dim) if k not in skip]
         self.axes = axes
         if search is not None:
             self.low = torch.as_tensor(search.spec_low, **tkw)  # type: ignore[arg-type]
@@ -64,7 +79,9 @@ class SpecFeatures:
         groups = list(range(len(self.plain)))
         for number, axis in enumerate(axes):
             groups += [len(self.plain) + number] * (6 if axis.sign_invariant else 3)
-        self.n_groups = len(self.plain) + len(axes)
+        for number, (_, count) in enumerate(self.categories):
+            groups += [len(self.plain) + len(axes) + number] * count
+        self.n_groups = len(self.plain) + len(axes) + len(self.categories)
         self.group_index = torch.as_tensor(groups, dtype=torch.long)
 
     def _angle(self, u: torch.Tensor, column: int, fixed: float) -> torch.Tensor:
@@ -86,6 +103,10 @@ class SpecFeatures:
                 parts.append(torch.stack(line, dim=-1) / root2)
             else:
                 parts.append(torch.stack([x, y, z], dim=-1) / 2.0)
+        for column, count in self.categories:
+            index = (u[..., column] * count - 0.5).round().clamp(0, count - 1).long()
+            one_hot = torch.nn.functional.one_hot(index, count).to(u.dtype)
+            parts.append(one_hot / math.sqrt(2.0))
         return torch.cat(parts, dim=-1)
 
 
@@ -219,10 +240,15 @@ Embedding = tuple[torch.Tensor, torch.Tensor | None]
 
 
 def design_kernel(
-    search: SearchStructure | None, spec_dim: int, *, kernel: str, **tkw: object
+    search: SearchStructure | None,
+    spec_dim: int,
+    *,
+    kernel: str,
+    categories: dict[int, int] | None = None,
+    **tkw: object,
 ) -> DesignKernel:
     """The model's covariance (see the module docstring)."""
-    spec = SpecKernel(SpecFeatures(search, spec_dim, **tkw), rbf=kernel == "rbf")
+    spec = SpecKernel(SpecFeatures(search, spec_dim, categories, **tkw), rbf=kernel == "rbf")
     structure = None
     if search is not None and search.n_structures > 1:
         structure = StructureKernel(torch.as_tensor(search.structure_coords, **tkw))  # type: ignore[arg-type]

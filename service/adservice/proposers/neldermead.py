@@ -34,12 +34,19 @@ Details:
   continuation; if the lie proves right the replay later finds it already scored.
   If no branch yields a new point within the replay budget, the candidate is the
   study's Sobol point ``n_issued + i`` and its info says so.
+- Typed params (``request.box``: ints, steps, categoricals): the simplex moves in the
+  continuous box and each point it asks for is scored as the params it rounds to
+  (``BoxEncoding.snap``): the look-up, the pending check and the candidate are the
+  snapped point, so two simplex points that round alike share one evaluation and a
+  pending rounded point is speculated over like any other. A categorical is thus
+  searched as its choices' indices, an order Nelder-Mead cannot avoid assuming.
 """
 
 from __future__ import annotations
 
 import heapq
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -101,14 +108,17 @@ def replay(
     *,
     step: float,
     adaptive: bool,
+    snap: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> _Outcome:
-    """Run Nelder-Mead (with restarts) on looked-up values until it needs a new point."""
+    """Run Nelder-Mead (with restarts) on looked-up values until it needs a new point;
+    ``snap`` maps a point to the one it is scored as (typed params)."""
     dim = len(x0)
 
     def objective(u: np.ndarray) -> float:
-        index = lookup.find(u)
+        point = np.array(u, dtype=np.float64) if snap is None else snap(u)
+        index = lookup.find(point)
         if index is None:
-            raise NeedEvaluation(np.array(u, dtype=np.float64))
+            raise NeedEvaluation(point)
         return float(lookup.values[index])
 
     start = np.array(x0, dtype=np.float64)
@@ -161,6 +171,12 @@ class NelderMeadProposer:
         span = bounds[1] - bounds[0]
         step = options.initial_step
         adaptive = options.adaptive
+        box = request.box
+        snap = None
+        if box is not None:
+
+            def snap(u: np.ndarray) -> np.ndarray:
+                return (box.snap(np.clip(u, 0.0, 1.0) * span + bounds[0]) - bounds[0]) / span
 
         known = _History(dim)
         X = np.asarray(request.X, dtype=np.float64).reshape(-1, dim)
@@ -186,10 +202,11 @@ class NelderMeadProposer:
         unit_rows: list[np.ndarray] = []
         info: list[dict[str, Any]] = []
         for i in range(request.count):
-            point, details = self._next_point(x0, known, blocked, lies, step, adaptive)
+            point, details = self._next_point(x0, known, blocked, lies, step, adaptive, snap)
             if point is None:
                 index = request.n_issued + i
                 point = sobol_points(dim, request.seed, index, 1)[0]
+                point = point if snap is None else snap(point)
                 details = {
                     "method": "sobol-fallback",
                     "reason": details["reason"],
@@ -209,6 +226,7 @@ class NelderMeadProposer:
         lies: list[float],
         step: float,
         adaptive: bool,
+        snap: Callable[[np.ndarray], np.ndarray] | None,
     ) -> tuple[np.ndarray | None, dict[str, Any]]:
         """Best-first search over lies for blocked points until NM asks for a new point."""
         # heap entries: (non-median lies, depth, tie-break, ((blocked index, lie index), ...))
@@ -225,7 +243,7 @@ class NelderMeadProposer:
                     np.array([blocked[b] for b, _ in assumed]),
                     np.array([lies[lie] for _, lie in assumed]),
                 )
-            outcome = replay(x0, lookup, step=step, adaptive=adaptive)
+            outcome = replay(x0, lookup, step=step, adaptive=adaptive, snap=snap)
             replays += 1
             restart = max(restart, outcome.restart)
             if outcome.point is None:

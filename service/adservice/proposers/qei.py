@@ -42,6 +42,14 @@ Decisions worth knowing:
   discounted the way a pending point's is. No feasibility classifier.
 - Pending (queued/running) trials enter as ``X_pending``; so do the Sobol points
   issued earlier in the same batch.
+- Typed box params (``request.box``, see ``adclient.boxspace``): a log scale is in the
+  encoding (the model and the acquisition see ln x, linearly), ints and stepped floats
+  are ordered specs the acquisition keeps on their grid, categoricals enter the kernel
+  as one-hot vectors (``gpmodel``), and ``acquisition.maximise`` alternates a
+  continuous step with a discrete neighbour step (BoTorch's mixed-alternating
+  scheme). Every candidate, Sobol points included, is snapped before it is compared
+  with observed and pending points, and a noise-free study's model candidate is the
+  best point found that is neither, while one remains.
 - Fallbacks never raise: with fewer than two distinct usable points, constant
   observations, or a fit or acquisition optimisation that fails, the candidate
   is the study's Sobol point at position ``n_issued + i`` and its info dict says
@@ -310,7 +318,7 @@ class QLogEIProposer:
         n_sobol = min(max(request.n_initial - request.n_issued, 0), count)
         if n_sobol:
             unit = sobol_points(request.dim, request.seed, request.n_issued, n_sobol)
-            candidates[:n_sobol] = scale_to_bounds(unit, bounds)
+            candidates[:n_sobol] = _snapped(scale_to_bounds(unit, bounds), request)
             for i in range(n_sobol):
                 info[i] = {
                     "proposer": self.name,
@@ -344,7 +352,7 @@ class QLogEIProposer:
             }
             for i in range(q)
         ]
-        return scale_to_bounds(unit, bounds), info
+        return _snapped(scale_to_bounds(unit, bounds), request), info
 
     def _model_batch(
         self,
@@ -467,7 +475,7 @@ class QLogEIProposer:
         from botorch.models.transforms.outcome import Standardize
         from botorch.sampling.normal import SobolQMCNormalSampler
 
-        from adservice.proposers.acquisition import MixedDomain, maximise, past
+        from adservice.proposers.acquisition import DiscreteColumns, MixedDomain, maximise, past
         from adservice.proposers.gpmodel import (
             AnalyticLogEI,
             design_kernel,
@@ -506,11 +514,17 @@ class QLogEIProposer:
             train_Y,
             train_Yvar=train_Yvar,
             likelihood=likelihood,
-            covar_module=design_kernel(search, spec_dim, kernel=kernel, **tkw),
+            covar_module=design_kernel(
+                search,
+                spec_dim,
+                kernel=kernel,
+                categories=request.box.categorical if request.box is not None else None,
+                **tkw,
+            ),
             outcome_transform=Standardize(m=1),
         )
 
-        layout_key = _layout_key(search)
+        layout_key = _layout_key(search, request)
         data_key = hashlib.sha256(
             b"".join(
                 [
@@ -567,9 +581,13 @@ class QLogEIProposer:
         domain = MixedDomain(
             used=search.used if search is not None else np.ones((1, spec_dim), dtype=bool),
             pad=search.pad if search is not None else 0.5,
+            discrete=DiscreteColumns(request.box, bounds[0], bounds[1] - bounds[0])
+            if request.box is not None
+            else None,
         )
         incumbents = Z[np.argsort(-y, kind="stable")]
         pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
+        taken = None if request.noisy else np.concatenate([Z, pending_Z])
         chosen: list[np.ndarray] = []
         methods: list[str] = []
         values: list[float] = []
@@ -632,6 +650,9 @@ class QLogEIProposer:
                     incumbents=incumbents,
                     tkw=tkw,
                     deadline=deadline,
+                    taken=None
+                    if taken is None
+                    else np.concatenate([taken, *[z[None, :] for z in chosen]]),
                 )
                 chosen.append(optimum.z)
                 methods.append(method)
@@ -660,10 +681,16 @@ class QLogEIProposer:
         return rows_np, extra
 
 
+def _snapped(candidates: np.ndarray, request: ProposalRequest) -> np.ndarray:
+    """A typed box's points as the params they stand for (``BoxEncoding.snap``)."""
+    return candidates if request.box is None else request.box.snap(candidates)
+
+
 def _canonical(candidates: np.ndarray, bounds: np.ndarray, request: ProposalRequest) -> np.ndarray:
     """Candidates in the box; for a design space, as the designs they stand for: an
-    integral structure index and unused slots at the pad (Sobol points included)."""
-    candidates = np.clip(candidates, bounds[0], bounds[1])
+    integral structure index and unused slots at the pad (Sobol points included); for
+    a typed box, snapped."""
+    candidates = _snapped(np.clip(candidates, bounds[0], bounds[1]), request)
     if request.structure is None:
         return candidates
     return search_vectors(
@@ -671,8 +698,10 @@ def _canonical(candidates: np.ndarray, bounds: np.ndarray, request: ProposalRequ
     )
 
 
-def _layout_key(search: SearchStructure | None) -> bytes:
+def _layout_key(search: SearchStructure | None, request: ProposalRequest) -> bytes:
     """What distinguishes one study's model layout from another's in the fit caches."""
+    if search is None and request.box is not None:
+        return f"box/{request.box.ordinal}/{sorted(request.box.categorical.items())}".encode()
     if search is None:
         return b"box"
     axes = repr(

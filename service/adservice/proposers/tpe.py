@@ -12,12 +12,20 @@ study's Sobol sequence, where ``n_startup = max(n_initial, options
 many points before its density estimates mean anything. ``options`` may also set
 ``multivariate`` (default true), ``constant_liar`` (default true) and
 ``n_ei_candidates`` (default 24).
+
+Typed params (``request.box``) are given to Optuna as its own distributions (an int
+as ``IntDistribution`` with its step or log scale, a stepped float as a stepped
+``FloatDistribution``, a log float with ``log=True``, a categorical as
+``CategoricalDistribution`` of its choices), so TPE models each in its kind: a
+categorical by its own per-choice weights, not as an ordered number. The history's
+vectors are decoded into params for it and its answers encoded back.
 """
 
 from __future__ import annotations
 
 import warnings
-from typing import Any, ClassVar
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from pydantic import Field
@@ -25,9 +33,39 @@ from pydantic import Field
 from adservice.proposers.base import Proposal, ProposalRequest, ProposerOptions
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 
+if TYPE_CHECKING:
+    from optuna.distributions import BaseDistribution
+
+    from adclient.boxspace import BoxEncoding
+
 
 def _param_names(dim: int) -> list[str]:
     return [f"x{i:03d}" for i in range(dim)]
+
+
+def _typed_distributions(box: BoxEncoding) -> dict[str, BaseDistribution]:
+    """Each typed param as Optuna's distribution of its kind."""
+    from optuna.distributions import (
+        CategoricalDistribution,
+        FloatDistribution,
+        IntDistribution,
+    )
+
+    distributions: dict[str, BaseDistribution] = {}
+    for param in box.params:
+        if param.type == "categorical":
+            distributions[param.name] = CategoricalDistribution(param.choices or [])
+            continue
+        assert param.low is not None and param.high is not None
+        if param.type == "int":
+            distributions[param.name] = IntDistribution(
+                int(param.low), int(param.high), log=param.log, step=int(param.step or 1)
+            )
+        else:
+            distributions[param.name] = FloatDistribution(
+                float(param.low), float(param.high), log=param.log, step=param.step
+            )
+    return distributions
 
 
 class TPEOptions(ProposerOptions):
@@ -46,7 +84,7 @@ class TPEProposer:
 
     def propose(self, request: ProposalRequest) -> Proposal:
         import optuna
-        from optuna.distributions import BaseDistribution, FloatDistribution
+        from optuna.distributions import FloatDistribution
         from optuna.trial import TrialState, create_trial
 
         options = TPEOptions.model_validate(request.options)
@@ -70,15 +108,26 @@ class TPEProposer:
         if n_sobol == request.count:
             return Proposal(candidates=np.array(rows), info=info)
 
-        names = _param_names(dim)
-        distributions: dict[str, BaseDistribution] = {
-            name: FloatDistribution(float(bounds[0, i]), float(bounds[1, i]))
-            for i, name in enumerate(names)
-        }
+        box = request.box
+        params: Callable[[np.ndarray], dict[str, Any]]
+        vector_of: Callable[[dict[str, Any]], np.ndarray]
+        distributions: dict[str, BaseDistribution]
+        if box is not None:
+            distributions = _typed_distributions(box)
+            params, vector_of = box.decode, box.encode
+        else:
+            names = _param_names(dim)
+            distributions = {
+                name: FloatDistribution(float(bounds[0, i]), float(bounds[1, i]))
+                for i, name in enumerate(names)
+            }
 
-        def params(vector: np.ndarray) -> dict[str, float]:
-            clipped = np.clip(vector, bounds[0], bounds[1])
-            return {name: float(clipped[i]) for i, name in enumerate(names)}
+            def params(vector: np.ndarray) -> dict[str, Any]:
+                clipped = np.clip(vector, bounds[0], bounds[1])
+                return {name: float(clipped[i]) for i, name in enumerate(names)}
+
+            def vector_of(values: dict[str, Any]) -> np.ndarray:
+                return np.array([values[name] for name in names])
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         with warnings.catch_warnings():
@@ -116,7 +165,7 @@ class TPEProposer:
             n_complete = sum(1 for t in trials if t.state == TrialState.COMPLETE)
             for _ in range(request.count - n_sobol):
                 trial = study.ask(distributions)
-                rows.append(np.array([trial.params[name] for name in names]))
+                rows.append(vector_of(trial.params))
                 info.append({"proposer": self.name, "method": "tpe", "n_complete": n_complete})
         candidates = np.clip(np.array(rows), bounds[0], bounds[1])
         return Proposal(candidates=candidates, info=info)

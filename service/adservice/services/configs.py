@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from adclient.boxspace import BoxEncoding
 from adclient.design import DesignSpace, Representation
 from adclient.pruning import PrunerConfig
 from adclient.schemas import ProposerConfig, TaskConfig, option_problems
@@ -55,6 +56,9 @@ class StudyConfig:
     bounds: np.ndarray
     search: SearchStructure | None = None
     """What a design vector's coordinates mean, for proposers that model them."""
+    box: BoxEncoding | None = None
+    """A box of typed params (int, log, step, categorical): how its vectors encode them.
+    None for a design space and for a box of plain floats (vector = params)."""
     proposer_error: InvalidError | None = None
     pruner: PrunerConfig = field(default_factory=PrunerConfig)
     """The study's pruner; ``pruner.pruned_as`` says how its proposer sees pruned trials."""
@@ -73,6 +77,7 @@ class StudyConfig:
         representation: Representation | None = None
         design_space: DesignSpace | None = None
         search: SearchStructure | None = None
+        box: BoxEncoding | None = None
         if row.representation is not None:
             from adservice.representation import search_structure
 
@@ -81,8 +86,9 @@ class StudyConfig:
             design_space = DesignSpace.model_validate(row.space)
             search = search_structure(design_space, representation)
         else:
-            params = row.space["params"]
-            bounds = np.array([[p["low"] for p in params], [p["high"] for p in params]])
+            box = BoxEncoding.of(row.space)
+            bounds = box.bounds
+            box = box if box.typed else None
         return cls(
             study_id=row.id,
             maximize=row.direction == "maximize",
@@ -95,6 +101,7 @@ class StudyConfig:
             representation=representation,
             bounds=bounds,
             search=search,
+            box=box,
             proposer_error=proposer_error,
             pruner=PrunerConfig.model_validate(row.pruner or {}),
         )
@@ -103,8 +110,16 @@ class StudyConfig:
     def dim(self) -> int:
         return int(self.bounds.shape[1])
 
+    def canonical(self, candidates: np.ndarray) -> np.ndarray:
+        """Proposed vectors as stored: in the box, typed params snapped to their values."""
+        if self.box is not None:
+            return self.box.snap(candidates)
+        return np.clip(candidates, self.bounds[0], self.bounds[1])
+
     def params(self, vector: np.ndarray) -> dict[str, Any]:
-        """What a person reads: box params by name, or the decoded design."""
+        """What a person reads: box params by name in their types, or the decoded design."""
+        if self.box is not None:
+            return self.box.decode(vector)
         if self.representation is None or self.design_space is None:
             names = [p["name"] for p in self.space["params"]]
             return {name: float(x) for name, x in zip(names, vector, strict=True)}
