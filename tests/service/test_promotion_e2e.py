@@ -1,17 +1,18 @@
 """ASHA promotion against a real ``adserver`` process, over plain HTTP: a worker's trial
 stopped at a rung pauses with its checkpoint artifact, waits, is promoted (queued, its
 job carrying the checkpoint) once it is in its rung's top fraction, and ends pruned
-when the study's budget is spent; the pause contract's errors."""
+when the study's budget is spent; the pause contract's errors, only the lease holder's
+token pausing."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import httpx
 import pytest
 
-from tests.servers import SDK_HEADERS, ServerProcess
+from tests.servers import SDK_HEADERS, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 
@@ -194,3 +195,31 @@ def test_only_asha_with_promotion_pauses_and_only_a_workers_trial(http: httpx.Cl
         for t, v in zip(asked, (1.0, 0.5), strict=True)
     ]
     assert answers[1] == {"should_stop": True, "pause": False}, answers
+
+
+def test_only_the_lease_holders_token_pauses(
+    server_factory: Callable[..., ServerProcess],
+) -> None:
+    secured = server_factory(AD_AUTH="true")
+    tokens = [make_token(secured, role) for role in ("user", "worker", "worker")]
+    as_user, holder, stranger = (
+        httpx.Client(
+            base_url=secured.url,
+            headers={"Authorization": f"Bearer {token}", **SDK_HEADERS},
+            timeout=30,
+        )
+        for token in tokens
+    )
+    with as_user, holder, stranger:
+        create(as_user, managed(PROMOTION, max_trials=2))
+        first, second = lease(holder, "w1"), lease(holder, "w2")
+        assert first is not None and second is not None
+        report(holder, first["trial_id"], "w1", 10, 1.0)
+        assert report(holder, second["trial_id"], "w2", 10, 0.5)["pause"] is True
+        upload_checkpoint(holder, second["trial_id"], "w2")
+        stolen = pause(stranger, second["trial_id"], "w2", 10)
+        assert stolen.status_code == 403, stolen.text
+        nameless = stranger.post(f"/api/v1/trials/{second['trial_id']}/pause", json={"step": 10})
+        assert nameless.status_code == 422 and "worker_id" in nameless.text
+        assert trial(holder, second["trial_id"])["state"] == "running"
+        assert pause(holder, second["trial_id"], "w2", 10).status_code == 200
