@@ -265,6 +265,7 @@ def _status_table(info: Study, dashboard: str) -> Table:
         ("complete", str(info.n_complete)),
         ("failed", str(info.n_failed)),
         ("pruned", str(info.n_pruned)),
+        ("paused", str(info.n_paused)),
         ("best value", _num(info.best_value)),
         ("best trial", "" if info.best_trial_id is None else str(info.best_trial_id)),
         ("created", _when(info.created_at)),

@@ -12,6 +12,7 @@ from typing import Any
 import httpx
 import pytest
 
+from tests.client.test_cli import run
 from tests.servers import SDK_HEADERS, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
@@ -93,7 +94,9 @@ def trial(http: httpx.Client, trial_id: int) -> dict[str, Any]:
     return dict(http.get(f"/api/v1/trials/{trial_id}").json())
 
 
-def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(http: httpx.Client) -> None:
+def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(
+    http: httpx.Client, live_server: ServerProcess
+) -> None:
     study = create(http, managed(PROMOTION, max_trials=4))
     a = lease(http, "wa")
     assert a is not None and a["resume"] is None
@@ -128,6 +131,11 @@ def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(http: httpx.Clie
     assert (info["n_paused"], info["n_running"], info["n_pruned"]) == (1, 1, 0)
     listed = http.get(f"/api/v1/studies/{study}/trials", params={"state": "paused"}).json()
     assert [t["id"] for t in listed] == [b["trial_id"]]
+    status = run(live_server.url, "status", str(study)).stdout
+    rows = [
+        [cell.strip() for cell in line.split("│") if cell.strip()] for line in status.splitlines()
+    ]
+    assert ["paused", "1"] in rows, status
 
     # Rung 10 holds [1.0, 0.5, 0.2]: 3 // 2 - 1 < 0, so only the best goes on; b waits.
     paused_at_rung(http, "wc", 0.2)
