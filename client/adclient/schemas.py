@@ -197,6 +197,9 @@ class BoxParam(_Strict):
     @model_validator(mode="after")
     def _check_bounds(self) -> BoxParam:
         where = f"param {self.name!r}"
+        for field, value in (("low", self.low), ("high", self.high), ("step", self.step)):
+            if isinstance(value, int) and abs(value) > 2**53:
+                raise ValueError(f"{where}: {field} must be within +-2**53 (exact as a float)")
         if self.type == "categorical":
             return self._check_choices(where)
         if self.choices is not None:
@@ -256,6 +259,8 @@ class BoxParam(_Strict):
         for choice in self.choices:
             if isinstance(choice, float):
                 _finite(choice, f"{where}: choice")
+            if isinstance(choice, int) and not isinstance(choice, bool) and abs(choice) > 2**53:
+                raise ValueError(f"{where}: a number choice must be within +-2**53")
         seen: list[Any] = []
         for choice in self.choices:
             if choice in seen:
@@ -547,9 +552,9 @@ class TrialColumns(BaseModel):
     number: list[int]
     state: list[TrialState]
     value: list[float | None]
-    params: dict[str, list[float | None]] = Field(
-        description="each param that has a number in some trial of the page: its values "
-        "(null where a trial has no number for it)"
+    params: dict[str, list[float | str | bool | None]] = Field(
+        description="each param that has a number (or, for a box's categorical param, a "
+        "choice) in some trial of the page: its values (null where a trial has none)"
     )
     next: int | None = Field(
         default=None,

@@ -48,7 +48,12 @@ def trial_columns(
     ``numbers`` (the ones the caller last saw still open), in order of number: at most
     ``limit`` trials and about ``SERIES_CELLS`` param values. ``next`` says where the
     following page starts; the listed ``numbers`` below it are all in this page."""
-    repository.get_study(session, study_id=study_id)
+    study = repository.get_study(session, study_id=study_id)
+    choices = {
+        param["name"]
+        for param in study.space.get("params", [])
+        if param.get("type") == "categorical"
+    }
     changed = TrialRow.number >= after
     if numbers:
         changed = sa.or_(changed, TrialRow.number.in_(sorted(set(numbers))))
@@ -74,11 +79,13 @@ def trial_columns(
     names: dict[str, None] = {}
     for row in rows:
         names.update(dict.fromkeys(row[3]))
-    params: dict[str, list[float | None]] = {}
+    params: dict[str, list[float | str | bool | None]] = {}
     for name in names:
         found = [row[3].get(name) for row in rows]
         # Numbers only (what can be plotted); exact types, as parsed JSON has, leave out bools.
-        column = [item if type(item) is float or type(item) is int else None for item in found]
+        # A categorical param's choices are plotted too (the dashboard places them on ticks).
+        kinds = (float, int, str, bool) if name in choices else (float, int)
+        column = [item if type(item) in kinds else None for item in found]
         if any(item is not None for item in column):
             params[name] = column
     return TrialColumns.model_construct(

@@ -798,3 +798,58 @@ def test_pruned_trials_in_the_progress_bar_counts_and_filter(
             "[...document.querySelectorAll('[data-filter] option')].map(o => o.textContent)"
         )
         assert "pruned" in options
+
+
+def test_int_and_categorical_params_are_charted_with_their_choices_as_ticks(
+    live_server: ServerProcess, browser: Chromium
+) -> None:
+    """A categorical param is an axis of the parallel coordinates and a slice plot whose
+    ticks are its choices (in the space's order), an int param an axis of its own; the
+    trial table shows each param as the trial has it (an int without a decimal point)."""
+    choices = ["relu", "tanh", "gelu"]
+    space = {
+        "type": "box",
+        "params": [
+            {"name": "width", "type": "int", "low": 1, "high": 64, "log": True},
+            {"name": "activation", "type": "categorical", "choices": choices},
+        ],
+    }
+    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+        body = {"name": "typed", "space": space, "proposer": {"name": "random", "seed": 4}}
+        study_id = http.post("/api/v1/studies", json=body).raise_for_status().json()["id"]
+        trials = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 12}).json()["trials"]
+        for trial in trials:
+            value = trial["params"]["width"] + 10 * choices.index(trial["params"]["activation"])
+            tell(http, trial["id"], value=value)
+        series = http.get(f"/api/v1/dashboard/studies/{study_id}/series").json()
+    assert series["params"]["activation"] == [t["params"]["activation"] for t in trials]
+    assert series["params"]["width"] == [t["params"]["width"] for t in trials]
+    assert {t["params"]["activation"] for t in trials} == set(choices)  # all three vary
+
+    browser.navigate(f"{live_server.url}/#/studies/{study_id}")
+    browser.wait_for(STUDY_PAGE_READY)
+    parallel = "document.querySelector('[data-parallel]')"
+    assert browser.evaluate(f"{parallel}.dataset.lines") == "12"
+    assert browser.evaluate(f"{parallel}.dataset.drawn") == "12"
+    assert json.loads(browser.evaluate(f"{parallel}.dataset.ticks")) == {"activation": choices}
+    assert browser.evaluate(f"{COUNT_PIXELS}('[data-parallel]', null, 0)") > 1000
+    browser.evaluate("document.querySelector('button[data-tab=\"slices\"]').click()")
+    captions = browser.evaluate(
+        "[...document.querySelectorAll('[data-slices] figcaption')].map(c => c.textContent)"
+    )
+    assert sorted(captions) == ["activation", "width"]
+    ticks = {
+        name: json.loads(
+            browser.evaluate(
+                f"document.querySelector('[data-slices] figure:nth-child({k + 1}) canvas')"
+                ".dataset.ticks"
+            )
+        )
+        for k, name in enumerate(captions)
+    }
+    assert ticks == {"activation": choices, "width": None}
+    rows = browser.evaluate(
+        "[...document.querySelectorAll('[data-trials] tbody td.params')].map(c => c.textContent)"
+    )
+    assert rows and all("width=" in row and "." not in row.split("width=")[1] for row in rows)
+    assert browser.errors == []

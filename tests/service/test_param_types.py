@@ -143,6 +143,7 @@ BAD_PARAMS: list[tuple[dict[str, Any], str]] = [
     ({"name": "a", "type": "categorical", "choices": ["x"], "log": True}, "log does not apply"),
     ({"name": "x", "low": 0, "high": 1, "choices": [1, 2]}, "choices belong to a categorical"),
     ({"name": "n", "type": "int", "low": 3}, "needs high"),
+    ({"name": "n", "type": "int", "low": 0, "high": 10**400}, "high must be within +-2**53"),
     ({"name": "n", "type": "integer", "low": 0, "high": 3}, "type"),
 ]
 

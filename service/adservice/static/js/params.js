@@ -15,6 +15,7 @@ import {
   prepare,
 } from './charts.js';
 import { element, esc, finder } from './html.js';
+import { isChoices } from './series.js';
 
 const PARALLEL_AXES = 8;
 const SLICE_PLOTS = 12;
@@ -27,6 +28,30 @@ function clipText(ctx, text, width) {
 }
 
 const MAX_LINES = 2500;
+const MAX_TICKS = 12;
+
+/**
+ * A param's column as numbers to plot, and for a categorical param the labels of its
+ * ticks: its choices in the space's order (each plotted at its index), or, without a
+ * space that names them, the text values in order of appearance.
+ */
+function plotted(series, name, study) {
+  const column = series.params[name];
+  const spec = study.space?.params?.find?.((param) => param.name === name);
+  if (spec?.type !== 'categorical' && !isChoices(column)) return { column, labels: null };
+  const labels = spec?.choices ?? [...new Set(column.filter((v) => v !== null && v !== undefined))];
+  const index = new Map(labels.map((choice, i) => [choice, i]));
+  return {
+    column: column.map((value) => index.get(value) ?? null),
+    labels: labels.map(String),
+  };
+}
+
+/** Which tick indices of a categorical axis to label: all, or an even subset of many. */
+function labelled(labels) {
+  const stride = Math.ceil(labels.length / MAX_TICKS);
+  return labels.map((_, i) => i).filter((i) => i % stride === 0);
+}
 
 /**
  * Polylines across the axes `names` and the score, coloured by rank of score (yellow =
@@ -34,7 +59,7 @@ const MAX_LINES = 2500;
  * draws the best half of that many and an even sample of the rest (rasterising
  * thousands of translucent lines is what costs), and says so in its return value.
  */
-function drawParallel(canvas, series, names, direction) {
+function drawParallel(canvas, series, names, direction, study) {
   const { ctx, width, height } = prepare(canvas);
   const { complete } = series;
   canvas.dataset.lines = String(complete.length);
@@ -66,9 +91,15 @@ function drawParallel(canvas, series, names, direction) {
   }
   canvas.dataset.drawn = String(rows.length);
   const pad = { left: 40, right: 48, top: 34, bottom: 22 };
-  const columns = [...names.map((name) => series.params[name]), series.value];
+  const axes = [...names.map((name) => plotted(series, name, study)), { column: series.value }];
+  const columns = axes.map((axis) => axis.column);
   const labels = [...names, 'score'];
-  const ranges = columns.map((column) => extent(rows.map((i) => column[i])));
+  canvas.dataset.ticks = JSON.stringify(
+    Object.fromEntries(names.map((name, k) => [name, axes[k].labels]).filter(([, ticks]) => ticks)),
+  );
+  const ranges = axes.map(({ column, labels: ticks }) =>
+    ticks ? [-0.5, ticks.length - 0.5] : extent(rows.map((i) => column[i])),
+  );
   const span = (width - pad.left - pad.right) / Math.max(columns.length - 1, 1);
   const axisX = columns.map((_, k) => pad.left + k * span);
   const top = pad.top;
@@ -114,6 +145,14 @@ function drawParallel(canvas, series, names, direction) {
     ctx.fillText(clipText(ctx, labels[k], Math.max(span - 8, 40)), anchor, 12);
     ctx.font = FONT;
     ctx.fillStyle = AXIS;
+    const ticks = axes[k].labels;
+    if (ticks) {
+      ctx.textAlign = k === columns.length - 1 ? 'right' : 'left';
+      for (const i of labelled(ticks)) {
+        ctx.fillText(clipText(ctx, ticks[i], Math.max(span - 12, 30)), px + 4, y(k, i));
+      }
+      return;
+    }
     ctx.fillText(formatNumber(ranges[k][1]), anchor, top - 10);
     ctx.fillText(formatNumber(ranges[k][0]), anchor, bottom + 11);
   });
@@ -121,7 +160,7 @@ function drawParallel(canvas, series, names, direction) {
 }
 
 /** Small scatter plots of each param in `names` against the score, early trials pale. */
-function drawSlices(container, series, names) {
+function drawSlices(container, series, names, study) {
   const rows = series.complete;
   const wanted = names.join('\n');
   if (container.dataset.names !== wanted) {
@@ -146,14 +185,30 @@ function drawSlices(container, series, names) {
   const lastNumber = series.number.length ? series.number[series.number.length - 1] : 1;
   const [yLow, yHigh] = extent(rows.map((i) => series.value[i]));
   container.querySelectorAll('canvas').forEach((canvas, k) => {
-    const column = series.params[names[k]];
+    const { column, labels } = plotted(series, names[k], study);
     const { ctx, width, height } = prepare(canvas);
     const pad = { left: 44, right: 8, top: 6, bottom: 22 };
-    const [xLow, xHigh] = extent(rows.map((i) => column[i]));
+    const [xLow, xHigh] = labels ? [-0.5, labels.length - 0.5] : extent(rows.map((i) => column[i]));
     const x = (v) => pad.left + ((v - xLow) / (xHigh - xLow)) * (width - pad.left - pad.right);
     const y = (v) => height - pad.bottom - ((v - yLow) / (yHigh - yLow)) * (height - pad.top - pad.bottom);
     drawYAxis(ctx, pad.left, pad.top, height - pad.bottom, width - pad.right, yLow, yHigh, y);
-    drawXAxis(ctx, pad.left, width - pad.right, height - pad.bottom, xLow, xHigh, x, false);
+    canvas.dataset.ticks = JSON.stringify(labels);
+    if (labels) {
+      ctx.strokeStyle = AXIS;
+      ctx.beginPath();
+      ctx.moveTo(pad.left, height - pad.bottom + 0.5);
+      ctx.lineTo(width - pad.right, height - pad.bottom + 0.5);
+      ctx.stroke();
+      ctx.fillStyle = AXIS;
+      ctx.textAlign = 'center';
+      ctx.textBaseline = 'top';
+      const room = (width - pad.left - pad.right) / labels.length;
+      for (const i of labelled(labels)) {
+        ctx.fillText(clipText(ctx, labels[i], Math.max(room - 4, 24)), x(i), height - pad.bottom + 6);
+      }
+    } else {
+      drawXAxis(ctx, pad.left, width - pad.right, height - pad.bottom, xLow, xHigh, x, false);
+    }
     const groups = PALETTE.map(() => []);
     for (const i of rows) {
       if (column[i] === null || column[i] === undefined) continue;
@@ -210,7 +265,7 @@ export class ParamsPanel {
       notes.push(`The ${shown} of ${names.length} varying params most rank-correlated with the score.`);
     }
     if (this.tab === 'parallel') {
-      const lines = drawParallel(parallel, series, names.slice(0, PARALLEL_AXES), study.direction);
+      const lines = drawParallel(parallel, series, names.slice(0, PARALLEL_AXES), study.direction, study);
       if (lines.drawn < lines.total) {
         notes.push(
           `Lines: the best ${lines.best.toLocaleString()} of ${lines.total.toLocaleString()} ` +
@@ -218,7 +273,7 @@ export class ParamsPanel {
         );
       }
     } else if (this.tab === 'slices') {
-      drawSlices(slices, series, names.slice(0, SLICE_PLOTS));
+      drawSlices(slices, series, names.slice(0, SLICE_PLOTS), study);
       notes.push('Colour: trial number, yellow early to purple late.');
     }
     this.$('params-note').textContent = notes.join(' ');

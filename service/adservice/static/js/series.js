@@ -133,13 +133,35 @@ function pearson(a, b) {
   return saa > 0 && sbb > 0 ? sab / Math.sqrt(saa * sbb) : 0;
 }
 
+/** Whether a column holds a categorical param's choices as text or booleans. */
+export function isChoices(column) {
+  return column.some((value) => typeof value === 'string' || typeof value === 'boolean');
+}
+
+/** Each complete trial's choice replaced by its choice's mean score: the choices have no
+ * order of their own, so the correlation says how strongly the choice goes with the score. */
+function meanScores(series, column) {
+  const sums = new Map();
+  for (const i of series.complete) {
+    if (column[i] === null || column[i] === undefined) continue;
+    const [sum, count] = sums.get(column[i]) ?? [0, 0];
+    sums.set(column[i], [sum + series.value[i], count + 1]);
+  }
+  return column.map((value) => {
+    const found = sums.get(value);
+    return found ? found[0] / found[1] : null;
+  });
+}
+
 /**
- * Spearman rank correlation of each varying numeric param with the score over complete
- * trials, strongest first: a cheap guide to which params matter (not a causal importance).
+ * Spearman rank correlation of each varying param with the score over complete trials
+ * (a categorical one's choices ranked by their mean score), strongest first: a cheap
+ * guide to which params matter (not a causal importance).
  */
 export function paramCorrelations(series) {
   const result = [];
-  for (const [name, column] of Object.entries(series.params)) {
+  for (const [name, values] of Object.entries(series.params)) {
+    const column = isChoices(values) ? meanScores(series, values) : values;
     const xs = [];
     const ys = [];
     for (const i of series.complete) {
