@@ -37,7 +37,7 @@ from adclient.errors import (
     Unauthorized,
     Unavailable,
 )
-from adclient.schemas import Study, Trial, TrialState
+from adclient.schemas import BoxSpace, Study, Trial, TrialState
 
 DEFAULT_SERVER = "http://127.0.0.1:8000"
 CLI_RETRIES = 3
@@ -246,6 +246,24 @@ def _best_table(trial: Trial) -> Table:
     return table
 
 
+def _space_text(space: Any) -> str:
+    """A box's params with their types and ranges (``n int [1, 64] log``, ``act in relu,
+    tanh``); a design space by its type alone."""
+    if not isinstance(space, BoxSpace):
+        return str(space.type)
+    parts = []
+    for param in space.params:
+        if param.type == "categorical":
+            choices = ", ".join(_compact(choice) for choice in param.choices or [])
+            parts.append(f"{param.name} in {{{choices}}}")
+            continue
+        text = f"{param.name} {param.type} [{_compact(param.low)}, {_compact(param.high)}]"
+        text += " log" if param.log else ""
+        text += f" step {_compact(param.step)}" if param.step is not None else ""
+        parts.append(text)
+    return "box: " + "; ".join(parts)
+
+
 def _status_table(info: Study, dashboard: str) -> Table:
     table = Table(title=f"study {info.id}: {info.name}", show_header=False)
     table.add_column("field", style="bold")
@@ -255,7 +273,7 @@ def _status_table(info: Study, dashboard: str) -> Table:
         ("state", info.state.value),
         ("direction", info.direction.value),
         ("managed", "yes" if info.managed else "no"),
-        ("space", info.space.type),
+        ("space", _space_text(info.space)),
         ("proposer", info.proposer.name),
         ("pruner", info.pruner.name),
         ("task", info.task.name if info.task is not None else ""),

@@ -340,3 +340,42 @@ def test_server_and_token_come_from_the_environment() -> None:
 def test_version_and_help() -> None:
     assert "adclient 0.1.0" in ok(run("", "--version")).stdout
     assert "submit" in ok(run("", "--help")).stdout
+
+
+def test_typed_params_in_status_trials_best_and_export(
+    server: ServerProcess, client: Client
+) -> None:
+    """Ints, log floats and choices as the SDK gets them (ints as int, a choice as given),
+    in the CLI's tables and in both exports."""
+    space = {
+        "type": "box",
+        "params": [
+            {"name": "lr", "low": 1e-4, "high": 1.0, "log": True},
+            {"name": "width", "type": "int", "low": 8, "high": 512, "log": True},
+            {"name": "act", "type": "categorical", "choices": ["relu", "tanh"]},
+        ],
+    }
+    study = client.create_study(name="typed-cli", space=space, proposer={"name": "tpe"})
+    study.optimize(lambda t: t.params["width"] * (2 if t.params["act"] == "tanh" else 1), 4)
+    trials = study.trials
+    assert all(
+        type(t.params["width"]) is int and t.params["act"] in ("relu", "tanh") for t in trials
+    )
+    assert all(type(t.params["lr"]) is float for t in trials)
+
+    status = ok(run(server.url, "status", str(study.id))).stdout
+    assert "width int [8, 512] log" in status and "lr float [0.0001, 1] log" in status
+    assert "act in {relu, tanh}" in status
+    listed = ok(run(server.url, "trials", str(study.id))).stdout
+    for trial in trials:
+        assert f"width={trial.params['width']}, act={trial.params['act']}" in listed
+    rows = list(csv.DictReader(io.StringIO(ok(run(server.url, "export", str(study.id))).stdout)))
+    by_number = {int(row["number"]): row for row in rows}
+    for trial in trials:
+        row = by_number[trial.number]
+        assert row["params_width"] == str(trial.params["width"])  # no ".0"
+        assert row["params_act"] == trial.params["act"]
+        assert float(row["params_lr"]) == trial.params["lr"]
+    exported = json.loads(ok(run(server.url, "export", str(study.id), "--format", "json")).stdout)
+    assert [t["params"] for t in exported["trials"]] == [t.params for t in trials]
+    assert exported["study"]["space"]["params"][2]["choices"] == ["relu", "tanh"]
