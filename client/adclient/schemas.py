@@ -175,6 +175,7 @@ StoredJsonObject = Annotated[dict[str, Any], AfterValidator(_shown_json)]
 Choice = Annotated[str | bool | int | float, Field(description="a choice")]
 """A categorical param's choice: text, a boolean or a number, kept exactly as given."""
 _NUMERIC_FIELDS = ("low", "high", "log", "step")
+MAX_CHOICES = 1000
 
 
 class BoxParam(_Strict):
@@ -190,9 +191,7 @@ class BoxParam(_Strict):
     step: int | float | None = Field(
         default=None, description="values only on the grid low, low + step, ..., high"
     )
-    choices: list[Choice] | None = Field(
-        default=None, max_length=1000, description="a categorical param's values"
-    )
+    choices: list[Choice] | None = Field(default=None, description="a categorical param's values")
 
     @model_validator(mode="after")
     def _check_bounds(self) -> BoxParam:
@@ -248,6 +247,8 @@ class BoxParam(_Strict):
             raise ValueError(f"{where}: {', '.join(given)} {verb} not apply to a categorical param")
         if not self.choices:
             raise ValueError(f"{where}: a categorical param needs a non-empty list of choices")
+        if len(self.choices) > MAX_CHOICES:
+            raise ValueError(f"{where}: at most {MAX_CHOICES} choices, got {len(self.choices)}")
         kinds = {
             "text" if isinstance(c, str) else "boolean" if isinstance(c, bool) else "number"
             for c in self.choices
