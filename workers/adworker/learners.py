@@ -372,7 +372,7 @@ class StableBaselinesLearner(Learner):
             policy=_deterministic(model),
             train_steps=int(model.num_timesteps),
             curve=curve,
-            info={"algorithm": self.algorithm, "resumed_at": resumed_at},
+            info={"algorithm": self.algorithm},
         )
 
     def checkpoint(self, model: Any) -> bytes:
@@ -406,6 +406,7 @@ class StableBaselinesLearner(Learner):
             if REPLAY_MEMBER in archive.namelist():
                 model.load_replay_buffer(io.BytesIO(archive.read(REPLAY_MEMBER)))
         model._last_obs = None
+        # Seeded from the step it resumes at: not the exploration it started with.
         model.set_random_seed(seed + int(model.num_timesteps))
         return model
 
