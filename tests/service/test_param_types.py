@@ -276,3 +276,34 @@ def test_qei_keeps_ints_and_choices_discrete_in_a_mixed_space() -> None:
         y = np.append(y, [score(box.decode(v)) for v in candidates])
     # it learns: the best of 20 is far better than the 3 Sobol points' best
     assert y.max() > y[:2].max() + 0.5
+
+
+def test_qei_starts_by_trying_every_choice() -> None:
+    """With n_initial 2 and four choices, the first four trials are its initial design,
+    one choice each (a choice never seen looks average to the model and stays unseen)."""
+    box = BoxEncoding.of(
+        {
+            "type": "box",
+            "params": [
+                {"name": "x", "low": 0.0, "high": 1.0},
+                {"name": "a", "type": "categorical", "choices": ["p", "q", "r", "s"]},
+            ],
+        }
+    )
+    X = empty_history(2)
+    for n in range(4):
+        request = ProposalRequest(
+            bounds=box.bounds,
+            count=1,
+            seed=9,
+            n_issued=n,
+            X=X,
+            y=-np.arange(n, dtype=float),
+            failed=empty_history(2),
+            pending=empty_history(2),
+            box=box,
+        )
+        proposal = get_proposer("qei").propose(request)
+        assert proposal.info[0]["method"] == "sobol-initial"
+        X = np.vstack([X, proposal.candidates])
+    assert sorted(box.decode(row)["a"] for row in X) == ["p", "q", "r", "s"]
