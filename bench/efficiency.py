@@ -24,6 +24,13 @@ budget" and the median is ">budget" when more than half are unreached.
 Run: ``.venv/bin/python bench/efficiency.py`` (10 seeds, both functions, all methods,
 writes bench/RESULTS.md and docs/efficiency_*.png); ``--seeds 3 --no-write`` while
 developing.
+
+Mixed-type params (issue 16), ``--mixed``: two objectives over ints, a log-scaled
+float and a categorical (``MIXED``), 40 evaluations each, qei (the service's encoding
+and snapping, ``adclient.boxspace``) side by side with Optuna's GPSampler and
+TPESampler given the same params as Optuna distributions, and random, same seeds;
+the score is the median best value after 40 evaluations (section "Mixed-type params
+(issue 16)" of bench/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,10 +51,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 sys.path.insert(0, str(ROOT))
 
+from adclient.boxspace import BoxEncoding  # noqa: E402
 from adservice.proposers import get_proposer  # noqa: E402
 from adservice.proposers.base import ProposalRequest, empty_history  # noqa: E402
 from adservice.proposers.simple import sobol_points  # noqa: E402
-from bench.proposer_results import write_subsection  # noqa: E402
+from bench.proposer_results import write_section, write_subsection  # noqa: E402
 
 
 def branin(x: np.ndarray) -> float:
@@ -113,14 +122,25 @@ class Run:
         return int(reached[0]) + 1 if len(reached) else None
 
 
-def run_proposer(name: str, problem: Problem, seed: int) -> Run:
+def ask_loop(
+    name: str,
+    *,
+    bounds: np.ndarray,
+    seed: int,
+    budget: int,
+    evaluate: Callable[[np.ndarray], float],
+    box: BoxEncoding | None = None,
+    done: Callable[[float], bool] = lambda value: False,
+) -> Run:
+    """The service's proposer asked one point at a time in-process; a typed box's
+    proposals snapped as the service stores them."""
     proposer = get_proposer(name)
-    dim = problem.bounds.shape[1]
+    dim = bounds.shape[1]
     X, y = empty_history(dim), np.zeros(0)
     run = Run()
-    for n in range(problem.budget):
+    for n in range(budget):
         request = ProposalRequest(
-            bounds=problem.bounds,
+            bounds=bounds,
             count=1,
             seed=seed,
             n_issued=n,
@@ -128,17 +148,30 @@ def run_proposer(name: str, problem: Problem, seed: int) -> Run:
             y=y,
             failed=empty_history(dim),
             pending=empty_history(dim),
+            box=box,
         )
         started = time.perf_counter()
-        (x,) = proposer.propose(request).candidates
+        candidates = proposer.propose(request).candidates
+        x = candidates[0] if box is None else box.snap(candidates)[0]
         run.ask_seconds.append(time.perf_counter() - started)
-        value = problem.function(x)
+        value = evaluate(x)
         run.values.append(value)
         X = np.vstack([X, x])
         y = np.append(y, -value)  # the service orients y so that larger is better
-        if value - problem.optimum <= problem.tolerance:
+        if done(value):
             break
     return run
+
+
+def run_proposer(name: str, problem: Problem, seed: int) -> Run:
+    return ask_loop(
+        name,
+        bounds=problem.bounds,
+        seed=seed,
+        budget=problem.budget,
+        evaluate=problem.function,
+        done=lambda value: value - problem.optimum <= problem.tolerance,
+    )
 
 
 def run_gp_optuna(problem: Problem, seed: int, *, qei_start: bool = False) -> Run:
@@ -248,6 +281,229 @@ def plot(problem: Problem, runs: dict[str, list[Run]], path: Path) -> None:
     plt.close(figure)
 
 
+def hyperparameters(p: dict[str, Any]) -> float:
+    """A learner's loss over its hyperparameters, smooth: each activation has its own best
+    learning rate (10^-3.2 for gelu, 10^-1.5 for sigmoid) and floor (gelu 0, relu 0.3),
+    the rate spans five decades (only a log scale searches it evenly), the width two
+    octaves either side of 64. f* = 0 (gelu, lr 10^-3.2, width 64, 3 layers, dropout 0.25)."""
+    best_lr, floor = _ACTIVATIONS[p["activation"]]
+    depth = p["layers"] - 3
+    octaves = math.log2(p["width"]) - 6
+    return (
+        floor
+        + 0.5 * (math.log10(p["lr"]) - best_lr) ** 2
+        + 0.15 * octaves**2
+        + 0.2 * depth**2
+        + 0.1 * depth * octaves
+        + 2.0 * (p["dropout"] - 0.25) ** 2
+    )
+
+
+_ACTIVATIONS = {
+    "relu": (-3.0, 0.3),
+    "tanh": (-2.0, 0.6),
+    "sigmoid": (-1.5, 1.0),
+    "gelu": (-3.2, 0.0),
+}
+
+
+def rugged(p: dict[str, Any]) -> float:
+    """Interactions and ripples: the kind picks where the two ints are best and the
+    scale's decade; x must follow half the scale's decade (a curved valley through a
+    log scale), and n1 ripples (period 4). f* = 0 (kind c, n1 11, n2 3, scale 10^0.5, x
+    0.25)."""
+    a, b, u, offset = _KINDS[p["kind"]]
+    decade = math.log10(p["scale"])
+    return (
+        offset
+        + ((p["n1"] - a) / 4) ** 2
+        + ((p["n2"] - b) / 4) ** 2
+        + 0.3 * (1 - math.cos(math.pi * (p["n1"] - a) / 2))
+        + (p["x"] - 0.5 * decade) ** 2
+        + 0.3 * (decade - u) ** 2
+    )
+
+
+_KINDS = {
+    "a": (3, 12, -2.0, 0.5),
+    "b": (8, 8, 2.0, 0.25),
+    "c": (11, 3, 0.5, 0.0),
+    "d": (1, 1, -1.0, 0.4),
+    "e": (14, 14, 2.5, 0.6),
+}
+
+
+@dataclass(frozen=True)
+class MixedProblem:
+    name: str
+    function: Callable[[dict[str, Any]], float]
+    space: dict[str, Any]
+    budget: int = 40
+
+    @property
+    def box(self) -> BoxEncoding:
+        return BoxEncoding.of(self.space)
+
+
+MIXED = {
+    "hyperparameters": MixedProblem(
+        "Hyperparameters",
+        hyperparameters,
+        {
+            "type": "box",
+            "params": [
+                {"name": "lr", "low": 1e-5, "high": 1.0, "log": True},
+                {"name": "width", "type": "int", "low": 4, "high": 1024, "log": True},
+                {"name": "layers", "type": "int", "low": 1, "high": 8},
+                {"name": "dropout", "low": 0.0, "high": 0.8},
+                {"name": "activation", "type": "categorical", "choices": list(_ACTIVATIONS)},
+            ],
+        },
+    ),
+    "rugged": MixedProblem(
+        "Rugged",
+        rugged,
+        {
+            "type": "box",
+            "params": [
+                {"name": "n1", "type": "int", "low": 0, "high": 15},
+                {"name": "n2", "type": "int", "low": 0, "high": 15},
+                {"name": "scale", "low": 1e-3, "high": 1e3, "log": True},
+                {"name": "x", "low": -3.0, "high": 3.0},
+                {"name": "kind", "type": "categorical", "choices": list(_KINDS)},
+            ],
+        },
+    ),
+}
+MIXED_METHODS = ["qei", "gp-optuna", "tpe-optuna", "random"]
+
+
+def run_mixed_proposer(name: str, problem: MixedProblem, seed: int) -> Run:
+    box = problem.box
+    return ask_loop(
+        name,
+        bounds=box.bounds,
+        seed=seed,
+        budget=problem.budget,
+        evaluate=lambda x: problem.function(box.decode(x)),
+        box=box,
+    )
+
+
+def run_mixed_optuna(sampler_name: str, problem: MixedProblem, seed: int) -> Run:
+    """Optuna's own sampler over the same params as its distributions (defaults;
+    GPSampler told the objective is deterministic, as qei is)."""
+    import optuna
+    from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    distributions: dict[str, Any] = {}
+    for p in problem.box.params:
+        if p.type == "categorical":
+            distributions[p.name] = CategoricalDistribution(p.choices or [])
+        elif p.type == "int":
+            distributions[p.name] = IntDistribution(int(p.low or 0), int(p.high or 0), log=p.log)
+        else:
+            distributions[p.name] = FloatDistribution(
+                float(p.low or 0), float(p.high or 0), log=p.log
+            )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sampler: optuna.samplers.BaseSampler
+        if sampler_name == "gp-optuna":
+            sampler = optuna.samplers.GPSampler(seed=seed, deterministic_objective=True)
+        else:
+            sampler = optuna.samplers.TPESampler(seed=seed)
+        study = optuna.create_study(direction="minimize", sampler=sampler)
+        run = Run()
+        for _ in range(problem.budget):
+            started = time.perf_counter()
+            trial = study.ask(distributions)
+            run.ask_seconds.append(time.perf_counter() - started)
+            value = problem.function(trial.params)
+            study.tell(trial, value)
+            run.values.append(value)
+    return run
+
+
+def summarise_mixed(problem: MixedProblem, runs: dict[str, list[Run]]) -> tuple[list[str], bool]:
+    """The table of best values after the budget (lower is better) and whether qei's
+    median is at or below both Optuna samplers'."""
+    rows = [
+        f"**{problem.name}** ({len(problem.space['params'])} params: "
+        + ", ".join(
+            f"{p['name']} {p.get('type', 'float')}{' log' if p.get('log') else ''}"
+            for p in problem.space["params"]
+        )
+        + f"; minimised, f* = 0; best after {problem.budget} evaluations)",
+        "",
+        "| method | median best | quartiles | per-seed best | median ask (s) |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    medians = {}
+    for method, method_runs in runs.items():
+        best = np.array([min(run.values[: problem.budget]) for run in method_runs])
+        medians[method] = float(np.median(best))
+        low, high = np.percentile(best, [25, 75])
+        asks = np.concatenate([run.ask_seconds for run in method_runs])
+        rows.append(
+            f"| {method} | {medians[method]:.4f} | {low:.4f}-{high:.4f} | "
+            f"{' '.join(f'{b:.3f}' for b in best)} | {np.median(asks):.3f} |"
+        )
+    met = all(medians["qei"] <= medians[other] for other in ("gp-optuna", "tpe-optuna"))
+    return rows, met
+
+
+def run_mixed(key: str, method: str, seed: int) -> Run:
+    problem = MIXED[key]
+    if method.endswith("-optuna"):
+        return run_mixed_optuna(method, problem, seed)
+    return run_mixed_proposer(method, problem, seed)
+
+
+def main_mixed(args: argparse.Namespace) -> None:
+    """Every (objective, method, seed) run, ``--jobs`` at a time in processes of their own."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    started = time.perf_counter()
+    report: list[str] = []
+    verdicts = []
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    tasks = [(key, method, seed) for key in MIXED for method in MIXED_METHODS for seed in seeds]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futures = {task: pool.submit(run_mixed, *task) for task in tasks}
+        for (key, method, seed), future in futures.items():
+            run = future.result()
+            print(
+                f"{MIXED[key].name} {method} seed {seed}: best {min(run.values):.4f}, "
+                f"{sum(run.ask_seconds):.1f} s asking",
+                flush=True,
+            )
+    for key, problem in MIXED.items():
+        runs = {
+            method: [futures[(key, method, seed)].result() for seed in seeds]
+            for method in MIXED_METHODS
+        }
+        rows, met = summarise_mixed(problem, runs)
+        verdicts.append(f"{problem.name}: {'met' if met else 'missed'}")
+        print("\n".join(rows), flush=True)
+        report += [*rows, ""]
+    elapsed = time.perf_counter() - started
+    report.append(
+        "Goal: qei's median best after 40 evaluations at or below (better than or equal "
+        f"to) both GPSampler's and TPESampler's. {'; '.join(verdicts)}."
+    )
+    report.append("")
+    report.append(
+        f"{args.seeds} seeds ({args.first_seed}-{args.first_seed + args.seeds - 1}), each "
+        "method the same seeds, runs side by side (ask times are under that load); run with "
+        f"`nice -n 10 .venv/bin/python bench/efficiency.py {' '.join(sys.argv[1:])}` on 2 "
+        f"shared CPU cores, {elapsed / 60:.1f} min in all. Ask times are in-process."
+    )
+    if not args.no_write:
+        write_section("## Mixed-type params (issue 16)", "\n".join(report))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
@@ -255,7 +511,14 @@ def main() -> None:
     parser.add_argument("--functions", nargs="+", default=list(PROBLEMS), choices=list(PROBLEMS))
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
     parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument(
+        "--mixed", action="store_true", help="the mixed-type objectives (issue 16) instead"
+    )
+    parser.add_argument("--jobs", type=int, default=1, help="--mixed: runs at once")
     args = parser.parse_args()
+    if args.mixed:
+        main_mixed(args)
+        return
 
     started = time.perf_counter()
     report: list[str] = []

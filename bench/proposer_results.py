@@ -37,3 +37,14 @@ def write_subsection(subheading: str, body: str, path: Path = RESULTS) -> None:
     block = f"{subheading}\n\n{body.strip()}\n\n"
     section = head + block + tail if old else section.rstrip("\n") + "\n\n" + block
     path.write_text(before + section.rstrip("\n") + "\n\n" + after.lstrip("\n"))
+
+
+def write_section(heading: str, body: str, path: Path = RESULTS) -> None:
+    """Replace (or append) the top-level ``## heading`` section of its own."""
+    text = path.read_text() if path.exists() else "# Benchmark results\n\n"
+    before, old, after = _split(text, heading, 2)
+    block = f"{heading}\n\n{body.strip()}\n\n"
+    if old:
+        path.write_text(before + block + after.lstrip("\n"))
+    else:
+        path.write_text(text.rstrip("\n") + "\n\n" + block)
