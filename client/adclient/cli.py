@@ -22,6 +22,7 @@ import typer
 import yaml
 from pydantic import BaseModel
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -92,7 +93,7 @@ def _err() -> Console:
 
 def fail(message: str, code: int = 1) -> NoReturn:
     """End the command with one line on stderr."""
-    _err().print(f"[bold red]error:[/] {message}", markup=True, highlight=False)
+    _err().print(f"[bold red]error:[/] {escape(message)}", markup=True, highlight=False)
     raise typer.Exit(code)
 
 
@@ -223,9 +224,9 @@ def _trial_table(trials: list[Trial], title: str | None = None) -> Table:
             str(trial.id),
             trial.state.value,
             _num(trial.value),
-            trial.worker_id or "",
+            escape(trial.worker_id or ""),
             str(trial.attempts),
-            _compact(trial.params, 100),
+            escape(_compact(trial.params, 100)),
         )
     return table
 
@@ -240,7 +241,7 @@ def _best_table(trial: Trial) -> Table:
     table.add_column("param")
     table.add_column("value", overflow="fold")
     for name, value in trial.params.items():
-        table.add_row(name, _compact(value, 200))
+        table.add_row(escape(name), escape(_compact(value, 200)))
     for name, value in trial.metrics.items():
         table.add_row(f"metric {name}", _num(value))
     return table
@@ -265,7 +266,7 @@ def _space_text(space: Any) -> str:
 
 
 def _status_table(info: Study, dashboard: str) -> Table:
-    table = Table(title=f"study {info.id}: {info.name}", show_header=False)
+    table = Table(title=f"study {info.id}: {escape(info.name)}", show_header=False)
     table.add_column("field", style="bold")
     table.add_column("value", overflow="fold")
     budget = f"/{info.max_trials}" if info.max_trials is not None else ""
@@ -289,9 +290,10 @@ def _status_table(info: Study, dashboard: str) -> Table:
         ("created", _when(info.created_at)),
         ("updated", _when(info.updated_at)),
         ("dashboard", dashboard),
+        *((f"user attr {key}", _compact(value, 200)) for key, value in info.user_attrs.items()),
     ]
     for field, value in rows:
-        table.add_row(field, value)
+        table.add_row(escape(field), escape(value))
     return table
 
 
@@ -332,7 +334,7 @@ def submit(
             typer.echo(str(study.id))
         else:
             out = _out()
-            out.print(f"study {study.id} created: {info.name}")
+            out.print(f"study {study.id} created: {escape(info.name)}")
             out.print(f"dashboard: {study.dashboard_url}")
         if not wait:
             return
@@ -402,7 +404,7 @@ def studies(
         budget = f"/{info.max_trials}" if info.max_trials is not None else ""
         table.add_row(
             str(info.id),
-            info.name,
+            escape(info.name),
             info.direction.value,
             info.state.value,
             f"{info.n_trials}{budget}",
@@ -542,7 +544,33 @@ def export(
         output.write_text(text, encoding="utf-8")
     except OSError as exc:
         fail(f"cannot write {output}: {exc.strerror or exc}")
-    _err().print(f"wrote study {study_id} to {output}")
+    _err().print(f"wrote study {study_id} to {escape(str(output))}")
+
+
+@app.command()
+@friendly
+def delete(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    force: bool = typer.Option(
+        False, "--force", help="Also while workers hold leases on its trials (cancelled)."
+    ),
+    yes: bool = typer.Option(False, "--yes", "-y", help="Do not ask for confirmation."),
+) -> None:
+    """Delete a study with its trials, reports and artifacts: its owner or an admin."""
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        info = client.study_info(study_id)
+        question = (
+            f"Delete study {study_id} ({info.name}) with its {info.n_trials} trials "
+            "and their artifacts?"
+        )
+        if not yes and not typer.confirm(question):
+            fail(f"study {study_id} not deleted")
+        try:
+            client.delete_study(study_id, force=force)
+        except Conflict as exc:
+            fail(f"conflict: {exc.message} (adclient delete --force cancels the leases)")
+    _out().print(f"study {study_id} deleted")
 
 
 def main() -> None:

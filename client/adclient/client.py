@@ -152,6 +152,42 @@ class Client(Transport):
         """Every study on the server."""
         return [Study.model_validate(item) for item in self._get_json(f"{API}/studies")]
 
+    def delete_study(self, study_id: int, *, force: bool = False) -> None:
+        """Delete a study with its trials, reports and artifacts (its owner or an admin).
+        Raises :class:`Conflict` while workers hold leases on its trials, unless ``force``
+        (their leases are cancelled), and :class:`NotFound` once it is gone. Not resent
+        when an answer is lost: a second DELETE is a 404."""
+        self.request(
+            "DELETE",
+            f"{API}/studies/{int(study_id)}",
+            params={"force": "true"} if force else None,
+            idempotent=False,
+        )
+
+    def set_study_user_attrs(self, study_id: int, attrs: Mapping[str, Any]) -> Study:
+        """Merge ``attrs`` into the study's user attributes (a ``None`` value deletes its
+        key); returns the study."""
+        data = self.request(
+            "PATCH",
+            f"{API}/studies/{int(study_id)}",
+            json_body={"user_attrs": _jsonable(attrs)},
+            idempotent=True,
+        ).json()
+        return Study.model_validate(data)
+
+    def set_trial_user_attrs(
+        self, trial: TrialRef, attrs: Mapping[str, Any], *, worker_id: str | None = None
+    ) -> Trial:
+        """Merge ``attrs`` into the trial's user attributes (a ``None`` value deletes its
+        key): as the study's owner, or as the worker holding its lease (``worker_id``)."""
+        body: dict[str, Any] = {"user_attrs": _jsonable(attrs)}
+        if worker_id is not None:
+            body["worker_id"] = worker_id
+        data = self.request(
+            "PATCH", f"{API}/trials/{trial_id_of(trial)}", json_body=body, idempotent=True
+        ).json()
+        return Trial.model_validate(data)
+
     # -- ask / tell ------------------------------------------------------------------
 
     def ask(self, study_id: int, count: int = 1) -> list[Trial]:
@@ -397,8 +433,9 @@ class Client(Transport):
 
         ``json``: ``{"study": Study, "trials": [Trial, ...]}``, indented.
         ``csv``: one row per trial, columns ``number, id, state, value, ...`` then
-        ``params_<name>`` and ``metrics_<name>`` (nested params flattened with dots,
-        lists written as JSON), in the manner of Optuna's ``trials_dataframe``.
+        ``params_<name>``, ``metrics_<name>`` and ``user_attrs_<key>`` (nested values
+        flattened with dots, lists written as JSON), in the manner of Optuna's
+        ``trials_dataframe``.
         """
         info = self.study_info(study_id)
         trials = self.trials(study_id)

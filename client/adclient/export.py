@@ -42,6 +42,7 @@ def export_csv(trials: list[Trial]) -> str:
     rows: list[dict[str, Any]] = []
     param_columns: dict[str, None] = {}
     metric_columns: dict[str, None] = {}
+    attr_columns: dict[str, None] = {}
     for trial in sorted(trials, key=lambda t: t.number):
         row: dict[str, Any] = {
             "number": trial.number,
@@ -64,11 +65,15 @@ def export_csv(trials: list[Trial]) -> str:
             column = f"metrics_{key}"
             metric_columns.setdefault(column)
             row[column] = _cell(metric)
+        for key, value in _flatten(trial.user_attrs):
+            column = f"user_attrs_{key}"
+            attr_columns.setdefault(column)
+            row[column] = _cell(value)
         rows.append(row)
     out = io.StringIO()
     writer = csv.DictWriter(
         out,
-        fieldnames=[*_CSV_FIELDS, *param_columns, *metric_columns],
+        fieldnames=[*_CSV_FIELDS, *param_columns, *metric_columns, *attr_columns],
         restval="",
         lineterminator="\n",
     )

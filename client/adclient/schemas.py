@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import unicodedata
 from datetime import datetime
 from enum import StrEnum
 from typing import Annotated, Any, Literal
@@ -17,9 +18,11 @@ from pydantic import (
     AfterValidator,
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
     GetJsonSchemaHandler,
     SerializerFunctionWrapHandler,
+    Tag,
     ValidationError,
     ValidationInfo,
     field_validator,
@@ -35,6 +38,8 @@ from adclient.pruning import Checkpoint, PrunerConfig
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$"
 """Names of studies, params, metrics and artifacts: safe in URLs, file names and XML."""
+MAX_STUDY_NAME = 200
+"""A study's name is free text for people (its id is the key in every URL and file)."""
 NO_NUL_PATTERN = r"^[^\x00]*$"
 """Free text: anything but NUL, which PostgreSQL cannot store in a text column."""
 
@@ -125,15 +130,47 @@ def _json_depth(value: Any, limit: int) -> int:
     return deepest
 
 
-def _bounded_json(value: dict[str, Any]) -> dict[str, Any]:
+def _bounded_json(value: dict[str, Any], limit: int = MAX_JSON_BYTES) -> dict[str, Any]:
     """Refuse a free JSON object nested deeper than ``MAX_JSON_DEPTH`` or larger than
-    ``MAX_JSON_BYTES`` encoded: stored, it would cost every listing, or fail to serialise."""
+    ``limit`` bytes encoded: stored, it would cost every listing, or fail to serialise."""
     if _json_depth(value, MAX_JSON_DEPTH) > MAX_JSON_DEPTH:
         raise ValueError(f"objects and arrays nest deeper than {MAX_JSON_DEPTH} levels")
     size = len(json.dumps(value, ensure_ascii=False, default=str).encode("utf-8", "surrogatepass"))
-    if size > MAX_JSON_BYTES:
-        raise ValueError(f"{size} bytes as JSON, more than the limit of {MAX_JSON_BYTES}")
+    if size > limit:
+        raise ValueError(f"{size} bytes as JSON, more than the limit of {limit}")
     return value
+
+
+_NAME_CONTROLS = frozenset("\u061c\u200e\u200f") | {chr(c) for c in range(0x202A, 0x202F)}
+_NAME_CONTROLS |= {chr(c) for c in range(0x2066, 0x206A)}
+"""Direction marks, embeddings, overrides and isolates: they reorder the text shown
+around a name (a terminal line, a table row) without being seen."""
+
+
+def study_name(name: str) -> str:
+    """A study's name: any letters, digits, spaces and punctuation, but no control
+    characters (they break lines in logs, tables and terminals, or reorder text unseen)
+    and not only spaces (nothing to read)."""
+    for index, char in enumerate(name):
+        if unicodedata.category(char) in ("Cc", "Cs", "Zl", "Zp") or char in _NAME_CONTROLS:
+            raise ValueError(
+                f"a study name must not contain control characters: U+{ord(char):04X} "
+                f"at position {index}"
+            )
+    if not name.strip():
+        raise ValueError("a study name must not be blank")
+    return name
+
+
+StudyName = Annotated[
+    str,
+    Field(
+        min_length=1,
+        max_length=MAX_STUDY_NAME,
+        description=f"free text of 1 to {MAX_STUDY_NAME} characters, no control characters",
+    ),
+    AfterValidator(study_name),
+]
 
 
 CUT_JSON = "(nested too deep)"
@@ -170,6 +207,37 @@ JsonObject = Annotated[
 """Every free JSON field of a request: the one place its limits are checked."""
 StoredJsonObject = Annotated[dict[str, Any], AfterValidator(_shown_json)]
 """The same fields in answers, which must serialise whatever an older server stored."""
+
+MAX_USER_ATTRS_BYTES = 16 * 1024
+"""The most one study's or trial's user attributes take as JSON, merged: every page of
+trials carries its trials' attributes (a page of 1000 full ones is 16 MB)."""
+MAX_USER_ATTR_KEY = 128
+
+
+def bounded_user_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
+    """User attributes within the limits of every free JSON field (depth, plain text,
+    finite numbers), keys of 1 to ``MAX_USER_ATTR_KEY`` characters, and at most
+    ``MAX_USER_ATTRS_BYTES`` encoded: checked on a request and again once merged."""
+    _plain_text(attrs, "user_attrs", finite=True)
+    for key in attrs:
+        if not 1 <= len(key) <= MAX_USER_ATTR_KEY:
+            raise ValueError(
+                f"user_attrs: key {key[:40]!r} must be 1 to {MAX_USER_ATTR_KEY} characters"
+            )
+    try:
+        return _bounded_json(attrs, MAX_USER_ATTRS_BYTES)
+    except ValueError as error:
+        raise ValueError(f"user_attrs: {error}") from None
+
+
+UserAttrs = Annotated[
+    dict[str, Any],
+    AfterValidator(bounded_user_attrs),
+    Field(
+        description="keys set to these values; a null value deletes its key (Optuna's "
+        f"set_user_attr, many at once); at most {MAX_USER_ATTRS_BYTES} bytes merged"
+    ),
+]
 
 
 Choice = Annotated[str | bool | int | float, Field(description="a choice")]
@@ -434,7 +502,7 @@ class NewTaskConfig(TaskConfig):
 
 
 class StudyCreate(_Strict):
-    name: str = Field(pattern=NAME_PATTERN)
+    name: StudyName
     direction: Direction = Direction.maximize
     space: Space
     proposer: NewProposerConfig = Field(default_factory=NewProposerConfig)
@@ -539,6 +607,9 @@ class Study(BaseModel):
     best_value: float | None
     best_trial_id: int | None
     metadata: StoredJsonObject
+    user_attrs: StoredJsonObject = Field(
+        default_factory=dict, description="set with PATCH /studies/{id}"
+    )
     created_by: str | None = Field(
         default=None, description="the name of the token that created the study (auth on)"
     )
@@ -587,6 +658,25 @@ class Trial(BaseModel):
     lease_expires_at: datetime | None = None
     checkpoint: Checkpoint | None = Field(
         default=None, description="where a paused (or promoted) trial resumes from"
+    )
+    user_attrs: StoredJsonObject = Field(
+        default_factory=dict, description="set with PATCH /trials/{id}"
+    )
+
+
+class StudyUpdate(_Strict):
+    """``PATCH /studies/{id}``: its user attributes, merged into those it has."""
+
+    user_attrs: UserAttrs
+
+
+class TrialUpdate(StudyUpdate):
+    """``PATCH /trials/{id}``: as :class:`StudyUpdate`; a worker setting attributes on
+    the trial it runs (Optuna's objective calling ``trial.set_user_attr``) names itself
+    in ``worker_id``, as it does to tell."""
+
+    worker_id: str | None = Field(
+        default=None, min_length=1, max_length=128, pattern=NO_NUL_PATTERN
     )
 
 
@@ -663,6 +753,62 @@ class TellRequest(_Strict):
             "description": cls.__doc__,
             "oneOf": [complete, failed, pruned],
         }
+
+
+MAX_TRIALS_ADDED = 10_000
+"""Trials one ``POST /studies/{id}/trials`` may add."""
+
+
+class TrialAdd(_Strict):
+    """A trial handed to a study (``POST /studies/{id}/trials``).
+
+    Without an outcome it is *enqueued*: a ``queued`` trial of these params, handed out
+    before any proposal by the next ask (or leased by a worker, for a managed study),
+    as Optuna's ``enqueue_trial``. With ``value`` (or ``state: failed``) it is an
+    evaluation the user already has, stored finished and seen by the proposer (a warm
+    start, as Optuna's ``add_trial``). ``params`` are checked against the study's space
+    and stored as the study's own params (for a design space, the design they encode)."""
+
+    params: JsonObject
+    state: Literal["queued", "complete", "failed", "pruned"] | None = Field(
+        default=None,
+        description="default: complete with a value, queued without one",
+    )
+    value: float | None = None
+    message: str | None = Field(default=None, max_length=10_000, pattern=NO_NUL_PATTERN)
+    metrics: dict[str, float] = Field(default_factory=dict, max_length=256)
+    skip_if_exists: bool = Field(
+        default=False,
+        description="a trial of the same params already queued, running or finished "
+        "(failed ones aside) is answered in place of a new one",
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> TrialAdd:
+        if self.state is None:
+            self.state = "queued" if self.value is None else "complete"
+        if self.state == "complete" and self.value is None:
+            raise ValueError("value is required for a complete trial")
+        if self.state in ("queued", "failed") and self.value is not None:
+            raise ValueError(f"a {self.state} trial carries no value")
+        if self.value is not None:
+            _finite(self.value, "value")
+        if self.state == "queued" and (self.metrics or self.message is not None):
+            raise ValueError("a queued trial carries no metrics or message")
+        for key, metric in self.metrics.items():
+            _finite(metric, f"metric {key!r}")
+        _plain_text(self.metrics, "metrics")
+        _plain_text(self.message, "message")
+        return self
+
+
+TrialAdds = Annotated[list[TrialAdd], Field(min_length=1, max_length=MAX_TRIALS_ADDED)]
+TrialAddBody = Annotated[
+    Annotated[TrialAdd, Tag("trial")] | Annotated[TrialAdds, Tag("trials")],
+    Discriminator(lambda body: "trials" if isinstance(body, list) else "trial"),
+]
+"""One trial (an object) or several (a list); an error names ``trial.<field>`` or
+``trials.<index>.<field>``."""
 
 
 class LeaseRequest(_Strict):

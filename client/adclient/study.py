@@ -60,6 +60,13 @@ class LiveTrial(Trial):
         self._should_stop = self._client.report(self, step, value)
         return self._should_stop
 
+    def set_user_attr(self, key: str, value: Any) -> None:
+        """Store ``value`` (JSON) under ``key`` in the trial's user attributes, as
+        Optuna's ``trial.set_user_attr``; ``None`` deletes the key."""
+        if self._client is None:
+            raise RuntimeError("this trial is not bound to a client: ask it from a study")
+        self.user_attrs = self._client.set_trial_user_attrs(self, {key: value}).user_attrs
+
     @property
     def should_stop(self) -> bool:
         """The answer to the last :meth:`report` (False before any)."""
@@ -107,6 +114,16 @@ class StudyHandle:
     @property
     def direction(self) -> str:
         return self.cached_info.direction.value
+
+    @property
+    def user_attrs(self) -> dict[str, Any]:
+        """The study's user attributes, fetched fresh."""
+        return self.info.user_attrs
+
+    def set_user_attr(self, key: str, value: Any) -> None:
+        """Store ``value`` (JSON) under ``key`` in the study's user attributes, as
+        Optuna's ``study.set_user_attr``; ``None`` deletes the key."""
+        self._info = self.client.set_study_user_attrs(self.id, {key: value})
 
     @property
     def dashboard_url(self) -> str:
@@ -279,6 +296,10 @@ class StudyHandle:
         """Stop the study: no new trials are proposed or leased."""
         self._info = self.client.stop_study(self.id)
         return self._info
+
+    def delete(self, *, force: bool = False) -> None:
+        """Delete the study and everything it holds; see :meth:`Client.delete_study`."""
+        self.client.delete_study(self.id, force=force)
 
     def workers(self) -> list[WorkerInfo]:
         return self.client.workers(self.id)

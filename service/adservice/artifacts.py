@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import tempfile
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -66,6 +67,10 @@ class ArtifactStore:
     def discard(path: str | Path) -> None:
         """Remove a file the database no longer points at."""
         Path(path).unlink(missing_ok=True)
+
+    def remove_study(self, study_id: int) -> None:
+        """Remove a deleted study's folder: its artifacts and any upload cut short."""
+        shutil.rmtree(self.root / str(study_id), ignore_errors=True)
 
     async def write(
         self,

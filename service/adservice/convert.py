@@ -30,6 +30,7 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             "best_value": row.best_value,
             "best_trial_id": row.best_trial_id,
             "metadata": row.metadata_,
+            "user_attrs": row.user_attrs,
             "created_by": row.created_by,
             "created_at": row.created_at,
             "updated_at": row.updated_at,

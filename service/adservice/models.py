@@ -35,11 +35,19 @@ class Base(DeclarativeBase):
     pass
 
 
+USER_ATTRS_DEFAULT = sa.text("'{}'")
+"""Rows stored before user attributes (and trials inserted by Core statements that name
+no such column) have none."""
+
+
 class StudyRow(Base):
     __tablename__ = "studies"
+    # Ids are never given again (SQLite would reuse the largest after a delete): a deleted
+    # study's id must not come to mean another study in a URL, a cache or a worker.
+    __table_args__ = {"sqlite_autoincrement": True}
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    name: Mapped[str] = mapped_column(sa.String(128))
+    name: Mapped[str] = mapped_column(sa.String(200))
     direction: Mapped[str] = mapped_column(sa.String(16))
     state: Mapped[str] = mapped_column(sa.String(16), default="running")
     space: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
@@ -60,6 +68,9 @@ class StudyRow(Base):
     best_value: Mapped[float | None] = mapped_column(sa.Double, nullable=True)
     best_trial_id: Mapped[int | None] = mapped_column(nullable=True)
     metadata_: Mapped[dict[str, Any]] = mapped_column("metadata", sa.JSON, default=dict)
+    user_attrs: Mapped[dict[str, Any]] = mapped_column(
+        sa.JSON, default=dict, server_default=USER_ATTRS_DEFAULT
+    )
     owner_token_id: Mapped[int | None] = mapped_column(nullable=True)
     """The token that created the study (None: created with auth off): a ``user`` token
     manages only the studies it owns."""
@@ -75,6 +86,7 @@ class TrialRow(Base):
         sa.UniqueConstraint("study_id", "number", name="uq_trials_study_number"),
         sa.Index("ix_trials_study_state", "study_id", "state"),
         sa.Index("ix_trials_state_lease", "state", "lease_expires_at"),
+        {"sqlite_autoincrement": True},
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -102,6 +114,9 @@ class TrialRow(Base):
     )
     """Where a paused trial resumes from (``adclient.pruning.Checkpoint``); kept after it
     is promoted, so a resumed job that loses its lease resumes from it again."""
+    user_attrs: Mapped[dict[str, Any]] = mapped_column(sa.JSON, server_default=USER_ATTRS_DEFAULT)
+    """No Python default: the hot path's prepared INSERT names its columns, and the
+    database fills this one in."""
 
 
 class TrialReportRow(Base):

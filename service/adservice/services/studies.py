@@ -1,4 +1,4 @@
-"""Creating a study: the checks its schema cannot make, then one write."""
+"""Creating a study (the checks its schema cannot make, then one write) and deleting one."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ from typing import Any
 
 from adclient.design import DesignSpace
 from adclient.schemas import StudyCreate
-from adservice import repository
+from adservice import repository, repository_edits
+from adservice.artifacts import ArtifactStore
 from adservice.db import Database
 from adservice.errors import InvalidError
 from adservice.models import StudyRow
@@ -39,6 +40,20 @@ def create_study(
         return repository.create_study(
             session, body=body, representation=representation, owner=owner
         )
+
+
+def delete_study(
+    db: Database, store: ArtifactStore, *, study_id: int, caller: Principal, force: bool
+) -> None:
+    """Delete the study's rows in one write, then its files: a crash in between leaves
+    files no row points at (never served), never a row without its file."""
+    with db.write() as session:
+        paths = repository_edits.delete_study(
+            session, study_id=study_id, caller=caller, force=force
+        )
+    for path in paths:
+        store.discard(path)
+    store.remove_study(study_id)
 
 
 def _non_finite(value: Any, where: str) -> str | None:

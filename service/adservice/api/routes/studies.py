@@ -1,4 +1,5 @@
-"""Studies: create, list, read, ask, stop, and the views the dashboard draws from."""
+"""Studies: create, list, read, ask, stop, delete, user attributes, and the views the
+dashboard draws from."""
 
 from __future__ import annotations
 
@@ -14,14 +15,16 @@ from adclient.schemas import (
     AskResponse,
     Study,
     StudyCreate,
+    StudyUpdate,
     Trial,
     TrialColumns,
     TrialState,
     WorkerInfo,
 )
-from adservice import repository, views
+from adservice import repository, repository_edits, views
 from adservice.api.deps import (
     MAX_ID,
+    ArtifactStoreDep,
     DatabaseDep,
     ProposingDep,
     ReaderDep,
@@ -97,6 +100,33 @@ async def ask(
 def stop_study(study_id: StudyId, db: DatabaseDep, caller: UserDep) -> Study:
     with db.write() as session:
         row = repository.stop_study(session, study_id=study_id, caller=caller)
+        counts = repository.state_counts(session, study_ids=[study_id])
+    return study_schema(row, counts[study_id])
+
+
+@router.delete("/{study_id}", status_code=204, response_class=Response)
+def delete_study(
+    study_id: StudyId,
+    db: DatabaseDep,
+    store: ArtifactStoreDep,
+    caller: UserDep,
+    force: Annotated[
+        bool, Query(description="also while workers hold leases on its trials (cancelled)")
+    ] = False,
+) -> Response:
+    """Delete the study with its trials, reports and artifacts (its owner or an admin);
+    409 while workers hold leases on its trials, unless ``force``."""
+    study_service.delete_study(db, store, study_id=study_id, caller=caller, force=force)
+    return Response(status_code=204)
+
+
+@router.patch("/{study_id}")
+def update_study(study_id: StudyId, body: StudyUpdate, db: DatabaseDep, caller: UserDep) -> Study:
+    """Set user attributes (a null value deletes its key); its owner or an admin."""
+    with db.write() as session:
+        row = repository_edits.set_study_user_attrs(
+            session, study_id=study_id, changes=body.user_attrs, caller=caller
+        )
         counts = repository.state_counts(session, study_ids=[study_id])
     return study_schema(row, counts[study_id])
 

@@ -1,11 +1,19 @@
-"""Trials: read, tell, heartbeat, release, and the URDF of a trial's design."""
+"""Trials: read, tell, heartbeat, release, user attributes, and the URDF of a trial's
+design."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Response
 
-from adclient.schemas import HeartbeatRequest, HeartbeatResponse, ReleaseRequest, TellRequest, Trial
-from adservice import repository, robots
+from adclient.schemas import (
+    HeartbeatRequest,
+    HeartbeatResponse,
+    ReleaseRequest,
+    TellRequest,
+    Trial,
+    TrialUpdate,
+)
+from adservice import repository, repository_edits, robots
 from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, SettingsDep, TrialId, WorkerDep
 from adservice.api.responses import model_response
 from adservice.auth import Role
@@ -18,6 +26,22 @@ router = APIRouter(prefix="/api/v1/trials", tags=["trials"])
 @router.get("/{trial_id}")
 def get_trial(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> Trial:
     return trial_schema(repository.get_trial(session, trial_id=trial_id))
+
+
+@router.patch("/{trial_id}")
+def update_trial(trial_id: TrialId, body: TrialUpdate, db: DatabaseDep, caller: WorkerDep) -> Trial:
+    """Set user attributes (a null value deletes its key): the study's owner or an admin,
+    or the worker holding the trial's lease, naming itself in ``worker_id``."""
+    with db.write() as session:
+        return trial_schema(
+            repository_edits.set_trial_user_attrs(
+                session,
+                trial_id=trial_id,
+                changes=body.user_attrs,
+                worker_id=body.worker_id,
+                caller=caller,
+            )
+        )
 
 
 @router.post("/{trial_id}/tell", response_model=Trial)

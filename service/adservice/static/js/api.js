@@ -4,11 +4,13 @@
 // it keeps only the session's CSRF token, in memory, for the few changes it makes.
 
 let csrfToken = null;
+let session = null;
 
 export class HttpError extends Error {
   constructor(status, detail) {
     super(`HTTP ${status}: ${detail}`);
     this.status = status;
+    this.detail = detail;
   }
 }
 
@@ -47,7 +49,28 @@ export async function artifactNames(studyId, trialIds) {
 
 function remember(info) {
   csrfToken = info.csrf_token ?? null;
+  session = info;
   return info;
+}
+
+/** What a change sends to show it comes from this page: the session's CSRF token when
+ * signed in, else the header no cross-site form can send. */
+function changeHeaders() {
+  return csrfToken ? { 'X-CSRF-Token': csrfToken } : { 'X-Activedesign-Client': 'dashboard' };
+}
+
+/** Whether the signed-in caller may change `study` (stop, delete): anyone with auth off,
+ * an admin, or a user token of the name that created it. The server checks again. */
+export function mayManage(study) {
+  if (!session || !session.auth) return Boolean(session);
+  if (session.role === 'admin') return true;
+  return session.role === 'user' && Boolean(session.name) && session.name === study.created_by;
+}
+
+/** Delete a study; `force` also cancels the leases workers hold on its trials. */
+export async function deleteStudy(studyId, { force = false } = {}) {
+  const query = force ? '?force=true' : '';
+  await request(`/api/v1/studies/${studyId}${query}`, { method: 'DELETE', headers: changeHeaders() });
 }
 
 /** Who the page is signed in as: {auth, signed_in, role, name}. */
@@ -66,9 +89,6 @@ export async function signIn(token) {
 }
 
 export async function signOut() {
-  await request('/api/v1/session', {
-    method: 'DELETE',
-    headers: csrfToken ? { 'X-CSRF-Token': csrfToken } : { 'X-Activedesign-Client': 'dashboard' },
-  });
+  await request('/api/v1/session', { method: 'DELETE', headers: changeHeaders() });
   csrfToken = null;
 }

@@ -1,7 +1,9 @@
-// A study's header (name, state, what it searches and how) and its progress bar with
-// counts; the progress bar and counts text serve the studies list too.
+// A study's header (name, state, what it searches and how, its user attributes, and a
+// delete button for those who may) and its progress bar with counts; the progress bar
+// and counts text serve the studies list too.
 
-import { ago, badge, element, esc, finder } from './html.js';
+import { deleteStudy, mayManage } from './api.js';
+import { ago, attrText, badge, element, esc, finder } from './html.js';
 import { setCrumbs } from './shell.js';
 
 export function countsText(study) {
@@ -29,18 +31,77 @@ export class StudyHeader {
   constructor(studyId) {
     this.root = element(`<div>
       <section class="study-head">
-        <h1><span data-name>Study ${studyId}</span> <span data-state></span></h1>
+        <h1><span data-name>Study ${studyId}</span> <span data-state></span>
+          <button type="button" class="danger" data-delete hidden>Delete study</button></h1>
         <p class="meta" data-meta></p>
+        <p class="meta" data-attrs hidden></p>
       </section>
+      <dialog class="confirm" data-delete-dialog>
+        <form method="dialog">
+          <p data-delete-question></p>
+          <p class="error" data-delete-error hidden></p>
+          <div class="actions">
+            <button value="cancel" data-delete-cancel>Cancel</button>
+            <button value="delete" class="danger" data-delete-confirm>Delete</button>
+          </div>
+        </form>
+      </dialog>
       <section class="card">
         <div data-progress></div>
         <p class="counts" data-counts></p>
       </section>
     </div>`);
     this.$ = finder(this.root);
+    this.study = null;
+    this.$('delete').addEventListener('click', () => this.askToDelete());
+    this.$('delete-confirm').addEventListener('click', (event) => {
+      event.preventDefault();
+      this.delete();
+    });
+  }
+
+  /** The confirmation: names the study (as text) and what goes with it. */
+  askToDelete() {
+    const s = this.study;
+    this.force = false;
+    this.$('delete-question').textContent =
+      `Delete study “${s.name}” (#${s.id}) with its ${s.n_trials} trials, their reports ` +
+      'and artifacts? This cannot be undone.';
+    this.$('delete-error').hidden = true;
+    this.$('delete-confirm').textContent = 'Delete';
+    this.$('delete-dialog').showModal();
+  }
+
+  /** Delete; while workers hold leases the server refuses (409): say so, and offer to
+   * cancel their leases. Gone either way: back to the studies list. */
+  async delete() {
+    const button = this.$('delete-confirm');
+    button.disabled = true;
+    try {
+      await deleteStudy(this.study.id, { force: this.force });
+    } catch (error) {
+      if (error.status !== 404) {
+        this.$('delete-error').textContent = String(error.detail ?? error.message);
+        this.$('delete-error').hidden = false;
+        if (error.status === 409) {
+          this.force = true;
+          button.textContent = 'Delete and cancel the leases';
+        }
+        return;
+      }
+    } finally {
+      button.disabled = false;
+    }
+    this.$('delete-dialog').close();
+    window.location.hash = '#/';
   }
 
   render(s) {
+    this.study = s;
+    this.$('delete').hidden = !mayManage(s);
+    const attrs = Object.entries(s.user_attrs ?? {});
+    this.$('attrs').hidden = attrs.length === 0;
+    this.$('attrs').textContent = attrs.map(([k, v]) => `${k}: ${attrText(v)}`).join(' · ');
     document.title = `${s.name} · activedesign`;
     setCrumbs(`<a href="#/studies/${s.id}">${esc(s.name)}</a>`);
     this.$('name').textContent = s.name;

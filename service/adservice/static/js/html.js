@@ -58,6 +58,26 @@ export function formatParam(value) {
   return String(value);
 }
 
+/** A user attribute's value as text: strings as they are, anything else as JSON. */
+export function attrText(value) {
+  return typeof value === 'string' ? value : JSON.stringify(value);
+}
+
+/** Key-value rows of user attributes, built as text nodes. */
+export function attrsTable(attrs) {
+  const table = document.createElement('table');
+  table.className = 'kv';
+  table.dataset.userAttrs = '';
+  for (const [key, value] of Object.entries(attrs)) {
+    const name = document.createElement('th');
+    name.textContent = key;
+    const row = table.insertRow();
+    row.append(name);
+    row.insertCell().textContent = attrText(value);
+  }
+  return table;
+}
+
 export function paramsTable(params) {
   const rows = Object.entries(params ?? {})
     .map(([k, v]) => `<tr><th>${esc(k)}</th><td>${esc(formatParam(v))}</td></tr>`)

@@ -1,9 +1,10 @@
-// One trial in a dialog: its score, timings, message, metrics and params; its robot in 3D
+// One trial in a dialog: its score, timings, message, metrics, params and user attributes;
+// its robot in 3D
 // (when it has a URDF), its image, its learning curve, and its files.
 
 import { getJSON } from './api.js';
 import { drawCurve, formatNumber } from './charts.js';
-import { badge, duration, esc, paramsTable, urdfLink, urdfUrl, when } from './html.js';
+import { attrsTable, badge, duration, esc, paramsTable, urdfLink, urdfUrl, when } from './html.js';
 import { RobotView } from './robot-view.js';
 
 const dialog = document.querySelector('[data-trial-dialog]');
@@ -51,6 +52,7 @@ export async function openTrialDialog(study, trialId) {
         ${trial.message ? `<h3>Message</h3><pre>${esc(trial.message)}</pre>` : ''}
         ${metrics}
         <h3>Params</h3>${paramsTable(trial.params)}
+        <div data-trial-attrs></div>
       </div>
       <div>
         ${modelUrl ? '<h3>Robot</h3><div data-trial-model></div>' : ''}
@@ -60,6 +62,11 @@ export async function openTrialDialog(study, trialId) {
         <ul class="files">${urdf ? `<li>${urdf}</li>` : ''}${files || '<li class="meta">No artifacts</li>'}</ul>
       </div>
     </div></article>`;
+  if (Object.keys(trial.user_attrs ?? {}).length) {
+    const heading = document.createElement('h3');
+    heading.textContent = 'User attributes';
+    dialog.querySelector('[data-trial-attrs]').append(heading, attrsTable(trial.user_attrs));
+  }
   dialog.querySelector('[data-close]').addEventListener('click', () => dialog.close());
   if (!dialog.open) dialog.showModal();
   if (modelUrl) {
