@@ -126,3 +126,42 @@ def test_0005_gives_old_studies_no_pruner_and_goes_back_down(database_url: str) 
         columns = {c["name"] for c in sa.inspect(connection).get_columns("studies")}
     engine.dispose()
     assert "n_pruned" not in columns and "pruner" not in columns
+
+
+def test_0007_gives_old_rows_no_user_attrs_and_goes_back_down(database_url: str) -> None:
+    """Rows stored before 0007 read as having no user attributes; going back down keeps
+    each study, its name cut to the old column's 128 characters."""
+    from alembic import command
+
+    config = _alembic(database_url)
+    command.upgrade(config, "0006")
+    engine = sa.create_engine(database_url)
+    with engine.begin() as connection:
+        connection.execute(
+            sa.text(
+                "INSERT INTO studies (name, direction, state, space, proposer, pruner,"
+                " max_attempts, n_trials, n_complete, n_failed, n_pruned, metadata,"
+                " created_at, updated_at) VALUES ('old', 'maximize', 'running', '{}', '{}',"
+                " '{}', 3, 1, 0, 0, 0, '{}', '2024-01-01 00:00:00', '2024-01-01 00:00:00')"
+            )
+        )
+        connection.execute(
+            sa.text(
+                "INSERT INTO trials (study_id, number, state, vector, params, metrics, info,"
+                " attempts, created_at) SELECT id, 0, 'queued', '[]', '{}', '{}', '{}', 0,"
+                " '2024-01-01 00:00:00' FROM studies"
+            )
+        )
+    command.upgrade(config, "head")
+    with engine.begin() as connection:
+        studies = connection.execute(sa.text("SELECT user_attrs FROM studies")).scalars().all()
+        trials = connection.execute(sa.text("SELECT user_attrs FROM trials")).scalars().all()
+        connection.execute(sa.text("UPDATE studies SET name = :name"), {"name": "設計" * 100})
+    assert [json.loads(a) if isinstance(a, str) else a for a in studies + trials] == [{}, {}]
+    command.downgrade(config, "0006")
+    with engine.connect() as connection:
+        assert connection.execute(sa.text("SELECT name FROM studies")).scalar() == "設計" * 64
+        columns = {c["name"] for c in sa.inspect(connection).get_columns("trials")}
+        assert connection.execute(sa.text("SELECT count(*) FROM trials")).scalar() == 1
+    engine.dispose()
+    assert "user_attrs" not in columns
