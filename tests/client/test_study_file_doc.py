@@ -69,8 +69,9 @@ def _number(value: float) -> str:
     return str(value) if isinstance(value, int) else f"{value:g}"
 
 
-def _range_texts(metadata: list[Any]) -> list[str]:
-    """How the doc writes a field's bounds: "N to M", or "≥ N", "> N", "≤ M"."""
+def _range_texts(metadata: list[Any], unit: str = "items") -> list[str]:
+    """How the doc writes a field's bounds: "N to M", or "≥ N", "> N", "≤ M"; lengths
+    in ``unit`` (characters of text, items of a list)."""
     limits: dict[str, float] = {}
     for item in metadata:
         for kind in ("ge", "gt", "le", "lt", "min_length", "max_length"):
@@ -79,7 +80,7 @@ def _range_texts(metadata: list[Any]) -> list[str]:
                 limits[kind] = value
     texts = []
     if "min_length" in limits or "max_length" in limits:
-        texts.append(f"{limits['min_length']} to {limits['max_length']} items")
+        texts.append(f"{limits['min_length']} to {limits['max_length']} {unit}")
     if "ge" in limits and "le" in limits:
         texts.append(f"{_number(limits['ge'])} to {_number(limits['le'])}")
     else:
@@ -118,7 +119,8 @@ def test_field_table_lists_every_field_with_its_default_and_range(model_name: st
             adapter = TypeAdapter(annotation)
             documented = adapter.validate_python(yaml.safe_load(literal.group(1)))
             assert documented == field.get_default(call_default_factory=True), where
-        for text in _range_texts(field.metadata):
+        unit = "characters" if field.annotation is str else "items"
+        for text in _range_texts(field.metadata, unit):
             assert text in type_cell.replace(",", ""), f"{where}: {text!r} not in {type_cell!r}"
 
 
