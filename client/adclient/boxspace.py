@@ -45,10 +45,9 @@ class BoxEncoding:
     params: tuple[BoxParam, ...]
 
     @classmethod
-    def of(cls, space: BoxSpace | dict[str, Any]) -> BoxEncoding:
-        """From the model or from a space as stored (old float-only spaces included)."""
-        parsed = space if isinstance(space, BoxSpace) else BoxSpace.model_validate(space)
-        return cls(tuple(parsed.params))
+    def of(cls, space: dict[str, Any]) -> BoxEncoding:
+        """From a box space as JSON, as stored (old float-only spaces included)."""
+        return cls(tuple(BoxSpace.model_validate(space).params))
 
     @property
     def names(self) -> list[str]:
