@@ -32,6 +32,7 @@ from adservice.api.routes import (
     reports,
     session,
     studies,
+    study_trials,
     tasks,
     trials,
 )
@@ -249,6 +250,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (
         trials,
         studies,
+        study_trials,
         jobs,
         reports,
         artifacts,

@@ -17,7 +17,7 @@ import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from adclient.schemas import StudyCreate, TellRequest, Trial, TrialState
+from adclient.schemas import StudyCreate, TellRequest, Trial, TrialAdd, TrialState
 from adservice import principals
 from adservice.db import Prepared
 from adservice.errors import (
@@ -275,6 +275,104 @@ def insert_trials(
         Trial.model_validate({"id": trial_id, **row})
         for trial_id, row in zip(ids, values, strict=True)
     ]
+
+
+_queued = _trials.alias("queued")
+_CLAIM_QUEUED = Prepared(
+    sa.update(_trials)
+    .where(
+        _trials.c.id.in_(
+            sa.select(_queued.c.id)
+            .where(_queued.c.study_id == sa.bindparam("sid"), _queued.c.state == "queued")
+            .order_by(_queued.c.id)  # the (study_id, state) index's own order: no scan
+            .limit(sa.bindparam("count"))
+            .with_for_update(skip_locked=True)
+        )
+    )
+    .values(state=TrialState.running.value, started_at=sa.bindparam("now"))
+    .returning(*_trials.c)
+)
+
+
+def claim_queued(session: Session, *, study_id: int, count: int) -> list[Trial]:
+    """Up to ``count`` of the study's queued trials, oldest first, now running: an ask
+    hands out enqueued trials before proposing (one indexed lookup when none wait; on
+    PostgreSQL concurrent asks skip each other's rows)."""
+    rows = _CLAIM_QUEUED.rows(session, [{"sid": study_id, "count": count, "now": utcnow()}])
+    return [Trial.model_validate(row) for row in sorted(rows, key=lambda row: row["number"])]
+
+
+def count_queued(session: Session, *, study_id: int) -> int:
+    return session.scalar(
+        sa.select(sa.func.count())
+        .select_from(TrialRow)
+        .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
+    ) or 0
+
+
+def add_trials(
+    session: Session,
+    *,
+    study_id: int,
+    first_number: int,
+    vectors: Sequence[Sequence[float]],
+    params: Sequence[dict[str, Any]],
+    adds: Sequence[TrialAdd],
+) -> list[Trial]:
+    """Trials a user hands over, numbered from ``first_number``: queued ones wait for an
+    ask or a lease; finished ones count in the study's counters and best, as a tell of
+    them would (``info.source`` says which: ``enqueued`` or ``added``)."""
+    now = utcnow()
+    values = [
+        {
+            "study_id": study_id,
+            "number": first_number + offset,
+            "state": add.state,
+            "vector": [float(x) for x in vector],
+            "params": param,
+            "value": add.value,
+            "message": add.message,
+            "metrics": dict(add.metrics),
+            "info": {"source": "enqueued" if add.state == TrialState.queued else "added"},
+            "worker_id": None,
+            "attempts": 0,
+            "created_at": now,
+            "started_at": None,
+            "finished_at": None if add.state == TrialState.queued else now,
+            "heartbeat_at": None,
+            "lease_expires_at": None,
+            "lease_token_id": None,
+        }
+        for offset, (vector, param, add) in enumerate(zip(vectors, params, adds, strict=True))
+    ]
+    ids = [row["id"] for row in _INSERT_TRIALS.rows(session, values)]
+    for trial_id, add in zip(ids, adds, strict=True):
+        if add.state is not None and add.state != TrialState.queued:
+            _COUNT[add.state].rows(
+                session, [{"sid": study_id, "tid": trial_id, "value": add.value, "now": now}]
+            )
+    return [
+        Trial.model_validate({"id": trial_id, **row})
+        for trial_id, row in zip(ids, values, strict=True)
+    ]
+
+
+def trials_of_vectors(
+    session: Session, *, study_id: int, vectors: Sequence[Sequence[float]]
+) -> dict[tuple[float, ...], Trial]:
+    """The study's trials (failed ones aside) whose vector is one of ``vectors``, by
+    vector (the first by number where several share one)."""
+    wanted = {tuple(vector) for vector in vectors}
+    rows = session.scalars(
+        sa.select(TrialRow)
+        .where(TrialRow.study_id == study_id, TrialRow.state != TrialState.failed)
+        .order_by(TrialRow.number.desc())
+    )
+    return {
+        tuple(row.vector): Trial.model_validate(row, from_attributes=True)
+        for row in rows
+        if tuple(row.vector) in wanted
+    }
 
 
 def check_room(study: StudyRow, *, count: int) -> None:

@@ -127,6 +127,27 @@ class StudyConfig:
 
         return design_params(decode(self.design_space, self.representation, vector.tolist()))
 
+    def vector(self, params: dict[str, Any]) -> np.ndarray:
+        """The inverse of :meth:`params`, for params a user hands over: ValueError naming a
+        missing, unknown, out-of-range or mistyped param. A design's params are its specs
+        (``structure_index`` picks the structure; a ``structure`` given must agree)."""
+        if self.representation is None or self.design_space is None:
+            return (self.box or BoxEncoding.of(self.space)).encode(params)
+        from adclient.decode import encode
+
+        try:
+            vector = np.asarray(encode(self.design_space, self.representation, params))
+        except (TypeError, ValueError) as error:
+            raise ValueError(str(error).removeprefix("encode: ")) from None
+        if "structure" in params:
+            decoded = self.params(vector)["structure"]
+            if params["structure"] != decoded:
+                raise ValueError(
+                    f"structure {params['structure']!r} is not structure_index "
+                    f"{params.get('structure_index', 0)} ({decoded!r})"
+                )
+        return vector
+
 
 class StudyConfigs:
     """Each study's parsed configuration, read from the database once per process."""

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from sqlalchemy.orm import Session
 
-from adclient.schemas import Trial
+from adclient.schemas import Trial, TrialAdd
 from adservice import repository, repository_promotion
 from adservice.db import Database
-from adservice.errors import StudyConfigError
+from adservice.errors import ConflictError, InvalidError, StudyConfigError
 from adservice.locks import StudyLocks
 from adservice.principals import Principal, check_manager
 from adservice.proposal_runner import AskBudget, ProposalRunner
@@ -65,18 +65,25 @@ def _record(
     config: StudyConfig,
     *,
     count: int,
-    propose: Callable[[int], Proposal],
+    propose: Callable[[int, int], Proposal],
     worker_id: str | None,
     lease_token_id: int | None,
     lease_seconds: float,
 ) -> list[Trial]:
-    """Reserve trial numbers and store what ``propose(first_number)`` returns, in one
-    write transaction."""
+    """In one write transaction: an owner's ask of an unmanaged study takes its queued
+    (enqueued) trials first; the rest are ``propose(first_number, n)``'s candidates,
+    under newly reserved numbers."""
     with db.write() as session:
-        first = repository.reserve_numbers(session, study_id=config.study_id, count=count)
-        proposal = propose(first)
+        claimed: list[Trial] = []
+        if worker_id is None and config.task is None:
+            claimed = repository.claim_queued(session, study_id=config.study_id, count=count)
+        wanted = count - len(claimed)
+        if wanted == 0:
+            return claimed
+        first = repository.reserve_numbers(session, study_id=config.study_id, count=wanted)
+        proposal = propose(first, wanted)
         candidates = config.canonical(proposal.candidates)
-        return repository.insert_trials(
+        return claimed + repository.insert_trials(
             session,
             study_id=config.study_id,
             first_number=first,
@@ -87,6 +94,14 @@ def _record(
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
+
+
+def _leading(proposal: Proposal | None, count: int) -> Proposal:
+    """``count`` of a proposal made before the write: fewer queued trials were left to
+    take than counted when it was made (another server took them) is a conflict."""
+    if proposal is None or len(proposal.candidates) < count:
+        raise ConflictError("the study's queued trials were taken meanwhile: ask again")
+    return Proposal(candidates=proposal.candidates[:count], info=proposal.info[:count])
 
 
 def proposer_history(session: Session, config: StudyConfig) -> History:
@@ -148,8 +163,8 @@ def propose_trials(
             db,
             config,
             count=count,
-            propose=lambda first: proposer.propose(
-                _request(config, count=count, n_issued=first, history=None)
+            propose=lambda first, n: proposer.propose(
+                _request(config, count=n, n_issued=first, history=None)
             ),
             worker_id=worker_id,
             lease_token_id=lease_token_id,
@@ -158,28 +173,87 @@ def propose_trials(
     with locks.hold(db, study_id):
         with db.read() as session:
             study = repository.get_study(session, study_id=study_id)
-            repository.check_room(study, count=count)
-            history = proposer_history(session, config)
-        if worker_id is None and budget is not None and budget.memory_bytes is not None:
-            check_ask_memory(
-                config,
-                count=count,
-                n_issued=study.n_trials,
-                history=history,
-                budget=budget.memory_bytes,
+            queued = 0
+            if worker_id is None and config.task is None:
+                queued = repository.count_queued(session, study_id=study_id)
+            wanted = max(count - queued, 0)
+            repository.check_room(study, count=wanted)
+            history = proposer_history(session, config) if wanted else None
+        proposal = None
+        if history is not None:
+            if worker_id is None and budget is not None and budget.memory_bytes is not None:
+                check_ask_memory(
+                    config,
+                    count=wanted,
+                    n_issued=study.n_trials,
+                    history=history,
+                    budget=budget.memory_bytes,
+                )
+            proposal = proposer.propose(
+                _request(
+                    config, count=wanted, n_issued=study.n_trials, history=history, budget=budget
+                )
             )
-        proposal = proposer.propose(
-            _request(config, count=count, n_issued=study.n_trials, history=history, budget=budget)
-        )
         return _record(
             db,
             config,
             count=count,
-            propose=lambda _first: proposal,
+            propose=lambda _number, n: _leading(proposal, n),
             worker_id=worker_id,
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
+
+
+def add_trials(
+    db: Database,
+    configs: StudyConfigs,
+    *,
+    study_id: int,
+    adds: list[TrialAdd],
+    caller: Principal,
+) -> list[Trial]:
+    """Enqueue trials or add evaluated ones (``TrialAdd``), by the study's owner; each
+    one's params are checked against the space first, so a bad one stores nothing."""
+    config = configs.get(study_id)
+    check_manager(
+        caller,
+        study_id=study_id,
+        owner_token_id=config.owner_token_id,
+        owner_name=config.owner_name,
+    )
+    vectors: list[list[float]] = []
+    problems: list[str] = []
+    for index, add in enumerate(adds):
+        try:
+            vectors.append(config.canonical(config.vector(add.params)[None, :])[0].tolist())
+        except ValueError as error:
+            where = "trial" if len(adds) == 1 else f"trials[{index}]"
+            problems.append(f"{where}.params: {error}")
+    if problems:
+        raise InvalidError("; ".join(problems), problems=problems)
+    with db.write() as session:
+        existing: dict[tuple[float, ...], Trial] = {}
+        if any(add.skip_if_exists for add in adds):
+            existing = repository.trials_of_vectors(session, study_id=study_id, vectors=vectors)
+        new = [
+            index
+            for index, (add, vector) in enumerate(zip(adds, vectors, strict=True))
+            if not (add.skip_if_exists and tuple(vector) in existing)
+        ]
+        added: list[Trial] = []
+        if new:
+            first = repository.reserve_numbers(session, study_id=study_id, count=len(new))
+            added = repository.add_trials(
+                session,
+                study_id=study_id,
+                first_number=first,
+                vectors=[vectors[index] for index in new],
+                params=[config.params(np.asarray(vectors[index])) for index in new],
+                adds=[adds[index] for index in new],
+            )
+    by_index = dict(zip(new, added, strict=True))
+    return [by_index.get(index) or existing[tuple(vector)] for index, vector in enumerate(vectors)]
 
 
 @dataclass(frozen=True)
