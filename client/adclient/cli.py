@@ -38,6 +38,7 @@ from adclient.errors import (
     Unauthorized,
     Unavailable,
 )
+from adclient.importing import ImportFileError, read_import
 from adclient.schemas import BoxSpace, Study, Trial, TrialState
 
 DEFAULT_SERVER = "http://127.0.0.1:8000"
@@ -522,6 +523,105 @@ def tell(
         )
     shown = f": value {_num(trial.value)}" if trial.value is not None else ""
     _out().print(f"trial {trial.id} (study {trial.study_id}, #{trial.number}) {trial.state}{shown}")
+
+
+@app.command()
+@friendly
+def enqueue(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    params: str = typer.Option(..., "--params", "-p", help="The params as JSON: '{\"x\": 0.5}'."),
+    skip_if_exists: bool = typer.Option(
+        False, "--skip-if-exists", help="Answer an existing trial of the same params instead."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Queue PARAMS in a study: its next ask (or a worker) takes them before proposing."""
+    try:
+        given = json.loads(params)
+    except json.JSONDecodeError as exc:
+        fail(f"--params is not JSON: {exc}", code=2)
+    if not isinstance(given, dict):
+        fail("--params must be a JSON object of param name -> value", code=2)
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        trial = client.add_trials(study_id, [{"params": given, "skip_if_exists": skip_if_exists}])[
+            0
+        ]
+    if as_json:
+        _print_json(trial)
+        return
+    _out().print(
+        f"trial {trial.id} (study {study_id}, #{trial.number}) {trial.state}: "
+        f"{escape(_compact(trial.params))}"
+    )
+
+
+IMPORT_BATCH = 500
+"""Trials per request of ``adclient import`` (each request stores all of its or none)."""
+
+
+@app.command("import")
+@friendly
+def import_trials(
+    ctx: typer.Context,
+    file: Path = typer.Argument(..., exists=True, dir_okay=False, help="An export or a CSV."),
+    study_id: int | None = typer.Option(
+        None, "--study", help="Add to this study (a CSV needs one); default: a new study."
+    ),
+    name: str | None = typer.Option(None, "--name", help="The new study's name."),
+    skip_unfinished: bool = typer.Option(
+        False, "--skip-unfinished", help="Leave out unfinished trials (default: enqueue them)."
+    ),
+) -> None:
+    """Import trials: the JSON `adclient export` writes (a new study like the exported one,
+    or --study ID), or a CSV of param columns and a value column (into --study ID)."""
+    format = "csv" if file.suffix.lower() == ".csv" else "json"
+    if format == "csv" and study_id is None:
+        fail("a CSV has no space to make a study from: give --study ID", code=2)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        fail(f"cannot read {file}: {exc}")
+    with _settings(ctx).client() as client:
+        space = None
+        if study_id is not None:
+            with _study_scope(study_id):
+                space = client.study_info(study_id).space.model_dump(mode="json")
+        try:
+            plan = read_import(
+                text, format=format, space=space, queue_unfinished=not skip_unfinished
+            )
+        except ImportFileError as exc:
+            fail(f"{file}: {exc}")
+        if study_id is None:
+            if plan.study is None:
+                fail(f"{file} names no study: give --study ID", code=2)
+            body = plan.study | ({"name": name} if name else {})
+            study_id = client.create_study(body).id
+            _err().print(f"study {study_id} created")
+        added = 0
+        bar = Progress(
+            TextColumn(f"study {study_id}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            console=_err(),
+            transient=True,
+        )
+        with _study_scope(study_id), bar as progress:
+            task = progress.add_task("importing", total=len(plan.trials))
+            for start in range(0, len(plan.trials), IMPORT_BATCH):
+                batch = plan.trials[start : start + IMPORT_BATCH]
+                try:
+                    client.add_trials(study_id, batch)
+                except ApiError as exc:
+                    fail(
+                        f"stopped after {added} of {len(plan.trials)} trials: "
+                        f"{_api_message(exc, client.url)}"
+                    )
+                added += len(batch)
+                progress.update(task, completed=added)
+    left = f", {plan.left_out} unfinished left out" if plan.left_out else ""
+    _out().print(f"study {study_id}: {added} trials imported{left}")
 
 
 @app.command()

@@ -47,6 +47,7 @@ from adclient.schemas import (
     TaskInfo,
     TellRequest,
     Trial,
+    TrialAdd,
     TrialState,
     WorkerInfo,
 )
@@ -189,6 +190,31 @@ class Client(Transport):
         return Trial.model_validate(data)
 
     # -- ask / tell ------------------------------------------------------------------
+
+    def add_trials(
+        self, study_id: int, trials: Iterable[TrialAdd | Mapping[str, Any]]
+    ) -> list[Trial]:
+        """Hand trials to a study (its owner): each without an outcome is enqueued (the
+        next ask hands it out before proposing, as Optuna's ``enqueue_trial``), each with
+        a ``value`` or ``state`` is an evaluation already made (``add_trial``: a warm
+        start). All are stored or none; each is checked here first (:class:`Invalid`
+        naming it) and then against the study's space by the server. Not resent when an
+        answer is lost (``skip_if_exists`` makes a resend harmless)."""
+        bodies: list[dict[str, Any]] = []
+        for index, trial in enumerate(trials):
+            try:
+                add = TrialAdd.model_validate(
+                    _jsonable(trial) if isinstance(trial, Mapping) else trial
+                )
+            except ValidationError as exc:
+                raise Invalid(
+                    None, "invalid", f"trials[{index}]: {_validation_message(exc)}"
+                ) from exc
+            bodies.append(add.model_dump(mode="json", exclude_defaults=True))
+        data = self.request(
+            "POST", f"{API}/studies/{int(study_id)}/trials", json_body=bodies, idempotent=False
+        ).json()
+        return [Trial.model_validate(item) for item in data]
 
     def ask(self, study_id: int, count: int = 1) -> list[Trial]:
         """Ask the study's proposer for ``count`` new trials (1..64), now ``running``."""

@@ -15,7 +15,7 @@ from adclient.schemas import Study, Trial
 ExportFormat = Literal["json", "csv"]
 
 
-_CSV_FIELDS = [
+CSV_FIELDS = [
     "number",
     "id",
     "state",
@@ -73,7 +73,7 @@ def export_csv(trials: list[Trial]) -> str:
     out = io.StringIO()
     writer = csv.DictWriter(
         out,
-        fieldnames=[*_CSV_FIELDS, *param_columns, *metric_columns, *attr_columns],
+        fieldnames=[*CSV_FIELDS, *param_columns, *metric_columns, *attr_columns],
         restval="",
         lineterminator="\n",
     )

@@ -142,6 +142,37 @@ class StudyHandle:
         trials = [LiveTrial.bound(trial, self.client) for trial in asked]
         return trials[0] if count is None else trials
 
+    def enqueue_trial(self, params: Mapping[str, Any], *, skip_if_exists: bool = False) -> Trial:
+        """Queue ``params`` for evaluation: the next ask hands this trial out before
+        proposing (for a managed study, a worker leases it), as Optuna's
+        ``enqueue_trial``; with ``skip_if_exists`` a trial of the same params already in
+        the study (failed ones aside) is returned instead."""
+        return self.client.add_trials(
+            self.id, [{"params": dict(params), "skip_if_exists": skip_if_exists}]
+        )[0]
+
+    def add_trial(
+        self,
+        params: Mapping[str, Any],
+        value: float | None = None,
+        *,
+        state: Literal["complete", "failed", "pruned"] | None = None,
+        message: str | None = None,
+        metrics: Mapping[str, float] | None = None,
+    ) -> Trial:
+        """Store an evaluation made elsewhere (Optuna's ``add_trial``): it counts in the
+        study's best and its proposer learns from it. ``state`` defaults to complete."""
+        body: dict[str, Any] = {
+            "params": dict(params),
+            "value": value,
+            "state": state or "complete",
+        }
+        if message is not None:
+            body["message"] = message
+        if metrics:
+            body["metrics"] = dict(metrics)
+        return self.client.add_trials(self.id, [body])[0]
+
     def tell(
         self,
         trial: TrialRef,
