@@ -215,6 +215,15 @@ def _print_json(value: Any) -> None:
     sys.stdout.write(json.dumps(data, indent=2) + "\n")
 
 
+def _state_text(trial: Trial) -> str:
+    """The state, and whether the study's owner handed the trial over (enqueued, or an
+    evaluation added) rather than its proposer making it."""
+    source = trial.info.get("source")
+    return (
+        f"{trial.state.value} ({source})" if source in ("enqueued", "added") else trial.state.value
+    )
+
+
 def _trial_table(trials: list[Trial], title: str | None = None) -> Table:
     table = Table(title=title)
     for column in ("#", "id", "state", "value", "worker", "attempts", "params"):
@@ -223,7 +232,7 @@ def _trial_table(trials: list[Trial], title: str | None = None) -> Table:
         table.add_row(
             str(trial.number),
             str(trial.id),
-            trial.state.value,
+            _state_text(trial),
             _num(trial.value),
             escape(trial.worker_id or ""),
             str(trial.attempts),

@@ -121,6 +121,8 @@ def test_enqueue_from_the_command_line_and_the_sdk(server: ServerProcess, client
     added = study.add_trial({"x": 1.0, "n": 1, "c": "a"}, 7.5)
     assert queued.state == "queued" and added.state == "complete"
     assert study.best_value == 7.5
+    listed = ok(run(server.url, "trials", str(study.id))).stdout
+    assert "queued (enqueued)" in listed and "complete (added)" in listed
     with pytest.raises(Invalid, match="value is required"):
         study.add_trial({"x": 1.0, "n": 1, "c": "a"})
     asked = study.ask(count=3)

@@ -6,6 +6,18 @@ import { formatNumber } from './charts.js';
 import { ago, badge, duration, element, esc, finder, formatParam, urdfLink } from './html.js';
 import { showError } from './shell.js';
 
+const HANDED_OVER = {
+  enqueued: 'queued by its owner (POST /studies/{id}/trials), not proposed',
+  added: 'an evaluation handed to the study (a warm start or an import), not run here',
+};
+
+/** A mark on trials the study's owner handed over rather than its proposer made. */
+function handedOver(trial) {
+  const source = trial.info?.source;
+  if (!Object.hasOwn(HANDED_OVER, source)) return '';
+  return ` <span class="meta" data-source="${esc(source)}" title="${esc(HANDED_OVER[source])}">${esc(source)}</span>`;
+}
+
 const COLUMNS = [
   { key: 'number', label: '#', sort: 'number' },
   { key: 'state', label: 'State', sort: 'state' },
@@ -193,7 +205,7 @@ export class TrialsPanel {
         const best = trial.id === study.best_trial_id;
         return `<tr data-trial-id="${trial.id}" class="${best ? 'is-best' : ''}">
           <td class="num">${trial.number}${best ? ' <span title="best">★</span>' : ''}</td>
-          <td>${badge(trial.state)}</td>
+          <td>${badge(trial.state)}${handedOver(trial)}</td>
           <td class="num">${formatNumber(trial.value)}</td>
           <td>${esc(trial.worker_id ?? '—')}</td>
           <td class="num">${trial.attempts}</td>
