@@ -7,14 +7,18 @@ from __future__ import annotations
 import threading
 from collections import Counter
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
+import yaml
 
 from tests.servers import ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 SPACE = {
     "type": "box",
@@ -217,3 +221,27 @@ def test_only_the_owner_hands_trials_to_a_study(
         assert worker.post(url, json={"params": params(1)}).status_code == 403
         assert owner.post(url, json={"params": params(1)}).status_code == 201
         assert owner.get(f"/api/v1/studies/{sid}").json()["n_trials"] == 1
+
+
+def test_a_design_is_enqueued_by_its_specs(live_server: ServerProcess) -> None:
+    body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
+    body.pop("task")
+    body |= {"proposer": {"name": "random"}, "max_trials": 8}
+    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+        sid = http.post("/api/v1/studies", json=body).json()["id"]
+        asked = http.post(f"/api/v1/studies/{sid}/ask", json={"count": 1}).json()["trials"][0]
+        url = f"/api/v1/studies/{sid}/trials"
+        again = http.post(url, json={"params": asked["params"]})
+        assert again.status_code == 201, again.text
+        # The same design, decoded back (its vector may differ: several encode one design).
+        assert again.json()["params"] == asked["params"]
+        wrong = dict(asked["params"], structure="a-e")
+        refused = http.post(url, json={"params": wrong})
+        assert refused.status_code == 422 and "is not structure_index" in refused.json()["detail"]
+        missing = {k: v for k, v in asked["params"].items() if k != "b.joint.axis_phi"}
+        refused = http.post(url, json={"params": missing})
+        assert (
+            refused.status_code == 422
+            and "'b.joint.axis_phi' is missing" in refused.json()["detail"]
+        )
+        assert http.get(f"/api/v1/studies/{sid}").json()["n_trials"] == 2
