@@ -244,6 +244,8 @@ Choice = Annotated[str | bool | int | float, Field(description="a choice")]
 """A categorical param's choice: text, a boolean or a number, kept exactly as given."""
 _NUMERIC_FIELDS = ("low", "high", "log", "step")
 MAX_CHOICES = 1000
+MAX_STEPS = 1e15
+"""The most grid steps of a stepped param: beyond, grid values are no longer exact."""
 
 
 class BoxParam(_Strict):
@@ -302,6 +304,8 @@ class BoxParam(_Strict):
         if self.log:
             raise ValueError(f"{where}: step and log do not go together (a grid is linear)")
         intervals = (self.high - self.low) / self.step
+        if not intervals <= MAX_STEPS:
+            raise ValueError(f"{where}: step ({self.step}) makes more than {MAX_STEPS:g} steps")
         if abs(intervals - round(intervals)) > 1e-9 * max(1.0, intervals) or round(intervals) < 1:
             raise ValueError(
                 f"{where}: step ({self.step}) does not divide the range "

@@ -135,6 +135,7 @@ BAD_PARAMS: list[tuple[dict[str, Any], str]] = [
     ({"name": "n", "type": "int", "low": 0, "high": 10, "step": 1.5}, "step must be an integer"),
     ({"name": "s", "low": 0.0, "high": 1.0, "step": 0.3}, "step (0.3) does not divide"),
     ({"name": "s", "low": 0.0, "high": 1.0, "step": -0.5}, "step must be > 0"),
+    ({"name": "s", "low": 0.0, "high": 1.0, "step": 1e-320}, "makes more than 1e+15 steps"),
     ({"name": "s", "low": 1e-3, "high": 1.0, "step": 0.1, "log": True}, "step and log"),
     ({"name": "a", "type": "categorical", "choices": []}, "non-empty list of choices"),
     ({"name": "a", "type": "categorical", "choices": ["x", "x"]}, "choice 'x' appears twice"),
