@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 from collections.abc import Iterator
 from typing import Any
 
@@ -308,3 +309,28 @@ def test_qei_starts_by_trying_every_choice() -> None:
         assert proposal.info[0]["method"] == "sobol-initial"
         X = np.vstack([X, proposal.candidates])
     assert sorted(box.decode(row)["a"] for row in X) == ["p", "q", "r", "s"]
+
+
+def test_snapped_vectors_decode_and_encode_back_exactly() -> None:
+    """Any point of the search box snaps to a vector that is its own snap, decodes into
+    params of the space and encodes back bit for bit; an unknown choice or a value off
+    range is a ValueError naming the param."""
+    box = BoxEncoding.of(SPACE)
+    rng = np.random.default_rng(0)
+    points = box.bounds[0] + rng.random((500, len(PARAMS))) * (box.bounds[1] - box.bounds[0])
+    snapped = box.snap(points)
+    np.testing.assert_array_equal(box.snap(snapped), snapped)
+    for vector in snapped:
+        params = box.decode(vector)
+        assert_typed(params, list(vector))
+        np.testing.assert_array_equal(box.encode(params), vector)
+    good = box.decode(snapped[0])
+    for name, value, problem in [
+        ("activation", "swish", "'swish' is not one of its choices"),
+        ("batch", "32", "'32' is not one of its choices"),
+        ("width", 65, "65 is outside [1, 64]"),
+        ("width", 2.5, "2.5 is not an integer"),
+        ("lr", True, "True is not a finite number"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(f"param '{name}': {problem}")):
+            box.encode({**good, name: value})
