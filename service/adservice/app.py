@@ -93,7 +93,10 @@ ERROR_RESPONSES = {
     413: "Body too large",
     415: "A change sent with neither a JSON body nor the X-Activedesign-Client header",
     422: "Invalid field; the detail names it",
+    431: "Request line and headers longer than AD_MAX_HEADER_BYTES (a long query string)",
 }
+PLAIN_TEXT_ERRORS = {431}
+"""Answered by the server's protocol layer before any route, in plain text."""
 
 
 def document_error_bodies(app: FastAPI) -> None:
@@ -116,9 +119,12 @@ def document_error_bodies(app: FastAPI) -> None:
             for operation in operations.values():
                 responses = operation.setdefault("responses", {})
                 for status, description in ERROR_RESPONSES.items():
+                    plain = {"text/plain": {"schema": {"type": "string"}}}
                     content: dict[str, Any] = {"application/json": {"schema": ref}}
-                    if status == 400:  # uvicorn answers malformed HTTP itself, in plain text
-                        content["text/plain"] = {"schema": {"type": "string"}}
+                    if status in PLAIN_TEXT_ERRORS:
+                        content = plain
+                    elif status == 400:  # uvicorn answers malformed HTTP itself, in plain text
+                        content |= plain
                     responses[str(status)] = {"description": description, "content": content}
         app.openapi_schema = schema
         return schema
