@@ -233,7 +233,9 @@ def load(args: argparse.Namespace) -> list[dict[str, Any]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=list(EXAMPLES), choices=list(EXAMPLES))
-    parser.add_argument("--variants", nargs="+", default=["none", "median", "asha"])
+    parser.add_argument(
+        "--variants", nargs="+", default=["none", "median", "asha", "asha-promotion"]
+    )
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--trials", type=int, default=20)
