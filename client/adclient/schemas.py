@@ -621,6 +621,24 @@ class Study(BaseModel):
     updated_at: datetime
 
 
+class TrialCurve(BaseModel):
+    """One trial's reported curve, as the dashboard draws a study's learning curves."""
+
+    trial_id: int
+    number: int
+    state: TrialState
+    steps: list[int]
+    values: list[float]
+
+
+class StudyCurves(BaseModel):
+    """The reported curves of a study's latest trials that reported, oldest first
+    (``GET /api/v1/dashboard/studies/{id}/curves``)."""
+
+    curves: list[TrialCurve]
+    more: bool = Field(description="earlier trials reported too and are left out")
+
+
 class TrialColumns(BaseModel):
     """A page of a study's trials as parallel columns, in order of number: the small
     payload charts draw from (``GET /studies/{id}/series``)."""

@@ -1,6 +1,6 @@
 """Read-side queries for charts and the dashboard: trials as columns, a page at a time
 and optionally only those that changed since a page last looked, and which artifacts a
-page of trials has.
+page of trials has, and the learning curves trials reported.
 
 A complete or failed trial never changes again, so a page that holds a study's trials
 only needs the new ones and those it last saw queued or running.
@@ -15,9 +15,9 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from adclient.schemas import TrialColumns, TrialState
+from adclient.schemas import StudyCurves, TrialColumns, TrialCurve, TrialState
 from adservice import repository
-from adservice.models import ArtifactRow, TrialRow
+from adservice.models import ArtifactRow, TrialReportRow, TrialRow
 
 SERIES_PAGE = 5000
 """The most trials one page of columns holds (also the default)."""
@@ -94,6 +94,48 @@ def trial_columns(
         value=[row[2] for row in rows],
         params=params,
         next=last + 1 if more else None,
+    )
+
+
+CURVES_PAGE = 500
+"""Trials a page of curves holds at most (``limit``)."""
+
+
+def study_curves(session: Session, *, study_id: int, limit: int) -> StudyCurves:
+    """The reported curves of the study's latest ``limit`` trials that reported: two
+    indexed queries (which trials, then their points), whatever the study's size."""
+    repository.get_study(session, study_id=study_id)
+    latest = session.execute(
+        sa.select(TrialRow.id, TrialRow.number, TrialRow.state)
+        .where(
+            TrialRow.study_id == study_id,
+            sa.exists().where(TrialReportRow.trial_id == TrialRow.id),
+        )
+        .order_by(TrialRow.number.desc())
+        .limit(limit + 1)
+    ).all()
+    more = len(latest) > limit
+    trials = sorted(latest[:limit], key=lambda row: row.number)
+    points: dict[int, list[tuple[int, float]]] = {row.id: [] for row in trials}
+    if trials:
+        for trial_id, step, value in session.execute(
+            sa.select(TrialReportRow.trial_id, TrialReportRow.step, TrialReportRow.value)
+            .where(TrialReportRow.trial_id.in_(list(points)))
+            .order_by(TrialReportRow.trial_id, TrialReportRow.step)
+        ):
+            points[trial_id].append((step, value))
+    return StudyCurves(
+        curves=[
+            TrialCurve(
+                trial_id=row.id,
+                number=row.number,
+                state=row.state,
+                steps=[step for step, _ in points[row.id]],
+                values=[value for _, value in points[row.id]],
+            )
+            for row in trials
+        ],
+        more=more,
     )
 
 

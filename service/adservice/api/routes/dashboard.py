@@ -1,4 +1,5 @@
-"""Reads only the dashboard needs: incremental chart columns and artifact names per page."""
+"""Reads only the dashboard needs: incremental chart columns, learning curves and artifact
+names per page."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 
-from adclient.schemas import TrialColumns
+from adclient.schemas import StudyCurves, TrialColumns
 from adservice import views
 from adservice.api.deps import MAX_ID, ReaderDep, SessionDep, StudyId
 from adservice.api.responses import model_response
@@ -50,6 +51,18 @@ def changed_series(
         limit=limit,
     )
     return model_response(columns)
+
+
+@router.get("/studies/{study_id}/curves")
+def curves(
+    study_id: StudyId,
+    session: SessionDep,
+    _: ReaderDep,
+    limit: Annotated[int, Query(ge=1, le=views.CURVES_PAGE)] = 200,
+) -> StudyCurves:
+    """The reported learning curves of the study's latest ``limit`` trials that reported
+    (``more``: earlier ones did too), for the chart of a study's curves."""
+    return views.study_curves(session, study_id=study_id, limit=limit)
 
 
 @router.get("/studies/{study_id}/artifacts")

@@ -6,6 +6,7 @@
 
 import { getJSON } from './api.js';
 import { BestCard } from './best.js';
+import { CurvesPanel } from './curves.js';
 import { StudyHeader } from './header.js';
 import { HistoryPanel } from './history.js';
 import { element } from './html.js';
@@ -53,12 +54,13 @@ export class StudyPage {
     this.history = new HistoryPanel(this);
     this.best = new BestCard(this);
     this.params = new ParamsPanel(this);
+    this.curves = new CurvesPanel(this);
     this.workers = new WorkersPanel(this);
     this.trials = new TrialsPanel(this);
     this.root = element('<div class="study"><div class="grid"></div></div>');
     this.root.querySelector('.grid').append(this.history.root, this.best.root);
     this.root.prepend(this.header.root);
-    this.root.append(this.params.root, this.workers.root, this.trials.root);
+    this.root.append(this.params.root, this.curves.root, this.workers.root, this.trials.root);
     view.replaceChildren(this.root);
     this.root.addEventListener('click', (event) => {
       const opener = event.target.closest('a[data-open-trial]');
@@ -83,7 +85,13 @@ export class StudyPage {
     this.study = await getJSON(this.api(''));
     this.signature = signatureOf(this.study);
     this.header.render(this.study);
-    await Promise.all([this.series.load(), this.trials.load(), this.best.load(), this.workers.load()]);
+    await Promise.all([
+      this.series.load(),
+      this.trials.load(),
+      this.best.load(),
+      this.workers.load(),
+      this.curves.load(),
+    ]);
     if (!this.alive) return;
     this.drawCharts();
     this.trials.render();
@@ -106,6 +114,8 @@ export class StudyPage {
     this.study = study;
     this.signature = signatureOf(study);
     const work = [this.workers.load()];
+    const curvesDue = changed || this.curves.wanted(study);
+    if (curvesDue) work.push(this.curves.load());
     if (changed) {
       work.push(this.series.load(), this.trials.load(), this.best.load());
     } else {
@@ -118,6 +128,7 @@ export class StudyPage {
     const fetched = performance.now();
     this.header.render(study);
     if (changed) this.drawCharts({ scoresChanged });
+    else if (curvesDue) this.curves.draw();
     this.trials.render();
     this.best.render();
     this.workers.render();
@@ -143,6 +154,7 @@ export class StudyPage {
    * trials), since they show complete trials only. */
   drawCharts({ scoresChanged = true } = {}) {
     this.history.draw();
+    this.curves.draw();
     if (!scoresChanged) return;
     this.correlations = paramCorrelations(this.series);
     this.searched = new Set(this.correlations.map((c) => c.name));
