@@ -60,10 +60,10 @@ class StudyConfig:
     """A box of typed params (int, log, step, categorical): how its vectors encode them.
     None for a design space and for a box of plain floats (vector = params)."""
     proposer_error: InvalidError | None = None
-    pruner: PrunerConfig = field(default_factory=PrunerConfig)
-    """The study's pruner; ``pruner.pruned_as`` says how its proposer sees pruned trials."""
     """Why the stored proposer settings cannot be used (a study stored before they were
     checked at creation): asking such a study answers 409 naming the problem."""
+    pruner: PrunerConfig = field(default_factory=PrunerConfig)
+    """The study's pruner; ``pruner.pruned_as`` says how its proposer sees pruned trials."""
 
     @classmethod
     def from_row(cls, row: StudyRow) -> StudyConfig:
