@@ -227,6 +227,38 @@ def reserve_numbers(session: Session, *, study_id: int, count: int) -> int:
     return int(reserved["n_trials"]) - count
 
 
+def _new_trial(
+    *,
+    study_id: int,
+    number: int,
+    vector: Sequence[float],
+    params: dict[str, Any],
+    now: datetime,
+    **columns: Any,
+) -> dict[str, Any]:
+    """A trials row to insert, naming every column the insert sets (one compiled
+    statement for all), with ``columns`` over a queued trial's defaults."""
+    return {
+        "study_id": study_id,
+        "number": number,
+        "state": TrialState.queued.value,
+        "vector": [float(x) for x in vector],
+        "params": params,
+        "value": None,
+        "message": None,
+        "metrics": {},
+        "info": {},
+        "worker_id": None,
+        "attempts": 0,
+        "created_at": now,
+        "started_at": None,
+        "finished_at": None,
+        "heartbeat_at": None,
+        "lease_expires_at": None,
+        "lease_token_id": None,
+    } | columns
+
+
 _INSERT_TRIALS = Prepared(sa.insert(_trials).returning(_trials.c.id, sort_by_parameter_order=True))
 
 
@@ -246,26 +278,27 @@ def insert_trials(
     ``running`` and leased to ``worker_id`` (and its token) when given. A ``Prepared``
     statement in the session's transaction: no ORM bookkeeping per trial."""
     now = utcnow()
-    values = [
-        {
-            "study_id": study_id,
-            "number": first_number + offset,
-            "state": TrialState.running.value,
-            "vector": [float(x) for x in vector],
-            "params": param,
-            "value": None,
-            "message": None,
-            "metrics": {},
-            "info": info,
+    lease: dict[str, Any] = {}
+    if worker_id:
+        lease = {
             "worker_id": worker_id,
-            "attempts": 1 if worker_id else 0,
-            "created_at": now,
-            "started_at": now,
-            "finished_at": None,
-            "heartbeat_at": now if worker_id else None,
-            "lease_expires_at": now + timedelta(seconds=lease_seconds) if worker_id else None,
-            "lease_token_id": lease_token_id if worker_id else None,
+            "attempts": 1,
+            "heartbeat_at": now,
+            "lease_expires_at": now + timedelta(seconds=lease_seconds),
+            "lease_token_id": lease_token_id,
         }
+    values = [
+        _new_trial(
+            study_id=study_id,
+            number=first_number + offset,
+            vector=vector,
+            params=param,
+            now=now,
+            state=TrialState.running.value,
+            info=info,
+            started_at=now,
+            **lease,
+        )
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
     ids = [row["id"] for row in _INSERT_TRIALS.rows(session, values)]
@@ -303,11 +336,14 @@ def claim_queued(session: Session, *, study_id: int, count: int) -> list[Trial]:
 
 
 def count_queued(session: Session, *, study_id: int) -> int:
-    return session.scalar(
-        sa.select(sa.func.count())
-        .select_from(TrialRow)
-        .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
-    ) or 0
+    return (
+        session.scalar(
+            sa.select(sa.func.count())
+            .select_from(TrialRow)
+            .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
+        )
+        or 0
+    )
 
 
 def add_trials(
@@ -324,25 +360,19 @@ def add_trials(
     them would (``info.source`` says which: ``enqueued`` or ``added``)."""
     now = utcnow()
     values = [
-        {
-            "study_id": study_id,
-            "number": first_number + offset,
-            "state": add.state,
-            "vector": [float(x) for x in vector],
-            "params": param,
-            "value": add.value,
-            "message": add.message,
-            "metrics": dict(add.metrics),
-            "info": {"source": "enqueued" if add.state == TrialState.queued else "added"},
-            "worker_id": None,
-            "attempts": 0,
-            "created_at": now,
-            "started_at": None,
-            "finished_at": None if add.state == TrialState.queued else now,
-            "heartbeat_at": None,
-            "lease_expires_at": None,
-            "lease_token_id": None,
-        }
+        _new_trial(
+            study_id=study_id,
+            number=first_number + offset,
+            vector=vector,
+            params=param,
+            now=now,
+            state=add.state,
+            value=add.value,
+            message=add.message,
+            metrics=dict(add.metrics),
+            info={"source": "enqueued" if add.state == TrialState.queued else "added"},
+            finished_at=None if add.state == TrialState.queued else now,
+        )
         for offset, (vector, param, add) in enumerate(zip(vectors, params, adds, strict=True))
     ]
     ids = [row["id"] for row in _INSERT_TRIALS.rows(session, values)]

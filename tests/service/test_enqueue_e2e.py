@@ -138,6 +138,11 @@ def test_duplicates_are_kept_unless_skipped(live_server: ServerProcess) -> None:
         )
         assert skipped.status_code == 201
         assert skipped.json()[0]["id"] == first["id"] and skipped.json()[1]["number"] == 2
+        # A repeat within one body is the same trial too.
+        twice = http.post(
+            url, json=[{"params": params(8), "skip_if_exists": True} for _ in range(2)]
+        ).json()
+        assert twice[0]["id"] == twice[1]["id"] and twice[0]["number"] == 3
         # A failed evaluation does not count as existing: the params are tried again.
         failed = http.post(url, json={"params": params(7), "state": "failed"}).json()
         retried = http.post(url, json={"params": params(7), "skip_if_exists": True}).json()

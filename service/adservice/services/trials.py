@@ -236,11 +236,18 @@ def add_trials(
         existing: dict[tuple[float, ...], Trial] = {}
         if any(add.skip_if_exists for add in adds):
             existing = repository.trials_of_vectors(session, study_id=study_id, vectors=vectors)
-        new = [
-            index
-            for index, (add, vector) in enumerate(zip(adds, vectors, strict=True))
-            if not (add.skip_if_exists and tuple(vector) in existing)
-        ]
+        new: list[int] = []
+        repeats: dict[int, int] = {}  # index -> the earlier new one of this body it repeats
+        first_of: dict[tuple[float, ...], int] = {}
+        for index, (add, vector) in enumerate(zip(adds, vectors, strict=True)):
+            key = tuple(vector)
+            if add.skip_if_exists and key in existing:
+                continue
+            if add.skip_if_exists and key in first_of:
+                repeats[index] = first_of[key]
+                continue
+            first_of.setdefault(key, index)
+            new.append(index)
         added: list[Trial] = []
         if new:
             first = repository.reserve_numbers(session, study_id=study_id, count=len(new))
@@ -253,7 +260,10 @@ def add_trials(
                 adds=[adds[index] for index in new],
             )
     by_index = dict(zip(new, added, strict=True))
-    return [by_index.get(index) or existing[tuple(vector)] for index, vector in enumerate(vectors)]
+    return [
+        by_index.get(repeats.get(index, index)) or existing[tuple(vector)]
+        for index, vector in enumerate(vectors)
+    ]
 
 
 @dataclass(frozen=True)
