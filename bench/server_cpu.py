@@ -1,0 +1,103 @@
+"""Server CPU per ask+tell cycle: the ``adserver`` process's own CPU time, read from /proc
+before and after the cycles, so other load on the machine moves it far less than it
+moves cycles per second.
+
+Each run starts a real ``adserver`` on a fresh SQLite file, warms it up, then ``--clients``
+threads (httpx, a connection each) do ``--cycles`` ask+tell cycles in all (the
+``random`` proposer, as bench/throughput.py). With ``--baseline DIR`` (a checkout of
+other code, e.g. ``git worktree add /tmp/before <commit>``) runs alternate between the
+installed code and the server started with ``DIR/service:DIR/client`` first on
+``PYTHONPATH``.
+
+    python bench/server_cpu.py [--runs 4] [--clients 8] [--cycles 1200] [--baseline DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tests.servers import ServerProcess
+
+BOX = {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]}
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def one_run(clients: int, cycles: int, pythonpath: str | None) -> tuple[float, float]:
+    """(server ms of CPU per cycle, cycles per second) of one fresh server."""
+    env = {"PYTHONPATH": pythonpath} if pythonpath else {}
+    with tempfile.TemporaryDirectory() as temp:
+        workdir = Path(temp)
+        server = ServerProcess(
+            database_url=f"sqlite:///{workdir / 'ad.db'}", workdir=workdir, env=env
+        ).start()
+        try:
+            with httpx.Client(base_url=server.url) as http:
+                body = {"name": "cpu", "space": BOX, "proposer": {"name": "random"}}
+                study = http.post("/api/v1/studies", json=body).json()["id"]
+                for _ in range(20):  # warm up: the study's configuration cached
+                    trial = http.post(f"/api/v1/studies/{study}/ask", json={"count": 1})
+                    tid = trial.json()["trials"][0]["id"]
+                    http.post(f"/api/v1/trials/{tid}/tell", json={"value": 0.0})
+
+            def client() -> None:
+                with httpx.Client(base_url=server.url, timeout=60) as http:
+                    for i in range(cycles // clients):
+                        asked = http.post(f"/api/v1/studies/{study}/ask", json={"count": 1})
+                        tid = asked.json()["trials"][0]["id"]
+                        told = http.post(f"/api/v1/trials/{tid}/tell", json={"value": float(i)})
+                        told.raise_for_status()
+
+            assert server.process is not None
+            pid = server.process.pid
+            before, start = cpu_seconds(pid), time.perf_counter()
+            threads = [threading.Thread(target=client) for _ in range(clients)]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+            elapsed, used = time.perf_counter() - start, cpu_seconds(pid) - before
+        finally:
+            server.stop()
+    done = clients * (cycles // clients)
+    return 1000 * used / done, done / elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=4)
+    parser.add_argument("--clients", type=int, default=8)
+    parser.add_argument("--cycles", type=int, default=1200)
+    parser.add_argument("--baseline", type=Path, help="a checkout to alternate with")
+    args = parser.parse_args()
+    codes: list[tuple[str, str | None]] = [("installed", None)]
+    if args.baseline:
+        root = args.baseline.resolve()
+        codes.insert(0, (f"baseline {root}", f"{root / 'service'}:{root / 'client'}"))
+    results: dict[str, list[float]] = {label: [] for label, _ in codes}
+    for run in range(args.runs):
+        for label, pythonpath in codes:
+            ms, rate = one_run(args.clients, args.cycles, pythonpath)
+            results[label].append(ms)
+            print(f"run {run + 1} {label}: {ms:.2f} ms server CPU per cycle, {rate:.0f} cycles/s")
+    for label, values in results.items():
+        shown = ", ".join(f"{v:.2f}" for v in values)
+        print(f"{label}: {shown}; mean {statistics.fmean(values):.2f} ms per cycle")
+
+
+if __name__ == "__main__":
+    main()
