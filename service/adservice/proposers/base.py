@@ -118,6 +118,18 @@ class ProposalRequest:
     seconds, memory_bytes: the server's budget for this ask (None: no limit); a
     proposer that models stops at the time budget and keeps within the memory one,
     recording in the info what it gave up (see ``qei``).
+
+    Several objectives and outcome constraints (issue 17; only for a proposer whose
+    ``multi_objective`` / ``constrained`` is true, the service refuses a study whose
+    proposer lacks what it needs):
+    objectives: (n, m) the objective values of X's trials, m >= 2, each column
+    oriented to be maximised; None for one objective (then ``y`` as always). When
+    set, ``y == objectives[:, 0]``, so a proposer that reads only ``y`` still runs.
+    ref_point: (m,) the hypervolume reference point, oriented like ``objectives``;
+    None: the proposer infers it.
+    slacks: (n, c) constraint slacks of X's trials, a trial satisfying constraint j
+    when ``slacks[:, j] <= 0`` (BoTorch's convention); None: no constraints. Also
+    with one objective.
     """
 
     bounds: FloatArray
@@ -135,6 +147,9 @@ class ProposalRequest:
     box: BoxEncoding | None = None
     seconds: float | None = None
     memory_bytes: int | None = None
+    objectives: FloatArray | None = None
+    ref_point: FloatArray | None = None
+    slacks: FloatArray | None = None
 
     @property
     def dim(self) -> int:
@@ -167,6 +182,12 @@ class Proposer(Protocol):
     service can skip loading the history (the hot path of cheap proposers)."""
     options_model: ClassVar[type[ProposerOptions]]
     """What ``ProposalRequest.options`` may hold."""
+    multi_objective: ClassVar[bool]
+    """True when the proposer reads ``ProposalRequest.objectives`` (several
+    objectives); the service refuses a multi-objective study of any other."""
+    constrained: ClassVar[bool]
+    """True when the proposer reads ``ProposalRequest.slacks`` (outcome constraints);
+    the service refuses a constrained study of any other."""
 
     def propose(self, request: ProposalRequest) -> Proposal: ...
 

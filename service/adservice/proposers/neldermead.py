@@ -162,6 +162,8 @@ class NelderMeadProposer:
 
     name: ClassVar[str] = "nelder-mead"
     needs_history: ClassVar[bool] = True
+    multi_objective: ClassVar[bool] = False
+    constrained: ClassVar[bool] = False
     options_model: ClassVar[type[ProposerOptions]] = NelderMeadOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:

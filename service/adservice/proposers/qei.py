@@ -287,6 +287,8 @@ class QLogEIProposer:
 
     name: ClassVar[str] = "qei"
     needs_history: ClassVar[bool] = True
+    multi_objective: ClassVar[bool] = False
+    constrained: ClassVar[bool] = False
     options_model: ClassVar[type[ProposerOptions]] = QEIOptions
 
     @staticmethod

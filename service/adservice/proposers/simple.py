@@ -19,6 +19,8 @@ class RandomProposer:
 
     name: ClassVar[str] = "random"
     needs_history: ClassVar[bool] = False
+    multi_objective: ClassVar[bool] = True  # ignores the history
+    constrained: ClassVar[bool] = True
     options_model: ClassVar[type[ProposerOptions]] = NoOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
@@ -52,6 +54,8 @@ class SobolProposer:
 
     name: ClassVar[str] = "sobol"
     needs_history: ClassVar[bool] = False
+    multi_objective: ClassVar[bool] = True  # ignores the history
+    constrained: ClassVar[bool] = True
     options_model: ClassVar[type[ProposerOptions]] = NoOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:

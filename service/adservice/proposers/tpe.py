@@ -80,6 +80,8 @@ class TPEProposer:
 
     name: ClassVar[str] = "tpe"
     needs_history: ClassVar[bool] = True
+    multi_objective: ClassVar[bool] = False
+    constrained: ClassVar[bool] = False
     options_model: ClassVar[type[ProposerOptions]] = TPEOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
