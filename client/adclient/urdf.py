@@ -62,6 +62,23 @@ def link_inertia(link: Link) -> tuple[float, float, float]:
     return ixx, ixx, m * r**2 / 2
 
 
+def design_mass(design: Design) -> float:
+    """The robot's total mass as built (kg): the sum of its links' masses.
+
+    Each link's mass is its ``mass`` spec, written as the link's ``<inertial><mass>``,
+    so this is also the sum of the masses a simulator loading the URDF simulates. It is
+    a spec of its own, not a density times the shape's volume: a longer or thicker link
+    weighs what its ``mass`` says."""
+    return math.fsum(float(link.mass) for link in design.links)
+
+
+def design_link_length(design: Design) -> float:
+    """Total length of the robot's links (m): the sum of each link's ``length``, the
+    span of its cylinder or box along its own axis (radii not counted; a joint placed
+    before its parent's far end does not shorten the parent)."""
+    return math.fsum(float(link.length) for link in design.links)
+
+
 def _geometry(parent: ET.Element, link: Link) -> None:
     geometry = ET.SubElement(parent, "geometry")
     if link.shape == "box":

@@ -78,6 +78,11 @@ def test_evaluate_job_reports_score_metrics_and_artifacts(tmp_path) -> None:
     for stage in ("decode", "urdf", "env", "train", "evaluate", "render"):
         assert metrics[f"time_{stage}_s"] >= 0
     assert metrics["time_total_s"] >= metrics["time_train_s"]
+    # The design as built (three 0.4 m links of 1 kg) and its motors while evaluated.
+    assert metrics["mass"] == pytest.approx(3.0)
+    assert metrics["link_length"] == pytest.approx(1.2)
+    assert 0.0 < metrics["effort"] <= 20.0  # the joints' effort limit
+    assert metrics["energy"] > 0.0  # the arch is raised from lying flat in every episode
     assert all(math.isfinite(value) for value in metrics.values())
 
     artifacts = {artifact.name: artifact for artifact in evaluation.artifacts}
@@ -212,3 +217,38 @@ def test_the_shortest_episode_allowed_is_the_shortest_the_simulator_runs(tmp_pat
     too_short = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), episode_steps=shortest - 1)
     with pytest.raises(ValueError, match="episode_steps"):
         evaluate_job(too_short, tmp_path / "too-short", render=False)
+
+
+def test_secondary_metrics_measure_the_design_and_its_evaluation_episodes(tmp_path) -> None:
+    """mass and link_length follow the decoded design; effort and energy are the
+    evaluation episodes' (training unmetered): the trained policy re-run on a fresh env
+    over the same seeds meters the same figures."""
+    from adclient.plugins import catalogue
+    from adworker.evaluate import task_options
+
+    short = evaluate_job(
+        make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI, length=0.3), train_steps=64),
+        tmp_path / "short",
+    )
+    job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI, length=0.55), train_steps=64)
+    long = evaluate_job(job, tmp_path / "long")
+    assert short.metrics["link_length"] == pytest.approx(0.9)
+    assert long.metrics["link_length"] == pytest.approx(1.65)
+    assert short.metrics["mass"] == long.metrics["mass"] == pytest.approx(3.0)
+
+    assert long.train is not None
+    env = (
+        catalogue()
+        .task("stand-up")
+        .load_factory()(
+            design=long.design, urdf_path=long.urdf_path, options=task_options(job.task)
+        )
+    )
+    try:
+        meter = env.meter_motors()
+        evaluate_policy(env, long.train.policy, evaluation_seeds(job.task))
+    finally:
+        env.close()
+    assert len(meter.episode_energy) == job.task.eval_episodes
+    assert long.metrics["energy"] == pytest.approx(meter.energy, rel=1e-9)
+    assert long.metrics["effort"] == pytest.approx(meter.effort, rel=1e-9)

@@ -146,3 +146,137 @@ def test_render_image_is_a_picture_of_the_robot(env_of) -> None:
     assert image.shape == (240, 320, 3)
     assert image.dtype == np.uint8
     assert len(np.unique(image.reshape(-1, 3), axis=0)) > 10  # not a blank frame
+
+
+# ------------------------------------------------------------ secondary metrics
+
+
+def _engine_masses(env) -> list[float]:
+    import pybullet
+
+    cid, body = env.sim.client, env.robot.body
+    count = pybullet.getNumJoints(body, physicsClientId=cid)
+    return [
+        pybullet.getDynamicsInfo(body, link, physicsClientId=cid)[0] for link in range(-1, count)
+    ]
+
+
+def test_design_mass_is_the_mass_pybullet_simulates(env_of) -> None:
+    from adclient.urdf import design_link_length, design_mass
+
+    star = designs.tree_design(
+        [("a", "b"), ("a", "c"), ("a", "d")],
+        {"b": (math.pi / 2, math.pi / 2), "c": (math.pi / 2, 0.0), "d": (0.0, 0.0)},
+        length={"a": 0.3, "b": 0.45, "c": 0.25, "d": 0.5},
+        mass=0.7,
+    )
+    star.links[2].mass = 1.9  # one link heavier than the others
+    for task, design in (("lift-highest", star), ("stand-up", designs.arch_chain(mass=0.8))):
+        env = env_of(task, design)
+        try:
+            engine = _engine_masses(env)
+        finally:
+            env.close()
+        assert len(engine) == len(design.links)
+        assert design_mass(design) == pytest.approx(math.fsum(engine), rel=1e-12)
+    # A fixed base is static in the engine (it reports mass 0 for it): the robot as built
+    # still has that link, and its mass counts; the moving links' are the engine's.
+    arm = designs.arch_chain(mass=0.8)
+    env = env_of("diagonal-gesture", arm)
+    try:
+        base, *moving = _engine_masses(env)
+    finally:
+        env.close()
+    assert base == 0.0
+    assert design_mass(arm) == pytest.approx(0.8 + math.fsum(moving), rel=1e-12)
+    assert design_mass(star) == pytest.approx(3 * 0.7 + 1.9)
+    assert design_link_length(star) == pytest.approx(0.3 + 0.45 + 0.25 + 0.5)
+
+
+def test_mass_follows_the_mass_specs_and_link_length_the_lengths(env_of) -> None:
+    """A link's mass is its own spec (written as the URDF's inertial mass), not a density
+    times its volume: heavier links make a heavier robot; longer or thicker ones, of the
+    same mass spec, a longer one of the same mass."""
+    from adclient.urdf import design_link_length, design_mass
+
+    base = designs.arch_chain()
+    heavier = designs.arch_chain(mass=1.5)
+    bigger = designs.arch_chain(length=0.55, radius=0.06)
+    assert design_mass(heavier) > design_mass(base) == pytest.approx(3.0)
+    assert design_mass(bigger) == design_mass(base)
+    assert design_link_length(bigger) > design_link_length(base) == pytest.approx(1.2)
+    for design in (heavier, bigger):
+        env = env_of("stand-up", design)
+        try:
+            assert math.fsum(_engine_masses(env)) == pytest.approx(design_mass(design))
+        finally:
+            env.close()
+
+
+def _metered(env, action, seeds=(0, 1)):
+    meter = env.meter_motors()
+    for seed in seeds:
+        _trace(env, action, seed)
+    return meter
+
+
+@pytest.mark.parametrize("task", BUILT_IN)
+def test_motors_resting_in_their_target_pose_cost_nothing_and_moving_costs(
+    task: str, env_of
+) -> None:
+    """Zero action is the rest pose (limits symmetric about 0). Started exactly there
+    (no initial perturbation), a lying robot rests on the ground and an upright fixed one
+    holds its weight along the joints' axes: no torque, no work, up to the contact
+    solver's residue on the ground (0.02 N m, a thousandth of the motors' 20). Bending
+    the joints costs both; the torque never exceeds the joints' effort limit."""
+    env = env_of(task, "arch_chain", init_noise=0.0)
+    try:
+        rest = _metered(env, [0.0, 0.0])
+        bent = _metered(env, [0.7, 0.7])
+    finally:
+        env.close()
+    assert rest.samples == bent.samples == 2 * env.episode_steps * env.sim.frame_skip
+    assert len(rest.episode_energy) == len(bent.episode_energy) == 2
+    assert 0.0 <= rest.effort < 0.05
+    assert 0.0 <= rest.energy < 1e-4
+    if task == "diagonal-gesture":
+        assert rest.effort == rest.energy == 0.0
+    assert 1.0 < bent.effort <= 20.0
+    assert bent.energy > 1.0
+    assert min(bent.episode_energy) > 1.0
+
+
+def test_holding_a_pose_against_gravity_costs_effort_but_no_energy(env_of) -> None:
+    """An arm on a fixed upright base, both axes horizontal, b bent 45 degrees and c
+    straight: once still, each motor applies the static torque of the weight beyond it
+    (m g times the horizontal lever of each link's centre) and does no work."""
+    env = env_of("diagonal-gesture", "parallel_chain", init_noise=0.0, episode_steps=64)
+    try:
+        meter = env.meter_motors()
+        env.reset(seed=0)
+        action = np.array([0.5, 0.0], dtype=np.float32)  # q_b = pi/4, q_c = 0
+        for _ in range(40):
+            env.step(action)
+        torque, energy, samples = meter.torque_sum, meter.episode_energy[-1], meter.samples
+        for _ in range(24):
+            env.step(action)
+    finally:
+        env.close()
+    g, length, mass, lean = 9.81, 0.4, 1.0, math.sin(math.pi / 4)
+    at_b = g * mass * (length / 2 + 3 * length / 2) * lean  # b's and c's centres
+    at_c = g * mass * (length / 2) * lean
+    held = (meter.torque_sum - torque) / ((meter.samples - samples) * 2)
+    assert held == pytest.approx((at_b + at_c) / 2, rel=1e-3)
+    assert meter.episode_energy[-1] - energy < 1e-6
+    assert meter.energy > 1.0  # getting there did cost
+
+
+def test_metering_does_not_change_an_episode(env_of) -> None:
+    env = env_of("walk-forward", "arch_chain")
+    try:
+        plain = _trace(env, [0.4, -0.6], seed=3)
+        env.meter_motors()
+        metered = _trace(env, [0.4, -0.6], seed=3)
+    finally:
+        env.close()
+    assert metered == plain

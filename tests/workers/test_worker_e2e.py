@@ -78,6 +78,11 @@ def test_managed_study_runs_to_completion_with_a_pool_of_workers(server_factory,
             assert trial.value == trial.metrics["score_mean"]
             assert trial.metrics["train_steps"] == 256
             assert {"time_train_s", "time_evaluate_s", "score_std"} <= set(trial.metrics)
+            # The secondary metrics a study may optimise: three links of 1 kg, 0.25 to
+            # 0.6 m long, and motors that bend them into an arch.
+            assert trial.metrics["mass"] == 3.0
+            assert 0.75 <= trial.metrics["link_length"] <= 1.8
+            assert trial.metrics["effort"] >= 0.0 and trial.metrics["energy"] >= 0.0
             names = {artifact.name for artifact in client.artifacts(trial)}
             assert names == {"robot.urdf", "robot.png", "curve.json"}
         best = study.best_trial

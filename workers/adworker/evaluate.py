@@ -5,6 +5,11 @@ writes under ``workdir``): the worker loop calls it and reports what it returns,
 tests and the benchmark call it directly. Everything it needs is in the job
 (DESIGN.md section 2: workers stay stateless).
 
+Besides the score it reports secondary metrics a study may optimise or constrain:
+``mass`` and ``link_length`` of the design as built, and ``effort`` and ``energy`` of
+its motors over the evaluation episodes (:class:`adworker.tasks.robot.MotorMeter`;
+docs/worker.md, "Metrics a task reports").
+
 The score is the mean over ``eval_episodes`` deterministic episodes whose seeds
 derive from the task's seed, so re-running a job reproduces its score, and
 re-evaluating a design with another task seed draws other training and evaluation
@@ -74,6 +79,14 @@ def decode_job(job: Job) -> Design:
         )
     representation = job.representation or identity_representation(job.space)
     return decode(job.space, representation, job.vector)
+
+
+def design_metrics(design: Design) -> dict[str, float]:
+    """What a design is, before any physics: ``mass`` (kg, the sum of its links' masses,
+    those PyBullet simulates) and ``link_length`` (m, the sum of its links' lengths)."""
+    from adclient.urdf import design_link_length, design_mass
+
+    return {"mass": design_mass(design), "link_length": design_link_length(design)}
 
 
 def task_options(task: TaskConfig) -> TaskOptions:
@@ -162,6 +175,9 @@ def evaluate_job(
             learner.reporting = Reporting(every=every, evaluate=interim, report=report)
         trained = learner.train(env, steps=steps, seed=task.seed, check=check)
         t = lap("train", t)
+        # A task env of this package meters its motors; a plugin's env may not.
+        meter_motors = getattr(env, "meter_motors", None)
+        meter = meter_motors() if callable(meter_motors) else None
         episodes = evaluate_policy(env, trained.policy, evaluation_seeds(task), check=check)
         t = lap("evaluate", t)
         artifacts = [
@@ -189,7 +205,11 @@ def evaluate_job(
         "sim_steps": float(sim_steps),
         "sim_steps_per_s": float(sim_steps / max(timings["train"] + timings["evaluate"], 1e-9)),
         "time_total_s": total,
+        **design_metrics(design),
     }
+    if meter is not None:
+        metrics["effort"] = float(meter.effort)
+        metrics["energy"] = float(meter.energy)
     metrics.update({f"time_{stage}_s": timings[stage] for stage in STAGES if stage in timings})
     for key, value in metrics.items():
         if not math.isfinite(value):

@@ -15,7 +15,9 @@ pose it holds, not on the transient that gets it there; a task may score otherwi
 Evaluation episodes are deterministic for a given seed: ``reset`` restores a state
 saved at build time (positions, velocities and contact caches) before applying the
 seeded initial perturbation, so an episode's outcome depends only on the seed and
-the policy, never on what ran before it.
+the policy, never on what ran before it. ``meter_motors`` meters the episodes that
+follow (the evaluation's): the motors' effort and energy, read after every physics
+step (:class:`~adworker.tasks.robot.MotorMeter`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import numpy as np
 
 from adclient.design import Design
 from adclient.plugins import SimulatorOptions
-from adworker.tasks.robot import Robot
+from adworker.tasks.robot import MotorMeter, Robot
 from adworker.tasks.simulator import Simulator
 from adworker.tasks.snapshot import Snapshot
 
@@ -179,6 +181,8 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.record = EpisodeRecord(self.task.score)
         self._step_count = 0
         self._last: Snapshot | None = None
+        self.meter: MotorMeter | None = None
+        self._meter_each: Callable[[], None] | None = None
 
     @property
     def joint_count(self) -> int:
@@ -188,6 +192,14 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     def sim_steps(self) -> int:
         """Physics steps simulated so far, all episodes together."""
         return self.sim.physics_steps
+
+    def meter_motors(self) -> MotorMeter:
+        """Meter the motors' effort and energy (:class:`MotorMeter`) of every episode
+        from the next ``reset`` on (the evaluation episodes; training runs unmetered,
+        saving a state read per physics step)."""
+        self.meter = self.robot.motor_meter()
+        self._meter_each = None
+        return self.meter
 
     def _observe(self, snapshot: Snapshot) -> np.ndarray:
         values = self.robot.observe(snapshot)
@@ -207,11 +219,14 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.record = EpisodeRecord(self.task.score)
         self._step_count = 0
         self._last = snapshot
+        if self.meter is not None:
+            self.meter.begin_episode()
+            self._meter_each = self.meter.sample
         return self._observe(snapshot), {}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self.robot.act(action)
-        self.sim.step()
+        self.sim.step(self._meter_each)
         snapshot = self.robot.read()
         self._last = snapshot
         task = self.task

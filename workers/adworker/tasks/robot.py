@@ -8,7 +8,10 @@ poses in). The two are checked against each other, so a URDF that is not this de
 fails at build time instead of scoring the wrong robot.
 
 Every revolute joint is driven by position control: the action, in [-1, 1] per joint,
-maps linearly onto the joint's [lower, upper] range as its target.
+maps linearly onto the joint's [lower, upper] range as its target. The engine's motor
+then applies whatever torque, up to the joint's effort, brings the joint to its target
+(capped at its velocity); a :class:`MotorMeter` reads that applied torque after every
+physics step.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from adworker.tasks.simulator import (
     CONTACT_LINK_A,
     CONTACT_SLACK,
     GROUND_FRICTION,
+    JOINT_STATE_MOTOR_TORQUE,
     JOINT_STATE_POSITION,
     JOINT_STATE_VELOCITY,
     POSE_ORIENTATION,
@@ -46,6 +50,68 @@ class JointSpec:
     upper: float
     effort: float
     velocity: float
+
+
+class MotorMeter:
+    """The joint motors' effort and mechanical energy over episodes, read after every
+    physics step (``Simulator.step``'s ``each``).
+
+    Joints are position-controlled, so the torque a motor applies is the constraint
+    solver's, not a commanded one: PyBullet reports it per joint as the applied motor
+    torque of the last physics step (``JOINT_STATE_MOTOR_TORQUE``; it never exceeds the
+    joint's effort). With tau_j and qd_j that torque and the joint's velocity after
+    physics step k of length dt:
+
+    - effort (N m): mean of |tau_j| over every physics step of every metered episode
+      and every joint: the time-averaged absolute torque per joint;
+    - energy (J): per episode, sum over steps and joints of |tau_j qd_j| dt (the work
+      the motors do, braking counted as spent: a motor does not recover energy),
+      averaged over episodes.
+
+    Holding a pose against gravity costs effort but no energy; a robot at rest in its
+    target pose, its weight on the ground or along its joints' axes, costs neither.
+    """
+
+    def __init__(self, body: int, joint_indices: list[int], time_step: float, client: int):
+        self._body = body
+        self._joints = list(joint_indices)
+        self._time_step = time_step
+        self._client = client
+        self.episode_energy: list[float] = []
+        """Each metered episode's energy (J), in order; the last one may be running."""
+        self.torque_sum = 0.0
+        """Sum of |tau| over all metered physics steps and joints (N m)."""
+        self.samples = 0
+        """Metered physics steps, all episodes together."""
+
+    def begin_episode(self) -> None:
+        self.episode_energy.append(0.0)
+
+    def sample(self) -> None:
+        """Read the torques and velocities of the physics step just taken."""
+        states = pybullet.getJointStates(self._body, self._joints, physicsClientId=self._client)
+        torque = power = 0.0
+        for state in states:
+            tau = state[JOINT_STATE_MOTOR_TORQUE]
+            torque += abs(tau)
+            power += abs(tau * state[JOINT_STATE_VELOCITY])
+        self.torque_sum += torque
+        self.episode_energy[-1] += power * self._time_step
+        self.samples += 1
+
+    @property
+    def effort(self) -> float:
+        """Mean |torque| per joint per physics step (N m); 0 before any step."""
+        if not self.samples:
+            return 0.0
+        return self.torque_sum / (self.samples * len(self._joints))
+
+    @property
+    def energy(self) -> float:
+        """Mean energy per metered episode (J); 0 before any episode."""
+        if not self.episode_energy:
+            return 0.0
+        return math.fsum(self.episode_energy) / len(self.episode_energy)
 
 
 def link_shape(link: Link) -> tuple[np.ndarray, np.ndarray, float]:
@@ -268,6 +334,10 @@ class Robot:
             mid + (1.0 if a > 1.0 else -1.0 if a < -1.0 else a) * half
             for a, mid, half in zip(values, self._mid, self._half_span, strict=True)
         ]
+
+    def motor_meter(self) -> MotorMeter:
+        """A new meter of this robot's motors (see :class:`MotorMeter`)."""
+        return MotorMeter(self.body, self.joint_indices, self.sim.time_step, self.sim.client)
 
     def act(self, action: np.ndarray) -> None:
         """Command the joints towards the action's targets (takes effect as the simulator

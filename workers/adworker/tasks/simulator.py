@@ -12,6 +12,7 @@ on every control step, where building a named tuple would cost more than the rea
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -28,6 +29,9 @@ POSE_ORIENTATION = 1
 """... and its world orientation, a quaternion (x, y, z, w)."""
 JOINT_STATE_POSITION = 0
 JOINT_STATE_VELOCITY = 1
+JOINT_STATE_MOTOR_TORQUE = 3
+"""getJointState(s): the torque the joint's motor applied during the last physics step
+(position and velocity control: the solver's motor impulse over the step)."""
 CONTACT_LINK_A = 3
 """getContactPoints(bodyA, bodyB): the link of bodyA in contact (-1: the base)."""
 CONTACT_DISTANCE = 8
@@ -137,11 +141,17 @@ class Simulator:
     def dynamics_info(self, body: int, link: int) -> DynamicsInfo:
         return DynamicsInfo(*pybullet.getDynamicsInfo(body, link, physicsClientId=self.client))
 
-    def step(self) -> None:
-        """One control step: ``frame_skip`` physics steps."""
+    def step(self, each: Callable[[], None] | None = None) -> None:
+        """One control step: ``frame_skip`` physics steps, ``each`` called after every
+        one (a meter that reads what happened during that physics step)."""
         cid = self.client
-        for _ in range(self.frame_skip):
-            pybullet.stepSimulation(physicsClientId=cid)
+        if each is None:
+            for _ in range(self.frame_skip):
+                pybullet.stepSimulation(physicsClientId=cid)
+        else:
+            for _ in range(self.frame_skip):
+                pybullet.stepSimulation(physicsClientId=cid)
+                each()
         self.physics_steps += self.frame_skip
 
     def save_state(self) -> int:
