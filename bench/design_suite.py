@@ -267,7 +267,9 @@ def run_optuna(objective: Objective, method: str, seed: int) -> dict:
             "structure_index": trial.suggest_categorical("structure_index", list(range(count)))
         }
         for k, key in enumerate(layout.names):
-            params[key] = trial.suggest_float(key, float(layout.low[k]), float(layout.high[k]))
+            params[key] = trial.suggest_float(
+                key, float(layout.low[k]), float(layout.high[k]), log=bool(layout.log[k])
+            )
         asks.append(time.perf_counter() - started)
         value = objective.score(design_from_params(space, params))
         study.tell(trial, value)

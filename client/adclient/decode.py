@@ -1,7 +1,9 @@
 """Search vector <-> design, per DESIGN.md section 2 (pure numpy: runs in workers too).
 
 The *spec vector* x holds the free specs of a space (``spec_layout``), each
-normalised to [0, 1] by its bounds; slots a structure does not use (absent
+normalised to [0, 1] by its bounds (a ``log`` spec on the log scale: value =
+exp(ln low + x (ln high - ln low)), so whatever searches x uniformly searches such a
+spec log-uniformly); slots a structure does not use (absent
 instances, the root's joint) hold ``PAD``. An ``identity`` representation searches x
 itself; a ``mixed`` one (the default for several structures) searches a structure
 index followed by x, and decodes both by identity (the index is rounded); a
@@ -35,14 +37,20 @@ from adclient.design import (
 
 PAD = 0.5
 """Normalised value of the spec slots a structure does not use."""
+NORMALISE_ULPS = 8
+"""How many neighbouring floats on each side ``SpecLayout.normalise`` tries for a slot
+that decodes to the very value it was given."""
 
 
 @dataclass(frozen=True)
 class SpecLayout:
-    """The free specs of a space: ``names[k]`` is searched in ``[low[k], high[k]]``.
+    """The free specs of a space: ``names[k]`` is searched in ``[low[k], high[k]]``,
+    on a log scale where ``log[k]``.
 
     ``fixed`` holds every fixed spec (key -> value) of every instance, so a design
     can be completed from the free values. ``structures`` are the candidate trees.
+    ``low`` and ``high`` are physical values; ``normalise`` and ``denormalise`` go
+    between them and the [0, 1] slots of the spec vector.
     """
 
     names: list[str]
@@ -50,6 +58,8 @@ class SpecLayout:
     high: np.ndarray
     fixed: dict[str, float]
     structures: list[list[Edge]]
+    log: np.ndarray
+    """Boolean mask of the slots searched on a log scale (``Bound.log``)."""
 
     @property
     def size(self) -> int:
@@ -65,15 +75,48 @@ class SpecLayout:
             mask[k] = instance in children if rest.startswith("joint.") else instance in members
         return mask
 
+    def _scaled(self, values: np.ndarray) -> np.ndarray:
+        """Values on each slot's own scale: their natural log where ``log``."""
+        values = np.asarray(values, dtype=np.float64)
+        if not self.log.any():
+            return values
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.log, np.log(np.where(self.log, values, 1.0)), values)
+
     def normalise(self, values: np.ndarray) -> np.ndarray:
-        return (values - self.low) / (self.high - self.low)
+        """Physical values (in range) -> [0, 1] slots; a value that ``denormalise`` gave
+        comes back to a slot that gives it again, to the last bit where one does (a
+        log slot's exp and ln round, so the first answer may be an ulp off)."""
+        values = np.asarray(values, dtype=np.float64)
+        low, high = self._scaled(self.low), self._scaled(self.high)
+        x = np.clip((self._scaled(values) - low) / (high - low), 0.0, 1.0)
+        error = np.abs(self.denormalise(x) - values)
+        for direction in (-np.inf, np.inf):  # the nearest few slots on either side
+            near = x
+            for _ in range(NORMALISE_ULPS):
+                if not error.any():
+                    return x
+                near = np.clip(np.nextafter(near, direction), 0.0, 1.0)
+                near_error = np.abs(self.denormalise(near) - values)
+                better = near_error < error
+                x, error = np.where(better, near, x), np.where(better, near_error, error)
+        return x
 
     def denormalise(self, x: np.ndarray) -> np.ndarray:
-        return self.low + x * (self.high - self.low)
+        """[0, 1] slots -> physical values; a log slot's are within [low, high], its
+        ends exactly ``low`` and ``high`` (exp(ln low) may round away from low)."""
+        x = np.asarray(x, dtype=np.float64)
+        if not self.log.any():
+            return self.low + x * (self.high - self.low)
+        low, high = self._scaled(self.low), self._scaled(self.high)
+        scaled = low + x * (high - low)
+        values = np.clip(np.exp(np.where(self.log, scaled, 0.0)), self.low, self.high)
+        values = np.where(x <= 0.0, self.low, np.where(x >= 1.0, self.high, values))
+        return np.where(self.log, values, scaled)
 
 
 def spec_layout(space: DesignSpace) -> SpecLayout:
-    names, ranges = space.spec_slots()
+    slots = space.free_specs()
     fixed: dict[str, float] = {}
     for instance in space.instances:
         for spec in PART_SPECS:
@@ -84,9 +127,14 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
             value = space.joint_spec(instance.name, spec)
             if not isinstance(value, Bound):
                 fixed[f"{instance.name}.joint.{spec}"] = float(value)
-    low = np.array([r[0] for r in ranges], dtype=np.float64)
-    high = np.array([r[1] for r in ranges], dtype=np.float64)
-    return SpecLayout(names, low, high, fixed, [list(s) for s in space.tree_structures()])
+    return SpecLayout(
+        names=[key for key, _ in slots],
+        low=np.array([bound.low for _, bound in slots], dtype=np.float64),
+        high=np.array([bound.high for _, bound in slots], dtype=np.float64),
+        fixed=fixed,
+        structures=[list(s) for s in space.tree_structures()],
+        log=np.array([bound.log for _, bound in slots], dtype=bool),
+    )
 
 
 def identity_representation(space: DesignSpace) -> Representation:
@@ -318,7 +366,8 @@ def encode(
     """A search vector for a design, or for a mapping of spec key -> value.
 
     Identity and mixed representations: exact (``decode(encode(d))`` gives ``d``
-    back; a mixed vector's unused slots hold ``PAD``). Fused
+    back, a log spec's value too, to the bit for a decoded design; a mixed vector's
+    unused slots hold ``PAD``). Fused
     ones: a vector that decodes to the design's structure and, among those tried
     (the structure's reference designs and the least-squares inverse of its affine
     map), to the specs nearest the design's; exact for reference designs up to the
@@ -340,7 +389,7 @@ def encode(
             if key in layout.names:
                 values[key] = float(value)
     used = layout.used_slots(layout.structures[structure])
-    x = np.full(layout.size, PAD)
+    physical = layout.denormalise(np.full(layout.size, PAD))
     for k, key in enumerate(layout.names):
         if not used[k]:
             continue
@@ -351,7 +400,8 @@ def encode(
         tolerance = 1e-9 * max(1.0, abs(low), abs(high))
         if not (math.isfinite(value) and low - tolerance <= value <= high + tolerance):
             raise ValueError(f"encode: spec {key!r} = {value!r} lies outside [{low}, {high}]")
-        x[k] = min(max((value - low) / (high - low), 0.0), 1.0)
+        physical[k] = min(max(value, low), high)
+    x = np.where(used, layout.normalise(physical), PAD)
     if representation.kind == "identity":
         return x.tolist()
     if representation.kind == "onehot":

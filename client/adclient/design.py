@@ -2,7 +2,8 @@
 
 A *design space* says which parts a robot is made of, how they may be connected
 (candidate tree structures) and which specifications are searched (given as a
-``{low, high}`` bound) or fixed (given as a number). A *design* is one point of it:
+``{low, high}`` bound, ``{low, high, log: true}`` on a log scale) or fixed (given as a
+number). A *design* is one point of it:
 a tree plus concrete specs, ready to be written as URDF.
 
 Geometry conventions (shared by decoding, the URDF writer and the worker tasks):
@@ -38,7 +39,9 @@ from pydantic import (
     ConfigDict,
     Field,
     PrivateAttr,
+    SerializerFunctionWrapHandler,
     ValidationError,
+    model_serializer,
     model_validator,
 )
 
@@ -66,10 +69,16 @@ class _Strict(BaseModel):
 
 
 class Bound(_Strict):
-    """A searched spec: any value in [low, high]."""
+    """A searched spec: any value in [low, high], on a log scale with ``log``.
+
+    Its slot of the spec vector is the value normalised to [0, 1]: linearly, or with
+    ``log`` as ``(ln value - ln low) / (ln high - ln low)`` (``adclient.decode``), so a
+    proposer searching [0, 1] searches the log scale, as a box param's ``log`` does.
+    """
 
     low: float
     high: float
+    log: bool = False
 
     @model_validator(mode="after")
     def _check(self) -> Bound:
@@ -78,7 +87,18 @@ class Bound(_Strict):
                 raise ValueError(f"bound {name} must be a finite number, got {value!r}")
         if not self.low < self.high:
             raise ValueError(f"bound low ({self.low}) must be < high ({self.high})")
+        if self.log and not self.low > 0:
+            raise ValueError(f"log: a log scale needs low > 0, got {self.low}")
         return self
+
+    @model_serializer(mode="wrap")
+    def _log_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """``log`` is written only when true: a linear spec's JSON is what it was before
+        log specs, so stored spaces and workers of older versions read it unchanged."""
+        data: dict[str, Any] = handler(self)
+        if not self.log:
+            data.pop("log", None)
+        return data
 
 
 def _spec_value(value: Any) -> Any:
@@ -90,7 +110,9 @@ def _spec_value(value: Any) -> Any:
             return Bound.model_validate(value)
         except ValidationError as error:
             messages = "; ".join(
-                str(item["msg"]).removeprefix("Value error, ") for item in error.errors()
+                (f"{'.'.join(map(str, item['loc']))}: " if item["loc"] else "")
+                + str(item["msg"]).removeprefix("Value error, ")
+                for item in error.errors()
             )
             raise ValueError(f"a searched spec is {{low, high}}: {messages}") from None
     if isinstance(value, bool) or not isinstance(value, int | float):
@@ -130,7 +152,8 @@ def _check_spec(name: str, value: float | Bound, where: str) -> None:
 
 def _show(value: float | Bound) -> str:
     if isinstance(value, Bound):
-        return f"{{low: {value.low}, high: {value.high}}}"
+        log = ", log: true" if value.log else ""
+        return f"{{low: {value.low}, high: {value.high}{log}}}"
     return repr(value)
 
 
@@ -365,8 +388,8 @@ class DesignSpace(_Strict):
                 self._trees = [[(p, c) for p, c in edges] for edges in self.structures]
         return self._trees
 
-    def spec_slots(self) -> tuple[list[str], list[tuple[float, float]]]:
-        """Free spec keys in spec-vector order, and their (low, high).
+    def free_specs(self) -> list[tuple[str, Bound]]:
+        """The free specs' keys in spec-vector order, with their Bounds.
 
         A part slot exists when its instance is in some structure and its spec is a
         Bound; a joint slot when its instance is a child in some structure.
@@ -378,25 +401,32 @@ class DesignSpace(_Strict):
             for parent, child in edges:
                 members.update((parent, child))
                 children.add(child)
-        names: list[str] = []
-        ranges: list[tuple[float, float]] = []
+        slots: list[tuple[str, Bound]] = []
         for instance in self.instances:
             if instance.name not in members:
                 continue
             for spec in PART_SPECS:
                 value = self.part_spec(instance.name, spec)
                 if isinstance(value, Bound):
-                    names.append(f"{instance.name}.{spec}")
-                    ranges.append((value.low, value.high))
+                    slots.append((f"{instance.name}.{spec}", value))
         for instance in self.instances:
             if instance.name not in children:
                 continue
             for spec in JOINT_SPECS:
                 value = self.joint_spec(instance.name, spec)
                 if isinstance(value, Bound):
-                    names.append(f"{instance.name}.joint.{spec}")
-                    ranges.append((value.low, value.high))
-        return names, ranges
+                    slots.append((f"{instance.name}.joint.{spec}", value))
+        return slots
+
+    def spec_slots(self) -> tuple[list[str], list[tuple[float, float]]]:
+        """Free spec keys in spec-vector order, and their physical (low, high).
+
+        The ranges are the values a spec takes, log-scaled or not: what a person
+        reads and what bounds checks compare with. How a slot is normalised (its
+        ``log``) is in ``free_specs`` and ``adclient.decode.SpecLayout``.
+        """
+        slots = self.free_specs()
+        return [key for key, _ in slots], [(bound.low, bound.high) for _, bound in slots]
 
 
 def _valid_name(name: str) -> bool:
@@ -540,6 +570,11 @@ class Representation(BaseModel):
     structure ``s`` at search vector ``v`` is ``[v, 1] @ affine[s]``, clipped to
     [0, 1]. ``ref_coords`` (M x dim) and ``ref_structure`` (M) are the reference
     designs' coordinates and structure indices.
+
+    ``spec_low``/``spec_high`` are the free specs' physical ranges, for reading; the
+    decoder takes each slot's scale (linear, or ``log``) from the space's Bounds, which
+    it always has (``adclient.decode.spec_layout``), so a representation's JSON is the
+    same for log and linear specs.
     """
 
     kind: Literal["identity", "mixed", "fused", "onehot"]

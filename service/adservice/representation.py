@@ -99,6 +99,8 @@ def reference_specs(space: DesignSpace) -> tuple[np.ndarray, np.ndarray]:
     Per structure a scrambled Sobol set over the slots it uses (seeded by the space's
     reference_seed and the structure index), the other slots padded; a structure with
     no free slot of its own gets one reference. Capped near MAX_REFERENCES in all.
+    The points are the [0, 1] slots the proposers search, so a log spec's references
+    are spread log-uniformly, as its proposals are.
     """
     layout = spec_layout(space)
     structures = layout.structures
@@ -126,7 +128,11 @@ def reference_specs(space: DesignSpace) -> tuple[np.ndarray, np.ndarray]:
 
 def fused_references(space: DesignSpace) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """The reference designs' fused distances (M x M), their structure indices, and
-    the diagnostics of the fusion."""
+    the diagnostics of the fusion.
+
+    The spec distances are Euclidean between normalised spec vectors, so a log spec
+    (``{low, high, log: true}``) is compared on its log scale: 0.01 is as far from 0.1
+    as 0.1 from 1, as the proposer's model sees them, not by its physical difference."""
     layout = spec_layout(space)
     structures = layout.structures
     started = time.perf_counter()
@@ -314,4 +320,5 @@ def search_structure(space: DesignSpace, representation: Representation) -> Sear
         spec_high=layout.high,
         axes=tuple(axes),
         pad=PAD,
+        spec_log=layout.log if layout.log.any() else None,
     )

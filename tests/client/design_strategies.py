@@ -53,7 +53,8 @@ def trees(draw: st.DrawFn, names: list[str]) -> list[tuple[str, str]]:
 
 @st.composite
 def spec_values(draw: st.DrawFn, spec: str, *, free: bool | None = None) -> Any:
-    """A fixed number or a {low, high} bound inside the spec's sensible range."""
+    """A fixed number or a {low, high} bound inside the spec's sensible range; a bound
+    above 0 is log-scaled half the time."""
     low, high = SPEC_RANGES[spec]
     if free is None:
         free = draw(st.booleans())
@@ -63,7 +64,10 @@ def spec_values(draw: st.DrawFn, spec: str, *, free: bool | None = None) -> Any:
     b = draw(st.floats(low, high))
     if abs(a - b) < 1e-3 * (high - low):
         a, b = low, high
-    return {"low": min(a, b), "high": max(a, b)}
+    bound: dict[str, Any] = {"low": min(a, b), "high": max(a, b)}
+    if bound["low"] > 0 and draw(st.booleans()):
+        bound["log"] = True
+    return bound
 
 
 @st.composite

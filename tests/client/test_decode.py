@@ -202,7 +202,11 @@ def test_mixed_vectors_decode_by_identity(body: dict[str, Any], data: st.DataObj
     values = design_params(design)
     used = layout.used_slots(space.tree_structures()[design.structure_index])
     for k, key in enumerate(layout.names):
-        if used[k]:
+        if used[k] and layout.log[k]:
+            low, high = math.log(layout.low[k]), math.log(layout.high[k])
+            expected = math.exp(low + vector[1 + k] * (high - low))
+            assert values[key] == pytest.approx(expected, rel=1e-12, abs=1e-12)
+        elif used[k]:
             expected = layout.low[k] + vector[1 + k] * (layout.high[k] - layout.low[k])
             assert values[key] == pytest.approx(expected, rel=1e-12, abs=1e-12)
     again = encode(space, representation, design)
@@ -223,3 +227,90 @@ def _close(a: Any, b: Any) -> bool:
         for x, y in zip(first["joints"], second["joints"], strict=True)
     )
     return links and joints
+
+
+LOG_SPACE: dict[str, Any] = {
+    "type": "design",
+    "parts": {
+        "link": {
+            "length": {"low": 0.2, "high": 0.6},
+            "mass": {"low": 0.01, "high": 100.0, "log": True},
+        }
+    },
+    "joint": {"effort": {"low": 0.5, "high": 50.0, "log": True}},
+    "instances": [{"name": "a", "part": "link"}, {"name": "b", "part": "link"}],
+    "structures": [[["a", "b"]]],
+}
+
+
+def test_a_log_spec_maps_its_slot_log_uniformly() -> None:
+    space = DesignSpace.model_validate(LOG_SPACE)
+    representation = identity_representation(space)
+    layout = spec_layout(space)
+    assert representation.spec_names == [
+        "a.length",
+        "a.mass",
+        "b.length",
+        "b.mass",
+        "b.joint.axis_theta",
+        "b.joint.axis_phi",
+        "b.joint.effort",
+    ]
+    assert layout.log.tolist() == [False, True, False, True, False, False, True]
+    # the representation keeps physical ranges; the scale comes from the space
+    assert representation.spec_low[1] == 0.01 and representation.spec_high[1] == 100.0
+
+    def params_at(u: float) -> dict[str, Any]:
+        return design_params(decode(space, representation, [u] * layout.size))
+
+    ends = params_at(0.0), params_at(1.0)
+    # the ends are the bounds exactly, on either scale
+    assert [p["a.mass"] for p in ends] == [0.01, 100.0]
+    assert [p["b.joint.effort"] for p in ends] == [0.5, 50.0]
+    assert [p["a.length"] for p in ends] == [0.2, 0.6]
+    for u in (0.25, 0.5, 0.75):
+        params = params_at(u)
+        assert params["a.mass"] == pytest.approx(0.01 * 10_000**u, rel=1e-12)
+        assert params["b.joint.effort"] == pytest.approx(0.5 * 100**u, rel=1e-12)
+        assert params["a.length"] == pytest.approx(0.2 + 0.4 * u, rel=1e-12)
+    middle = params_at(0.5)
+    assert middle["a.mass"] == pytest.approx(1.0)  # the geometric mean, not 50.005
+    # a vector outside [0, 1] is clipped to the bounds, as a linear spec's is
+    clipped = design_params(decode(space, representation, [-3.0, 4.0, 0.5, -1.0, 0.5, 0.5, 9.0]))
+    assert (clipped["a.mass"], clipped["b.mass"], clipped["b.joint.effort"]) == (100.0, 0.01, 50.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=7, max_size=7))
+def test_a_log_spec_round_trips(vector: list[float]) -> None:
+    space = DesignSpace.model_validate(LOG_SPACE)
+    representation = identity_representation(space)
+    design = decode(space, representation, vector)
+    for link in design.links:
+        assert 0.01 <= link.mass <= 100.0
+    assert 0.5 <= design.joints[0].effort <= 50.0
+    again = encode(space, representation, design)
+    assert again == pytest.approx(vector, abs=1e-12)
+    # what a user hands back (the readable params) decodes to the same design, bit for bit
+    params = design_params(design)
+    assert decode(space, representation, encode(space, representation, params)) == design
+
+
+def test_a_log_spec_is_encoded_from_its_value() -> None:
+    space = DesignSpace.model_validate(LOG_SPACE)
+    representation = identity_representation(space)
+    specs = {
+        "a.length": 0.2,
+        "a.mass": 1.0,
+        "b.length": 0.6,
+        "b.mass": 0.1,
+        "b.joint.axis_theta": 0.0,
+        "b.joint.axis_phi": math.pi,
+        "b.joint.effort": 5.0,
+    }
+    vector = encode(space, representation, specs)
+    assert vector == pytest.approx([0.0, 0.5, 1.0, 0.25, 0.0, 1.0, 0.5], abs=1e-12)
+    with pytest.raises(ValueError, match=r"'a\.mass' = 0\.001 lies outside \[0\.01, 100\.0\]"):
+        encode(space, representation, specs | {"a.mass": 0.001})
+    with pytest.raises(ValueError, match=r"'b\.joint\.effort' = -1\.0 lies outside"):
+        encode(space, representation, specs | {"b.joint.effort": -1.0})

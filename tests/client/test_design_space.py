@@ -169,6 +169,56 @@ def test_no_free_spec() -> None:
     assert len(DesignSpace.model_validate(body).tree_structures()) == 2
 
 
+def test_a_searched_spec_may_be_log_scaled() -> None:
+    body = space_with(
+        parts={
+            "link": {
+                "length": {"low": 0.2, "high": 0.6},
+                "mass": {"low": 0.1, "high": 10, "log": True},
+            }
+        },
+        joint={"effort": {"low": 1, "high": 100, "log": True}},
+    )
+    space = DesignSpace.model_validate(body)
+    logs = {key: bound.log for key, bound in space.free_specs()}
+    assert logs["a.mass"] and logs["c.joint.effort"] and not logs["a.length"]
+    assert not logs["b.joint.axis_theta"]
+    names, ranges = space.spec_slots()  # physical ranges, whatever the scale
+    assert ranges[names.index("a.mass")] == (0.1, 10.0)
+    dumped = space.model_dump(mode="json")
+    assert dumped["parts"]["link"]["mass"] == {"low": 0.1, "high": 10.0, "log": True}
+    # a linear spec's JSON is what it was before log specs: no log key
+    assert dumped["parts"]["link"]["length"] == {"low": 0.2, "high": 0.6}
+    assert dumped["joint"]["axis_theta"] == {"low": 0.0, "high": math.pi}
+    assert DesignSpace.model_validate(dumped).free_specs() == space.free_specs()
+
+
+@pytest.mark.parametrize("low", [0.0, -0.5])
+def test_a_log_spec_needs_low_above_zero(low: float) -> None:
+    message = error_of(space_with(joint={"lower": {"low": low - 1, "high": low, "log": True}}))
+    assert "joint.lower" in message
+    assert f"log: a log scale needs low > 0, got {low - 1}" in message
+    message = error_of(space_with(joint={"axis_theta": {"low": low, "high": 1.0, "log": True}}))
+    assert "joint.axis_theta" in message
+    assert f"log: a log scale needs low > 0, got {low}" in message
+    # the same spec without log is fine, and log: false is the default
+    space_with(joint={"axis_theta": {"low": low, "high": 1.0, "log": False}})
+    DesignSpace.model_validate(space_with(joint={"axis_theta": {"low": low, "high": 1.0}}))
+
+
+def test_a_log_spec_is_checked_like_any_other() -> None:
+    assert "log: Input should be a valid boolean" in error_of(
+        space_with(parts={"link": {"length": {"low": 0.2, "high": 0.6, "log": "often"}}})
+    )
+    assert "Extra inputs are not permitted" in error_of(
+        space_with(parts={"link": {"length": {"low": 0.2, "high": 0.6, "base": 10}}})
+    )
+    message = error_of(
+        space_with(joint={"lower": {"low": 0.5, "high": 2.0, "log": True}, "upper": 1.0})
+    )
+    assert "lower ({low: 0.5, high: 2.0, log: true}) can exceed upper (1.0)" in message
+
+
 def test_unknown_fields_rejected() -> None:
     assert "Extra inputs are not permitted" in error_of(space_with(colour="red"))
 
@@ -187,6 +237,7 @@ def test_generated_spaces_are_valid_and_round_trip(body: dict[str, Any]) -> None
     again = DesignSpace.model_validate(space.model_dump(mode="json"))
     assert again.tree_structures() == space.tree_structures()
     assert again.spec_slots() == space.spec_slots()
+    assert again.free_specs() == space.free_specs()  # log scales included
     names, ranges = space.spec_slots()
     assert names and all(low < high for low, high in ranges)
 

@@ -207,6 +207,33 @@ def test_sign_invariant_axes_see_an_axis_and_its_opposite_as_one() -> None:
     assert np.linalg.norm(features(arrow, theta, phi) - features(arrow, *opposite)) > 0.9
 
 
+@pytest.mark.parametrize("log", [False, True])
+def test_axis_features_are_the_decoded_axis_on_a_log_scale_too(log: bool) -> None:
+    """The model turns an axis's normalised slots into the axis the decoder builds,
+    whether its angles are searched linearly or on a log scale."""
+    space = DesignSpace.model_validate(
+        {
+            "type": "design",
+            "parts": {"link": {"length": 0.4}},
+            "joint": {
+                "axis_theta": {"low": 0.05, "high": 3.0, "log": log},
+                "axis_phi": {"low": 0.01, "high": 6.0, "log": log},
+                "lower": -1.0,  # asymmetric limits: the axis is seen as an arrow
+            },
+            "instances": [{"name": "a", "part": "link"}, {"name": "b", "part": "link"}],
+            "structures": [[["a", "b"]]],
+        }
+    )
+    representation = build_representation(space)
+    search = search_structure(space, representation)
+    assert search is not None
+    assert search.spec_log is None if not log else search.spec_log.tolist() == [True, True]
+    for u in ([0.0, 0.0], [0.2, 0.7], [0.5, 0.5], [0.9, 0.1], [1.0, 1.0]):
+        (joint,) = decode(space, representation, u).joints
+        model = SpecFeatures(search, 2, **TKW)(torch.tensor([u], **TKW)).numpy()[0]
+        np.testing.assert_allclose(model, np.asarray(joint.axis) / 2.0, atol=1e-12)
+
+
 # -- the mixed acquisition ----------------------------------------------------------------
 
 

@@ -16,6 +16,7 @@ BoTorch and Optuna are imported inside ``propose``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
@@ -56,7 +57,11 @@ class SearchStructure:
     with one it is the spec vector alone. Spec values are normalised to [0, 1];
     ``used[s]`` marks the slots structure s uses, the others are ``pad`` whatever a
     vector holds there. ``structure_coords`` (S x k) place the structures in the
-    fused geometry; ``spec_low``/``spec_high`` are the slots' physical ranges.
+    fused geometry; ``spec_low``/``spec_high`` are the slots' physical ranges and
+    ``spec_log`` marks the slots normalised on a log scale (None: none is); ``scale``
+    says how to turn a normalised slot back into its value (the model needs a joint
+    axis's angles). The model itself sees the normalised slots: a log spec on its log
+    scale, as the proposers search it.
     """
 
     structure_coords: FloatArray
@@ -65,6 +70,18 @@ class SearchStructure:
     spec_high: FloatArray
     axes: tuple[AxisColumns, ...] = ()
     pad: float = 0.5
+    spec_log: NDArray[np.bool_] | None = None
+
+    def is_log(self, column: int) -> bool:
+        return self.spec_log is not None and bool(self.spec_log[column])
+
+    def scale(self, column: int) -> tuple[float, float]:
+        """(start, width) of a slot on its own scale: value = start + u * width, then
+        exp of that for a log slot."""
+        low, high = float(self.spec_low[column]), float(self.spec_high[column])
+        if self.is_log(column):
+            low, high = math.log(low), math.log(high)
+        return low, high - low
 
     @property
     def n_structures(self) -> int:

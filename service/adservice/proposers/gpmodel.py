@@ -73,9 +73,11 @@ class SpecFeatures:
         skip = on_axis | {column for column, _ in self.categories}
         self.plain = [k for k in range(spec_dim) if k not in skip]
         self.axes = axes
-        if search is not None:
-            self.low = torch.as_tensor(search.spec_low, **tkw)  # type: ignore[arg-type]
-            self.width = torch.as_tensor(search.spec_high - search.spec_low, **tkw)  # type: ignore[arg-type]
+        self.scales: dict[int, tuple[float, float, bool]] = {}
+        if search is not None:  # an axis's angles, to turn their slots back into radians
+            for column in sorted(on_axis):
+                start, width = search.scale(column)
+                self.scales[column] = (start, width, search.is_log(column))
         groups = list(range(len(self.plain)))
         for number, axis in enumerate(axes):
             groups += [len(self.plain) + number] * (6 if axis.sign_invariant else 3)
@@ -85,9 +87,13 @@ class SpecFeatures:
         self.group_index = torch.as_tensor(groups, dtype=torch.long)
 
     def _angle(self, u: torch.Tensor, column: int, fixed: float) -> torch.Tensor:
+        """An axis angle in radians: a fixed one, or its slot denormalised (a log-scaled
+        angle, ``{low, high, log: true}``, through exp)."""
         if column < 0:
             return torch.full_like(u[..., 0], fixed)
-        return self.low[column] + u[..., column] * self.width[column]
+        start, width, log = self.scales[column]
+        angle = start + u[..., column] * width
+        return torch.exp(angle) if log else angle
 
     def __call__(self, u: torch.Tensor) -> torch.Tensor:
         parts = [u[..., self.plain]]
