@@ -256,7 +256,9 @@ def decode(space: DesignSpace, representation: Representation, vector: Sequence[
 def build_design(
     space: DesignSpace, layout: SpecLayout, structure: int, values: Mapping[str, float]
 ) -> Design:
-    """A design from a structure index and the free specs' physical values."""
+    """A design from a structure index and the free specs' physical values (a log
+    spec's value itself, not its coordinate: the URDF writer and the worker's robot
+    take the design as it is)."""
     edges = layout.structures[structure]
 
     def spec(key: str) -> float:
@@ -317,7 +319,11 @@ def axis_from_angles(theta: float, phi: float) -> tuple[float, float, float]:
 
 
 def design_params(design: Design) -> dict[str, Any]:
-    """A readable, JSON-able summary: structure, then every link's and joint's specs."""
+    """A readable, JSON-able summary: structure, then every link's and joint's specs.
+
+    Values are physical, a log spec's too (its coordinate is in the trial's vector):
+    these are a trial's ``params``, which the dashboard charts on linear axes as it does
+    a box's log params, exports write and ``encode`` reads back."""
     params: dict[str, Any] = {
         "structure": ",".join(f"{parent}-{child}" for parent, child in design.edges()),
         "structure_index": design.structure_index,
