@@ -233,12 +233,19 @@ def _trial_table(trials: list[Trial], title: str | None = None) -> Table:
             str(trial.number),
             str(trial.id),
             _state_text(trial),
-            _num(trial.value),
+            _outcome_text(trial),
             escape(trial.worker_id or ""),
             str(trial.attempts),
             escape(_compact(trial.params, 100)),
         )
     return table
+
+
+def _outcome_text(trial: Trial) -> str:
+    """A trial's value, or its values (``0.41, 2.3``), marked when it breaks a
+    constraint."""
+    text = ", ".join(_num(v) for v in trial.values) if trial.values else _num(trial.value)
+    return f"{text} [red](infeasible)[/red]" if trial.feasible is False else text
 
 
 def _print_best(out: Console, trial: Trial) -> None:
@@ -480,6 +487,28 @@ def best(
 
 @app.command()
 @friendly
+def pareto(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Show a study's Pareto front: its complete, feasible trials no other one dominates."""
+    with _settings(ctx).client() as client, _study_scope(study_id):
+        info = client.study_info(study_id)
+        trials = client.pareto(study_id)
+    if as_json:
+        _print_json(trials)
+        return
+    names = ", ".join(
+        f"{name} ({direction.value[:3]})"
+        for name, direction in zip(info.objective_names, info.directions, strict=True)
+    )
+    title = f"study {study_id}: {len(trials)} trials on the Pareto front of {names}"
+    _out().print(_trial_table(trials, title=title))
+
+
+@app.command()
+@friendly
 def ask(
     ctx: typer.Context,
     study_id: int = typer.Argument(..., metavar="ID"),
@@ -500,7 +529,11 @@ def ask(
 def tell(
     ctx: typer.Context,
     trial_id: int = typer.Argument(..., metavar="TRIAL"),
-    value: float | None = typer.Argument(None, help="The trial's score (omit with --failed)."),
+    value: list[float] | None = typer.Argument(
+        None,
+        help="The trial's score, or one value per objective (omit with --failed).",
+        show_default=False,
+    ),
     failed: bool = typer.Option(False, "--failed", help="Report the trial as failed."),
     pruned: bool = typer.Option(
         False, "--pruned", help="End the trial as pruned (VALUE optional: else its last report)."
@@ -508,11 +541,14 @@ def tell(
     message: str | None = typer.Option(None, "--message", "-m", help="Why it failed."),
     metric: list[str] = typer.Option([], "--metric", help="Extra metric NAME=NUMBER (repeatable)."),
 ) -> None:
-    """Tell a trial's result: a VALUE, --failed with a --message, or --pruned."""
-    if failed and (value is not None or pruned):
+    """Tell a trial's result: a VALUE (several for a study of several objectives),
+    --failed with a --message, or --pruned."""
+    if failed and (value or pruned):
         fail("give either a VALUE or --failed, not both", code=2)
-    if not failed and not pruned and value is None:
+    if not failed and not pruned and not value:
         fail("missing VALUE (or --failed for a failed trial)", code=2)
+    if pruned and value and len(value) > 1:
+        fail("--pruned takes at most one VALUE", code=2)
     metrics: dict[str, float] = {}
     for item in metric:
         name, sep, number = item.partition("=")
@@ -525,12 +561,14 @@ def tell(
     with _settings(ctx).client() as client, _trial_scope(trial_id):
         trial = client.tell(
             trial_id,
-            value,
+            (value[0] if len(value) == 1 else value) if value else None,
             state="failed" if failed else "pruned" if pruned else "complete",
             message=message,
             metrics=metrics,
         )
-    shown = f": value {_num(trial.value)}" if trial.value is not None else ""
+    shown = ""
+    if trial.value is not None or trial.values:
+        shown = f": value{'s' if trial.values else ''} {_outcome_text(trial)}"
     _out().print(f"trial {trial.id} (study {trial.study_id}, #{trial.number}) {trial.state}{shown}")
 
 

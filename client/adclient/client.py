@@ -21,13 +21,14 @@ Transport and retries: :mod:`adclient.transport`; the study handle:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Literal
 
 from pydantic import BaseModel, ValidationError
 
 from adclient.errors import Invalid, NotFound
 from adclient.export import ExportFormat, export_csv, export_json
+from adclient.objectives import as_values
 from adclient.pruning import (
     CHECKPOINT_ARTIFACT,
     PauseRequest,
@@ -115,7 +116,7 @@ class Client(Transport):
         if spec is None:
             body = {}
         elif isinstance(spec, BaseModel):
-            body = spec.model_dump(mode="json")
+            body = spec.model_dump(mode="json", exclude_unset=True)
         elif isinstance(spec, Mapping):
             body = dict(spec)
         else:
@@ -229,7 +230,7 @@ class Client(Transport):
     def tell(
         self,
         trial: TrialRef,
-        value: float | None = None,
+        value: float | Sequence[float] | None = None,
         *,
         state: Literal["complete", "failed", "pruned"] | TrialState | str | None = None,
         message: str | None = None,
@@ -240,19 +241,21 @@ class Client(Transport):
 
         ``state`` defaults to ``complete`` when a value is given and to ``failed``
         otherwise; ``pruned`` ends a trial its pruner stopped (with ``value``, or the
-        server keeps its last reported value). The body is checked here first (a
-        finite value, finite metrics), so a NaN never travels; such mistakes raise
-        :class:`Invalid`. Repeating an identical tell is harmless; a contradicting one
-        raises :class:`Conflict`.
+        server keeps its last reported value). A study of several objectives is told a
+        sequence, one value per objective (Optuna's ``study.tell(trial, [v1, v2])``).
+        The body is checked here first (finite values, finite metrics), so a NaN never
+        travels; such mistakes raise :class:`Invalid`. Repeating an identical tell is
+        harmless; a contradicting one raises :class:`Conflict`.
         """
-        if value is not None:
-            value = float(value)  # numpy scalars and ints alike
+        values = as_values(value)
+        number = None if value is None or values is not None else float(value)  # type: ignore[arg-type]
         if state is None:
-            state = "complete" if value is not None else "failed"
+            state = "complete" if number is not None or values is not None else "failed"
         state = str(state.value if isinstance(state, TrialState) else state)
         try:
             body = TellRequest(
-                value=value,
+                value=number,
+                values=values,
                 state=state,  # type: ignore[arg-type]
                 message=message,
                 worker_id=worker_id,
@@ -363,10 +366,17 @@ class Client(Transport):
         """One trial's current record."""
         return Trial.model_validate(self._get_json(f"{API}/trials/{trial_id_of(trial)}"))
 
-    def best_trial(self, study_id: int) -> Trial | None:
-        """The best complete trial, or ``None`` while no trial is complete.
+    def pareto(self, study_id: int) -> list[Trial]:
+        """The study's complete, feasible trials that no other one dominates, by number
+        (Optuna's ``best_trials``; for one objective, those with the best value)."""
+        data = self._get_json(f"{API}/studies/{int(study_id)}/pareto")
+        return [Trial.model_validate(item) for item in data]
 
-        Raises :class:`NotFound` when the study itself does not exist.
+    def best_trial(self, study_id: int) -> Trial | None:
+        """The best complete (and feasible) trial, or ``None`` while there is none.
+
+        Raises :class:`NotFound` when the study itself does not exist and
+        :class:`Conflict` for a study of several objectives (see :meth:`pareto`).
         """
         try:
             return Trial.model_validate(self._get_json(f"{API}/studies/{int(study_id)}/best"))

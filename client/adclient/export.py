@@ -39,7 +39,11 @@ def export_json(study: Study, trials: list[Trial]) -> str:
 
 
 def export_csv(trials: list[Trial]) -> str:
+    """A study of several objectives has a ``values_<i>`` column per objective (in the
+    order of its ``objective_names``), as Optuna's ``trials_dataframe``; a study with
+    constraints a ``feasible`` column."""
     rows: list[dict[str, Any]] = []
+    value_columns: dict[str, None] = {}
     param_columns: dict[str, None] = {}
     metric_columns: dict[str, None] = {}
     attr_columns: dict[str, None] = {}
@@ -57,6 +61,12 @@ def export_csv(trials: list[Trial]) -> str:
             "duration_s": _duration(trial.started_at, trial.finished_at),
             "message": trial.message or "",
         }
+        for index, objective in enumerate(trial.values or []):
+            value_columns.setdefault(f"values_{index}")
+            row[f"values_{index}"] = _cell(objective)
+        if trial.feasible is not None:
+            value_columns.setdefault("feasible")
+            row["feasible"] = trial.feasible
         for key, value in _flatten(trial.params):
             column = f"params_{key}"
             param_columns.setdefault(column)
@@ -73,7 +83,7 @@ def export_csv(trials: list[Trial]) -> str:
     out = io.StringIO()
     writer = csv.DictWriter(
         out,
-        fieldnames=[*CSV_FIELDS, *param_columns, *metric_columns, *attr_columns],
+        fieldnames=[*CSV_FIELDS, *value_columns, *param_columns, *metric_columns, *attr_columns],
         restval="",
         lineterminator="\n",
     )

@@ -54,7 +54,8 @@ def read_import(
 
 
 def _trial(row: dict[str, Any], where: str, queue_unfinished: bool) -> TrialAdd | None:
-    state = row.get("state") or ("complete" if row.get("value") is not None else "queued")
+    told = row.get("value") is not None or row.get("values") is not None
+    state = row.get("state") or ("complete" if told else "queued")
     if state not in FINISHED:
         if not queue_unfinished:
             return None
@@ -82,6 +83,7 @@ def _from_export(text: str, *, queue_unfinished: bool) -> ImportPlan:
     body = None
     if isinstance(study, dict):
         body = {key: study[key] for key in StudyCreate.model_fields if key in study}
+        _one_way_of_objectives(body)
     rows: list[tuple[str, dict[str, Any]]] = []
     numbered = sorted(
         payload["trials"], key=lambda t: t.get("number", 0) if isinstance(t, dict) else 0
@@ -91,23 +93,48 @@ def _from_export(text: str, *, queue_unfinished: bool) -> ImportPlan:
             raise ImportFileError(f"trials[{index}]: an object with 'params' expected")
         row = {
             key: item[key]
-            for key in ("params", "state", "value", "message", "metrics")
+            for key in ("params", "state", "value", "values", "message", "metrics")
             if item.get(key) is not None
         }
         rows.append((f"trial number {item.get('number', index)}", row))
     return _plan(body, rows, queue_unfinished)
 
 
+def _one_way_of_objectives(body: dict[str, Any]) -> None:
+    """An exported study names its objectives three ways (``direction``, ``directions``
+    with ``objective_names``, and ``objectives`` where read from metrics); a new study
+    takes one."""
+    directions = body.get("directions") or []
+    if body.get("objectives"):
+        keep = "objectives"
+    elif len(directions) > 1:
+        keep = "directions"
+    else:
+        keep = "direction"
+    for key in ("direction", "directions", "objective_names", "objectives"):
+        if key != keep and not (keep == "directions" and key == "objective_names"):
+            body.pop(key, None)
+    if not body.get("reference_point"):
+        body.pop("reference_point", None)
+
+
 def _from_csv(text: str, *, space: dict[str, Any] | None, queue_unfinished: bool) -> ImportPlan:
     reader = csv.DictReader(io.StringIO(text))
     columns = reader.fieldnames or []
-    if "value" not in columns and "state" not in columns:
-        raise ImportFileError("a CSV needs a 'value' column (and optionally 'state')")
+    several = sorted(
+        (c for c in columns if c.startswith("values_") and c[7:].isdigit()),
+        key=lambda c: int(c[7:]),
+    )
+    if "value" not in columns and "state" not in columns and not several:
+        raise ImportFileError(
+            "a CSV needs a 'value' column, or 'values_<objective>' columns (and optionally 'state')"
+        )
     typed = _box_types(space)
     rows: list[tuple[str, dict[str, Any]]] = []
     for line, cells in enumerate(reader, start=2):
         params: dict[str, Any] = {}
         metrics: dict[str, Any] = {}
+        values: dict[str, float] = {}
         row: dict[str, Any] = {}
         for column, cell in cells.items():
             if column is None or cell is None or cell == "":
@@ -116,12 +143,16 @@ def _from_csv(text: str, *, space: dict[str, Any] | None, queue_unfinished: bool
                 metrics[column.removeprefix("metrics_")] = _number(cell, f"line {line}, {column}")
             elif column == "value":
                 row["value"] = _number(cell, f"line {line}, value")
+            elif column in several:
+                values[column] = _number(cell, f"line {line}, {column}")
             elif column in ("state", "message"):
                 row[column] = cell
             elif column.startswith("params_") or not _about_the_run(column):
                 name = column.removeprefix("params_")
                 params[name] = _param(cell, typed.get(name), f"line {line}, {column}")
         row["params"] = params
+        if values:
+            row["values"] = [values[column] for column in several if column in values]
         if metrics:
             row["metrics"] = metrics
         rows.append((f"line {line}", row))
@@ -143,9 +174,9 @@ def _plan(
 
 
 def _about_the_run(column: str) -> bool:
-    """A column of the CSV export that is not a param (the run's own, user attributes:
-    they do not come back in)."""
-    return column in CSV_FIELDS or column.startswith("user_attrs_")
+    """A column of the CSV export that is not a param (the run's own, feasibility, user
+    attributes: they do not come back in)."""
+    return column in CSV_FIELDS or column == "feasible" or column.startswith("user_attrs_")
 
 
 def _box_types(space: dict[str, Any] | None) -> dict[str, Any]:

@@ -33,6 +33,15 @@ from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
 
 from adclient.design import DesignSpace, Representation
+from adclient.objectives import (
+    MAX_CONSTRAINTS,
+    MAX_OBJECTIVES,
+    Constraint,
+    Direction,
+    Objective,
+    Outcomes,
+    outcomes_of,
+)
 from adclient.plugins import PluginError, catalogue
 from adclient.pruning import Checkpoint, PrunerConfig
 
@@ -52,11 +61,6 @@ MAX_JSON_BYTES = 64 * 1024
 """Bounds of every free JSON field (study metadata, proposer and task options): deep
 enough for any real configuration, far below what serialisers refuse (256 levels), and
 small enough that a listing of many studies stays cheap."""
-
-
-class Direction(StrEnum):
-    minimize = "minimize"
-    maximize = "maximize"
 
 
 class StudyState(StrEnum):
@@ -505,9 +509,41 @@ class NewTaskConfig(TaskConfig):
         return catalogue().task(self.name).options.model_validate(self.options).link_names()
 
 
+ObjectiveName = Annotated[str, Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)]
+
+
 class StudyCreate(_Strict):
     name: StudyName
     direction: Direction = Direction.maximize
+    directions: list[Direction] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=MAX_OBJECTIVES,
+        description="several objectives (a tell gives `values`, one per direction), "
+        "instead of `direction`",
+    )
+    objective_names: list[ObjectiveName] | None = Field(
+        default=None, description="a name per direction (default: value_0, value_1, ...)"
+    )
+    objectives: list[Objective] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=MAX_OBJECTIVES,
+        description="objectives read from a tell's value (`value` or `score`) and metrics "
+        "(a managed study's task metrics, such as `mass`), instead of `direction(s)`",
+    )
+    constraints: list[Constraint] = Field(
+        default_factory=list,
+        min_length=0,
+        max_length=MAX_CONSTRAINTS,
+        description="outcome constraints on told metrics (or objectives by name): a trial "
+        "that breaks one is complete but infeasible",
+    )
+    reference_point: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        default=None,
+        description="the hypervolume reference point of a study of several objectives, in "
+        "the objectives' own units (default: inferred from the trials)",
+    )
     space: Space
     proposer: NewProposerConfig = Field(default_factory=NewProposerConfig)
     pruner: PrunerConfig = Field(default_factory=PrunerConfig)
@@ -562,6 +598,54 @@ class StudyCreate(_Strict):
         return space
 
     @model_validator(mode="after")
+    def _objectives(self) -> StudyCreate:
+        if self.directions is not None and self.objectives is not None:
+            raise ValueError("directions and objectives: give one of them")
+        outcomes = self.outcomes()
+        first = outcomes.directions[0]
+        if "direction" in self.model_fields_set and self.direction != first:
+            several = "directions" if self.directions is not None else "objectives"
+            raise ValueError(
+                f"direction ({self.direction.value}) and {several} (first: {first.value}) "
+                f"disagree: give one of direction and {several}"
+            )
+        if self.objective_names is not None:
+            if self.directions is None:
+                raise ValueError("objective_names: name the objectives of `directions`")
+            if len(self.objective_names) != len(self.directions):
+                raise ValueError(
+                    f"objective_names: {len(self.objective_names)} names for "
+                    f"{len(self.directions)} directions"
+                )
+        if len(set(outcomes.names)) != outcomes.count:
+            raise ValueError(f"objectives: each objective needs its own name, got {outcomes.names}")
+        if self.reference_point is not None:
+            if not outcomes.multi:
+                raise ValueError("reference_point: only a study of several objectives has one")
+            if len(self.reference_point) != outcomes.count:
+                raise ValueError(
+                    f"reference_point: {len(self.reference_point)} numbers for "
+                    f"{outcomes.count} objectives"
+                )
+        if outcomes.multi and self.pruner.name != "none":
+            raise ValueError(
+                f"pruner: {self.pruner.name!r} ranks trials by one value; a study of several "
+                "objectives takes pruner none"
+            )
+        return self
+
+    def outcomes(self) -> Outcomes:
+        """The study's objectives and constraints, as tells are checked against them."""
+        return outcomes_of(
+            direction=self.direction,
+            directions=self.directions,
+            objective_names=self.objective_names,
+            objectives=self.objectives,
+            constraints=self.constraints,
+            reference_point=self.reference_point,
+        )
+
+    @model_validator(mode="after")
     def _managed_study(self) -> StudyCreate:
         if self.task is None:
             return self
@@ -592,7 +676,16 @@ class StudyCreate(_Strict):
 class Study(BaseModel):
     id: int
     name: str
-    direction: Direction
+    direction: Direction = Field(description="the first objective's direction")
+    directions: list[Direction] = Field(
+        default_factory=list, description="one per objective (empty in answers of old servers)"
+    )
+    objective_names: list[str] = Field(default_factory=list)
+    objectives: list[Objective] | None = Field(
+        default=None, description="where each objective is read from in a tell, if not `values`"
+    )
+    constraints: list[Constraint] = Field(default_factory=list)
+    reference_point: list[float] | None = None
     state: StudyState
     managed: bool
     space: Space
@@ -668,6 +761,14 @@ class Trial(BaseModel):
     params: dict[str, Any]
     vector: list[float]
     value: float | None
+    values: list[float] | None = Field(
+        default=None, description="a study of several objectives: one value per objective"
+    )
+    feasible: bool | None = Field(
+        default=None,
+        description="whether a finished trial meets the study's constraints (null: the "
+        "study has none, or the trial has no outcome)",
+    )
     message: str | None = None
     metrics: dict[str, float] = Field(default_factory=dict)
     info: dict[str, Any] = Field(default_factory=dict, description="Proposer's notes")
@@ -715,6 +816,7 @@ class TellRequest(_Strict):
     clients and fuzzers see the same rule the validator enforces."""
 
     value: float | None = None
+    values: list[float] | None = Field(default=None, min_length=1, max_length=MAX_OBJECTIVES)
     state: Literal["complete", "failed", "pruned"] = "complete"
     message: str | None = Field(default=None, max_length=10_000, pattern=NO_NUL_PATTERN)
     worker_id: str | None = Field(
@@ -724,9 +826,15 @@ class TellRequest(_Strict):
 
     @model_validator(mode="after")
     def _consistent(self) -> TellRequest:
-        if self.state == "complete":
+        if self.values is not None:
+            _outcome_values(self.values, self.value, self.state)
+            if len(self.values) == 1:  # one objective told as a list
+                self.value, self.values = self.values[0], None
+        elif self.state == "complete":
             if self.value is None:
-                raise ValueError("value is required to complete a trial")
+                raise ValueError(
+                    "value is required to complete a trial (values: several objectives)"
+                )
             _finite(self.value, "value")
         elif self.state == "pruned":
             if self.value is not None:
@@ -750,10 +858,17 @@ class TellRequest(_Strict):
             "title": "TellComplete",
             "properties": {
                 "value": {"type": "number"},
+                "values": {
+                    "type": "array",
+                    "items": {"type": "number"},
+                    "minItems": 1,
+                    "maxItems": MAX_OBJECTIVES,
+                    "description": "a study of several objectives: one number per objective",
+                },
                 "state": {"const": "complete", "default": "complete"},
                 **common,
             },
-            "required": ["value"],
+            "oneOf": [{"required": ["value"]}, {"required": ["values"]}],
             "additionalProperties": False,
         }
         failed = {
@@ -777,6 +892,17 @@ class TellRequest(_Strict):
         }
 
 
+def _outcome_values(values: list[float], value: float | None, state: str) -> None:
+    """``values`` of a tell or a handed-over trial: finite, instead of ``value``, and only
+    for a complete trial."""
+    if value is not None:
+        raise ValueError("give value or values, not both")
+    if state != "complete":
+        raise ValueError(f"a {state} trial carries no values")
+    for index, item in enumerate(values):
+        _finite(item, f"values[{index}]")
+
+
 MAX_TRIALS_ADDED = 10_000
 """Trials one ``POST /studies/{id}/trials`` may add."""
 
@@ -797,6 +923,7 @@ class TrialAdd(_Strict):
         description="default: complete with a value, queued without one",
     )
     value: float | None = None
+    values: list[float] | None = Field(default=None, min_length=1, max_length=MAX_OBJECTIVES)
     message: str | None = Field(default=None, max_length=10_000, pattern=NO_NUL_PATTERN)
     metrics: dict[str, float] = Field(default_factory=dict, max_length=256)
     skip_if_exists: bool = Field(
@@ -808,9 +935,14 @@ class TrialAdd(_Strict):
     @model_validator(mode="after")
     def _consistent(self) -> TrialAdd:
         if self.state is None:
-            self.state = "queued" if self.value is None else "complete"
-        if self.state == "complete" and self.value is None:
-            raise ValueError("value is required for a complete trial")
+            told = self.value is not None or self.values is not None
+            self.state = "complete" if told else "queued"
+        if self.values is not None:
+            _outcome_values(self.values, self.value, self.state)
+            if len(self.values) == 1:
+                self.value, self.values = self.values[0], None
+        if self.state == "complete" and self.value is None and self.values is None:
+            raise ValueError("value is required for a complete trial (values: several objectives)")
         if self.state in ("queued", "failed") and self.value is not None:
             raise ValueError(f"a {self.state} trial carries no value")
         if self.value is not None:

@@ -6,14 +6,15 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any, Literal, overload
+from typing import TYPE_CHECKING, Any, Literal, cast, overload
 
 from pydantic import PrivateAttr
 
 from adclient.errors import Conflict
 from adclient.export import ExportFormat
+from adclient.objectives import as_values
 from adclient.pruning import TrialPruned
 from adclient.schemas import Study, StudyState, Trial, TrialState, WorkerInfo
 
@@ -154,19 +155,21 @@ class StudyHandle:
     def add_trial(
         self,
         params: Mapping[str, Any],
-        value: float | None = None,
+        value: float | Sequence[float] | None = None,
         *,
         state: Literal["complete", "failed", "pruned"] | None = None,
         message: str | None = None,
         metrics: Mapping[str, float] | None = None,
     ) -> Trial:
         """Store an evaluation made elsewhere (Optuna's ``add_trial``): it counts in the
-        study's best and its proposer learns from it. ``state`` defaults to complete."""
-        body: dict[str, Any] = {
-            "params": dict(params),
-            "value": value,
-            "state": state or "complete",
-        }
+        study's best and its proposer learns from it. ``state`` defaults to complete; a
+        study of several objectives takes a sequence of values."""
+        body: dict[str, Any] = {"params": dict(params), "state": state or "complete"}
+        values = as_values(value)
+        if values is not None:
+            body["values"] = values
+        else:
+            body["value"] = value
         if message is not None:
             body["message"] = message
         if metrics:
@@ -176,7 +179,7 @@ class StudyHandle:
     def tell(
         self,
         trial: TrialRef,
-        value: float | None = None,
+        value: float | Sequence[float] | None = None,
         *,
         state: Literal["complete", "failed", "pruned"] | TrialState | str | None = None,
         message: str | None = None,
@@ -187,8 +190,14 @@ class StudyHandle:
 
     @property
     def best_trial(self) -> Trial | None:
-        """The best complete trial, or ``None`` while none is complete."""
+        """The best complete (and feasible) trial, or ``None`` while there is none; a
+        study of several objectives raises :class:`Conflict`: see :attr:`best_trials`."""
         return self.client.best_trial(self.id)
+
+    @property
+    def best_trials(self) -> list[Trial]:
+        """The Pareto front: complete, feasible trials no other one dominates."""
+        return self.client.pareto(self.id)
 
     @property
     def best_value(self) -> float | None:
@@ -211,7 +220,7 @@ class StudyHandle:
 
     def optimize(
         self,
-        func: Callable[[LiveTrial], float | None],
+        func: Callable[[LiveTrial], float | Sequence[float] | None],
         n_trials: int | None = None,
         *,
         n_jobs: int = 1,
@@ -283,7 +292,10 @@ class StudyHandle:
         return told
 
     def _run(
-        self, func: Callable[[LiveTrial], float | None], trial: LiveTrial, caught: tuple[type, ...]
+        self,
+        func: Callable[[LiveTrial], float | Sequence[float] | None],
+        trial: LiveTrial,
+        caught: tuple[type, ...],
     ) -> Trial:
         """Evaluate one trial and tell its result; re-raise what ``catch`` does not name."""
         try:
@@ -296,9 +308,14 @@ class StudyHandle:
             if isinstance(exc, caught):
                 return finished
             raise
-        if value is None or not math.isfinite(float(value)):
+        values = as_values(value)
+        told: float | list[float] | None = values
+        if values is None and value is not None:
+            told = float(cast(float, value))  # numpy scalars and ints alike
+        finite = [told] if isinstance(told, float) else told
+        if not finite or not all(math.isfinite(v) for v in finite):
             return self.tell(trial, state="failed", message=f"objective returned {value!r}")
-        return self.tell(trial, float(value))
+        return self.tell(trial, told)
 
     def wait(
         self,

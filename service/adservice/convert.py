@@ -2,16 +2,29 @@
 
 from __future__ import annotations
 
+from adclient.objectives import stored_outcomes
 from adclient.schemas import ArtifactInfo, Study, Trial, WorkerInfo
 from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow
 
 
 def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
+    outcomes = stored_outcomes(row.outcomes, direction=row.direction)
+    objectives = None
+    if outcomes.metrics is not None:
+        objectives = [
+            {"metric": metric, "direction": direction}
+            for metric, direction in zip(outcomes.metrics, outcomes.directions, strict=True)
+        ]
     return Study.model_validate(
         {
             "id": row.id,
             "name": row.name,
             "direction": row.direction,
+            "directions": outcomes.directions,
+            "objective_names": outcomes.names,
+            "objectives": objectives,
+            "constraints": outcomes.constraints,
+            "reference_point": outcomes.reference_point,
             "state": row.state,
             "managed": row.task is not None,
             "space": row.space,

@@ -59,6 +59,11 @@ class StudyRow(Base):
     representation: Mapped[dict[str, Any] | None] = mapped_column(
         sa.JSON(none_as_null=True), nullable=True
     )
+    outcomes: Mapped[dict[str, Any] | None] = mapped_column(
+        sa.JSON(none_as_null=True), nullable=True
+    )
+    """Several objectives or constraints (``adclient.objectives.outcomes_json``); None for
+    one objective in ``direction``, which always holds the first objective's direction."""
     max_trials: Mapped[int | None] = mapped_column(nullable=True)
     max_attempts: Mapped[int] = mapped_column(default=3)
     n_trials: Mapped[int] = mapped_column(default=0)
@@ -96,6 +101,10 @@ class TrialRow(Base):
     vector: Mapped[list[float]] = mapped_column(sa.JSON)
     params: Mapped[dict[str, Any]] = mapped_column(sa.JSON)
     value: Mapped[float | None] = mapped_column(sa.Double, nullable=True)
+    values: Mapped[list[float] | None] = mapped_column(sa.JSON(none_as_null=True), nullable=True)
+    """A study of several objectives: one value per objective (``value`` is None then)."""
+    feasible: Mapped[bool | None] = mapped_column(nullable=True)
+    """Whether the trial meets its study's constraints (None: none, or no outcome)."""
     message: Mapped[str | None] = mapped_column(sa.Text, nullable=True)
     metrics: Mapped[dict[str, float]] = mapped_column(sa.JSON, default=dict)
     info: Mapped[dict[str, Any]] = mapped_column(sa.JSON, default=dict)

@@ -8,7 +8,7 @@ return ORM rows, which ``adservice.convert`` turns into API schemas.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, cast
@@ -17,12 +17,21 @@ import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from adclient.objectives import (
+    Outcome,
+    OutcomeError,
+    Outcomes,
+    outcomes_json,
+    pareto_front,
+    stored_outcomes,
+)
 from adclient.schemas import StudyCreate, TellRequest, Trial, TrialAdd, TrialState
 from adservice import principals
 from adservice.db import Prepared
 from adservice.errors import (
     ConflictError,
     ForbiddenError,
+    InvalidError,
     LeaseLostError,
     NotFoundError,
     TooLargeError,
@@ -86,11 +95,13 @@ def create_study(
     representation: dict[str, Any] | None,
     owner: Principal,
 ) -> StudyRow:
+    outcomes = body.outcomes()
     row = StudyRow(
         owner_token_id=owner.token_id,
         created_by=owner.name or None,
         name=body.name,
-        direction=body.direction.value,
+        direction=outcomes.directions[0].value,
+        outcomes=outcomes_json(outcomes),
         state="running",
         space=body.space.model_dump(mode="json"),
         proposer=body.proposer.model_dump(mode="json"),
@@ -161,37 +172,77 @@ def stop_study(session: Session, *, study_id: int, caller: Principal) -> StudyRo
 
 @dataclass(frozen=True)
 class History:
-    """A study's trials as arrays, values as stored (not yet oriented)."""
+    """A study's trials as arrays, values as stored (not yet oriented). For a study of
+    several objectives or with constraints: ``values`` (n x m, each observed trial's
+    objective values; ``y`` is its first column) and ``slacks`` (n x c, <= 0 where a
+    constraint holds)."""
 
     X: np.ndarray
     y: np.ndarray
     failed: np.ndarray
     pending: np.ndarray
+    values: np.ndarray | None = None
+    slacks: np.ndarray | None = None
 
 
 def study_history(
-    session: Session, *, study_id: int, dim: int, pruned_as_observed: bool = True
+    session: Session,
+    *,
+    study_id: int,
+    dim: int,
+    pruned_as_observed: bool = True,
+    outcomes: Outcomes | None = None,
 ) -> History:
     """``pruned_as_observed``: a pruned trial with a value (its last report) counts as an
-    observation of that value; otherwise it is left out (docs/pruning.md)."""
+    observation of that value; otherwise it is left out (docs/pruning.md). A study of
+    several objectives observes its complete trials only (a pruned one has no values);
+    an infeasible trial is observed, with its slacks."""
+    outcomes = outcomes or Outcomes()
+    columns: list[Any] = [TrialRow.state, TrialRow.vector, TrialRow.value]
+    if not outcomes.plain:
+        columns += [TrialRow.values, TrialRow.metrics]
     rows = session.execute(
-        sa.select(TrialRow.state, TrialRow.vector, TrialRow.value)
-        .where(TrialRow.study_id == study_id)
-        .order_by(TrialRow.number)
+        sa.select(*columns).where(TrialRow.study_id == study_id).order_by(TrialRow.number)
     ).all()
     observed = {TrialState.complete, TrialState.pruned if pruned_as_observed else "complete"}
-    complete = [(v, y) for s, v, y in rows if s in observed and y is not None]
+    if outcomes.multi:
+        observed = {TrialState.complete}
     empty = np.zeros((0, dim))
 
     def stack(vectors: list[list[float]]) -> np.ndarray:
         return np.asarray(vectors, dtype=np.float64).reshape(-1, dim) if vectors else empty
 
+    def point(row: Any) -> list[float] | None:
+        if outcomes.multi:
+            return list(row.values) if row.values else None
+        return None if row.value is None else [row.value]
+
+    seen = [(row, p) for row in rows if row.state in observed and (p := point(row)) is not None]
+    values = np.asarray([p for _, p in seen], dtype=np.float64).reshape(-1, outcomes.count)
+    slacks = None
+    if outcomes.constraints:
+        slacks = np.asarray(
+            [_slacks(outcomes, row, p) for row, p in seen], dtype=np.float64
+        ).reshape(-1, len(outcomes.constraints))
     return History(
-        X=stack([v for v, _ in complete]),
-        y=np.asarray([y for _, y in complete], dtype=np.float64),
-        failed=stack([v for s, v, _ in rows if s == TrialState.failed]),
-        pending=stack([v for s, v, _ in rows if s in (TrialState.queued, TrialState.running)]),
+        X=stack([row.vector for row, _ in seen]),
+        y=values[:, 0].copy(),
+        failed=stack([row.vector for row in rows if row.state == TrialState.failed]),
+        pending=stack(
+            [row.vector for row in rows if row.state in (TrialState.queued, TrialState.running)]
+        ),
+        values=values if outcomes.multi else None,
+        slacks=slacks,
     )
+
+
+def _slacks(outcomes: Outcomes, row: Any, values: list[float]) -> list[float]:
+    """A trial's constraint slacks; a pruned trial (no metrics told) counts as breaking
+    none, as its value alone is what the proposer learns from it."""
+    try:
+        return outcomes.slacks(row.metrics or {}, values)
+    except OutcomeError:
+        return [0.0] * len(outcomes.constraints)
 
 
 # --- trials ---------------------------------------------------------------------------
@@ -245,6 +296,8 @@ def _new_trial(
         "vector": [float(x) for x in vector],
         "params": params,
         "value": None,
+        "values": None,
+        "feasible": None,
         "message": None,
         "metrics": {},
         "info": {},
@@ -354,10 +407,12 @@ def add_trials(
     vectors: Sequence[Sequence[float]],
     params: Sequence[dict[str, Any]],
     adds: Sequence[TrialAdd],
+    outcomes: Sequence[Outcome | None],
 ) -> list[Trial]:
     """Trials a user hands over, numbered from ``first_number``: queued ones wait for an
     ask or a lease; finished ones count in the study's counters and best, as a tell of
-    them would (``info.source`` says which: ``enqueued`` or ``added``)."""
+    them would (``info.source`` says which: ``enqueued`` or ``added``). ``outcomes``: a
+    complete one's outcome under the study's objectives and constraints."""
     now = utcnow()
     values = [
         _new_trial(
@@ -367,19 +422,24 @@ def add_trials(
             params=param,
             now=now,
             state=add.state,
-            value=add.value,
+            value=outcome.value if outcome else add.value,
+            values=outcome.values if outcome else None,
+            feasible=outcome.feasible if outcome else None,
             message=add.message,
             metrics=dict(add.metrics),
             info={"source": "enqueued" if add.state == TrialState.queued else "added"},
             finished_at=None if add.state == TrialState.queued else now,
         )
-        for offset, (vector, param, add) in enumerate(zip(vectors, params, adds, strict=True))
+        for offset, (vector, param, add, outcome) in enumerate(
+            zip(vectors, params, adds, outcomes, strict=True)
+        )
     ]
     ids = [row["id"] for row in _INSERT_TRIALS.rows(session, values)]
-    for trial_id, add in zip(ids, adds, strict=True):
+    for trial_id, add, outcome in zip(ids, adds, outcomes, strict=True):
         if add.state is not None and add.state != TrialState.queued:
+            value = counted_value(outcome) if outcome else add.value
             _COUNT[add.state].rows(
-                session, [{"sid": study_id, "tid": trial_id, "value": add.value, "now": now}]
+                session, [{"sid": study_id, "tid": trial_id, "value": value, "now": now}]
             )
     return [
         Trial.model_validate({"id": trial_id, **row})
@@ -458,19 +518,66 @@ def list_trials(
 
 def best_trial(session: Session, *, study_id: int) -> TrialRow:
     study = get_study(session, study_id=study_id)
+    outcomes = stored_outcomes(study.outcomes, direction=study.direction)
+    if outcomes.multi:
+        raise ConflictError(
+            f"study {study_id} has {outcomes.count} objectives ({', '.join(outcomes.names)}), "
+            f"so no single best trial: its best trials are GET /api/v1/studies/{study_id}/pareto"
+        )
     if study.best_trial_id is None:
-        raise NotFoundError(f"study {study_id} has no complete trial yet")
+        feasible = " feasible" if outcomes.constraints else ""
+        raise NotFoundError(f"study {study_id} has no{feasible} complete trial yet")
     return get_trial(session, trial_id=study.best_trial_id)
 
 
-def _same_tell(trial: TrialRow, body: TellRequest) -> bool:
+def pareto_trials(session: Session, *, study_id: int) -> list[TrialRow]:
+    """The study's complete, feasible trials that no other one dominates, by number (for
+    one objective: those with the best value)."""
+    study = get_study(session, study_id=study_id)
+    outcomes = stored_outcomes(study.outcomes, direction=study.direction)
+    rows = list(
+        session.scalars(
+            sa.select(TrialRow)
+            .where(
+                TrialRow.study_id == study_id,
+                TrialRow.state == TrialState.complete,
+                sa.or_(TrialRow.feasible.is_(None), TrialRow.feasible.is_(True)),
+            )
+            .order_by(TrialRow.number)
+        )
+    )
+    told: list[tuple[TrialRow, list[float]]] = []
+    for row in rows:
+        point = row.values if outcomes.multi else [row.value]
+        if point is not None and len(point) == outcomes.count and None not in point:
+            told.append((row, cast(list[float], point)))
+    front = pareto_front([point for _, point in told], outcomes.signs)
+    return [told[index][0] for index in front]
+
+
+def _same_tell(trial: TrialRow, body: TellRequest, outcomes: Outcomes) -> bool:
     if trial.state != body.state:
         return False
     if body.state == "failed" or (body.state == "pruned" and body.value is None):
         return True
-    if trial.value is None or body.value is None:
+    if body.state == "pruned":
+        return _close(trial.value, body.value)
+    try:
+        told = outcomes.outcome(value=body.value, values=body.values, metrics=body.metrics)
+    except OutcomeError:
         return False
-    return trial.value == body.value or math.isclose(trial.value, body.value, rel_tol=1e-12)
+    if told.values is not None:
+        stored = trial.values or []
+        return len(stored) == len(told.values) and all(
+            _close(a, b) for a, b in zip(stored, told.values, strict=True)
+        )
+    return _close(trial.value, told.value)
+
+
+def _close(a: float | None, b: float | None) -> bool:
+    if a is None or b is None:
+        return False
+    return a == b or math.isclose(a, b, rel_tol=1e-12)
 
 
 def _finish_statement(*, by_worker: bool, checked: bool) -> sa.Update:
@@ -521,11 +628,15 @@ def _count_statement(*, state: str) -> sa.Update:
     updates: dict[Any, Any] = {counter: counter + 1, _studies.c.updated_at: sa.bindparam("now")}
     if complete:
         value = sa.bindparam("value", type_=sa.Double)
-        better = sa.or_(
-            _studies.c.best_value.is_(None),
-            sa.case(
-                (_studies.c.direction == "maximize", _studies.c.best_value < value),
-                else_=_studies.c.best_value > value,
+        # No value (several objectives, or a trial breaking a constraint): not a best.
+        better = sa.and_(
+            sa.cast(value, sa.Double).is_not(None),  # typed: PostgreSQL infers none here
+            sa.or_(
+                _studies.c.best_value.is_(None),
+                sa.case(
+                    (_studies.c.direction == "maximize", _studies.c.best_value < value),
+                    else_=_studies.c.best_value > value,
+                ),
             ),
         )
         updates[_studies.c.best_value] = sa.case((better, value), else_=_studies.c.best_value)
@@ -569,20 +680,62 @@ _COUNT = {
 _WORKER_COUNT = {
     complete: Prepared(_worker_statement(complete=complete)) for complete in (False, True)
 }
+_SET_OUTCOME = Prepared(
+    sa.update(_trials)
+    .where(_trials.c.id == sa.bindparam("tid"))
+    .values(
+        value=sa.bindparam("value"),
+        values=sa.bindparam("values", type_=sa.JSON(none_as_null=True)),
+        feasible=sa.bindparam("feasible"),
+    )
+    .returning(*_trials.c)
+)
+
+OutcomesOf = Callable[[int], Outcomes]
+"""A study's objectives and constraints by its id (the server's cached study configs)."""
 
 
-def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Principal) -> Trial:
+def stored_outcomes_of(session: Session) -> OutcomesOf:
+    """Outcomes read from the study row, for callers without a config cache."""
+
+    def outcomes(study_id: int) -> Outcomes:
+        row = session.execute(
+            sa.select(StudyRow.outcomes, StudyRow.direction).where(StudyRow.id == study_id)
+        ).one()
+        return stored_outcomes(row.outcomes, direction=row.direction)
+
+    return outcomes
+
+
+def counted_value(outcome: Outcome) -> float | None:
+    """The value a finished trial offers as the study's best: none for several
+    objectives, or for a trial that breaks a constraint."""
+    return outcome.value if outcome.feasible is not False else None
+
+
+def tell_trial(
+    session: Session,
+    *,
+    trial_id: int,
+    body: TellRequest,
+    caller: Principal,
+    outcomes_of: OutcomesOf | None = None,
+) -> Trial:
     """Finish a trial. Repeating an identical tell is harmless; a contradicting one is
-    a conflict; a worker that no longer holds the lease is told so.
+    a conflict; a worker that no longer holds the lease is told so; a tell that does not
+    fit the study's objectives or constraints is refused (InvalidError, nothing stored).
 
     The common case is two conditional UPDATEs (trial, then study counters and best);
-    only a tell that changes nothing takes the slow path that finds out why. The UPDATEs
-    are ``Prepared`` statements, run in the session's transaction."""
+    only a tell that changes nothing takes the slow path that finds out why, and only a
+    study of several objectives or with constraints (``outcomes_of``, by default read
+    from the study row) a third that stores the outcome. The UPDATEs are ``Prepared``
+    statements, run in the session's transaction."""
     now = utcnow()
     complete = body.state != "failed"  # a pruned trial did its job: the worker's jobs_done
     value = body.value
     if body.state == "pruned" and value is None:
         value = _last_reported_value(session, trial_id=trial_id)
+    outcomes_of = outcomes_of or stored_outcomes_of(session)
     finished = _FINISH[body.worker_id is not None, caller.checked].row(
         session,
         {
@@ -597,7 +750,29 @@ def tell_trial(session: Session, *, trial_id: int, body: TellRequest, caller: Pr
         },
     )
     if finished is None:
-        return _explain_refused_tell(session, trial_id=trial_id, body=body, caller=caller)
+        return _explain_refused_tell(
+            session, trial_id=trial_id, body=body, caller=caller, outcomes_of=outcomes_of
+        )
+    if body.state == "complete":
+        outcomes = outcomes_of(finished["study_id"])
+        if not outcomes.plain or body.values is not None:
+            try:
+                outcome = outcomes.outcome(
+                    value=body.value, values=body.values, metrics=body.metrics
+                )
+            except OutcomeError as error:
+                raise InvalidError(str(error)) from None
+            finished = _SET_OUTCOME.row(
+                session,
+                {
+                    "tid": trial_id,
+                    "value": outcome.value,
+                    "values": outcome.values,
+                    "feasible": outcome.feasible,
+                },
+            )
+            assert finished is not None
+            value = counted_value(outcome)
     _COUNT[body.state].rows(
         session, [{"sid": finished["study_id"], "tid": trial_id, "value": value, "now": now}]
     )
@@ -620,7 +795,12 @@ def _last_reported_value(session: Session, *, trial_id: int) -> float | None:
 
 
 def _explain_refused_tell(
-    session: Session, *, trial_id: int, body: TellRequest, caller: Principal
+    session: Session,
+    *,
+    trial_id: int,
+    body: TellRequest,
+    caller: Principal,
+    outcomes_of: OutcomesOf,
 ) -> Trial:
     trial = get_trial(session, trial_id=trial_id)
     if body.worker_id is not None:
@@ -634,9 +814,11 @@ def _explain_refused_tell(
         study = get_study(session, study_id=trial.study_id)
         check_manager(study, caller)
     if trial.state in (TrialState.complete, TrialState.failed, TrialState.pruned):
-        if _same_tell(trial, body):
+        if _same_tell(trial, body, outcomes_of(trial.study_id)):
             return Trial.model_validate(trial, from_attributes=True)
-        told = f"value {trial.value}" if trial.state != TrialState.failed else "failed"
+        told = "failed"
+        if trial.state != TrialState.failed:
+            told = f"values {trial.values}" if trial.values else f"value {trial.value}"
         raise ConflictError(f"trial {trial_id} is already {trial.state} ({told})")
     raise LeaseLostError(f"worker {body.worker_id!r} does not hold the lease of trial {trial_id}")
 

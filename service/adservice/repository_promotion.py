@@ -209,9 +209,13 @@ def with_paused(session: Session, *, history: History, study_id: int, dim: int) 
         return history
     vectors = np.asarray([vector for vector, _ in rows], dtype=np.float64).reshape(-1, dim)
     values = np.asarray([value for _, value in rows], dtype=np.float64)
+    slacks = history.slacks
+    if slacks is not None:  # a paused trial was told no metrics: it breaks no constraint
+        slacks = np.vstack([slacks, np.zeros((len(values), slacks.shape[1]))])
     return History(
         X=np.vstack([history.X, vectors]),
         y=np.concatenate([history.y, values]),
         failed=history.failed,
         pending=history.pending,
+        slacks=slacks,
     )

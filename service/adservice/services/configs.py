@@ -10,9 +10,11 @@ from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
+from sqlalchemy.orm import Session
 
 from adclient.boxspace import BoxEncoding
 from adclient.design import DesignSpace, Representation
+from adclient.objectives import Outcomes, stored_outcomes
 from adclient.pruning import PrunerConfig
 from adclient.schemas import ProposerConfig, TaskConfig, option_problems
 from adservice import repository
@@ -64,6 +66,8 @@ class StudyConfig:
     checked at creation): asking such a study answers 409 naming the problem."""
     pruner: PrunerConfig = field(default_factory=PrunerConfig)
     """The study's pruner; ``pruner.pruned_as`` says how its proposer sees pruned trials."""
+    outcomes: Outcomes = field(default_factory=Outcomes)
+    """Its objectives and constraints."""
 
     @classmethod
     def from_row(cls, row: StudyRow) -> StudyConfig:
@@ -104,6 +108,7 @@ class StudyConfig:
             box=box,
             proposer_error=proposer_error,
             pruner=PrunerConfig.model_validate(row.pruner or {}),
+            outcomes=stored_outcomes(row.outcomes, direction=row.direction),
         )
 
     @property
@@ -160,6 +165,17 @@ class StudyConfigs:
     def cached(self, study_id: int) -> StudyConfig | None:
         """The configuration if this process has it already (no database read)."""
         return self._configs.get(study_id)
+
+    def outcomes_in(self, session: Session) -> repository.OutcomesOf:
+        """Studies' outcomes from the cache, else read in ``session`` (a tell's own
+        transaction: no second connection while it holds the write lock)."""
+        stored = repository.stored_outcomes_of(session)
+
+        def outcomes(study_id: int) -> Outcomes:
+            config = self._configs.get(study_id)
+            return config.outcomes if config is not None else stored(study_id)
+
+        return outcomes
 
     def get(self, study_id: int) -> StudyConfig:
         config = self._configs.get(study_id)

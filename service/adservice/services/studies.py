@@ -14,6 +14,7 @@ from adservice.errors import InvalidError
 from adservice.models import StudyRow
 from adservice.principals import Principal
 from adservice.proposal_runner import AskBudget
+from adservice.proposers import available, proposer_class
 from adservice.services.budget import check_options_memory
 from adservice.services.configs import check_proposer
 
@@ -25,6 +26,7 @@ def create_study(
     numbers, an ask's memory within ``budget``), then store the study; InvalidError, with
     nothing stored, otherwise."""
     check_proposer(body.proposer)
+    _check_proposer_outcomes(body)
     representation = None
     if isinstance(body.space, DesignSpace):
         from adservice.representation import build_representation
@@ -40,6 +42,25 @@ def create_study(
         return repository.create_study(
             session, body=body, representation=representation, owner=owner
         )
+
+
+def _check_proposer_outcomes(body: StudyCreate) -> None:
+    """A study of several objectives, or with constraints, needs a proposer that reads
+    them (``Proposer.multi_objective``, ``Proposer.constrained``)."""
+    outcomes = body.outcomes()
+    needs = [
+        ("multi_objective", "several objectives", outcomes.multi),
+        ("constrained", "outcome constraints", bool(outcomes.constraints)),
+    ]
+    for attribute, what, needed in needs:
+        if not needed:
+            continue
+        able = [name for name in available() if getattr(proposer_class(name), attribute)]
+        if body.proposer.name not in able:
+            raise InvalidError(
+                f"proposer.name: {body.proposer.name!r} does not handle {what}; "
+                f"choose one of {', '.join(able)}"
+            )
 
 
 def delete_study(

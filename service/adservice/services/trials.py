@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from sqlalchemy.orm import Session
 
+from adclient.objectives import Outcome, OutcomeError
 from adclient.schemas import Trial, TrialAdd
 from adservice import repository, repository_promotion
 from adservice.db import Database
@@ -41,6 +42,18 @@ def _request(
     empty = empty_history(config.dim)
     sign = 1.0 if config.maximize else -1.0
     noisy = config.proposer.noisy
+    outcomes = config.outcomes
+    signs = np.asarray(outcomes.signs)
+    objectives = ref_point = slacks = None
+    if outcomes.multi:
+        values = history.values if history else None
+        objectives = values * signs if values is not None else np.zeros((0, outcomes.count))
+        if outcomes.reference_point is not None:
+            ref_point = np.asarray(outcomes.reference_point) * signs
+    if outcomes.constraints:
+        slacks = history.slacks if history else None
+        if slacks is None:
+            slacks = np.zeros((0, len(outcomes.constraints)))
     return ProposalRequest(
         bounds=config.bounds,
         count=count,
@@ -57,6 +70,9 @@ def _request(
         box=config.box,
         seconds=budget.seconds if budget else None,
         memory_bytes=budget.memory_bytes if budget else None,
+        objectives=objectives,
+        ref_point=ref_point,
+        slacks=slacks,
     )
 
 
@@ -109,7 +125,11 @@ def proposer_history(session: Session, config: StudyConfig) -> History:
     last values (or left out, as ``pruner.pruned_as`` says), each trial counted once."""
     observed = config.pruner.pruned_as == "last_value"
     history = repository.study_history(
-        session, study_id=config.study_id, dim=config.dim, pruned_as_observed=observed
+        session,
+        study_id=config.study_id,
+        dim=config.dim,
+        pruned_as_observed=observed,
+        outcomes=config.outcomes,
     )
     if observed and repository_promotion.asha_promotion(config.pruner):
         history = repository_promotion.with_paused(
@@ -223,13 +243,22 @@ def add_trials(
         owner_name=config.owner_name,
     )
     vectors: list[list[float]] = []
+    outcomes: list[Outcome | None] = []
     problems: list[str] = []
     for index, add in enumerate(adds):
+        where = "trial" if len(adds) == 1 else f"trials[{index}]"
         try:
             vectors.append(config.canonical(config.vector(add.params)[None, :])[0].tolist())
         except ValueError as error:
-            where = "trial" if len(adds) == 1 else f"trials[{index}]"
             problems.append(f"{where}.params: {error}")
+        outcomes.append(None)
+        if add.state == "complete":
+            try:
+                outcomes[-1] = config.outcomes.outcome(
+                    value=add.value, values=add.values, metrics=add.metrics
+                )
+            except OutcomeError as error:
+                problems.append(f"{where}.{error}")
     if problems:
         raise InvalidError("; ".join(problems), problems=problems)
     with db.write() as session:
@@ -258,6 +287,7 @@ def add_trials(
                 vectors=[vectors[index] for index in new],
                 params=[config.params(np.asarray(vectors[index])) for index in new],
                 adds=[adds[index] for index in new],
+                outcomes=[outcomes[index] for index in new],
             )
     by_index = dict(zip(new, added, strict=True))
     return [

@@ -166,7 +166,16 @@ def list_trials(
 
 @router.get("/{study_id}/best")
 def best_trial(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Trial:
+    """The best complete (and feasible) trial of a study of one objective; a study of
+    several has its best trials at ``/pareto`` (409 here)."""
     return trial_schema(repository.best_trial(session, study_id=study_id))
+
+
+@router.get("/{study_id}/pareto")
+def pareto_trials(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[Trial]:
+    """The complete, feasible trials that no other one dominates (Optuna's
+    ``best_trials``), by number; for one objective, those with the best value."""
+    return [trial_schema(row) for row in repository.pareto_trials(session, study_id=study_id)]
 
 
 @router.get("/{study_id}/workers")

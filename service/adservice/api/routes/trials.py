@@ -14,7 +14,15 @@ from adclient.schemas import (
     TrialUpdate,
 )
 from adservice import repository, repository_edits, robots
-from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, SettingsDep, TrialId, WorkerDep
+from adservice.api.deps import (
+    DatabaseDep,
+    ProposingDep,
+    ReaderDep,
+    SessionDep,
+    SettingsDep,
+    TrialId,
+    WorkerDep,
+)
 from adservice.api.responses import model_response
 from adservice.auth import Role
 from adservice.convert import trial_schema
@@ -46,14 +54,21 @@ def update_trial(trial_id: TrialId, body: TrialUpdate, db: DatabaseDep, caller: 
 
 @router.post("/{trial_id}/tell", response_model=Trial)
 async def tell(
-    trial_id: TrialId, body: TellRequest, db: DatabaseDep, caller: WorkerDep
+    trial_id: TrialId, body: TellRequest, proposing: ProposingDep, caller: WorkerDep
 ) -> Response:
     if caller.role == Role.worker and body.worker_id is None:
         raise ForbiddenError("a worker token tells only the trials it holds: give worker_id")
+    db = proposing.db
 
     def write() -> Trial:
         with db.write() as session:
-            return repository.tell_trial(session, trial_id=trial_id, body=body, caller=caller)
+            return repository.tell_trial(
+                session,
+                trial_id=trial_id,
+                body=body,
+                caller=caller,
+                outcomes_of=proposing.configs.outcomes_in(session),
+            )
 
     return model_response(await db.run(write))
 
