@@ -20,7 +20,7 @@ from starlette.middleware.cors import CORSMiddleware
 from adclient import __version__
 from adclient.plugins import catalogue
 from adclient.schemas import ErrorBody
-from adservice import repository
+from adservice import repository, repository_promotion
 from adservice.api.routes import (
     artifacts,
     dashboard,
@@ -180,12 +180,17 @@ def install_error_handlers(app: FastAPI) -> None:
 
 
 def _sweep_leases(db: Database, interval: float, stop: threading.Event) -> None:
+    """Every ``interval``: expired leases back to the queue, and paused trials of spent
+    studies ended (pruned), so a study completes even when no worker asks for work."""
     while not stop.wait(interval):
         try:
             with db.write() as session:
                 expired = repository.expire_leases(session)
+                settled = repository_promotion.settle_spent_studies(session)
             if expired:
                 log.info("returned %d expired lease(s) to the queue", expired)
+            if settled:
+                log.info("ended %d paused trial(s) of spent studies as pruned", settled)
         except Exception:  # keep sweeping: a transient database error must not end it
             log.exception("lease sweep failed")
 

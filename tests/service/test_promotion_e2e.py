@@ -6,6 +6,7 @@ token pausing."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -231,3 +232,29 @@ def test_only_the_lease_holders_token_pauses(
         assert nameless.status_code == 422 and "worker_id" in nameless.text
         assert trial(holder, second["trial_id"])["state"] == "running"
         assert pause(holder, second["trial_id"], "w2", 10).status_code == 200
+
+
+def test_the_sweeper_ends_paused_trials_of_a_spent_study_without_any_worker_asking(
+    server_factory: Callable[..., ServerProcess],
+) -> None:
+    """The last running trial is told, not paused: no report can reach the rung any
+    more, and with no worker polling for work the server's own sweep ends the wait."""
+    server = server_factory(AD_SWEEP_SECONDS="0.2")
+    with httpx.Client(base_url=server.url, headers=SDK_HEADERS, timeout=30) as http:
+        study = create(http, managed(PROMOTION, max_trials=2))
+        a = lease(http, "wa")
+        assert a is not None
+        report(http, a["trial_id"], "wa", 10, 1.0)
+        b = paused_at_rung(http, "wb", 0.5)
+        told = http.post(
+            f"/api/v1/trials/{a['trial_id']}/tell", json={"value": 2.0, "worker_id": "wa"}
+        )
+        assert told.status_code == 200, told.text
+        for _ in range(300):  # no lease from here on: only the sweeper can settle b
+            if trial(http, b)["state"] != "paused":
+                break
+            time.sleep(0.1)
+        ended = trial(http, b)
+        assert (ended["state"], ended["value"]) == ("pruned", 0.5)
+        info = http.get(f"/api/v1/studies/{study}").json()
+        assert (info["state"], info["n_pruned"], info["n_paused"]) == ("complete", 1, 0)
