@@ -743,6 +743,16 @@ class TrialColumns(BaseModel):
         description="each param that has a number (or, for a box's categorical param, a "
         "choice) in some trial of the page: its values (null where a trial has none)"
     )
+    values: list[list[float] | None] | None = Field(
+        default=None,
+        description="a study of several objectives: each trial's objective values (null "
+        "where it has none); null for a study of one objective",
+    )
+    feasible: list[bool | None] | None = Field(
+        default=None,
+        description="a study with constraints: whether each trial meets them (null where it "
+        "has no outcome); null for a study without constraints",
+    )
     next: int | None = Field(
         default=None,
         description="more trials follow: ask again with `after` set to this; null at the end",

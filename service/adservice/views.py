@@ -15,6 +15,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from adclient.objectives import stored_outcomes
 from adclient.schemas import StudyCurves, TrialColumns, TrialCurve, TrialState
 from adservice import repository
 from adservice.models import ArtifactRow, TrialReportRow, TrialRow
@@ -49,6 +50,7 @@ def trial_columns(
     ``limit`` trials and about ``SERIES_CELLS`` param values. ``next`` says where the
     following page starts; the listed ``numbers`` below it are all in this page."""
     study = repository.get_study(session, study_id=study_id)
+    outcomes = stored_outcomes(study.outcomes, direction=study.direction)
     choices = {
         param["name"]
         for param in study.space.get("params", [])
@@ -57,20 +59,31 @@ def trial_columns(
     changed = TrialRow.number >= after
     if numbers:
         changed = sa.or_(changed, TrialRow.number.in_(sorted(set(numbers))))
+    # A study's values and feasibility are read only when it has them: a plain study's
+    # page costs what it did.
+    values_column: Any = TrialRow.values if outcomes.multi else sa.null()
+    feasible_column: Any = TrialRow.feasible if outcomes.constraints else sa.null()
     query = (
-        sa.select(TrialRow.number, TrialRow.state, TrialRow.value, _PARAMS_TEXT)
+        sa.select(
+            TrialRow.number,
+            TrialRow.state,
+            TrialRow.value,
+            _PARAMS_TEXT,
+            values_column,
+            feasible_column,
+        )
         .where(TrialRow.study_id == study_id, changed)
         .order_by(TrialRow.number)
     )
-    rows: list[tuple[int, str, float | None, dict[str, Any]]] = []
+    rows: list[tuple[int, str, float | None, dict[str, Any], list[float] | None, bool | None]] = []
     cells, last, more = 0, -1, True
     while more and len(rows) < limit and cells < SERIES_CELLS:
         wanted = min(_CHUNK, limit - len(rows))
         chunk = session.execute(query.where(TrialRow.number > last).limit(wanted + 1)).all()
         more = len(chunk) > wanted
-        for number, state, value, text in chunk[:wanted]:
+        for number, state, value, text, values, feasible in chunk[:wanted]:
             row_params = json.loads(text) if isinstance(text, str | bytes) else text
-            rows.append((number, state, value, row_params))
+            rows.append((number, state, value, row_params, values, feasible))
             cells += len(row_params)
             last = number
             if cells >= SERIES_CELLS:
@@ -93,6 +106,8 @@ def trial_columns(
         state=[_STATES[row[1]] for row in rows],
         value=[row[2] for row in rows],
         params=params,
+        values=[row[4] for row in rows] if outcomes.multi else None,
+        feasible=[row[5] for row in rows] if outcomes.constraints else None,
         next=last + 1 if more else None,
     )
 

@@ -41,7 +41,15 @@ def test_series_delta_is_new_trials_and_the_listed_open_ones(api: TestClient) ->
     assert delta["value"] == [None, 3.0, None, None]
     assert len(delta["params"]["y"]) == 4
     nothing = api.get(url, params={"after": 6}).json()
-    assert nothing == {"number": [], "state": [], "value": [], "params": {}, "next": None}
+    assert nothing == {
+        "number": [],
+        "state": [],
+        "value": [],
+        "params": {},
+        "values": None,  # a study of one objective
+        "feasible": None,  # without constraints
+        "next": None,
+    }
 
 
 def test_series_pages_follow_next_and_keep_the_listed_open_ones(api: TestClient) -> None:
