@@ -60,6 +60,8 @@ INCUMBENTS = 1
 """Best observed designs started from directly."""
 BOX_ROUNDS = 8
 """Discrete-then-continuous rounds at most for a box of typed params."""
+SCREENED = 64
+"""Raw samples scored by the acquisition itself after a ``screen``."""
 _TAKEN_TOL = 1e-9
 _CHUNK = 1024
 
@@ -283,15 +285,21 @@ def maximise(
     tkw: dict,
     deadline: float | None = None,
     taken: np.ndarray | None = None,
+    screen: Acquisition | None = None,
 ) -> Optimum:
     """The best point found, not one of ``taken`` if any other was found (see the
-    module docstring)."""
+    module docstring). ``screen``: a cheaper estimate of ``acqf`` (a Monte Carlo
+    acquisition with fewer draws) that scores the raw samples and picks the starts;
+    then only the ``SCREENED`` best raw samples are scored with ``acqf`` itself."""
     rng = np.random.default_rng(seed)
     S = domain.n_structures
     raw = raw_samples(domain, raw_count, rng)
-    values = raw_values = _evaluate(acqf, raw, tkw, deadline)
+    values = raw_values = _evaluate(screen or acqf, raw, tkw, deadline)
     chosen = starts(raw, values, num_restarts, rng, 1 < S <= ENUMERATE_LIMIT)
     initial = np.concatenate([raw[chosen], domain.canonical(incumbents[:INCUMBENTS])])
+    if screen is not None:
+        best_raw = np.argsort(-raw_values, kind="stable")[:SCREENED]
+        raw, raw_values = raw[best_raw], _evaluate(acqf, raw[best_raw], tkw)
     points, values = _local(acqf, domain, initial, maxiter, tkw, deadline)
     switched = 0
     for _ in range(DISCRETE_ROUNDS if S > 1 else 0):

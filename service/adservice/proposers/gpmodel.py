@@ -347,6 +347,65 @@ class AnalyticLogEI:
         return log_expected_improvement(believer, incumbent), "LogEI-believer"
 
 
+class AnalyticConstrainedLogEI:
+    """Analytic constrained LogEI (Gardner et al., 2014; BoTorch's
+    ``LogConstrainedExpectedImprovement``) for one objective with outcome constraints:
+    LogEI of the objective's GP over the best *feasible* observation (for a noisy
+    study the best posterior mean at the feasible observations) plus the log
+    probability that every constraint's GP is at or below 0 there, the GPs taken as
+    independent. With no feasible observation yet it is the log probability of
+    feasibility alone. Pending points are Kriging believers of every GP, as in
+    ``AnalyticLogEI``; a believed value above the incumbent at a point whose
+    believed slacks are all <= 0 becomes the incumbent."""
+
+    def __init__(
+        self,
+        model: Any,
+        constraint_models: list[Any],
+        train_Z: torch.Tensor,
+        y: np.ndarray,
+        feasible: np.ndarray,
+        noisy: bool,
+    ) -> None:
+        self.posterior = Posterior(model)
+        self.constraints = [Posterior(m) for m in constraint_models]
+        self.incumbent: float | None = None
+        if feasible.any():
+            with torch.no_grad():
+                if noisy:
+                    means = self.posterior.mean_sigma(train_Z)[0].cpu().numpy()
+                    self.incumbent = float(means[feasible].max())
+                else:
+                    self.incumbent = float(y[feasible].max())
+
+    def step(self, pending: torch.Tensor | None) -> tuple[Callable, str]:
+        """The acquisition given these pending points, and its name."""
+        objective, constraints, incumbent = self.posterior, self.constraints, self.incumbent
+        if pending is not None:
+            objective = objective.believing(pending)
+            constraints = [c.believing(pending) for c in constraints]
+            believed_feasible = torch.stack([c.beliefs <= 0 for c in constraints]).all(dim=0)
+            if incumbent is not None and bool(believed_feasible.any()):
+                incumbent = max(incumbent, float(objective.beliefs[believed_feasible].max()))
+        name = "LogPoF" if incumbent is None else "LogCEI"
+        name += "" if pending is None else "-believer"
+
+        def acquisition(Z: torch.Tensor) -> torch.Tensor:
+            X = Z.squeeze(-2)
+            log_feasible = torch.zeros(X.shape[:-1], dtype=X.dtype, device=X.device)
+            for constraint in constraints:
+                mean, sigma = constraint.mean_sigma(X)
+                log_feasible = log_feasible + torch.special.log_ndtr(-mean / sigma)
+            if incumbent is None:
+                return log_feasible
+            from botorch.acquisition.analytic import _log_ei_helper
+
+            mean, sigma = objective.mean_sigma(X)
+            return _log_ei_helper((mean - incumbent) / sigma) + sigma.log() + log_feasible
+
+        return acquisition, name
+
+
 def structure_correlation(model: Any, search: SearchStructure, tkw: dict[str, Any]) -> float:
     """How alike the fitted model holds the structures: the mean correlation between
     two structures' designs with the same specs (all at the pad value); 0 is the

@@ -96,6 +96,11 @@ Decisions worth knowing:
   overrides). These are small matrices; on a shared two-core machine two torch
   threads competing with other processes made asks 5 to 20 times slower, and the
   server already runs each ask in its own thread.
+- Several objectives (``ProposalRequest.objectives``) and outcome constraints
+  (``slacks``), issue 17: after the same Sobol start, one GP per outcome and
+  qLogNEHVI (several objectives) or a constrained qLogEI / qLogNEI (one), with the
+  same kernels, domains, pending points, fallbacks and budgets; the reference point,
+  and how failed and infeasible trials are treated, are in ``multiobjective``.
 - ``QEIOptions`` lists every option. Importing this module does not import torch
   (the service checks a new study's options with it); ``propose`` does.
 """
@@ -107,6 +112,7 @@ import hashlib
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
@@ -238,6 +244,12 @@ class QEIOptions(ProposerOptions):
 
 
 _FLOAT = 8
+_MO_RAW_SAMPLES = 1024
+"""``multiobjective.RAW_SAMPLES`` (that module imports torch)."""
+_MO_SCREEN_DRAWS = 16
+"""``multiobjective.SCREEN_DRAWS``."""
+_MO_BASELINE = 16
+"""Observations assumed in the pruned baseline of qLogNEHVI (typically the front)."""
 _SCORED_AT_ONCE = 1024
 """Raw samples scored in one batch (``acquisition._CHUNK``)."""
 
@@ -256,7 +268,14 @@ class MemoryNeed:
 
 
 def memory_need(
-    options: QEIOptions, *, dim: int, count: int, n_train: int, n_pending: int
+    options: QEIOptions,
+    *,
+    dim: int,
+    count: int,
+    n_train: int,
+    n_pending: int,
+    n_objectives: int = 1,
+    n_constraints: int = 0,
 ) -> MemoryNeed:
     """Peak memory of an ask beyond the process's own, in float64 arrays: the raw
     samples, one batch of them scored (against every point the last believer
@@ -278,6 +297,31 @@ def memory_need(
         joint = count + n_pending  # the noisy baseline's draws are cached, not per batch
         parts["mc_samples"] = _FLOAT * batch * joint * (10 * mc + 4 * (joint + n_train))
         sizes += f", {mc} MC samples of {joint} points jointly"
+    outcomes = n_objectives + n_constraints
+    if n_objectives > 1 or (n_constraints and options.acquisition == "mc"):
+        # issue 17's Monte Carlo acquisitions (``multiobjective``): the raw samples are
+        # scored with SCREEN_DRAWS draws of each outcome jointly with the baseline (at
+        # most _MO_BASELINE of the observations assumed) and the pending points, against
+        # every observation, and a draw's hypervolume cells: an upper estimate from the
+        # shapes, checked against a fresh process's peak at n = 80 and 200, 0 and 16
+        # pending, 2 and 3 outcomes (65, 123, 334 MB measured; 109, 226, 501 estimated)
+        raw = options.raw_samples or max(_MO_RAW_SAMPLES, restarts)
+        batch = min(_SCORED_AT_ONCE, raw)
+        joint = min(n_train, _MO_BASELINE) + n_pending + count
+        mc = options.mc_samples or 128
+        draws = max(_MO_SCREEN_DRAWS, mc * 64 // batch)
+        parts["raw_samples"] = _FLOAT * raw * (dim + 1) * 6 + _FLOAT * batch * joint * (
+            outcomes * (2 * n_train + 2 * joint + 3 * draws) + 10 * draws * n_objectives
+        )
+        parts["observations"] *= outcomes
+        sizes = (
+            f"{raw} raw samples of {dim} dimensions, {n_train} observations, "
+            f"{n_pending} pending, {outcomes} outcomes"
+        )
+    elif outcomes > 1:
+        parts["observations"] *= outcomes
+        parts["raw_samples"] += _FLOAT * batch * (conditioned + dim) * 10 * n_constraints
+        sizes += f", {outcomes} outcomes"
     driver = max(parts, key=lambda name: parts[name])
     return MemoryNeed(bytes=int(sum(parts.values())), driver=driver, sizes=sizes)
 
@@ -287,8 +331,8 @@ class QLogEIProposer:
 
     name: ClassVar[str] = "qei"
     needs_history: ClassVar[bool] = True
-    multi_objective: ClassVar[bool] = False
-    constrained: ClassVar[bool] = False
+    multi_objective: ClassVar[bool] = True
+    constrained: ClassVar[bool] = True
     options_model: ClassVar[type[ProposerOptions]] = QEIOptions
 
     @staticmethod
@@ -300,15 +344,20 @@ class QLogEIProposer:
         n_train: int,
         n_pending: int,
         n_failed: int,
+        n_objectives: int = 1,
+        n_constraints: int = 0,
     ) -> MemoryNeed:
         """``memory_need`` for the service: options as stored, failed trials counted as
-        ``propose`` counts them (the latest few, as pending points)."""
+        ``propose`` counts them (the latest few, as pending points); a study of several
+        objectives or with constraints passes their numbers."""
         return memory_need(
             QEIOptions.model_validate(options),
             dim=dim,
             count=count,
             n_train=n_train,
             n_pending=n_pending + min(n_failed, _MAX_FAILED_AS_PENDING),
+            n_objectives=n_objectives,
+            n_constraints=n_constraints,
         )
 
     def propose(self, request: ProposalRequest) -> Proposal:
@@ -370,8 +419,9 @@ class QLogEIProposer:
         first = request.count - q
         X = np.asarray(request.X, dtype=np.float64).reshape(-1, request.dim)
         y = np.asarray(request.y, dtype=np.float64).reshape(-1)
-        usable = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
-        X, y = X[usable], y[usable]
+        outcomes = _outcomes(request, y)
+        usable = np.all(np.isfinite(outcomes), axis=1) & np.all(np.isfinite(X), axis=1)
+        X, y, outcomes = X[usable], y[usable], outcomes[usable]
         n_dropped = int((~usable).sum())
         observed_Z = model_inputs(X, bounds, request.structure)
         n_distinct = _n_distinct(observed_Z)
@@ -379,8 +429,8 @@ class QLogEIProposer:
             return self._fallback(
                 request, bounds, first, q, f"fewer than 2 distinct observed points ({n_distinct})"
             )
-        y_scale = max(1.0, float(np.max(np.abs(y))))
-        if float(np.ptp(y)) <= 1e-12 * y_scale:
+        y_scale = np.maximum(1.0, np.max(np.abs(outcomes), axis=0))
+        if np.all(np.ptp(outcomes, axis=0) <= 1e-12 * y_scale):
             return self._fallback(
                 request, bounds, first, q, f"constant observations (all y = {y[0]:.6g})"
             )
@@ -396,12 +446,15 @@ class QLogEIProposer:
         import botorch  # noqa: F401  (an import error is a broken install, not a fallback)
 
         if request.memory_bytes is not None:
+            n_objectives = 1 if request.objectives is None else request.objectives.shape[1]
             need = memory_need(
                 options,
                 dim=request.dim,
                 count=q,
                 n_train=len(y),
                 n_pending=len(X_pending),
+                n_objectives=n_objectives,
+                n_constraints=outcomes.shape[1] - n_objectives,
             )
             if need.bytes > request.memory_bytes:
                 return self._fallback(
@@ -415,7 +468,23 @@ class QLogEIProposer:
 
         cpu_started = time.thread_time()
         try:
-            rows, extra = self._optimise(request, bounds, X, y, X_pending, q, options, deadline)
+            if outcomes.shape[1] > 1:
+                from adservice.proposers.multiobjective import optimise_outcomes
+
+                m = 1 if request.objectives is None else int(request.objectives.shape[1])
+                rows, extra = optimise_outcomes(
+                    request,
+                    bounds,
+                    X,
+                    outcomes[:, :m],
+                    outcomes[:, m:],
+                    X_pending,
+                    q,
+                    options,
+                    deadline,
+                )
+            else:
+                rows, extra = self._optimise(request, bounds, X, y, X_pending, q, options, deadline)
         except Exception as error:  # any numerical failure must degrade, not crash the ask
             return self._fallback(
                 request, bounds, first, q, f"model failed: {type(error).__name__}: {error}"[:300]
@@ -475,18 +544,9 @@ class QLogEIProposer:
             qLogNoisyExpectedImprovement,
         )
         from botorch.acquisition.utils import prune_inferior_points
-        from botorch.models import SingleTaskGP
-        from botorch.models.transforms.outcome import Standardize
         from botorch.sampling.normal import SobolQMCNormalSampler
 
-        from adservice.proposers.acquisition import DiscreteColumns, MixedDomain, maximise, past
-        from adservice.proposers.gpmodel import (
-            AnalyticLogEI,
-            design_kernel,
-            fit_map,
-            structure_correlation,
-            structure_lengthscale,
-        )
+        from adservice.proposers.gpmodel import AnalyticLogEI
 
         _limit_threads(torch)
         device = torch.device(options.device or _PROPOSER_DEVICE)
@@ -495,107 +555,15 @@ class QLogEIProposer:
         seed = derived_seed(request.seed, request.n_issued)
 
         Z = model_inputs(X, bounds, search)
-        spec_dim = Z.shape[1] - 1
         train_Z = torch.as_tensor(Z, **tkw)
-        train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
-        noise_mode = options.noise or ("inferred" if request.noisy else "floor")
-        train_Yvar = None
-        likelihood = None
-        if noise_mode == "fixed":
-            # Standardize divides Yvar by var(y): this is a variance of 1e-6 after scaling.
-            train_Yvar = torch.full_like(train_Y, 1e-6 * max(float(np.var(y)), 1e-12))
-        elif noise_mode == "floor":
-            from gpytorch.constraints import GreaterThan
-            from gpytorch.likelihoods import GaussianLikelihood
-
-            likelihood = GaussianLikelihood(
-                noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
-            )
-            likelihood = likelihood.to(**tkw)
-        kernel = options.kernel
-        model = SingleTaskGP(
-            train_Z,
-            train_Y,
-            train_Yvar=train_Yvar,
-            likelihood=likelihood,
-            covar_module=design_kernel(
-                search,
-                spec_dim,
-                kernel=kernel,
-                categories=request.box.categorical if request.box is not None else None,
-                **tkw,
-            ),
-            outcome_transform=Standardize(m=1),
-        )
-
-        layout_key = _layout_key(search, request)
-        data_key = hashlib.sha256(
-            b"".join(
-                [
-                    X.tobytes(),
-                    y.tobytes(),
-                    bounds.tobytes(),
-                    layout_key,
-                    f"{noise_mode}/{kernel}".encode(),
-                ]
-            )
-        ).hexdigest()
-        study_key = (
-            bounds.tobytes(),
-            layout_key,
-            request.seed,
-            request.n_initial,
-            noise_mode,
-            kernel,
-            # the first observations: two studies of one box and seed are not one study
-            X[:2].tobytes(),
-            y[:2].tobytes(),
-        )
-        use_warm = options.warm_start
-
         started = time.perf_counter()
-        exact = _lru_get(_FITS_BY_DATA, data_key) if use_warm else None
-        if exact is not None:
-            model.load_state_dict(_to_device(exact, device), strict=False)
-            fit_source = "cached"
-        else:
-            previous = _lru_get(_FITS_BY_STUDY, study_key) if use_warm else None
-            fit_source = "cold"
-            if previous is not None:
-                model.load_state_dict(_to_device(previous, device), strict=False)
-                fit_source = "warm"
-            fit_map(model, deadline=deadline)
-            params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
-            if not all(torch.isfinite(p).all() for p in params.values()):
-                raise FloatingPointError("non-finite hyperparameters after the fit")
-            if past(deadline):
-                fit_source += "-stopped"  # not the exact fit: a warm start, never a reuse
-            else:
-                _lru_put(_FITS_BY_DATA, data_key, params)
-            _lru_put(_FITS_BY_STUDY, study_key, params)
-        model.eval()
+        model, fit_source = fit_outcome(request, options, bounds, X, y, tkw, deadline)
         fit_seconds = time.perf_counter() - started
 
-        if options.num_restarts is not None:
-            num_restarts = options.num_restarts
-        else:
-            num_restarts = min(DEFAULT_RESTARTS, options.raw_samples or DEFAULT_RESTARTS)
-        raw_count = options.raw_samples or max(DEFAULT_RAW_SAMPLES, num_restarts)
         mc_samples = options.mc_samples or 128
-        domain = MixedDomain(
-            used=search.used if search is not None else np.ones((1, spec_dim), dtype=bool),
-            pad=search.pad if search is not None else 0.5,
-            discrete=DiscreteColumns(request.box, bounds[0], bounds[1] - bounds[0])
-            if request.box is not None
-            else None,
+        greedy = Greedy.of(
+            request, options, bounds, Z, X_pending, Z[np.argsort(-y, kind="stable")], tkw, deadline
         )
-        incumbents = Z[np.argsort(-y, kind="stable")]
-        pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
-        taken = None if request.noisy else np.concatenate([Z, pending_Z])
-        chosen: list[np.ndarray] = []
-        methods: list[str] = []
-        values: list[float] = []
-        switched = 0
         started = time.perf_counter()
         analytic = (
             AnalyticLogEI(model, train_Z, y, request.noisy)
@@ -617,72 +585,313 @@ class QLogEIProposer:
                             sample_shape=torch.Size([2048]), seed=derived_seed(seed, q)
                         ),
                     )
-            for step in range(q):
-                if step and past(deadline):
-                    break
-                step_seed = derived_seed(seed, step)
-                batch_pending = np.concatenate([pending_Z, *[z[None, :] for z in chosen]])
-                pending_t = torch.as_tensor(batch_pending, **tkw) if len(batch_pending) else None
-                acqf: Any
+
+            def acquisition_at(step_seed: int, pending_t: torch.Tensor | None) -> Step:
                 if analytic is not None:
-                    acqf, method = analytic.step(pending_t)
-                else:
-                    sampler = SobolQMCNormalSampler(
-                        sample_shape=torch.Size([mc_samples]), seed=step_seed
-                    )
-                    if request.noisy:
-                        acqf = qLogNoisyExpectedImprovement(
-                            model=model,
-                            X_baseline=baseline,
-                            sampler=sampler,
-                            X_pending=pending_t,
-                            prune_baseline=False,
-                        )
-                        method = "qLogNEI"
-                    else:
-                        acqf = qLogExpectedImprovement(
-                            model=model, best_f=float(y.max()), sampler=sampler, X_pending=pending_t
-                        )
-                        method = "qLogEI"
-                optimum = maximise(
-                    acqf,
-                    domain,
-                    raw_count=raw_count,
-                    num_restarts=num_restarts,
-                    maxiter=options.maxiter,
-                    seed=step_seed,
-                    incumbents=incumbents,
-                    tkw=tkw,
-                    deadline=deadline,
-                    taken=None
-                    if taken is None
-                    else np.concatenate([taken, *[z[None, :] for z in chosen]]),
+                    return Step(*analytic.step(pending_t))
+                sampler = SobolQMCNormalSampler(
+                    sample_shape=torch.Size([mc_samples]), seed=step_seed
                 )
-                chosen.append(optimum.z)
-                methods.append(method)
-                values.append(optimum.value)
-                switched += optimum.structures_switched
-        acq_seconds = time.perf_counter() - started
-        rows_np = search_vectors(np.array(chosen), bounds, search)
-        if not np.all(np.isfinite(rows_np)):
-            raise FloatingPointError("non-finite candidates from the acquisition optimiser")
+                if request.noisy:
+                    noisy = qLogNoisyExpectedImprovement(
+                        model=model,
+                        X_baseline=baseline,
+                        sampler=sampler,
+                        X_pending=pending_t,
+                        prune_baseline=False,
+                    )
+                    return Step(noisy, "qLogNEI")
+                plain = qLogExpectedImprovement(
+                    model=model, best_f=float(y.max()), sampler=sampler, X_pending=pending_t
+                )
+                return Step(plain, "qLogEI")
+
+            found = greedy.run(q, seed, acquisition_at)
         extra: dict[str, Any] = {
-            "methods": methods,
-            "log_acq_value": values[0] if np.isfinite(values[0]) else None,
             "fit": fit_source,
             "fit_seconds": round(fit_seconds, 4),
-            "acq_seconds": round(acq_seconds, 4),
-            "num_restarts": num_restarts,
-            "raw_samples": raw_count,
-            "device": device.type,
+            "acq_seconds": round(time.perf_counter() - started, 4),
         }
-        if past(deadline):
+        return greedy.rows(found, request, bounds, model, extra)
+
+
+@dataclass(frozen=True)
+class Step:
+    """One greedy step's acquisition, its name, and optionally a cheaper estimate of it
+    that scores the raw samples (``acquisition.maximise``'s ``screen``)."""
+
+    acqf: Any
+    method: str
+    screen: Any = None
+
+
+@dataclass(frozen=True)
+class Found:
+    """A greedy batch's candidates (model inputs) and what each step recorded."""
+
+    chosen: list[np.ndarray]
+    methods: list[str]
+    values: list[float]
+    switched: int
+
+
+@dataclass(frozen=True)
+class Greedy:
+    """The greedy batch search both model phases share (this module's one-objective
+    ``_optimise`` and ``multiobjective``): each step maximises its acquisition over the
+    mixed domain with the previous steps' candidates pending."""
+
+    domain: Any
+    raw_count: int
+    num_restarts: int
+    maxiter: int
+    incumbents: np.ndarray
+    pending_Z: np.ndarray
+    taken: np.ndarray | None
+    tkw: dict[str, Any]
+    deadline: float | None
+
+    @classmethod
+    def of(
+        cls,
+        request: ProposalRequest,
+        options: QEIOptions,
+        bounds: np.ndarray,
+        Z: np.ndarray,
+        X_pending: np.ndarray,
+        incumbents: np.ndarray,
+        tkw: dict[str, Any],
+        deadline: float | None,
+        default_raw: int = DEFAULT_RAW_SAMPLES,
+    ) -> Greedy:
+        """The search of this ask: its sizes from ``options`` (``default_raw`` raw
+        samples unless they say), the observed points ``Z`` and ``X_pending`` taken
+        (noise-free studies), ``incumbents`` (model inputs, best first) to start from."""
+        from adservice.proposers.acquisition import DiscreteColumns, MixedDomain
+
+        search = request.structure
+        if options.num_restarts is not None:
+            num_restarts = options.num_restarts
+        else:
+            num_restarts = min(DEFAULT_RESTARTS, options.raw_samples or DEFAULT_RESTARTS)
+        spec_dim = Z.shape[1] - 1
+        domain = MixedDomain(
+            used=search.used if search is not None else np.ones((1, spec_dim), dtype=bool),
+            pad=search.pad if search is not None else 0.5,
+            discrete=DiscreteColumns(request.box, bounds[0], bounds[1] - bounds[0])
+            if request.box is not None
+            else None,
+        )
+        pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
+        return cls(
+            domain=domain,
+            raw_count=options.raw_samples or max(default_raw, num_restarts),
+            num_restarts=num_restarts,
+            maxiter=options.maxiter,
+            incumbents=incumbents,
+            pending_Z=pending_Z,
+            taken=None if request.noisy else np.concatenate([Z, pending_Z]),
+            tkw=tkw,
+            deadline=deadline,
+        )
+
+    def run(
+        self, q: int, seed: int, acquisition_at: Callable[[int, torch.Tensor | None], Step]
+    ) -> Found:
+        """Up to q candidates (fewer past the deadline); ``acquisition_at(step_seed,
+        pending)`` gives each step's acquisition."""
+        import torch
+
+        from adservice.proposers.acquisition import maximise, past
+
+        found = Found(chosen=[], methods=[], values=[], switched=0)
+        switched = 0
+        for step in range(q):
+            if step and past(self.deadline):
+                break
+            step_seed = derived_seed(seed, step)
+            new = [z[None, :] for z in found.chosen]
+            batch_pending = np.concatenate([self.pending_Z, *new])
+            pending_t = torch.as_tensor(batch_pending, **self.tkw) if len(batch_pending) else None
+            current = acquisition_at(step_seed, pending_t)
+            optimum = maximise(
+                current.acqf,
+                self.domain,
+                raw_count=self.raw_count,
+                num_restarts=self.num_restarts,
+                maxiter=self.maxiter,
+                seed=step_seed,
+                incumbents=self.incumbents,
+                tkw=self.tkw,
+                deadline=self.deadline,
+                taken=None if self.taken is None else np.concatenate([self.taken, *new]),
+                screen=current.screen,
+            )
+            found.chosen.append(optimum.z)
+            found.methods.append(current.method)
+            found.values.append(optimum.value)
+            switched += optimum.structures_switched
+        return Found(found.chosen, found.methods, found.values, switched)
+
+    def rows(
+        self,
+        found: Found,
+        request: ProposalRequest,
+        bounds: np.ndarray,
+        model: Any,
+        extra: dict[str, Any],
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """The candidates as search vectors, and ``extra`` with what every model phase
+        records (``model``: the GP whose structure kernel is reported)."""
+        from adservice.proposers.acquisition import past
+        from adservice.proposers.gpmodel import structure_correlation, structure_lengthscale
+
+        search = request.structure
+        rows_np = search_vectors(np.array(found.chosen), bounds, search)
+        if not np.all(np.isfinite(rows_np)):
+            raise FloatingPointError("non-finite candidates from the acquisition optimiser")
+        value = found.values[0]
+        extra.update(
+            methods=found.methods,
+            log_acq_value=value if np.isfinite(value) else None,
+            num_restarts=self.num_restarts,
+            raw_samples=self.raw_count,
+            device=self.tkw["device"].type,
+        )
+        if past(self.deadline):
             extra.update(budget="time", budget_seconds=request.seconds)
         if search is not None and search.n_structures > 1:
             extra["structure_lengthscale"] = structure_lengthscale(model)
-            extra["structure_correlation"] = structure_correlation(model, search, tkw)
-            extra["structures_switched"] = switched
+            extra["structure_correlation"] = structure_correlation(model, search, self.tkw)
+            extra["structures_switched"] = found.switched
         return rows_np, extra
+
+
+def fit_outcome(
+    request: ProposalRequest,
+    options: QEIOptions,
+    bounds: np.ndarray,
+    X: np.ndarray,
+    y: np.ndarray,
+    tkw: dict[str, Any],
+    deadline: float | None,
+    outcome: str = "",
+) -> tuple[Any, str]:
+    """A ``SingleTaskGP`` on one outcome ``y`` of the points ``X`` (the study's model:
+    ``gpmodel.design_kernel``, the noise mode, outcomes standardised) with its
+    hyperparameters fitted by ``gpmodel.fit_map`` through the fit caches, in eval mode;
+    and where its fit came from (cached, warm, cold, ``-stopped`` past the deadline).
+    ``outcome`` names the outcome in the cache keys ("" for the one objective, else
+    e.g. ``objective 1`` or ``constraint 0``): each outcome of a study is fitted and
+    warm-started on its own."""
+    import torch
+    from botorch.models import SingleTaskGP
+    from botorch.models.transforms.outcome import Standardize
+
+    from adservice.proposers.acquisition import past
+    from adservice.proposers.gpmodel import design_kernel, fit_map
+
+    search = request.structure
+    device = tkw["device"]
+    Z = model_inputs(X, bounds, search)
+    spec_dim = Z.shape[1] - 1
+    train_Z = torch.as_tensor(Z, **tkw)
+    train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
+    noise_mode = options.noise or ("inferred" if request.noisy else "floor")
+    train_Yvar = None
+    likelihood = None
+    if noise_mode == "fixed":
+        # Standardize divides Yvar by var(y): this is a variance of 1e-6 after scaling.
+        train_Yvar = torch.full_like(train_Y, 1e-6 * max(float(np.var(y)), 1e-12))
+    elif noise_mode == "floor":
+        from gpytorch.constraints import GreaterThan
+        from gpytorch.likelihoods import GaussianLikelihood
+
+        likelihood = GaussianLikelihood(
+            noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
+        )
+        likelihood = likelihood.to(**tkw)
+    kernel = options.kernel
+    model = SingleTaskGP(
+        train_Z,
+        train_Y,
+        train_Yvar=train_Yvar,
+        likelihood=likelihood,
+        covar_module=design_kernel(
+            search,
+            spec_dim,
+            kernel=kernel,
+            categories=request.box.categorical if request.box is not None else None,
+            **tkw,
+        ),
+        outcome_transform=Standardize(m=1),
+    )
+
+    layout_key = _layout_key(search, request)
+    data_key = hashlib.sha256(
+        b"".join(
+            [
+                X.tobytes(),
+                y.tobytes(),
+                bounds.tobytes(),
+                layout_key,
+                f"{noise_mode}/{kernel}/{outcome}".encode(),
+            ]
+        )
+    ).hexdigest()
+    study_key = (
+        bounds.tobytes(),
+        layout_key,
+        request.seed,
+        request.n_initial,
+        noise_mode,
+        kernel,
+        outcome,
+        # the first observations: two studies of one box and seed are not one study
+        X[:2].tobytes(),
+        y[:2].tobytes(),
+    )
+    use_warm = options.warm_start
+
+    exact = _lru_get(_FITS_BY_DATA, data_key) if use_warm else None
+    if exact is not None:
+        model.load_state_dict(_to_device(exact, device), strict=False)
+        fit_source = "cached"
+    else:
+        previous = _lru_get(_FITS_BY_STUDY, study_key) if use_warm else None
+        fit_source = "cold"
+        if previous is not None:
+            model.load_state_dict(_to_device(previous, device), strict=False)
+            fit_source = "warm"
+        fit_map(model, deadline=deadline)
+        params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
+        if not all(torch.isfinite(p).all() for p in params.values()):
+            raise FloatingPointError("non-finite hyperparameters after the fit")
+        if past(deadline):
+            fit_source += "-stopped"  # not the exact fit: a warm start, never a reuse
+        else:
+            _lru_put(_FITS_BY_DATA, data_key, params)
+        _lru_put(_FITS_BY_STUDY, study_key, params)
+    model.eval()
+    return model, fit_source
+
+
+def _outcomes(request: ProposalRequest, y: np.ndarray) -> np.ndarray:
+    """The observations' objectives then slacks, one column each (n x (m + c)); ``y``
+    alone for one objective without constraints."""
+    columns = [y[:, None]]
+    if request.objectives is not None:
+        columns = [columns_of(request.objectives, len(y))]
+    if request.slacks is not None:
+        columns.append(columns_of(request.slacks, len(y)))
+    return np.column_stack(columns)
+
+
+def columns_of(values: np.ndarray, n: int) -> np.ndarray:
+    """``objectives`` or ``slacks`` of n trials as an n x k float array (a 1-d array is
+    one column)."""
+    values = np.asarray(values, dtype=np.float64)
+    return values.reshape(n, values.shape[-1] if values.ndim == 2 else 1)
 
 
 def _initial_count(request: ProposalRequest) -> int:

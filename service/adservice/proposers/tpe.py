@@ -19,6 +19,16 @@ as ``IntDistribution`` with its step or log scale, a stepped float as a stepped
 ``CategoricalDistribution`` of its choices), so TPE models each in its kind: a
 categorical by its own per-choice weights, not as an ordered number. The history's
 vectors are decoded into params for it and its answers encoded back.
+
+Several objectives (``request.objectives``) make the study Optuna's multi-objective
+one (every direction ``maximize``, the columns being oriented so), whose TPE splits
+the trials by non-domination rank and hypervolume contribution. Outcome constraints
+(``request.slacks``) are Optuna's own (Optuna's constrained TPE, as with
+``constraints_func``): each completed trial carries its slacks as its constraint
+values (<= 0 satisfied), and TPE ranks infeasible trials below every feasible one,
+by their total violation. Failed trials stay FAIL (TPE ignores them; they are not
+taken as infeasible), pending ones RUNNING. The reference point is TPE's own
+(``request.ref_point`` is not used).
 """
 
 from __future__ import annotations
@@ -31,6 +41,7 @@ import numpy as np
 from pydantic import Field
 
 from adservice.proposers.base import Proposal, ProposalRequest, ProposerOptions
+from adservice.proposers.qei import columns_of
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 
 if TYPE_CHECKING:
@@ -68,6 +79,41 @@ def _typed_distributions(box: BoxEncoding) -> dict[str, BaseDistribution]:
     return distributions
 
 
+def _constraints_func(slacks: np.ndarray | None) -> dict[str, Any]:
+    """TPESampler's keyword for constraints: none with Optuna 5, which reads each
+    trial's own constraint values; with Optuna 4 a ``constraints_func`` reading them
+    from the trial's system attributes, where ``_constraint_values`` put them."""
+    if slacks is None or _optuna_has_trial_constraints():
+        return {}
+
+    def constraints(trial: Any) -> tuple[float, ...]:
+        return tuple(trial.system_attrs[_CONSTRAINTS_KEY])
+
+    return {"constraints_func": constraints}
+
+
+def _constraint_values(slack: np.ndarray | None) -> dict[str, Any]:
+    """``create_trial``'s keyword for one trial's slacks (see ``_constraints_func``)."""
+    if slack is None:
+        return {}
+    if _optuna_has_trial_constraints():
+        return {"constraints": {f"c{j}": float(v) for j, v in enumerate(slack)}}
+    return {"system_attrs": {_CONSTRAINTS_KEY: tuple(float(v) for v in slack)}}
+
+
+_CONSTRAINTS_KEY = "constraints"
+"""Where Optuna 4's samplers keep a trial's constraint values."""
+
+
+def _optuna_has_trial_constraints() -> bool:
+    """Optuna 5 stores constraint values on the trial (``create_trial(constraints=)``)."""
+    import inspect
+
+    from optuna.trial import create_trial
+
+    return "constraints" in inspect.signature(create_trial).parameters
+
+
 class TPEOptions(ProposerOptions):
     n_startup_trials: int = Field(default=10, ge=0, le=1000)
     multivariate: bool = True
@@ -80,8 +126,8 @@ class TPEProposer:
 
     name: ClassVar[str] = "tpe"
     needs_history: ClassVar[bool] = True
-    multi_objective: ClassVar[bool] = False
-    constrained: ClassVar[bool] = False
+    multi_objective: ClassVar[bool] = True
+    constrained: ClassVar[bool] = True
     options_model: ClassVar[type[ProposerOptions]] = TPEOptions
 
     def propose(self, request: ProposalRequest) -> Proposal:
@@ -134,24 +180,41 @@ class TPEProposer:
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
+            X = np.asarray(request.X, dtype=np.float64).reshape(-1, dim)
+            y = np.asarray(request.y, dtype=np.float64).reshape(-1)
+            values = y[:, None]
+            if request.objectives is not None:
+                values = columns_of(request.objectives, len(X))
+            slacks = request.slacks
+            if slacks is not None:
+                slacks = columns_of(slacks, len(X))
             sampler = optuna.samplers.TPESampler(
                 seed=derived_seed(request.seed, request.n_issued),
                 n_startup_trials=0,
                 multivariate=options.multivariate,
                 constant_liar=options.constant_liar,
                 n_ei_candidates=options.n_ei_candidates,
+                **_constraints_func(slacks),
             )
-            study = optuna.create_study(direction="maximize", sampler=sampler)
-            X = np.asarray(request.X, dtype=np.float64).reshape(-1, dim)
-            y = np.asarray(request.y, dtype=np.float64).reshape(-1)
+            study = optuna.create_study(directions=["maximize"] * values.shape[1], sampler=sampler)
             trials = []
-            for vector, value in zip(X, y, strict=True):
-                if np.all(np.isfinite(vector)) and np.isfinite(value):
-                    trials.append(
-                        create_trial(
-                            params=params(vector), distributions=distributions, value=float(value)
-                        )
+            for number, vector in enumerate(X):
+                row = values[number]
+                slack = None if slacks is None else slacks[number]
+                if not (
+                    np.all(np.isfinite(vector))
+                    and np.all(np.isfinite(row))
+                    and (slack is None or np.all(np.isfinite(slack)))
+                ):
+                    continue
+                trials.append(
+                    create_trial(
+                        params=params(vector),
+                        distributions=distributions,
+                        values=[float(v) for v in row],
+                        **_constraint_values(slack),
                     )
+                )
             for state, vectors in (
                 (TrialState.FAIL, request.failed),
                 (TrialState.RUNNING, request.pending),

@@ -1,0 +1,338 @@
+"""qei's model phase for several objectives and for outcome constraints (issue 17).
+
+Imported only when such a proposal is computed (it imports torch and BoTorch). The
+entry point is ``optimise_outcomes``, called by ``qei`` where its single-objective
+model phase would run; the Sobol start, the fallbacks, the duplicate checks, the
+time and memory budgets and the info common to every candidate stay qei's.
+
+Model: one GP per outcome (each objective, each constraint's slack), each exactly
+the single-objective model of ``qei.fit_outcome`` (``gpmodel.design_kernel``, so
+design spaces of several structures and typed box params work unchanged; its own
+fit cache entries and warm start), gathered in a BoTorch ``ModelListGP``.
+
+Acquisition, greedy over the batch (each chosen candidate joins the pending points
+of the next, as BoTorch's sequential greedy optimisation does), maximised by
+``acquisition.maximise`` (the structure held discrete, typed params on their grid):
+
+- Several objectives: ``qLogNoisyExpectedHypervolumeImprovement`` (qLogNEHVI,
+  Daulton et al. 2021, Ament et al. 2023) with the pending points as ``X_pending``
+  (cached box decompositions), over a baseline of the observed points that are
+  Pareto-optimal in at least one of 256 seeded posterior draws (BoTorch's own
+  pruning draws from torch's global generator). With constraints, the hypervolume is
+  of feasible outcomes only (each draw's infeasible baseline points are left out of
+  its Pareto front, a candidate's improvement is weighted by its smoothed
+  feasibility).
+- One objective with constraints: ``qLogExpectedImprovement`` with the constraints
+  (its improvement weighted by the smoothed probability that the candidate is
+  feasible) and ``best_f`` the best *feasible* observation; for a noisy study
+  ``qLogNoisyExpectedImprovement`` with the constraints (the incumbent is the best
+  feasible point of each posterior draw at the observed points). While no observed
+  point is feasible, ``qLogProbabilityOfFeasibility``: the first goal is a feasible
+  design.
+
+Reference point (several objectives): ``ProposalRequest.ref_point`` when given;
+otherwise inferred as Ax does (``botorch.utils.multi_objective.hypervolume.
+infer_reference_point``, scale 0.1): the nadir (worst value of each objective) of the
+observed Pareto front minus 10% of the front's range in that objective (a front of
+one point: 10% of the point's magnitude). The front is that of the feasible
+observations, or of all observations while none is feasible. It is recomputed at
+every ask, so it moves with the front. Every candidate's info records it, oriented to
+be maximised as the request is, with ``ref_point_source`` (``given`` or
+``inferred``).
+
+Failed and infeasible trials (the policy the docs state):
+
+- A *failed* trial (its evaluation crashed: no objectives, no slacks) is left out of
+  every model, as with one objective: a crash says nothing about the objectives or
+  the constraints. Its design enters the acquisition as a pending point, so the
+  exact design is not proposed again and its neighbourhood is discounted as a
+  running trial's is. It is not counted as infeasible: a study whose crashes
+  correlate with a region should say so with a constraint the evaluation reports.
+- An *infeasible* trial (it ran, told its objectives, and broke a constraint:
+  some slack > 0) is an observation like any other: every objective GP and every
+  constraint GP learns from it, so the constraint models learn where the boundary
+  is and the objective models the shape of the response across it. It never counts
+  toward the observed Pareto front, the hypervolume baseline or the inferred
+  reference point (unless no trial is feasible yet, for the reference point only),
+  nor as the incumbent ``best_f`` of one objective.
+- Trials with a non-finite objective or slack are dropped (counted in
+  ``n_dropped``), as non-finite values are with one objective.
+
+Each model candidate's info adds ``acquisition`` (the name above), ``n_objectives``,
+``n_constraints``, ``n_feasible`` (observed feasible trials), for several objectives
+``ref_point``, ``ref_point_source``, ``n_pareto`` (the observed feasible front's size)
+and ``n_baseline``, and the fit of each outcome's GP (``fits``).
+
+The analytic-versus-Monte-Carlo choice of ``options["acquisition"]`` does not apply
+here: these acquisitions are Monte Carlo (``options["mc_samples"]`` draws, default
+128, quasi-random and seeded from ``(seed, n_issued, step)``), and they take turns on
+qei's Monte Carlo lock as qei's ``mc`` acquisitions do.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from adservice.proposers.base import ProposalRequest, model_inputs
+from adservice.proposers.simple import derived_seed
+
+if TYPE_CHECKING:
+    from adservice.proposers.qei import QEIOptions
+
+BASELINE_DRAWS = 256
+"""Posterior draws that decide which observed points stay in qLogNEHVI's baseline."""
+RAW_SAMPLES = 1024  # qei._MO_RAW_SAMPLES
+"""Sobol points the starts come from, unless ``options["raw_samples"]`` says (Ax's
+default for these acquisitions; qei's 2048 for one objective)."""
+SCREEN_DRAWS = 16  # qei._MO_SCREEN_DRAWS
+"""Posterior draws of the cheaper acquisition that scores the raw samples
+(``acquisition.maximise``'s ``screen``); the local searches use all of them."""
+
+
+def _no_kernel_compilation() -> None:
+    """BoTorch's LogEHVI compiles a fused C++ kernel with the system's compiler the first
+    time it is used in a process (minutes, inside an ask) unless a prebuilt
+    ``logei_fused_ext`` module is importable: use a prebuilt one, never compile."""
+    from botorch.acquisition.multi_objective import logei
+
+    if getattr(logei, "_load_attempted", True):
+        return
+    try:
+        import logei_fused_ext
+
+        logei._C = logei_fused_ext
+    except ImportError:
+        pass
+    logei._load_attempted = True
+
+
+def observed_front(objectives: np.ndarray, feasible: np.ndarray) -> np.ndarray:
+    """Indices of the feasible rows of ``objectives`` (n x m, maximised) that no other
+    feasible row dominates (equal rows: the first only)."""
+    from botorch.utils.multi_objective.pareto import is_non_dominated
+
+    rows = np.flatnonzero(feasible)
+    if len(rows) == 0:
+        return rows
+    mask = is_non_dominated(torch.as_tensor(objectives[rows], dtype=torch.float64))
+    return rows[mask.numpy()]
+
+
+def reference_point(
+    objectives: np.ndarray, feasible: np.ndarray, given: np.ndarray | None
+) -> tuple[np.ndarray, str]:
+    """The hypervolume reference point (see the module docstring) and its source."""
+    from botorch.utils.multi_objective.hypervolume import infer_reference_point
+
+    if given is not None:
+        return np.asarray(given, dtype=np.float64).reshape(-1), "given"
+    front = observed_front(objectives, feasible)
+    if len(front) == 0:
+        front = observed_front(objectives, np.ones(len(objectives), dtype=bool))
+    ref = infer_reference_point(torch.as_tensor(objectives[front], dtype=torch.float64))
+    return ref.numpy().astype(np.float64), "inferred"
+
+
+def _slack(index: int) -> Callable[[torch.Tensor], torch.Tensor]:
+    def constraint(samples: torch.Tensor) -> torch.Tensor:
+        return samples[..., index]
+
+    return constraint
+
+
+def _first_objective(samples: torch.Tensor, X: torch.Tensor | None = None) -> torch.Tensor:
+    return samples[..., 0]
+
+
+def _pruned_baseline(
+    model: Any,
+    train_Z: torch.Tensor,
+    m: int,
+    constraints: list[Callable[[torch.Tensor], torch.Tensor]] | None,
+    seed: int,
+) -> torch.Tensor:
+    """The observed points that are feasible and Pareto-optimal in at least one of
+    ``BASELINE_DRAWS`` seeded joint posterior draws (all of them if that is none)."""
+    from botorch.sampling.normal import SobolQMCNormalSampler
+    from botorch.utils.multi_objective.pareto import is_non_dominated
+
+    sampler = SobolQMCNormalSampler(sample_shape=torch.Size([BASELINE_DRAWS]), seed=seed)
+    with torch.no_grad():
+        samples = sampler(model.posterior(train_Z))  # draws x n x outcomes
+        objectives = samples[..., :m]
+        if constraints:
+            feasible = torch.stack([c(samples) <= 0 for c in constraints]).all(dim=0)
+            objectives = torch.where(
+                feasible.unsqueeze(-1), objectives, torch.full_like(objectives, -torch.inf)
+            )
+        keep = is_non_dominated(objectives, deduplicate=False).any(dim=0)
+        if constraints:
+            keep &= feasible.any(dim=0)
+    return train_Z[keep] if bool(keep.any()) else train_Z
+
+
+def optimise_outcomes(
+    request: ProposalRequest,
+    bounds: np.ndarray,
+    X: np.ndarray,
+    objectives: np.ndarray,
+    slacks: np.ndarray,
+    X_pending: np.ndarray,
+    q: int,
+    options: QEIOptions,
+    deadline: float | None,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Up to q candidates (fewer when the time budget ran out) and what to record, as
+    qei's ``_optimise``: ``objectives`` (n x m, m >= 1, maximised) and ``slacks``
+    (n x c, c >= 0, <= 0 satisfied) of the finite observations ``X``."""
+    from botorch.acquisition.logei import (
+        qLogExpectedImprovement,
+        qLogNoisyExpectedImprovement,
+        qLogProbabilityOfFeasibility,
+    )
+    from botorch.acquisition.multi_objective.logei import (
+        qLogNoisyExpectedHypervolumeImprovement,
+    )
+    from botorch.acquisition.multi_objective.objective import IdentityMCMultiOutputObjective
+    from botorch.acquisition.objective import GenericMCObjective
+    from botorch.models.model_list_gp_regression import ModelListGP
+    from botorch.sampling.normal import SobolQMCNormalSampler
+
+    from adservice.proposers import qei
+    from adservice.proposers.gpmodel import AnalyticConstrainedLogEI
+
+    qei._limit_threads(torch)
+    _no_kernel_compilation()
+    device = torch.device(options.device or qei._PROPOSER_DEVICE)
+    tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
+    search = request.structure
+    seed = derived_seed(request.seed, request.n_issued)
+    m, c = objectives.shape[1], slacks.shape[1]
+
+    Z = model_inputs(X, bounds, search)
+    train_Z = torch.as_tensor(Z, **tkw)
+    started = time.perf_counter()
+    models, fits = [], []
+    outcomes = [("" if m == 1 else f"objective {j}", objectives[:, j]) for j in range(m)]
+    outcomes += [(f"constraint {j}", slacks[:, j]) for j in range(c)]
+    for label, column in outcomes:
+        model_j, source = qei.fit_outcome(
+            request, options, bounds, X, np.ascontiguousarray(column), tkw, deadline, label
+        )
+        models.append(model_j)
+        fits.append(source)
+    model: Any = ModelListGP(*models) if len(models) > 1 else models[0]
+    model.eval()
+    fit_seconds = time.perf_counter() - started
+
+    feasible = np.all(slacks <= 0, axis=1) if c else np.ones(len(X), dtype=bool)
+    analytic: AnalyticConstrainedLogEI | None = None
+    n_feasible = int(feasible.sum())
+    constraints = [_slack(m + j) for j in range(c)] or None
+    baseline = train_Z
+    extra: dict[str, Any] = {
+        "n_objectives": m,
+        "n_constraints": c,
+        "n_feasible": n_feasible,
+    }
+    if m >= 2:
+        ref, ref_source = reference_point(objectives, feasible, request.ref_point)
+        front = observed_front(objectives, feasible)
+        extra.update(
+            ref_point=[float(v) for v in ref],
+            ref_point_source=ref_source,
+            n_pareto=len(front),
+        )
+        incumbents = Z[front] if len(front) else Z
+        acquisition = "qLogNEHVI"
+    else:
+        best = np.where(feasible, objectives[:, 0], -np.inf)
+        incumbents = Z[np.argsort(-best, kind="stable")]
+        if n_feasible:
+            extra["best_feasible"] = float(best.max())
+        if options.acquisition == "analytic":
+            analytic = AnalyticConstrainedLogEI(
+                models[0], models[1:], train_Z, objectives[:, 0], feasible, request.noisy
+            )
+            acquisition = "LogCEI" if n_feasible else "LogPoF"
+        elif n_feasible == 0:
+            acquisition = "qLogPoF"
+        else:
+            acquisition = "qLogNEI" if request.noisy else "qLogEI"
+
+    default_raw = qei.DEFAULT_RAW_SAMPLES if analytic is not None else RAW_SAMPLES
+    greedy = qei.Greedy.of(
+        request, options, bounds, Z, X_pending, incumbents, tkw, deadline, default_raw
+    )
+    mc_samples = options.mc_samples or 128
+    started = time.perf_counter()
+
+    def make_acquisition(draws: int, step_seed: int, pending_t: torch.Tensor | None) -> Any:
+        """The acquisition of this ask with ``draws`` quasi-random posterior draws."""
+        sampler = SobolQMCNormalSampler(sample_shape=torch.Size([draws]), seed=step_seed)
+        if acquisition == "qLogNEHVI":
+            return qLogNoisyExpectedHypervolumeImprovement(
+                model=model,
+                ref_point=torch.as_tensor(ref, **tkw),
+                X_baseline=baseline,
+                sampler=sampler,
+                objective=IdentityMCMultiOutputObjective(outcomes=list(range(m))) if c else None,
+                constraints=constraints,
+                X_pending=pending_t,
+                prune_baseline=False,
+            )
+        elif acquisition == "qLogPoF":
+            assert constraints is not None
+            return qLogProbabilityOfFeasibility(
+                model=model, constraints=constraints, sampler=sampler, X_pending=pending_t
+            )
+        elif acquisition == "qLogNEI":
+            return qLogNoisyExpectedImprovement(
+                model=model,
+                X_baseline=baseline,
+                sampler=sampler,
+                objective=GenericMCObjective(_first_objective),
+                constraints=constraints,
+                X_pending=pending_t,
+                prune_baseline=False,
+            )
+        else:
+            return qLogExpectedImprovement(
+                model=model,
+                best_f=extra["best_feasible"],
+                sampler=sampler,
+                objective=GenericMCObjective(_first_objective),
+                constraints=constraints,
+                X_pending=pending_t,
+            )
+
+    def acquisition_at(step_seed: int, pending_t: torch.Tensor | None) -> qei.Step:
+        if analytic is not None:
+            return qei.Step(*analytic.step(pending_t))
+        screen = None
+        if mc_samples > SCREEN_DRAWS:
+            screen = make_acquisition(SCREEN_DRAWS, step_seed, pending_t)
+        return qei.Step(make_acquisition(mc_samples, step_seed, pending_t), acquisition, screen)
+
+    # the Monte Carlo acquisitions take turns (see qei); the analytic one sets nothing
+    with qei._MC_LOCK if analytic is None else contextlib.nullcontext():
+        if acquisition == "qLogNEHVI":
+            baseline = _pruned_baseline(model, train_Z, m, constraints, derived_seed(seed, q))
+            extra["n_baseline"] = len(baseline)
+        found = greedy.run(q, seed, acquisition_at)
+    extra.update(
+        acquisition=acquisition,
+        fit=fits[0] if len(set(fits)) == 1 else "mixed",
+        fits=fits,
+        fit_seconds=round(fit_seconds, 4),
+        acq_seconds=round(time.perf_counter() - started, 4),
+    )
+    if analytic is None:
+        extra["mc_samples"] = mc_samples
+    return greedy.rows(found, request, bounds, models[0], extra)

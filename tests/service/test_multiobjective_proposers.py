@@ -1,0 +1,315 @@
+"""Proposers with several objectives and outcome constraints (issue 17), as arrays.
+
+No server: requests are built by hand with ``objectives`` (each column maximised),
+``ref_point`` and ``slacks`` (<= 0 satisfied). Problems: ZDT1 (d = 4) and a
+constrained toy (maximise -||x||^2 subject to x0 >= 0.5).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+from botorch.utils.multi_objective.hypervolume import Hypervolume
+from botorch.utils.multi_objective.pareto import is_non_dominated
+
+from adservice.proposers import available, get_proposer, proposer_class
+from adservice.proposers.base import ProposalRequest, SearchStructure, empty_history
+from adservice.proposers.multiobjective import observed_front, reference_point
+from adservice.proposers.qei import QEIOptions, memory_need
+
+D = 4
+UNIT = np.array([np.zeros(D), np.ones(D)])
+TOY = np.array([-np.ones(3), np.ones(3)])
+FAST = {"raw_samples": 256, "num_restarts": 4, "mc_samples": 64, "maxiter": 30}
+"""Smaller searches for the tests that only check what a proposal is."""
+
+
+def zdt1(X: np.ndarray) -> np.ndarray:
+    """ZDT1's two objectives (minimised), negated: each column maximised."""
+    f1 = X[:, 0]
+    g = 1.0 + 9.0 * X[:, 1:].mean(axis=1)
+    return -np.column_stack([f1, g * (1.0 - np.sqrt(f1 / g))])
+
+
+def toy(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """-||x||^2 and the slack of x0 >= 0.5 (the optimum -0.25 at (0.5, 0, 0))."""
+    return -np.sum(X**2, axis=1), 0.5 - X[:, :1]
+
+
+def hypervolume(objectives: np.ndarray, ref: np.ndarray) -> float:
+    """Hypervolume (maximised objectives) of the rows that dominate ``ref``."""
+    Y = torch.as_tensor(objectives, dtype=torch.float64)
+    Y = Y[(torch.as_tensor(ref) < Y).all(dim=1)]
+    if len(Y) == 0:
+        return 0.0
+    front = Y[is_non_dominated(Y)]
+    return float(Hypervolume(torch.as_tensor(ref, dtype=torch.float64)).compute(front))
+
+
+def mo_request(
+    X: np.ndarray,
+    objectives: np.ndarray,
+    *,
+    count: int = 1,
+    bounds: np.ndarray = UNIT,
+    seed: int = 0,
+    pending: np.ndarray | None = None,
+    failed: np.ndarray | None = None,
+    **extra: Any,
+) -> ProposalRequest:
+    dim = bounds.shape[1]
+    pending = empty_history(dim) if pending is None else pending
+    failed = empty_history(dim) if failed is None else failed
+    return ProposalRequest(
+        bounds=bounds,
+        count=count,
+        seed=seed,
+        n_issued=len(X) + len(pending) + len(failed),
+        X=X,
+        y=objectives[:, 0].copy(),
+        failed=failed,
+        pending=pending,
+        n_initial=6,
+        objectives=objectives,
+        **extra,
+    )
+
+
+def toy_request(X: np.ndarray, *, count: int = 1, **extra: Any) -> ProposalRequest:
+    y, slacks = toy(X)
+    dim = X.shape[1]
+    return ProposalRequest(
+        bounds=TOY,
+        count=count,
+        seed=extra.pop("seed", 0),
+        n_issued=len(X),
+        X=X,
+        y=y,
+        failed=empty_history(dim),
+        pending=extra.pop("pending", empty_history(dim)),
+        n_initial=6,
+        slacks=slacks,
+        **extra,
+    )
+
+
+def history(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    X = np.random.default_rng(seed).random((n, D))
+    return X, zdt1(X)
+
+
+def test_which_proposers_take_several_objectives_and_constraints() -> None:
+    flags = {
+        name: (proposer_class(name).multi_objective, proposer_class(name).constrained)
+        for name in available()
+    }
+    assert flags == {
+        "nelder-mead": (False, False),
+        "qei": (True, True),
+        "random": (True, True),
+        "sobol": (True, True),
+        "tpe": (True, True),
+    }
+
+
+@pytest.mark.parametrize("name", ["qei", "tpe", "random", "sobol"])
+def test_a_multi_objective_batch_is_in_bounds_and_away_from_pending_points(name: str) -> None:
+    X, Y = history(14)
+    pending = np.random.default_rng(5).random((2, D))
+    options = FAST if name == "qei" else {}
+    request = mo_request(X, Y, count=3, pending=pending, options=options)
+    proposal = get_proposer(name).propose(request)
+    rows = proposal.candidates
+    assert rows.shape == (3, D) and np.all(np.isfinite(rows))
+    assert np.all(rows >= 0.0) and np.all(rows <= 1.0)
+    for row in rows:
+        assert np.min(np.max(np.abs(pending - row), axis=1)) > 1e-6
+    assert len({tuple(np.round(row, 9)) for row in rows}) == 3
+    if name == "qei":
+        assert [info["method"] for info in proposal.info] == ["qLogNEHVI"] * 3
+        assert proposal.info[0]["n_pending"] == 2
+
+
+def test_qei_infers_the_reference_point_from_the_observed_front_as_ax_does() -> None:
+    X, Y = history(12)
+    proposal = get_proposer("qei").propose(mo_request(X, Y, options=FAST))
+    info = proposal.info[0]
+    front = Y[is_non_dominated(torch.as_tensor(Y)).numpy()]
+    nadir, ideal = front.min(axis=0), front.max(axis=0)
+    expected = nadir - 0.1 * (ideal - nadir)
+    assert info["acquisition"] == "qLogNEHVI"
+    assert info["ref_point_source"] == "inferred"
+    np.testing.assert_allclose(info["ref_point"], expected)
+    assert info["n_pareto"] == len(front)
+
+
+def test_qei_uses_a_given_reference_point() -> None:
+    X, Y = history(12)
+    ref = np.array([-1.5, -12.0])
+    info = get_proposer("qei").propose(mo_request(X, Y, ref_point=ref, options=FAST)).info[0]
+    assert info["ref_point"] == [-1.5, -12.0] and info["ref_point_source"] == "given"
+
+
+def test_infeasible_trials_never_count_toward_the_front_or_the_reference_point() -> None:
+    objectives = np.array([[0.0, 0.0], [1.0, 5.0], [1.0, 1.0], [2.0, 0.5]])
+    feasible = np.array([True, False, True, True])
+    assert observed_front(objectives, feasible).tolist() == [2, 3]
+    ref, source = reference_point(objectives, feasible, None)
+    np.testing.assert_allclose(ref, [1.0 - 0.1, 0.5 - 0.05])
+    assert source == "inferred"
+    # while nothing is feasible, the reference point comes from every observation
+    ref, _ = reference_point(objectives, np.zeros(4, dtype=bool), None)
+    np.testing.assert_allclose(ref, [1.0 - 0.1, 0.5 - 0.45])
+
+
+def test_qei_with_objectives_and_a_constraint_counts_only_feasible_trials() -> None:
+    X, Y = history(14, seed=3)
+    slacks = 0.5 - X[:, :1]
+    request = mo_request(X, Y, count=2, slacks=slacks, options=FAST)
+    proposal = get_proposer("qei").propose(request)
+    info = proposal.info[0]
+    feasible = slacks[:, 0] <= 0
+    assert info["acquisition"] == "qLogNEHVI" and info["n_constraints"] == 1
+    assert info["n_feasible"] == int(feasible.sum())
+    assert info["n_pareto"] == len(observed_front(Y, feasible))
+    assert info["fits"] == ["cold", "cold", "cold"]
+
+
+def test_failed_trials_are_pending_points_not_observations() -> None:
+    X, Y = history(12)
+    failed = np.random.default_rng(9).random((3, D))
+    proposal = get_proposer("qei").propose(mo_request(X, Y, failed=failed, options=FAST))
+    info = proposal.info[0]
+    assert info["n_train"] == 12 and info["n_pending"] == 3
+    assert np.min(np.max(np.abs(failed - proposal.candidates[0]), axis=1)) > 1e-6
+
+
+def test_identical_multi_objective_requests_give_identical_candidates() -> None:
+    X, Y = history(12)
+    first = get_proposer("qei").propose(mo_request(X, Y, count=2, options=FAST))
+    second = get_proposer("qei").propose(mo_request(X, Y, count=2, options=FAST))
+    np.testing.assert_array_equal(first.candidates, second.candidates)
+
+
+def test_before_n_initial_observations_the_start_is_space_filling() -> None:
+    X, Y = history(3)
+    proposal = get_proposer("qei").propose(mo_request(X, Y, count=4, options=FAST))
+    methods = [info["method"] for info in proposal.info]
+    assert methods == ["sobol-initial"] * 3 + ["qLogNEHVI"]
+
+
+def test_two_structures_with_two_objectives() -> None:
+    """A design space of two structures (the mixed representation: the index, then
+    three specs, the first structure using two of them) works with qLogNEHVI."""
+    search = SearchStructure(
+        structure_coords=np.array([[0.0], [1.0]]),
+        used=np.array([[True, True, False], [True, True, True]]),
+        spec_low=np.zeros(3),
+        spec_high=np.ones(3),
+    )
+    bounds = np.array([[-0.5, 0.0, 0.0, 0.0], [1.5, 1.0, 1.0, 1.0]])
+    rng = np.random.default_rng(4)
+    X = np.column_stack([np.arange(16) % 2, rng.random((16, 3))])
+    X[X[:, 0] == 0, 3] = 0.5  # the unused slot at the pad
+    Y = np.column_stack(
+        [
+            -np.sum((X[:, 1:3] - 0.3) ** 2, axis=1) - 0.2 * X[:, 0],
+            -np.sum((X[:, 1:3] - 0.7) ** 2, axis=1),
+        ]
+    )
+    tpe = get_proposer("tpe").propose(mo_request(X, Y, count=2, bounds=bounds, structure=search))
+    assert np.all(tpe.candidates >= bounds[0]) and np.all(tpe.candidates <= bounds[1])
+    proposal = get_proposer("qei").propose(
+        mo_request(X, Y, count=2, bounds=bounds, structure=search, options=FAST)
+    )
+    info, rows = proposal.info[0], proposal.candidates
+    assert info["acquisition"] == "qLogNEHVI" and "structure_correlation" in info
+    assert rows.shape == (2, 4) and set(rows[:, 0]) <= {0.0, 1.0}
+    assert np.all(rows[rows[:, 0] == 0, 3] == 0.5)  # what structure 0 does not use
+
+
+@pytest.mark.parametrize("acquisition", ["analytic", "mc"])
+def test_one_objective_with_a_constraint_uses_the_feasible_incumbent(acquisition: str) -> None:
+    X = np.random.default_rng(2).uniform(-1, 1, (12, 3))
+    y, slacks = toy(X)
+    options = {"acquisition": acquisition, **FAST}
+    proposal = get_proposer("qei").propose(toy_request(X, count=2, options=options))
+    info = proposal.info[0]
+    expected = {"analytic": "LogCEI", "mc": "qLogEI"}[acquisition]
+    assert info["acquisition"] == expected and info["n_constraints"] == 1
+    assert info["best_feasible"] == float(y[slacks[:, 0] <= 0].max())
+    assert proposal.candidates.shape == (2, 3)
+    assert proposal.info[1]["method"].startswith(expected)
+
+
+def test_with_no_feasible_trial_yet_qei_looks_for_feasibility() -> None:
+    X = np.random.default_rng(6).uniform(-1, 0.2, (10, 3))
+    proposal = get_proposer("qei").propose(toy_request(X, count=2))
+    assert [info["acquisition"] for info in proposal.info] == ["LogPoF", "LogPoF"]
+    assert np.all(proposal.candidates[:, 0] > 0.2)
+
+
+def test_memory_estimate_counts_every_outcome() -> None:
+    options = QEIOptions()
+    one = memory_need(options, dim=4, count=1, n_train=80, n_pending=0)
+    two = memory_need(options, dim=4, count=1, n_train=80, n_pending=0, n_objectives=2)
+    constrained = memory_need(
+        options, dim=4, count=1, n_train=80, n_pending=0, n_objectives=2, n_constraints=1
+    )
+    assert one.bytes < two.bytes < constrained.bytes
+    assert "2 outcomes" in two.describe()
+
+
+@pytest.mark.parametrize("constrained", [False, True])
+def test_tpe_runs_multi_objective_and_constrained(constrained: bool) -> None:
+    rng = np.random.default_rng(1)
+    X = rng.random((30, D))
+    Y = zdt1(X)
+    extra = {"slacks": 0.5 - X[:, :1]} if constrained else {}
+    proposal = get_proposer("tpe").propose(mo_request(X, Y, count=3, **extra))
+    assert proposal.candidates.shape == (3, D)
+    assert [info["method"] for info in proposal.info] == ["tpe"] * 3
+
+
+def test_constrained_tpe_keeps_to_the_feasible_region() -> None:
+    X = np.random.default_rng(0).uniform(-1, 1, (10, 3))
+    feasible = 0
+    for _ in range(20):
+        (row,) = get_proposer("tpe").propose(toy_request(X, seed=1)).candidates
+        feasible += row[0] >= 0.5
+        X = np.vstack([X, row])
+    assert feasible >= 10  # a uniform draw is feasible a quarter of the time
+
+
+@pytest.mark.slow
+def test_constrained_qei_proposals_are_mostly_feasible_once_the_constraint_is_learned() -> None:
+    X = np.random.default_rng(0).uniform(-1, 1, (6, 3))
+    proposer = get_proposer("qei")
+    for _ in range(10):
+        (row,) = proposer.propose(toy_request(X, seed=1)).candidates
+        X = np.vstack([X, row])
+    late = X[-6:]
+    assert np.sum(late[:, 0] >= 0.5 - 1e-6) >= 5
+    y, slacks = toy(X)
+    assert y[slacks[:, 0] <= 0].max() > -0.3  # the optimum is -0.25
+
+
+@pytest.mark.slow
+def test_qei_gains_more_hypervolume_than_random_on_zdt1() -> None:
+    """8 Sobol points, then 8 asks of 2 (24 evaluations); random: 24 uniform points.
+    Hypervolume against (1.1, 1.1) in ZDT1's own (minimised) terms."""
+    ref = np.array([-1.1, -1.1])
+    wins = 0
+    seeds = [0, 1, 2]
+    for seed in seeds:
+        X = np.empty((0, D))
+        while len(X) < 24:
+            request = mo_request(X, zdt1(X), count=2 if len(X) >= 8 else 8, seed=seed)
+            request = ProposalRequest(**{**request.__dict__, "n_initial": 8})
+            X = np.vstack([X, get_proposer("qei").propose(request).candidates])
+        random_X = np.random.default_rng(100 + seed).random((24, D))
+        wins += hypervolume(zdt1(X), ref) > hypervolume(zdt1(random_X), ref)
+    assert wins >= 2
