@@ -4,6 +4,8 @@
 
     adworker --function my_sim:score --task my-sim      # a plain callable instead
     adworker tasks                                      # what this worker can run
+    adworker --ray local --concurrency 8                # workers as Ray actors
+    adworker --ray head-node:6379 --concurrency 64      # on a running Ray cluster
 
 Each worker process leases a job of a task it has, trains and evaluates the design
 in PyBullet (or calls the function), and reports the score with its metrics and
@@ -61,7 +63,28 @@ def run(
     ),
     ca_bundle: Path | None = CA_BUNDLE_OPTION,
     concurrency: int = typer.Option(
-        1, "--concurrency", min=1, max=256, help="Jobs at once, each in its own process."
+        1,
+        "--concurrency",
+        min=1,
+        max=256,
+        help="Jobs at once, each in its own process (with --ray: its own Ray actor).",
+    ),
+    ray: str | None = typer.Option(
+        None,
+        "--ray",
+        envvar="AD_RAY_ADDRESS",
+        help="Run the workers as actors on a Ray cluster: 'local' starts one on this machine; "
+        "HOST:PORT (its GCS), 'auto' or ray://HOST:PORT joins a running one.",
+    ),
+    ray_cpus: float | None = typer.Option(
+        None, "--ray-cpus", min=0.0, help="With --ray: CPUs each job holds (default 1)."
+    ),
+    ray_gpus: float | None = typer.Option(
+        None,
+        "--ray-gpus",
+        min=0.0,
+        help="With --ray: GPUs each job holds (default 1 with --learner-device cuda, else 0; "
+        "a fraction shares a GPU).",
     ),
     poll: float = typer.Option(
         2.0, "--poll", min=0.05, help="Seconds between lease attempts when there is no work."
@@ -138,6 +161,12 @@ def run(
         app_dir=app_dir.resolve(),
     )
     configure_logging(level, base_id)
+    if ray is not None:
+        raise typer.Exit(
+            _run_on_ray(config, concurrency, ray, learner_device.value, ray_cpus, ray_gpus, level)
+        )
+    if ray_cpus is not None or ray_gpus is not None:
+        raise typer.BadParameter("--ray-cpus and --ray-gpus go with --ray", param_hint="--ray")
     if concurrency == 1:
         try:
             worker = Worker(config)
@@ -149,6 +178,29 @@ def run(
     else:
         code = run_pool(config, concurrency, level)
     raise typer.Exit(code)
+
+
+def _run_on_ray(
+    config: WorkerConfig,
+    concurrency: int,
+    address: str,
+    learner_device: str,
+    cpus: float | None,
+    gpus: float | None,
+    level: int,
+) -> int:
+    """``--ray``: the pool on a Ray cluster (adworker.raypool, the one module that
+    imports Ray); a cluster that cannot be used is exit status 3 with its reason."""
+    from adworker.raypool import RaySetupError, job_resources, run_ray
+
+    sizing = job_resources(
+        learner_device, function=config.function is not None, cpus=cpus, gpus=gpus
+    )
+    try:
+        return run_ray(config, concurrency, address, sizing, level)
+    except RaySetupError as error:
+        typer.echo(f"adworker: {error}", err=True)
+        return EXIT_SETUP
 
 
 @app.command("tasks")

@@ -98,6 +98,13 @@ class WorkerConfig:
     app_dir: Path | None = None
     """Where a function's module is imported from, before sys.path."""
 
+    def for_slot(self, slot: int) -> WorkerConfig:
+        """The config of one of a pool's workers (a process, or a Ray actor): its own
+        name, and no job count of its own (the pool's budget counts them all)."""
+        return WorkerConfig(
+            **{**self.__dict__, "worker_id": f"{self.worker_id}-{slot}", "max_jobs": None}
+        )
+
 
 def make_runner(config: WorkerConfig) -> Runner:
     """The configured runner; a function's module is imported here, so a typo stops the
@@ -167,7 +174,11 @@ class Worker:
         signal.signal(signal.SIGINT, self._on_signal)
 
     def _on_signal(self, signum: int, _frame: Any) -> None:
-        name = signal.Signals(signum).name
+        self.signal(signal.Signals(signum).name)
+
+    def signal(self, name: str = "SIGTERM") -> None:
+        """A stop signal, from this process's handler or a pool's driver: the first
+        finishes the current job, a second abandons it (its lease is given back)."""
         if self.stopping.is_set():
             log.warning("%s again: abandoning the current job and exiting", name)
             self.abandon.set()
@@ -459,29 +470,60 @@ def _failure_message(exc: BaseException) -> str:
 # ------------------------------------------------------------------------- pool
 
 
+class SharedBudget:
+    """A pool's ``--max-jobs``, shared by its processes: each claims a job before leasing
+    and gives the claim back when no job came (a Ray pool keeps one in an actor)."""
+
+    def __init__(self, value: Any) -> None:
+        self.value = value
+        """A ``multiprocessing.Value("i")``, or None: no limit."""
+
+    def claim(self) -> bool:
+        if self.value is None:
+            return True
+        with self.value.get_lock():
+            if self.value.value <= 0:
+                return False
+            self.value.value -= 1
+            return True
+
+    def unclaim(self) -> None:
+        if self.value is not None:
+            with self.value.get_lock():
+                self.value.value += 1
+
+
+def start_worker(
+    config: WorkerConfig, claim: Callable[[], bool], unclaim: Callable[[], None]
+) -> Worker | None:
+    """A pool's worker, or None (logged) when it cannot start: its slot then ends with
+    ``EXIT_SETUP``, which stops the pool (a process pool's child, a Ray actor)."""
+    try:
+        return Worker(config, claim=claim, unclaim=unclaim)
+    except Exception as error:
+        log.error("cannot start: %s: %s", type(error).__name__, error)
+        return None
+
+
+def pool_action(code: int | None, signals_seen: int) -> str:
+    """What a pool does when one of its workers ended with ``code`` (None: it died
+    without one, as a Ray actor whose process or node died): ``"stop"`` the pool (the
+    token refused, or it could not start), ``"replace"`` it (it crashed while the pool
+    was not stopping), or ``"drop"`` it (it stopped as asked, idle or out of jobs)."""
+    if code in (EXIT_AUTH, EXIT_SETUP):
+        return "stop"
+    if code != EXIT_OK and signals_seen == 0:
+        return "replace"
+    return "drop"
+
+
 def _child_main(config: WorkerConfig, budget: Any, log_level: int) -> None:
     """Entry point of one pool process (spawned: a fresh interpreter)."""
     configure_logging(log_level, config.worker_id)
-
-    def claim() -> bool:
-        if budget is None:
-            return True
-        with budget.get_lock():
-            if budget.value <= 0:
-                return False
-            budget.value -= 1
-            return True
-
-    def unclaim() -> None:
-        if budget is not None:
-            with budget.get_lock():
-                budget.value += 1
-
-    try:
-        worker = Worker(config, claim=claim, unclaim=unclaim)
-    except Exception as error:
-        log.error("cannot start: %s: %s", type(error).__name__, error)
-        raise SystemExit(EXIT_SETUP) from None
+    shared = SharedBudget(budget)
+    worker = start_worker(config, shared.claim, shared.unclaim)
+    if worker is None:
+        raise SystemExit(EXIT_SETUP)
     worker.install_signal_handlers()
     # Ctrl-C reaches the whole process group; the parent passes it on as SIGTERM, so
     # a child that also took the SIGINT would count one keypress as two signals.
@@ -504,11 +546,10 @@ def run_pool(config: WorkerConfig, concurrency: int, log_level: int = logging.IN
     signals_seen = 0
 
     def start(slot: int) -> None:
-        child_config = WorkerConfig(
-            **{**config.__dict__, "worker_id": f"{config.worker_id}-{slot}", "max_jobs": None}
-        )
         process = context.Process(
-            target=_child_main, args=(child_config, budget, log_level), name=f"adworker-{slot}"
+            target=_child_main,
+            args=(config.for_slot(slot), budget, log_level),
+            name=f"adworker-{slot}",
         )
         process.start()
         children[slot] = process
@@ -533,10 +574,11 @@ def run_pool(config: WorkerConfig, concurrency: int, log_level: int = logging.IN
                 continue
             process.join()
             del children[slot]
-            if process.exitcode in (EXIT_AUTH, EXIT_SETUP):
-                code = process.exitcode
+            action = pool_action(process.exitcode, signals_seen)
+            if action == "stop":
+                code = process.exitcode or EXIT_SETUP
                 forward(signal.SIGTERM, None)
-            elif process.exitcode not in (EXIT_OK, None) and signals_seen == 0:
+            elif action == "replace":
                 log.error("worker %d died (exit %s); starting another", slot, process.exitcode)
                 time.sleep(1.0)
                 start(slot)

@@ -1,0 +1,17 @@
+"""The no-physics task's evaluation, for real ``adworker`` processes and Ray actors in
+``bench/load.py``: ``adworker --app-dir bench --function noop_worker:score --task noop``.
+It imports nothing, so a worker's cost is adworker's own loop (lease, tell) alone."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def score_params(params: dict[str, float]) -> float:
+    """A cheap smooth function of the load study's two params."""
+    return -((params["x"] - 0.5) ** 2) - (params["y"] + 0.25) ** 2
+
+
+def score(job: Any) -> float:
+    """``--function``'s callable: the job's params, scored."""
+    return score_params(job.params)
