@@ -1,6 +1,6 @@
 // The dashboard: a studies list (#/) and a study page (#/studies/ID), kept current by
 // polling. This module routes between them and polls; each panel is its own module
-// (header, history, params, best, workers, trials, trial-dialog, robot-view), composed
+// (header, history, pareto, params, best, workers, trials, trial-dialog, robot-view), composed
 // by study.js.
 
 import { HttpError } from './api.js';

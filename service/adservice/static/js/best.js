@@ -1,9 +1,12 @@
 // The best-design card: the best trial's score, link, params and URDF, its robot in 3D
-// (when it has a URDF) and the image its worker rendered (when it uploaded one).
+// (when it has a URDF) and the image its worker rendered (when it uploaded one). A study
+// of several objectives has no one best: the card counts its Pareto front instead and
+// lists the designs on it (the Pareto panel draws them).
 
 import { artifactNames, getJSON } from './api.js';
 import { formatNumber } from './charts.js';
 import { element, esc, finder, paramsTable, urdfLink, urdfUrl } from './html.js';
+import { objectiveNames } from './pareto.js';
 import { RobotView } from './robot-view.js';
 
 /** The params that vary across the study (and text ones like the structure) first; the
@@ -28,7 +31,7 @@ export class BestCard {
     this.key = null;
     this.model = null;
     this.root = element(`<section class="card best" data-best-card>
-      <h2>Best design</h2>
+      <h2 data-best-title>Best design</h2>
       <div class="best-body">
         <p class="placeholder" data-best-placeholder>No complete trial yet</p>
         <figure class="robot" data-best-figure hidden>
@@ -66,6 +69,10 @@ export class BestCard {
   }
 
   render() {
+    if (objectiveNames(this.page.study).length) {
+      this.renderFront();
+      return;
+    }
     const { study, searched } = this.page;
     const trial = this.trial;
     const key = trial ? `${trial.id}|${this.artifacts.join(',')}|${searched.size}` : '';
@@ -93,6 +100,35 @@ export class BestCard {
       <p>trial <a href="#" data-open-trial="${trial.id}">#${trial.number}</a>
         ${trial.worker_id ? `· by ${esc(trial.worker_id)}` : ''} ${urdf ? `· ${urdf}` : ''}</p>
       ${bestParams(trial.params, searched)}`;
+  }
+
+  /** Several objectives: how many designs are on the Pareto front, and the first of them
+   * with their values (each opens its trial). */
+  renderFront() {
+    const { study, pareto } = this.page;
+    const front = pareto.front;
+    const key = `front|${front.map((t) => t.id).join(',')}`;
+    if (key === this.key) return;
+    this.key = key;
+    const names = objectiveNames(study);
+    this.$('best-title').textContent = 'Pareto front';
+    this.$('best-placeholder').hidden = front.length > 0;
+    this.$('best-placeholder').textContent = 'No complete feasible trial yet';
+    this.$('best-figure').hidden = true;
+    const shown = front.slice(0, 12);
+    const rows = shown
+      .map(
+        (trial) => `<tr><th><a href="#" data-open-trial="${trial.id}">#${trial.number}</a></th>
+          ${names.map((_, k) => `<td class="num">${formatNumber(trial.values?.[k])}</td>`).join('')}</tr>`,
+      )
+      .join('');
+    const more = front.length > shown.length ? `<p class="meta">and ${front.length - shown.length} more</p>` : '';
+    this.$('best').innerHTML = front.length
+      ? `<p class="best-value" data-front-count>${front.length}</p>
+        <p>design${front.length === 1 ? '' : 's'} on the Pareto front: none better in every objective</p>
+        <div class="params-scroll"><table class="kv front"><tr><th>trial</th>
+          ${names.map((name) => `<th>${esc(name)}</th>`).join('')}</tr>${rows}</table>${more}</div>`
+      : '';
   }
 
   showModel(url) {

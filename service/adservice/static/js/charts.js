@@ -9,6 +9,8 @@ export const PALETTE = [
   '#1f9e89', '#35b779', '#6ece58', '#b5de2b', '#fde725',
 ];
 export const AXIS = '#6b7280';
+/** Trials that break a study's constraints, greyed out in every chart. */
+export const INFEASIBLE = 'rgba(156, 163, 175, 0.55)';
 const GRID = '#e5e7eb';
 export const FONT = '11px system-ui, sans-serif';
 
@@ -124,6 +126,36 @@ export function drawXAxis(ctx, left, right, bottom, low, high, x, integers) {
     ctx.stroke();
     ctx.fillText(formatNumber(tick), px, bottom + 6);
   }
+}
+
+/**
+ * Hovering and clicking a chart's points: `nearest(x, y)` finds the point within reach
+ * of the pointer (or null), `describe(point)` gives its tooltip's markup, and `open(point)`
+ * is what a click on it does. With `flip`, the tooltip sits left of the pointer on the
+ * chart's right half, so the card does not cut it off.
+ */
+export function bindPoints(canvas, tooltip, { nearest, describe, open, flip = false }) {
+  canvas.addEventListener('mousemove', (event) => {
+    const point = nearest(event.offsetX, event.offsetY);
+    canvas.style.cursor = point ? 'pointer' : 'default';
+    if (!point) {
+      tooltip.hidden = true;
+      return;
+    }
+    tooltip.hidden = false;
+    tooltip.innerHTML = describe(point);
+    const leftward = flip && event.offsetX > canvas.clientWidth / 2;
+    tooltip.style.left = leftward ? 'auto' : `${event.offsetX + 12}px`;
+    tooltip.style.right = leftward ? `${canvas.clientWidth - event.offsetX + 12}px` : 'auto';
+    tooltip.style.top = `${event.offsetY - 8}px`;
+  });
+  canvas.addEventListener('mouseleave', () => {
+    tooltip.hidden = true;
+  });
+  canvas.addEventListener('click', (event) => {
+    const point = nearest(event.offsetX, event.offsetY);
+    if (point) open(point);
+  });
 }
 
 /** A small line chart of a worker's learning curve (curve.json): numbers, or {x, y}. */

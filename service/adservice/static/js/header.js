@@ -27,6 +27,20 @@ export function progressBar(study, extraClass = '') {
     ${segment(study.n_running, 'running')}${segment(study.n_queued, 'queued')}</div>`;
 }
 
+const verb = (direction) => (direction === 'maximize' ? 'maximise' : 'minimise');
+
+/** What the study optimises: its direction, or each objective's for several, and the
+ * constraints a trial must meet to count. */
+function aims(s) {
+  const names = s.objective_names ?? [];
+  const goal =
+    names.length > 1
+      ? names.map((name, k) => `${verb(s.directions[k])} ${esc(name)}`).join(', ')
+      : verb(s.direction);
+  const constraints = (s.constraints ?? []).map((c) => `${esc(c.metric)} ${esc(c.op)} ${c.bound}`);
+  return constraints.length ? `${goal} · subject to ${constraints.join(', ')}` : goal;
+}
+
 export class StudyHeader {
   constructor(studyId) {
     this.root = element(`<div>
@@ -109,7 +123,7 @@ export class StudyHeader {
     const task = s.task ? ` · task ${esc(s.task.name)} (${esc(s.task.learner)})` : ' · ask/tell';
     const space = s.space.type === 'box' ? `${s.space.params.length} params` : 'robot design space';
     this.$('meta').innerHTML =
-      `${s.direction === 'maximize' ? 'maximise' : 'minimise'} · proposer ${esc(s.proposer.name)}` +
+      `${aims(s)} · proposer ${esc(s.proposer.name)}` +
       `${task} · ${space}${s.created_by ? ` · by ${esc(s.created_by)}` : ''}` +
       ` · updated <span title="${esc(s.updated_at)}">${ago(s.updated_at)}</span>`;
     this.$('progress').innerHTML = progressBar(s);

@@ -1,20 +1,25 @@
 // The score-by-trial panel: every complete trial's score, the best so far, ticks for
-// failed and open trials; hovering names a point, clicking opens its trial.
+// failed and open trials; hovering names a point, clicking opens its trial. Under
+// constraints an infeasible trial is a grey point and never the best so far; a study of
+// several objectives charts its first objective, without a best so far (its best
+// designs are the Pareto panel's).
 
-import { drawXAxis, drawYAxis, extent, formatNumber, message, prepare } from './charts.js';
+import { INFEASIBLE, bindPoints, drawXAxis, drawYAxis, extent, formatNumber, message, prepare } from './charts.js';
 import { element, finder } from './html.js';
 
 /**
  * Every complete trial's score against its number, the best-so-far curve over them,
  * and ticks for failed (red) and unfinished (grey) trials along the bottom.
  * Leaves on the canvas what hovering needs (`canvas.hit`), and `data-points`,
- * `data-failed` and `data-best-so-far` (the curve's last value) for tests.
+ * `data-failed`, `data-infeasible` and `data-best-so-far` (the curve's last value) for
+ * tests.
  */
-function drawHistory(canvas, series, direction) {
+function drawHistory(canvas, series, direction, { bestSoFar = true } = {}) {
   const { ctx, width, height } = prepare(canvas);
   const pad = { left: 58, right: 14, top: 10, bottom: 28 };
   const numbers = series.complete.map((i) => series.number[i]);
   const values = series.complete.map((i) => series.value[i]);
+  const feasible = series.complete.map((i) => series.feasible?.[i] !== false);
   const failed = [];
   const open = [];
   for (let i = 0; i < series.number.length; i++) {
@@ -24,6 +29,7 @@ function drawHistory(canvas, series, direction) {
   }
   canvas.dataset.points = String(values.length);
   canvas.dataset.failed = String(failed.length);
+  canvas.dataset.infeasible = String(feasible.filter((f) => !f).length);
   canvas.dataset.bestSoFar = '';
   canvas.hit = null;
   if (series.number.length === 0) {
@@ -43,25 +49,29 @@ function drawHistory(canvas, series, direction) {
   drawYAxis(ctx, left, top, bottom, right, yLow, yHigh, y);
   drawXAxis(ctx, left, right, bottom, 0, xHigh, x, true);
 
-  ctx.fillStyle = 'rgba(37, 99, 235, 0.5)';
   const size = values.length > 2000 ? 2 : 4;
-  for (let i = 0; i < values.length; i++) {
-    ctx.fillRect(x(numbers[i]) - size / 2, y(values[i]) - size / 2, size, size);
+  for (const [colour, wanted] of [[INFEASIBLE, false], ['rgba(37, 99, 235, 0.5)', true]]) {
+    ctx.fillStyle = colour;
+    for (let i = 0; i < values.length; i++) {
+      if (feasible[i] !== wanted) continue;
+      ctx.fillRect(x(numbers[i]) - size / 2, y(values[i]) - size / 2, size, size);
+    }
   }
   ctx.fillStyle = 'rgba(220, 38, 38, 0.8)';
   for (const n of failed) ctx.fillRect(x(n) - 0.75, bottom - 7, 1.5, 7);
   ctx.fillStyle = 'rgba(107, 114, 128, 0.6)';
   for (const n of open) ctx.fillRect(x(n) - 0.75, bottom - 4, 1.5, 4);
 
-  if (values.length > 0) {
+  const first = feasible.indexOf(true);
+  if (bestSoFar && first >= 0) {
     const better = direction === 'maximize' ? (a, b) => a > b : (a, b) => a < b;
-    let best = values[0];
+    let best = values[first];
     ctx.strokeStyle = '#ea580c';
     ctx.lineWidth = 2;
     ctx.beginPath();
-    ctx.moveTo(x(numbers[0]), y(best));
-    for (let i = 1; i < values.length; i++) {
-      if (better(values[i], best)) {
+    ctx.moveTo(x(numbers[first]), y(best));
+    for (let i = first + 1; i < values.length; i++) {
+      if (feasible[i] && better(values[i], best)) {
         ctx.lineTo(x(numbers[i]), y(best));
         best = values[i];
         ctx.lineTo(x(numbers[i]), y(best));
@@ -72,7 +82,7 @@ function drawHistory(canvas, series, direction) {
     ctx.lineWidth = 1;
     canvas.dataset.bestSoFar = String(best);
   }
-  canvas.hit = { numbers, values, x, y };
+  canvas.hit = { numbers, values, feasible, x, y };
 }
 
 /** The complete trial nearest the pointer (within 12 px), as {number, value}. */
@@ -87,7 +97,7 @@ function nearestPoint(canvas, offsetX, offsetY) {
     const distance = dx * dx + dy * dy;
     if (distance < bestDistance) {
       bestDistance = distance;
-      best = { number: hit.numbers[i], value: hit.values[i] };
+      best = { number: hit.numbers[i], value: hit.values[i], feasible: hit.feasible[i] };
     }
   }
   return best;
@@ -97,8 +107,10 @@ export class HistoryPanel {
   constructor(page) {
     this.page = page;
     this.root = element(`<section class="card">
-      <h2>Score by trial
-        <span class="legend"><i class="dot"></i>score <i class="line"></i>best so far
+      <h2><span data-history-title>Score by trial</span>
+        <span class="legend"><i class="dot"></i>score
+        <span data-infeasible-key hidden><i class="dot infeasible"></i>infeasible</span>
+        <span data-best-key><i class="line"></i>best so far</span>
         <i class="tick failed"></i>failed <i class="tick open"></i>queued/running</span></h2>
       <div class="chart-wrap">
         <canvas class="chart" data-history></canvas>
@@ -106,30 +118,22 @@ export class HistoryPanel {
       </div>
     </section>`);
     const $ = finder(this.root);
+    this.$ = $;
     this.canvas = $('history');
-    const tooltip = $('tooltip');
-    this.canvas.addEventListener('mousemove', (event) => {
-      const point = nearestPoint(this.canvas, event.offsetX, event.offsetY);
-      this.canvas.style.cursor = point ? 'pointer' : 'default';
-      if (!point) {
-        tooltip.hidden = true;
-        return;
-      }
-      tooltip.hidden = false;
-      tooltip.textContent = `trial #${point.number}: ${formatNumber(point.value)}`;
-      tooltip.style.left = `${event.offsetX + 12}px`;
-      tooltip.style.top = `${event.offsetY - 8}px`;
-    });
-    this.canvas.addEventListener('mouseleave', () => {
-      tooltip.hidden = true;
-    });
-    this.canvas.addEventListener('click', (event) => {
-      const point = nearestPoint(this.canvas, event.offsetX, event.offsetY);
-      if (point) page.openTrialByNumber(point.number);
+    bindPoints(this.canvas, $('tooltip'), {
+      nearest: (x, y) => nearestPoint(this.canvas, x, y),
+      describe: (point) =>
+        `trial #${point.number}: ${formatNumber(point.value)}` + (point.feasible ? '' : ' (infeasible)'),
+      open: (point) => page.openTrialByNumber(point.number),
     });
   }
 
   draw() {
-    drawHistory(this.canvas, this.page.series, this.page.study.direction);
+    const { study, series } = this.page;
+    const several = (study.objective_names ?? []).length > 1;
+    if (several) this.$('history-title').textContent = `${study.objective_names[0]} by trial`;
+    this.$('infeasible-key').hidden = !series.feasible;
+    this.$('best-key').hidden = several;
+    drawHistory(this.canvas, series, study.direction, { bestSoFar: !several });
   }
 }

@@ -93,7 +93,8 @@ function drawParallel(canvas, series, names, direction, study) {
   const pad = { left: 40, right: 48, top: 34, bottom: 22 };
   const axes = [...names.map((name) => plotted(series, name, study)), { column: series.value }];
   const columns = axes.map((axis) => axis.column);
-  const labels = [...names, 'score'];
+  // A study of several objectives is charted on its first objective (series.js).
+  const labels = [...names, study.objective_names?.length > 1 ? study.objective_names[0] : 'score'];
   canvas.dataset.ticks = JSON.stringify(
     Object.fromEntries(names.map((name, k) => [name, axes[k].labels]).filter(([, ticks]) => ticks)),
   );

@@ -1,6 +1,9 @@
-// A study's chart columns (number, state, value, params), kept current by deltas: the
+// A study's chart columns (number, state, value, params, and for a study of several
+// objectives or with constraints its values and feasible), kept current by deltas: the
 // first load reads them all, a poll only the new trials and those last seen open. The
 // rows the charts draw (complete trials with a score) are found once per load, here.
+// A study of several objectives has no single value: its score, as the score charts
+// draw it, is its first objective.
 
 import { getJSON } from './api.js';
 
@@ -20,6 +23,10 @@ export class Series {
     this.number = [];
     this.state = [];
     this.value = [];
+    /** Each trial's objective values (a study of several objectives), else null. */
+    this.values = null;
+    /** Whether each trial meets the study's constraints (a study with some), else null. */
+    this.feasible = null;
     this.params = {};
     this.index = new Map();
     /** Row indices of the complete trials with a score, in trial order. */
@@ -47,6 +54,9 @@ export class Series {
       const pages = await this.pages(`${this.url}?after=${after}&numbers=${numbers.join(',')}`);
       pages.forEach((page) => this.merge(page));
     }
+    if (this.values) {
+      for (let i = 0; i < this.number.length; i++) this.value[i] ??= this.values[i]?.[0] ?? null;
+    }
     this.complete = completeRows(this);
   }
 
@@ -60,10 +70,12 @@ export class Series {
     return pages;
   }
 
-  setColumns({ number, state, value, params }) {
+  setColumns({ number, state, value, values = null, feasible = null, params }) {
     this.number = number;
     this.state = state;
     this.value = value;
+    this.values = values;
+    this.feasible = feasible;
     this.params = params;
     this.index = new Map(number.map((n, i) => [n, i]));
   }
@@ -72,6 +84,9 @@ export class Series {
     const known = this.number.length;
     for (const name of Object.keys(delta.params)) {
       if (!(name in this.params)) this.params[name] = new Array(known).fill(null);
+    }
+    for (const name of ['values', 'feasible']) {
+      if (delta[name] && !this[name]) this[name] = new Array(known).fill(null);
     }
     const columns = Object.entries(this.params);
     let ordered = true;
@@ -83,11 +98,15 @@ export class Series {
         this.number.push(number);
         this.state.push(null);
         this.value.push(null);
+        this.values?.push(null);
+        this.feasible?.push(null);
         for (const [, column] of columns) column.push(null);
         this.index.set(number, i);
       }
       this.state[i] = delta.state[j];
       this.value[i] = delta.value[j];
+      if (this.values) this.values[i] = delta.values?.[j] ?? null;
+      if (this.feasible) this.feasible[i] = delta.feasible?.[j] ?? null;
       for (const [name, column] of columns) column[i] = delta.params[name]?.[j] ?? null;
     });
     if (!ordered) {
@@ -97,6 +116,8 @@ export class Series {
         number: pick(this.number),
         state: pick(this.state),
         value: pick(this.value),
+        values: this.values && pick(this.values),
+        feasible: this.feasible && pick(this.feasible),
         params: Object.fromEntries(columns.map(([name, column]) => [name, pick(column)])),
       });
     }

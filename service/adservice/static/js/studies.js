@@ -6,6 +6,14 @@ import { countsText, progressBar } from './header.js';
 import { ago, badge, element, esc } from './html.js';
 import { setCrumbs } from './shell.js';
 
+/** The best value and its direction; a study of several objectives has a Pareto front
+ * instead (its page draws it): how many objectives. */
+function best(s) {
+  const count = (s.objective_names ?? []).length;
+  if (count > 1) return `<span class="meta" title="see its Pareto front">${count} objectives</span>`;
+  return `${formatNumber(s.best_value)} <span class="meta">${s.direction === 'maximize' ? '↑' : '↓'}</span>`;
+}
+
 export class StudiesPage {
   constructor(view) {
     this.root = element(`<div>
@@ -39,7 +47,7 @@ export class StudiesPage {
             ${s.task ? `<span class="tag">${esc(s.task.name)}</span>` : ''}</td>
           <td>${badge(s.state)}</td>
           <td class="progress-cell">${progressBar(s, 'small')}<span class="meta">${esc(countsText(s))}</span></td>
-          <td class="num">${formatNumber(s.best_value)} <span class="meta">${s.direction === 'maximize' ? '↑' : '↓'}</span></td>
+          <td class="num">${best(s)}</td>
           <td title="${esc(s.updated_at)}">${ago(s.updated_at)}</td>
         </tr>`,
       )

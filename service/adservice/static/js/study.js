@@ -1,6 +1,7 @@
 // A study's page (#/studies/ID): its panels, kept current by polling. A poll re-fetches
 // only what changed: the study itself every poll (one small read), and the chart columns,
-// the table page and the best design only when the study's counts or updated_at moved;
+// the table page, the best design and (several objectives) the Pareto front only when the
+// study's counts or updated_at moved;
 // chart columns come as a delta (new trials and the ones last seen open), so a
 // 10,000-trial study stays cheap to follow.
 
@@ -11,6 +12,7 @@ import { StudyHeader } from './header.js';
 import { HistoryPanel } from './history.js';
 import { element } from './html.js';
 import { ParamsPanel } from './params.js';
+import { ParetoPanel } from './pareto.js';
 import { Series, paramCorrelations } from './series.js';
 import { showError } from './shell.js';
 import { openTrialDialog } from './trial-dialog.js';
@@ -53,6 +55,7 @@ export class StudyPage {
     this.header = new StudyHeader(studyId);
     this.history = new HistoryPanel(this);
     this.best = new BestCard(this);
+    this.pareto = new ParetoPanel(this);
     this.params = new ParamsPanel(this);
     this.curves = new CurvesPanel(this);
     this.workers = new WorkersPanel(this);
@@ -60,7 +63,7 @@ export class StudyPage {
     this.root = element('<div class="study"><div class="grid"></div></div>');
     this.root.querySelector('.grid').append(this.history.root, this.best.root);
     this.root.prepend(this.header.root);
-    this.root.append(this.params.root, this.curves.root, this.workers.root, this.trials.root);
+    this.root.append(this.pareto.root, this.params.root, this.curves.root, this.workers.root, this.trials.root);
     view.replaceChildren(this.root);
     this.root.addEventListener('click', (event) => {
       const opener = event.target.closest('a[data-open-trial]');
@@ -89,6 +92,7 @@ export class StudyPage {
       this.series.load(),
       this.trials.load(),
       this.best.load(),
+      this.pareto.load(),
       this.workers.load(),
       this.curves.load(),
     ]);
@@ -117,11 +121,11 @@ export class StudyPage {
     const curvesDue = changed || this.curves.wanted(study);
     if (curvesDue) work.push(this.curves.load());
     if (changed) {
-      work.push(this.series.load(), this.trials.load(), this.best.load());
+      work.push(this.series.load(), this.trials.load(), this.best.load(), this.pareto.load());
     } else {
       // Uploads do not touch the study: look for images that may have arrived since.
       if (this.best.awaitsImage) work.push(this.best.load());
-      if (this.polls % 5 === 0) work.push(this.trials.loadArtifacts());
+      if (this.polls % 5 === 0) work.push(this.trials.loadArtifacts(), this.pareto.loadPictures());
     }
     await Promise.all(work);
     if (!this.alive) return;
@@ -150,12 +154,13 @@ export class StudyPage {
     this.best.dispose();
   }
 
-  /** The history always; the params charts only when scores changed (new complete
-   * trials), since they show complete trials only. */
+  /** The history always; the Pareto and params charts only when scores changed (new
+   * complete trials), since they show complete trials only. */
   drawCharts({ scoresChanged = true } = {}) {
     this.history.draw();
     this.curves.draw();
     if (!scoresChanged) return;
+    this.pareto.draw();
     this.correlations = paramCorrelations(this.series);
     this.searched = new Set(this.correlations.map((c) => c.name));
     this.params.draw();

@@ -5,6 +5,7 @@
 import { getJSON } from './api.js';
 import { drawCurve, formatNumber } from './charts.js';
 import { attrsTable, badge, duration, esc, paramsTable, urdfLink, urdfUrl, when } from './html.js';
+import { objectiveNames } from './pareto.js';
 import { RobotView } from './robot-view.js';
 
 const dialog = document.querySelector('[data-trial-dialog]');
@@ -14,6 +15,20 @@ dialog.addEventListener('close', () => {
   model?.dispose();
   model = null;
 });
+
+/** The trial's score, or its value of each objective, and whether it meets the study's
+ * constraints (when the study has some and the trial an outcome). */
+function outcome(study, trial) {
+  const names = objectiveNames(study);
+  const values = names.length
+    ? `<table class="kv" data-trial-values>${names
+        .map((name, k) => `<tr><th>${esc(name)}</th><td>${formatNumber(trial.values?.[k])}</td></tr>`)
+        .join('')}</table>`
+    : `<p class="best-value">${formatNumber(trial.value)}</p>`;
+  if (trial.feasible === null || trial.feasible === undefined) return values;
+  const verdict = trial.feasible ? 'meets the constraints' : 'infeasible: breaks a constraint';
+  return `${values}<p class="meta" data-trial-feasible="${trial.feasible}">${verdict}</p>`;
+}
 
 export async function openTrialDialog(study, trialId) {
   const [trial, artifacts] = await Promise.all([
@@ -40,7 +55,7 @@ export async function openTrialDialog(study, trialId) {
       <button class="close" data-close aria-label="Close">×</button></header>
     <div class="trial-body">
       <div>
-        <p class="best-value">${formatNumber(trial.value)}</p>
+        ${outcome(study, trial)}
         <table class="kv">
           <tr><th>worker</th><td>${esc(trial.worker_id ?? '—')}</td></tr>
           <tr><th>attempts</th><td>${trial.attempts}</td></tr>

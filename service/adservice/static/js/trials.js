@@ -1,8 +1,11 @@
 // The trials panel: a page of trials, sorted and filtered by the server, with each row's
-// files; a row opens its trial.
+// files; a row opens its trial. A study of several objectives has a column per objective
+// instead of the score, and a star on the trials of its Pareto front; a trial that breaks
+// the study's constraints is marked infeasible.
 
 import { artifactNames, getJSON } from './api.js';
 import { formatNumber } from './charts.js';
+import { objectiveLabel, objectiveNames } from './pareto.js';
 import { ago, badge, duration, element, esc, finder, formatParam, urdfLink } from './html.js';
 import { showError } from './shell.js';
 
@@ -30,6 +33,23 @@ const COLUMNS = [
   { key: 'files', label: 'Files', sort: null },
 ];
 
+/** The table's columns: the score, or for several objectives one column per objective. */
+function columnsFor(study) {
+  const names = objectiveNames(study);
+  if (names.length === 0) return COLUMNS;
+  const objectives = names.map((_, k) => ({ key: `objective${k}`, label: objectiveLabel(study, k), sort: null }));
+  return COLUMNS.flatMap((c) => (c.key === 'value' ? objectives : [c]));
+}
+
+/** A row's outcome cells: its score, or its value of each objective. */
+function outcomeCells(study, trial) {
+  const names = objectiveNames(study);
+  if (names.length === 0) return `<td class="num">${formatNumber(trial.value)}</td>`;
+  return names.map((_, k) => `<td class="num">${formatNumber(trial.values?.[k])}</td>`).join('');
+}
+
+const INFEASIBLE = ' <span class="badge infeasible" title="breaks the study\'s constraints">infeasible</span>';
+
 /** Params in the order a reader wants them: those searched (varying) first. */
 function searchedFirst(params, searched) {
   const entries = Object.entries(params ?? {});
@@ -46,9 +66,6 @@ export class TrialsPanel {
     this.rows = [];
     this.total = 0;
     this.rowArtifacts = {};
-    const heads = COLUMNS.map(
-      (c) => `<th${c.sort ? ` data-sort="${c.sort}" class="sortable"` : ''}>${c.label}</th>`,
-    ).join('');
     this.root = element(`<section class="card">
       <h2>Trials</h2>
       <div class="toolbar">
@@ -68,11 +85,26 @@ export class TrialsPanel {
         <button data-page="last" title="Last page">»</button>
       </div>
       <div class="table-wrap">
-        <table class="trials" data-trials><thead><tr>${heads}</tr></thead><tbody></tbody></table>
+        <table class="trials" data-trials><thead><tr></tr></thead><tbody></tbody></table>
       </div>
     </section>`);
     this.$ = finder(this.root);
+    this.columns = COLUMNS;
+    this.headSignature = null;
+    this.renderHeads(null);
     this.bindEvents();
+  }
+
+  /** The header row, rebuilt only when the study's columns change. */
+  renderHeads(study) {
+    const columns = columnsFor(study);
+    const signature = columns.map((c) => c.label).join('\n');
+    if (signature === this.headSignature) return;
+    this.headSignature = signature;
+    this.columns = columns;
+    this.$('trials').tHead.rows[0].innerHTML = columns
+      .map((c) => `<th${c.sort ? ` data-sort="${c.sort}" class="sortable"` : ''}>${esc(c.label)}</th>`)
+      .join('');
   }
 
   bindEvents() {
@@ -186,8 +218,10 @@ export class TrialsPanel {
   }
 
   render() {
-    const { study, searched } = this.page;
+    const { study, searched, pareto } = this.page;
     const { offset, limit, orderBy, desc } = this.table;
+    this.renderHeads(study);
+    const several = objectiveNames(study).length > 0;
     const body = this.rows
       .map((trial) => {
         const artifacts = this.rowArtifacts[trial.id] ?? [];
@@ -202,11 +236,12 @@ export class TrialsPanel {
         const params = searchedFirst(trial.params, searched)
           .map(([k, v]) => `${k}=${formatParam(v)}`)
           .join('  ');
-        const best = trial.id === study.best_trial_id;
+        const best = several ? pareto.frontIds.has(trial.id) : trial.id === study.best_trial_id;
+        const star = several ? 'on the Pareto front' : 'best';
         return `<tr data-trial-id="${trial.id}" class="${best ? 'is-best' : ''}">
-          <td class="num">${trial.number}${best ? ' <span title="best">★</span>' : ''}</td>
-          <td>${badge(trial.state)}${handedOver(trial)}</td>
-          <td class="num">${formatNumber(trial.value)}</td>
+          <td class="num">${trial.number}${best ? ` <span title="${star}">★</span>` : ''}</td>
+          <td>${badge(trial.state)}${trial.feasible === false ? INFEASIBLE : ''}${handedOver(trial)}</td>
+          ${outcomeCells(study, trial)}
           <td>${esc(trial.worker_id ?? '—')}</td>
           <td class="num">${trial.attempts}</td>
           <td class="num">${duration(trial)}</td>
@@ -217,7 +252,7 @@ export class TrialsPanel {
       })
       .join('');
     const trials = this.$('trials');
-    trials.tBodies[0].innerHTML = body || `<tr><td colspan="${COLUMNS.length}" class="meta">No trials</td></tr>`;
+    trials.tBodies[0].innerHTML = body || `<tr><td colspan="${this.columns.length}" class="meta">No trials</td></tr>`;
     this.renderSortParam(searched);
     for (const head of trials.querySelectorAll('th[data-sort]')) {
       const active = head.dataset.sort === orderBy;
