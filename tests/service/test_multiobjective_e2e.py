@@ -6,7 +6,7 @@ the best and the front, and objectives read from told metrics."""
 from __future__ import annotations
 
 import random
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import httpx
@@ -256,3 +256,45 @@ def api_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProce
     server.start()
     yield server
     server.stop()
+
+
+@pytest.mark.slow
+def test_qei_proposes_for_several_objectives_under_a_constraint(
+    server_factory: Callable[..., ServerProcess],
+) -> None:
+    """The default proposer past its space-filling start: a warm-started study of two
+    objectives and a constraint asks through qLogNEHVI, the told outcomes in the model.
+    (A time budget far past any machine's fit: the model path is what is checked.)"""
+    server = server_factory(AD_ASK_SECONDS="600")
+    with httpx.Client(base_url=server.url, timeout=900) as http:
+        sid = create(
+            http,
+            directions=["maximize", "maximize"],
+            constraints=[{"metric": "cost", "op": "<=", "bound": 0.8}],
+            space={
+                "type": "box",
+                "params": [
+                    {"name": "x", "low": 0.0, "high": 1.0},
+                    {"name": "y", "low": 0, "high": 1},
+                ],
+            },
+            proposer={"name": "qei", "seed": 2, "n_initial": 4},
+        )["id"]
+        warm = [
+            {
+                "params": {"x": x, "y": y},
+                "values": [x, 1 - x * x + 0.1 * y],
+                "metrics": {"cost": x + y},
+            }
+            for x, y in [(0.1, 0.2), (0.4, 0.1), (0.7, 0.6), (0.9, 0.05), (0.3, 0.9), (0.5, 0.2)]
+        ]
+        added = http.post(f"/api/v1/studies/{sid}/trials", json=warm)
+        assert added.status_code == 201, added.text
+        assert [t["feasible"] for t in added.json()] == [True, True, False, False, False, True]
+        asked = ask(http, sid, 2)
+        assert len(asked) == 2
+        for trial in asked:
+            info = trial["info"]
+            assert (info["acquisition"], info["method"]) == ("qLogNEHVI", "qLogNEHVI"), info
+            assert (info["n_objectives"], info["n_constraints"], info["n_feasible"]) == (2, 1, 3)
+            assert 0 <= trial["params"]["x"] <= 1 and 0 <= trial["params"]["y"] <= 1
