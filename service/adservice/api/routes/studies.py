@@ -193,7 +193,8 @@ def study_series(
     ] = 0,
     limit: Annotated[int, Query(ge=1, le=views.SERIES_PAGE)] = views.SERIES_PAGE,
 ) -> Response:
-    """The trials as columns (number, state, value, params), a page at a time: a page
+    """The trials as columns (number, state, value, params; values and feasible for a
+    study of several objectives or with constraints), a page at a time: a page
     ends after ``limit`` trials or about 250,000 param values, and ``next`` is where the
     following one starts."""
     return model_response(views.trial_columns(session, study_id=study_id, after=after, limit=limit))
