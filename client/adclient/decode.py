@@ -17,7 +17,7 @@ structure with x's specs.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,6 +33,7 @@ from adclient.design import (
     Joint,
     Link,
     Representation,
+    link_mass,
 )
 
 PAD = 0.5
@@ -121,7 +122,7 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
     for instance in space.instances:
         for spec in PART_SPECS:
             value = space.part_spec(instance.name, spec)
-            if not isinstance(value, Bound):
+            if value is not None and not isinstance(value, Bound):
                 fixed[f"{instance.name}.{spec}"] = float(value)
         for spec in JOINT_SPECS:
             value = space.joint_spec(instance.name, spec)
@@ -258,7 +259,9 @@ def build_design(
 ) -> Design:
     """A design from a structure index and the free specs' physical values (a log
     spec's value itself, not its coordinate: the URDF writer and the worker's robot
-    take the design as it is)."""
+    take the design as it is). A link whose mass comes from ``density`` gets
+    ``mass = link_mass(shape, length, radius, density)``, the derived mass everything
+    downstream (URDF, simulator, the ``mass`` metric) uses."""
     edges = layout.structures[structure]
 
     def spec(key: str) -> float:
@@ -272,16 +275,7 @@ def build_design(
                 members.append(name)
     root = next(name for name in members if name not in children)
     order = [instance.name for instance in space.instances if instance.name in members]
-    links = [
-        Link(
-            name=name,
-            shape=space.parts[space.instance(name).part].shape,
-            length=spec(f"{name}.length"),
-            radius=spec(f"{name}.radius"),
-            mass=spec(f"{name}.mass"),
-        )
-        for name in order
-    ]
+    links = [_link(space, name, spec) for name in order]
     joints: list[Joint] = []
     taken: set[str] = set()
     for parent, child in edges:
@@ -309,6 +303,18 @@ def build_design(
     return Design(structure_index=structure, root=root, links=links, joints=joints)
 
 
+def _link(space: DesignSpace, name: str, spec: Callable[[str], float]) -> Link:
+    shape = space.parts[space.instance(name).part].shape
+    length, radius = spec(f"{name}.length"), spec(f"{name}.radius")
+    if space.mass_spec(name) == "density":
+        density = spec(f"{name}.density")
+        mass = link_mass(shape, length, radius, density)
+        return Link(
+            name=name, shape=shape, length=length, radius=radius, mass=mass, density=density
+        )
+    return Link(name=name, shape=shape, length=length, radius=radius, mass=spec(f"{name}.mass"))
+
+
 def axis_from_angles(theta: float, phi: float) -> tuple[float, float, float]:
     """The unit joint axis of (theta, phi), per the convention in adclient.design."""
     return (
@@ -323,7 +329,9 @@ def design_params(design: Design) -> dict[str, Any]:
 
     Values are physical, a log spec's too (its coordinate is in the trial's vector):
     these are a trial's ``params``, which the dashboard charts on linear axes as it does
-    a box's log params, exports write and ``encode`` reads back."""
+    a box's log params, exports write and ``encode`` reads back. Every link shows its
+    ``mass``; a link whose mass comes from ``density`` shows that too, after it (its
+    ``mass`` is then derived: ``encode`` checks it, it does not read it)."""
     params: dict[str, Any] = {
         "structure": ",".join(f"{parent}-{child}" for parent, child in design.edges()),
         "structure_index": design.structure_index,
@@ -333,7 +341,9 @@ def design_params(design: Design) -> dict[str, Any]:
         if link.shape != "cylinder":
             params[f"{link.name}.shape"] = link.shape
         for spec in PART_SPECS:
-            params[f"{link.name}.{spec}"] = float(getattr(link, spec))
+            value = getattr(link, spec)
+            if value is not None:
+                params[f"{link.name}.{spec}"] = float(value)
     for joint in design.joints:
         for spec in JOINT_SPECS:
             params[f"{joint.child}.joint.{spec}"] = float(getattr(joint, spec))
@@ -351,7 +361,7 @@ def design_values(layout: SpecLayout, design: Design) -> dict[str, float]:
         if spec.startswith("joint."):
             if instance in joints:
                 values[key] = float(getattr(joints[instance], spec.removeprefix("joint.")))
-        elif instance in links:
+        elif instance in links and getattr(links[instance], spec) is not None:
             values[key] = float(getattr(links[instance], spec))
     return values
 
@@ -380,7 +390,9 @@ def encode(
     affine map's fit. One-hot ones: exact (the structure's coordinate 1, the others
     0). A mapping may name ``structure_index`` (default 0) and must give every free
     spec the structure uses; other known spec keys (as in ``design_params``) are
-    ignored.
+    ignored, except a derived mass: a ``"<link>.mass"`` given for a link whose mass
+    comes from ``density`` must be density times its volume (as ``design_params``
+    shows it), else a ValueError naming it.
     """
     layout = _checked_layout(space, representation)
     if isinstance(design_or_specs, Design):
@@ -407,6 +419,8 @@ def encode(
         if not (math.isfinite(value) and low - tolerance <= value <= high + tolerance):
             raise ValueError(f"encode: spec {key!r} = {value!r} lies outside [{low}, {high}]")
         physical[k] = min(max(value, low), high)
+    if not isinstance(design_or_specs, Design):
+        _check_derived_masses(space, layout, structure, values, design_or_specs)
     x = np.where(used, layout.normalise(physical), PAD)
     if representation.kind == "identity":
         return x.tolist()
@@ -417,6 +431,47 @@ def encode(
     if representation.kind == "mixed":
         return [float(structure), *x.tolist()]
     return _encode_fused(representation, structure, x, used).tolist()
+
+
+def _check_derived_masses(
+    space: DesignSpace,
+    layout: SpecLayout,
+    structure: int,
+    values: Mapping[str, float],
+    given: Mapping[str, Any],
+) -> None:
+    """A mass given for a link whose mass is derived from its density must be that mass
+    (to 1e-9 relative): the params the server showed are, a mass of one's own is not
+    this design (ignoring it would store a robot of another mass)."""
+    members = {name for edge in layout.structures[structure] for name in edge}
+    for instance in space.instances:
+        key = f"{instance.name}.mass"
+        if instance.name not in members or key not in given:
+            continue
+        if space.mass_spec(instance.name) != "density":
+            continue
+
+        def spec(name: str, link: str = instance.name) -> float:
+            full = f"{link}.{name}"
+            return float(values[full]) if full in layout.names else layout.fixed[full]
+
+        try:
+            derived = link_mass(
+                space.parts[instance.part].shape, spec("length"), spec("radius"), spec("density")
+            )
+        except KeyError:
+            continue  # a missing spec: encode names it next
+        mass = given[key]
+        if (
+            isinstance(mass, bool)
+            or not isinstance(mass, int | float)
+            or not math.isclose(mass, derived, rel_tol=1e-9, abs_tol=0.0)
+        ):
+            raise ValueError(
+                f"encode: spec {key!r} = {mass!r} is not this link's mass: it is given by "
+                f"density, so its mass is density x volume = {derived!r}; leave {key!r} "
+                "out or give that value"
+            )
 
 
 def _encode_fused(

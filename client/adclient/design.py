@@ -16,6 +16,11 @@ Geometry conventions (shared by decoding, the URDF writer and the worker tasks):
 - A revolute joint's axis, in that frame, is
   ``(sin(theta) cos(phi), sin(theta) sin(phi), cos(theta))``: theta = 0 runs along
   the links, theta = pi/2 is perpendicular to them.
+- A link's mass is its ``mass`` spec, or, when its part gives ``density`` (kg/m^3)
+  instead, ``density`` times its shape's volume: a solid cylinder's
+  ``pi radius^2 length``, a box's ``(2 radius)^2 length`` (``link_mass``). Exactly one
+  of the two applies to each link; an instance's override of either replaces its
+  part's.
 - The spec vector orders the instances' part specs, then the instances' joint specs:
   the joint of an instance is the one to its parent, so every structure has the same
   spec slots; the root's joint slots are padded.
@@ -31,7 +36,7 @@ import itertools
 import math
 import re
 from collections.abc import Iterator
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NotRequired, cast
 
 from pydantic import (
     BaseModel,
@@ -44,11 +49,17 @@ from pydantic import (
     model_serializer,
     model_validator,
 )
+from typing_extensions import TypedDict
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]{0,63}$"
 
-PART_SPECS: tuple[str, ...] = ("length", "radius", "mass")
-"""The searchable specs of a part, in spec-vector order."""
+PART_SPECS: tuple[str, ...] = ("length", "radius", "mass", "density")
+"""The searchable specs of a part, in spec-vector order; a link uses one of ``mass``
+and ``density`` (``MASS_SPECS``), the other is no spec of it."""
+
+MASS_SPECS: tuple[str, str] = ("mass", "density")
+"""How a link's mass is given: its own ``mass`` (kg), or ``density`` (kg/m^3) times its
+volume."""
 
 JOINT_SPECS: tuple[str, ...] = (
     "axis_theta",
@@ -61,7 +72,7 @@ JOINT_SPECS: tuple[str, ...] = (
 )
 """The searchable specs of a joint, in spec-vector order."""
 
-_POSITIVE_SPECS = frozenset({"length", "radius", "mass", "effort", "velocity"})
+_POSITIVE_SPECS = frozenset({"length", "radius", "mass", "density", "effort", "velocity"})
 
 
 class _Strict(BaseModel):
@@ -128,6 +139,29 @@ SpecValue = Annotated[float | Bound, BeforeValidator(_spec_value)]
 """A spec is fixed (a number) or searched (a Bound)."""
 
 
+def _optional_spec_value(value: Any) -> Any:
+    return None if value is None else _spec_value(value)
+
+
+OptionalSpecValue = Annotated[float | Bound | None, BeforeValidator(_optional_spec_value)]
+"""A spec a part may leave out (``null``): its ``mass`` or its ``density``."""
+
+
+def link_volume(shape: str, length: float, radius: float) -> float:
+    """A link's volume (m^3): a solid cylinder's ``pi radius^2 length``, a box's
+    ``(2 radius)^2 length``."""
+    if shape == "box":
+        return 4.0 * radius * radius * length
+    return math.pi * radius * radius * length
+
+
+def link_mass(shape: str, length: float, radius: float, density: float) -> float:
+    """The mass (kg) of a link of uniform ``density`` (kg/m^3): density times
+    ``link_volume``, a solid cylinder's ``density * pi r^2 length``. What a link whose
+    part gives ``density`` weighs in its design, its URDF and the simulator."""
+    return density * link_volume(shape, length, radius)
+
+
 def spec_range(value: float | Bound) -> tuple[float, float]:
     """The smallest and largest value a spec can take."""
     if isinstance(value, Bound):
@@ -139,7 +173,9 @@ def is_free(value: float | Bound) -> bool:
     return isinstance(value, Bound)
 
 
-def _check_spec(name: str, value: float | Bound, where: str) -> None:
+def _check_spec(name: str, value: float | Bound | None, where: str) -> None:
+    if value is None:
+        return
     low, high = spec_range(value)
     if name in _POSITIVE_SPECS and not low > 0:
         raise ValueError(f"{where}.{name}: must be > 0, got {_show(value)}")
@@ -165,17 +201,52 @@ def _check_limits(lower: float | Bound, upper: float | Bound, where: str) -> Non
         )
 
 
+class PartJSON(TypedDict):
+    """A part as written, which the API's description shows (a Bound as written is an
+    object, as ``Bound``'s own serialiser says)."""
+
+    shape: Literal["cylinder", "box"]
+    length: float | dict[str, Any]
+    radius: float | dict[str, Any]
+    mass: NotRequired[float | dict[str, Any]]
+    density: NotRequired[float | dict[str, Any]]
+
+
 class PartType(_Strict):
+    """A kind of link. Its mass is ``mass`` (kg), or ``density`` (kg/m^3) times its
+    volume when it gives ``density`` instead (a solid cylinder: ``density * pi r^2
+    length``; ``link_mass``), so that a longer or thicker link weighs more. A part
+    gives one of the two: ``density`` alone leaves ``mass`` out (``None``), both is an
+    error (``DesignSpace`` names the part), neither is the default ``mass: 1.0``."""
+
     shape: Literal["cylinder", "box"] = "cylinder"
     length: SpecValue = 0.4
     radius: SpecValue = 0.04
-    mass: SpecValue = 1.0
+    mass: OptionalSpecValue = 1.0
+    density: OptionalSpecValue = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _density_replaces_mass(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("density") is not None and "mass" not in data:
+            return {**data, "mass": None}
+        return data
 
     @model_validator(mode="after")
     def _check(self) -> PartType:
         for name in PART_SPECS:
             _check_spec(name, getattr(self, name), "part")
         return self
+
+    @model_serializer(mode="wrap")
+    def _given_mass_spec(self, handler: SerializerFunctionWrapHandler) -> PartJSON:
+        """Only the mass spec the part gives is written: a part with ``mass`` has the
+        JSON it had before ``density`` existed, so older servers and workers read it."""
+        data = handler(self)
+        for name in MASS_SPECS:
+            if data.get(name, 0) is None:
+                data.pop(name)
+        return cast(PartJSON, data)
 
 
 class JointType(_Strict):
@@ -288,9 +359,12 @@ class DesignSpace(_Strict):
     def _check(self) -> DesignSpace:
         if not self.parts:
             raise ValueError("parts: at least one part type is needed")
-        for part_name in self.parts:
+        for part_name, part in self.parts.items():
             if not _valid_name(part_name):
                 raise ValueError(f"parts: part type name {part_name!r} must match {NAME_PATTERN}")
+            _check_mass_specs(
+                part.mass, part.density, f"parts: part {part_name!r}", "leave one out"
+            )
         seen: dict[str, int] = {}
         for index, instance in enumerate(self.instances):
             if instance.name in seen:
@@ -303,6 +377,13 @@ class DesignSpace(_Strict):
                 raise ValueError(
                     f"instances[{index}] ({instance.name!r}): unknown part {instance.part!r} "
                     f"(known: {', '.join(sorted(self.parts))})"
+                )
+            if all(name in instance.overrides for name in MASS_SPECS):
+                _check_mass_specs(
+                    instance.overrides["mass"],
+                    instance.overrides["density"],
+                    f"instances[{index}] ({instance.name!r}): overrides",
+                    "override only one (either replaces its part's)",
                 )
             _check_limits(
                 self.joint_spec(instance.name, "lower"),
@@ -364,12 +445,25 @@ class DesignSpace(_Strict):
                 return instance
         raise KeyError(f"unknown instance {name!r}")
 
-    def part_spec(self, instance_name: str, spec: str) -> float | Bound:
-        """An instance's part spec: its override, else its part type's value."""
+    def mass_spec(self, instance_name: str) -> Literal["mass", "density"]:
+        """Which spec gives an instance's mass: the one it overrides, else the one its
+        part gives (``density``: the mass is density times the link's volume)."""
         instance = self.instance(instance_name)
+        for name in MASS_SPECS:
+            if name in instance.overrides:
+                return "density" if name == "density" else "mass"
+        return "mass" if self.parts[instance.part].mass is not None else "density"
+
+    def part_spec(self, instance_name: str, spec: str) -> float | Bound | None:
+        """An instance's part spec: its override, else its part type's value; ``None``
+        for the one of ``mass`` and ``density`` that does not give its mass."""
+        instance = self.instance(instance_name)
+        if spec in MASS_SPECS and spec != self.mass_spec(instance_name):
+            return None
         if spec in instance.overrides:
             return instance.overrides[spec]
-        return getattr(self.parts[instance.part], spec)
+        value: float | Bound | None = getattr(self.parts[instance.part], spec)
+        return value
 
     def joint_spec(self, instance_name: str, spec: str) -> float | Bound:
         """The spec of the joint from an instance to its parent."""
@@ -427,6 +521,22 @@ class DesignSpace(_Strict):
         """
         slots = self.free_specs()
         return [key for key, _ in slots], [(bound.low, bound.high) for _, bound in slots]
+
+
+def _check_mass_specs(
+    mass: float | Bound | None, density: float | Bound | None, where: str, fix: str
+) -> None:
+    """A link's mass is given once: by ``mass`` or by ``density``, not both, not neither."""
+    if mass is not None and density is not None:
+        raise ValueError(
+            f"{where} gives both mass ({_show(mass)}) and density ({_show(density)}); "
+            f"a link's mass is its mass or its density times its volume: {fix}"
+        )
+    if mass is None and density is None:
+        raise ValueError(
+            f"{where} gives neither mass nor density; give one (mass in kg, or density "
+            "in kg/m^3 for a mass of density times the link's volume)"
+        )
 
 
 def _valid_name(name: str) -> bool:
@@ -520,11 +630,23 @@ def _pruefer_edges(sequence: list[int], n: int) -> list[tuple[int, int]]:
 
 
 class Link(BaseModel):
+    """One link of a design. ``mass`` is what it weighs (kg), whatever gave it: its
+    ``mass`` spec, or ``density`` (kg/m^3, then also set) times its volume
+    (``link_mass``); the URDF writer and the simulator use ``mass``."""
+
     name: str
     shape: Literal["cylinder", "box"]
     length: float
     radius: float
     mass: float
+    density: float | None = None
+
+    @model_serializer(mode="wrap")
+    def _density_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        data: dict[str, Any] = handler(self)
+        if data.get("density", 0) is None:
+            data.pop("density")
+        return data
 
 
 class Joint(BaseModel):

@@ -4,7 +4,10 @@ Follows the geometry conventions of ``adclient.design``: each link frame sits at
 joint to its parent, the link's shape spans z in [0, length], a child's joint sits
 at ``position * parent.length`` on the parent's z axis with an identity rotation.
 Inertias are those of a solid, uniform cylinder or box of the link's mass, about its
-centre; the inertial frame sits at the shape's centre, unrotated.
+centre; the inertial frame sits at the shape's centre, unrotated. The mass written is
+``Link.mass``: the link's ``mass`` spec, or its ``density`` times its volume when its
+part gives density (``adclient.design.link_mass``), so both the mass and the inertia
+tensor follow the geometry for such a link.
 """
 
 from __future__ import annotations
@@ -65,10 +68,11 @@ def link_inertia(link: Link) -> tuple[float, float, float]:
 def design_mass(design: Design) -> float:
     """The robot's total mass as built (kg): the sum of its links' masses.
 
-    Each link's mass is its ``mass`` spec, written as the link's ``<inertial><mass>``,
-    so this is also the sum of the masses a simulator loading the URDF simulates. It is
-    a spec of its own, not a density times the shape's volume: a longer or thicker link
-    weighs what its ``mass`` says."""
+    Each link's mass is ``Link.mass``, written as the link's ``<inertial><mass>``, so
+    this is also the sum of the masses a simulator loading the URDF simulates. That is
+    the link's ``mass`` spec, or, for a part that gives ``density`` instead, density
+    times the link's volume (a solid cylinder: ``density * pi r^2 length``): then a
+    longer or thicker link weighs more."""
     return math.fsum(float(link.mass) for link in design.links)
 
 

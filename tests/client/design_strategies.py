@@ -7,7 +7,7 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from adclient.design import JOINT_SPECS, PART_SPECS, _pruefer_edges
+from adclient.design import JOINT_SPECS, MASS_SPECS, PART_SPECS, _pruefer_edges
 
 NAMES = ["a", "b", "c", "d", "e", "f"]
 
@@ -15,6 +15,7 @@ SPEC_RANGES: dict[str, tuple[float, float]] = {
     "length": (0.1, 0.8),
     "radius": (0.01, 0.08),
     "mass": (0.2, 3.0),
+    "density": (100.0, 8000.0),
     "axis_theta": (0.0, math.pi),
     "axis_phi": (0.0, math.pi),
     "position": (0.0, 1.0),
@@ -78,9 +79,14 @@ def single_structure_spaces(draw: st.DrawFn, max_links: int = 5) -> dict[str, An
     n_parts = draw(st.integers(1, 2))
     parts = {}
     for index in range(n_parts):
+        given = draw(st.sampled_from(MASS_SPECS))  # a link's mass, or its density
         parts[f"part{index}"] = {
             "shape": draw(st.sampled_from(["cylinder", "box"])),
-            **{spec: draw(spec_values(spec)) for spec in PART_SPECS},
+            **{
+                spec: draw(spec_values(spec))
+                for spec in PART_SPECS
+                if spec not in MASS_SPECS or spec == given
+            },
         }
     joint = {
         spec: draw(spec_values(spec)) for spec in JOINT_SPECS if spec not in ("lower", "upper")

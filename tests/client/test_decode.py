@@ -20,7 +20,7 @@ from adclient.decode import (
     identity_representation,
     spec_layout,
 )
-from adclient.design import Bound, DesignSpace
+from adclient.design import Bound, DesignSpace, link_mass
 from adclient.schemas import NAME_PATTERN as PARAM_NAME
 from tests.client.design_strategies import multi_structure_spaces, single_structure_spaces
 
@@ -59,13 +59,21 @@ def test_decoded_design_follows_the_space(body: dict[str, Any], data: st.DataObj
     for link in design.links:
         instance = space.instance(link.name)
         assert link.shape == space.parts[instance.part].shape
-        for spec in ("length", "radius", "mass"):
+        given = space.mass_spec(link.name)
+        for spec in ("length", "radius", given):
             expected = space.part_spec(link.name, spec)
             value = getattr(link, spec)
             if isinstance(expected, Bound):
                 assert expected.low - 1e-12 <= value <= expected.high + 1e-12
             else:
                 assert value == expected
+        if given == "density":  # the mass is derived: density x the shape's volume
+            assert link.density is not None
+            side = 2 * link.radius
+            area = side * side if link.shape == "box" else math.pi * link.radius**2
+            assert link.mass == pytest.approx(link.density * area * link.length, rel=1e-12)
+        else:
+            assert link.density is None
     for joint in design.joints:
         theta, phi = joint.axis_theta, joint.axis_phi
         expected_axis = (
@@ -314,3 +322,96 @@ def test_a_log_spec_is_encoded_from_its_value() -> None:
         encode(space, representation, specs | {"a.mass": 0.001})
     with pytest.raises(ValueError, match=r"'b\.joint\.effort' = -1\.0 lies outside"):
         encode(space, representation, specs | {"b.joint.effort": -1.0})
+
+
+# ------------------------------------------------------------ mass from density
+
+DENSE_SPACE: dict[str, Any] = {
+    "type": "design",
+    "parts": {
+        "link": {
+            "length": {"low": 0.2, "high": 0.6},
+            "radius": {"low": 0.01, "high": 0.05, "log": True},
+            "density": 2700.0,
+        },
+        "plate": {"shape": "box", "length": 0.1, "radius": 0.05, "density": 1240.0},
+    },
+    "joint": {"axis_theta": 1.5707963267948966, "axis_phi": 0.0},
+    "instances": [
+        {"name": "a", "part": "link"},
+        {"name": "b", "part": "link", "overrides": {"density": {"low": 500.0, "high": 8000.0}}},
+        {"name": "c", "part": "link", "overrides": {"mass": 0.25}},
+        {"name": "d", "part": "plate"},
+    ],
+    "structures": [[["a", "b"], ["b", "c"], ["b", "d"]]],
+}
+
+
+def test_a_density_gives_the_mass_of_a_solid_cylinder() -> None:
+    space = DesignSpace.model_validate(DENSE_SPACE)
+    representation = identity_representation(space)
+    assert representation.spec_names == [
+        "a.length",
+        "a.radius",
+        "b.length",
+        "b.radius",
+        "b.density",
+        "c.length",
+        "c.radius",
+    ]
+    for vector in ([0.0] * 7, [1.0] * 7, [0.3, 0.7, 0.1, 0.9, 0.5, 0.2, 0.6]):
+        design = decode(space, representation, vector)
+        links = {link.name: link for link in design.links}
+        a, b, c, d = links["a"], links["b"], links["c"], links["d"]
+        assert a.density == 2700.0
+        assert a.mass == link_mass("cylinder", a.length, a.radius, 2700.0)
+        assert a.mass == pytest.approx(2700.0 * math.pi * a.radius**2 * a.length, rel=1e-15)
+        assert b.density is not None and 500.0 <= b.density <= 8000.0
+        assert b.mass == pytest.approx(b.density * math.pi * b.radius**2 * b.length, rel=1e-15)
+        assert (c.mass, c.density) == (0.25, None)  # its override: a mass of its own
+        assert d.mass == pytest.approx(1240.0 * (2 * 0.05) ** 2 * 0.1, rel=1e-15)  # a box
+    ends = [decode(space, representation, [u] * len(representation.spec_names)) for u in (0, 1)]
+    assert ends[0].links[0].mass == pytest.approx(2700.0 * math.pi * 0.01**2 * 0.2, rel=1e-15)
+    # longer or thicker links weigh more
+    assert ends[1].links[0].mass / ends[0].links[0].mass == pytest.approx(25 * 3, rel=1e-12)
+
+
+def test_params_show_the_derived_mass_and_round_trip() -> None:
+    space = DesignSpace.model_validate(DENSE_SPACE)
+    representation = identity_representation(space)
+    vector = [0.3, 0.7, 0.1, 0.9, 0.5, 0.2, 0.6]
+    design = decode(space, representation, vector)
+    params = design_params(design)
+    a = design.links[0]
+    keys = [key for key in params if key.startswith("a.")]
+    assert keys == ["a.length", "a.radius", "a.mass", "a.density"]
+    assert params["a.mass"] == a.mass and params["a.density"] == 2700.0
+    assert "c.density" not in params and params["c.mass"] == 0.25
+    # a design's params, as the server shows them, encode back to the same design
+    again = encode(space, representation, params)
+    assert decode(space, representation, again) == design
+    assert again == pytest.approx(vector, abs=1e-12)
+    assert encode(space, representation, design) == pytest.approx(vector, abs=1e-12)
+    # the derived mass may be left out; a mass of one's own is not this design
+    without = {key: value for key, value in params.items() if not key.endswith(".mass")}
+    assert decode(space, representation, encode(space, representation, without)) == design
+    with pytest.raises(ValueError, match=r"spec 'a\.mass' = 9\.0 is not this link's mass"):
+        encode(space, representation, params | {"a.mass": 9.0})
+    with pytest.raises(ValueError, match=r"'b\.mass' = 'heavy' is not this link's mass"):
+        encode(space, representation, params | {"b.mass": "heavy"})
+    # a link whose mass is its own spec ignores a given mass, as before
+    assert encode(space, representation, params | {"c.mass": 3.0}) == again
+    with pytest.raises(ValueError, match=r"spec 'b\.density' is missing"):
+        encode(space, representation, {k: v for k, v in params.items() if k != "b.density"})
+
+
+@settings(max_examples=60, deadline=None)
+@given(unit_vectors(7))
+def test_a_density_space_round_trips_bit_for_bit(vector: list[float]) -> None:
+    space = DesignSpace.model_validate(DENSE_SPACE)
+    representation = identity_representation(space)
+    design = decode(space, representation, vector)
+    params = design_params(design)
+    assert json.loads(json.dumps(params)) == params
+    assert decode(space, representation, encode(space, representation, params)) == design
+    assert decode(space, representation, encode(space, representation, design)) == design

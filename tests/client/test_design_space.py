@@ -316,3 +316,93 @@ def test_similarity_is_a_bounded_symmetric_metric(data: st.DataObject) -> None:
     similarity = structure_similarity(a, b, part_of)
     assert 0.0 <= similarity <= 1.0
     assert (similarity == 1.0) == (frozenset(a) == frozenset(b))
+
+
+# ------------------------------------------------------------ mass from density
+
+DENSE: dict[str, Any] = {
+    "length": {"low": 0.2, "high": 0.6},
+    "radius": {"low": 0.01, "high": 0.05, "log": True},
+    "density": 2700.0,
+}
+
+
+def test_a_part_may_give_density_instead_of_mass() -> None:
+    space = DesignSpace.model_validate(space_with(parts={"link": DENSE}))
+    part = space.parts["link"]
+    assert part.mass is None and part.density == 2700.0
+    assert [space.mass_spec(name) for name in "abc"] == ["density"] * 3
+    assert space.part_spec("a", "density") == 2700.0 and space.part_spec("a", "mass") is None
+    names, _ = space.spec_slots()
+    assert names[:2] == ["a.length", "a.radius"] and not any("mass" in n for n in names)
+    # a searched density is a slot of its own, after the part's other specs
+    searched = {**DENSE, "density": {"low": 500.0, "high": 8000.0, "log": True}}
+    space = DesignSpace.model_validate(space_with(parts={"link": searched}))
+    names, ranges = space.spec_slots()
+    assert names[:3] == ["a.length", "a.radius", "a.density"]
+    assert ranges[2] == (500.0, 8000.0) and dict(space.free_specs())["a.density"].log
+
+
+def test_a_stored_space_writes_only_the_mass_spec_it_gives() -> None:
+    dense = DesignSpace.model_validate(space_with(parts={"link": DENSE}))
+    dumped = dense.model_dump(mode="json")["parts"]["link"]
+    assert "mass" not in dumped and dumped["density"] == 2700.0
+    again = DesignSpace.model_validate(dense.model_dump(mode="json"))
+    assert again.free_specs() == dense.free_specs() and again.parts == dense.parts
+    # a space with mass has the JSON it had before density existed
+    plain = DesignSpace.model_validate(space_with())
+    assert plain.model_dump(mode="json")["parts"]["link"] == {
+        "shape": "cylinder",
+        "length": {"low": 0.2, "high": 0.6},
+        "radius": 0.04,
+        "mass": 1.0,
+    }
+    # a part that gives neither keeps the default mass
+    default = DesignSpace.model_validate(space_with(parts={"link": {"length": DENSE["length"]}}))
+    assert default.parts["link"].mass == 1.0 and default.mass_spec("a") == "mass"
+
+
+def test_mass_and_density_together_are_refused_naming_the_part() -> None:
+    body = space_with(parts={"link": {**DENSE, "mass": 1.0}})
+    message = error_of(body)
+    assert "parts: part 'link' gives both mass (1.0) and density (2700.0)" in message
+    assert "leave one out" in message
+    searched = {**DENSE, "mass": {"low": 0.1, "high": 2.0}}
+    assert "gives both mass ({low: 0.1, high: 2.0}) and density" in error_of(
+        space_with(parts={"link": searched})
+    )
+    assert "parts: part 'link' gives neither mass nor density" in error_of(
+        space_with(parts={"link": {"length": DENSE["length"], "mass": None}})
+    )
+    # through a study body, as the server words it
+    with pytest.raises(ValidationError) as caught:
+        StudyCreate.model_validate({"name": "s", "space": body})
+    assert "part 'link' gives both mass" in str(caught.value)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, {"low": 0.0, "high": 10.0}, math.nan, "dense"])
+def test_a_density_is_checked_like_any_spec(bad: Any) -> None:
+    message = error_of(space_with(parts={"link": {**DENSE, "density": bad}}))
+    assert "density" in message
+    assert any(text in message for text in ("must be > 0", "finite", "a spec is a number")), message
+
+
+def test_an_instance_override_replaces_its_parts_mass_spec() -> None:
+    body = space_with(parts={"link": DENSE})
+    body["instances"][1]["overrides"] = {"mass": {"low": 0.1, "high": 1.0}}  # a payload
+    body["instances"][2]["overrides"] = {"density": 1240.0}
+    space = DesignSpace.model_validate(body)
+    assert [space.mass_spec(name) for name in "abc"] == ["density", "mass", "density"]
+    assert space.part_spec("b", "density") is None and space.part_spec("c", "density") == 1240.0
+    names, _ = space.spec_slots()
+    assert "b.mass" in names and "a.mass" not in names
+    # and the other way round: a mass part, one instance of density
+    body = space_with()
+    body["instances"][0]["overrides"] = {"density": {"low": 1000.0, "high": 3000.0}}
+    space = DesignSpace.model_validate(body)
+    assert space.mass_spec("a") == "density" and space.part_spec("a", "mass") is None
+    # both at once is refused, naming the instance
+    body["instances"][2]["overrides"] = {"mass": 0.5, "density": 900.0}
+    message = error_of(body)
+    assert "instances[2] ('c'): overrides gives both mass (0.5) and density (900.0)" in message
+    assert "override only one" in message

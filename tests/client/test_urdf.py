@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from adclient.decode import decode, identity_representation
 from adclient.design import Design, DesignSpace, Joint, Link
-from adclient.urdf import URDFError, design_to_urdf, link_inertia
+from adclient.urdf import URDFError, design_mass, design_to_urdf, link_inertia
 from tests.client.design_strategies import single_structure_spaces
 
 _COUNTER = itertools.count()
@@ -189,3 +189,54 @@ def test_bad_trees_are_rejected() -> None:
     )
     with pytest.raises(URDFError, match="has no direction"):
         design_to_urdf(still)
+
+
+def test_a_density_links_urdf_carries_its_derived_mass_and_inertia(
+    client: int, tmp_path: Path
+) -> None:
+    """A part that gives density: the URDF's inertial mass is density x volume and the
+    inertia tensor that of a solid cylinder (or box) of that mass, as PyBullet loads it;
+    design_mass sums the derived masses."""
+    space = DesignSpace.model_validate(
+        {
+            "type": "design",
+            "parts": {
+                "link": {
+                    "length": {"low": 0.2, "high": 0.6},
+                    "radius": {"low": 0.01, "high": 0.05},
+                    "density": 2700.0,
+                },
+                "plate": {"shape": "box", "length": 0.1, "radius": 0.05, "density": 1240.0},
+            },
+            "instances": [
+                {"name": "a", "part": "link"},
+                {"name": "b", "part": "link"},
+                {"name": "c", "part": "plate"},
+            ],
+            "structures": [[["a", "b"], ["b", "c"]]],
+        }
+    )
+    representation = identity_representation(space)
+    design = decode(space, representation, [0.25, 0.75, 1.0, 0.0, 0.5, 0.5, 0.5, 0.5])
+    expected = {
+        "a": 2700.0 * math.pi * (0.01 + 0.04 * 0.75) ** 2 * (0.2 + 0.4 * 0.25),
+        "b": 2700.0 * math.pi * 0.01**2 * 0.6,
+        "c": 1240.0 * 0.1**2 * 0.1,
+    }
+    root = ET.fromstring(design_to_urdf(design).split("\n", 1)[1])
+    for link in design.links:
+        assert link.mass == pytest.approx(expected[link.name], rel=1e-14)
+        inertial = root.find(f"link[@name='{link.name}']/inertial")
+        assert inertial is not None
+        mass, tensor = inertial.find("mass"), inertial.find("inertia")
+        assert mass is not None and tensor is not None
+        assert float(mass.get("value", "nan")) == link.mass
+        r, h, m = link.radius, link.length, link.mass
+        if link.shape == "cylinder":
+            assert float(tensor.get("ixx", "nan")) == pytest.approx(m * (3 * r * r + h * h) / 12)
+            assert float(tensor.get("izz", "nan")) == pytest.approx(m * r * r / 2)
+        else:
+            assert float(tensor.get("izz", "nan")) == pytest.approx(m * 8 * r * r / 12)
+    assert design_mass(design) == pytest.approx(sum(expected.values()), rel=1e-14)
+    body = load(client, design_to_urdf(design), tmp_path / "dense.urdf")
+    check_matches(client, body, design)  # PyBullet's mass and inertia are the derived ones

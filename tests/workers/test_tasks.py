@@ -10,6 +10,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from adworker import designs
+from tests.workers.robots import example_study
 
 BUILT_IN = ["diagonal-gesture", "lift-highest", "stand-up", "walk-forward"]
 
@@ -194,9 +195,10 @@ def test_design_mass_is_the_mass_pybullet_simulates(env_of) -> None:
 
 
 def test_mass_follows_the_mass_specs_and_link_length_the_lengths(env_of) -> None:
-    """A link's mass is its own spec (written as the URDF's inertial mass), not a density
-    times its volume: heavier links make a heavier robot; longer or thicker ones, of the
-    same mass spec, a longer one of the same mass."""
+    """A link of a part that gives ``mass`` weighs that spec (written as the URDF's
+    inertial mass), whatever its size: heavier links make a heavier robot; longer or
+    thicker ones, of the same mass spec, a longer one of the same mass. (A part that gives
+    ``density`` instead: the next test.)"""
     from adclient.urdf import design_link_length, design_mass
 
     base = designs.arch_chain()
@@ -211,6 +213,50 @@ def test_mass_follows_the_mass_specs_and_link_length_the_lengths(env_of) -> None
             assert math.fsum(_engine_masses(env)) == pytest.approx(design_mass(design))
         finally:
             env.close()
+
+
+def test_a_density_links_mass_is_what_pybullet_simulates(env_of) -> None:
+    """examples/score-vs-mass.yaml's aluminium links (density 2700 kg/m^3): PyBullet's
+    mass of each link is density x pi r^2 x length, its inertia that of a solid cylinder
+    of that mass, and the worker's ``mass`` metric their sum: longer or thicker links
+    weigh more."""
+    import pybullet
+
+    from adclient.decode import decode, identity_representation
+    from adworker.evaluate import design_metrics
+
+    study = example_study("score-vs-mass")
+    space = study.space
+    representation = identity_representation(space)
+    size = len(representation.spec_names)
+    masses = []
+    for u in (0.0, 0.37, 1.0):
+        design = decode(space, representation, [u] * size)
+        env = env_of("stand-up", design)
+        try:
+            cid, body = env.sim.client, env.robot.body
+            index = {design.root: -1}
+            for joint in range(pybullet.getNumJoints(body, physicsClientId=cid)):
+                info = pybullet.getJointInfo(body, joint, physicsClientId=cid)
+                index[info[12].decode()] = joint
+            engine = []
+            for link in design.links:
+                dynamics = pybullet.getDynamicsInfo(body, index[link.name], physicsClientId=cid)
+                volume = math.pi * link.radius**2 * link.length
+                assert link.density == 2700.0
+                assert dynamics[0] == pytest.approx(2700.0 * volume, rel=1e-12)
+                r, h, m = link.radius, link.length, dynamics[0]
+                ixx, izz = m * (3 * r * r + h * h) / 12, m * r * r / 2
+                assert dynamics[2] == pytest.approx((ixx, ixx, izz), rel=1e-6)
+                engine.append(dynamics[0])
+        finally:
+            env.close()
+        metrics = design_metrics(design)
+        assert metrics["mass"] == pytest.approx(math.fsum(engine), rel=1e-12)
+        masses.append(metrics["mass"])
+    assert masses[0] == pytest.approx(3 * 2700.0 * math.pi * 0.01**2 * 0.25, rel=1e-12)
+    assert masses[2] == pytest.approx(3 * 2700.0 * math.pi * 0.03**2 * 0.6, rel=1e-12)
+    assert masses[0] < masses[1] < masses[2]
 
 
 def _metered(env, action, seeds=(0, 1)):
