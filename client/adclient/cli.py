@@ -356,7 +356,6 @@ def submit(
         if not wait:
             return
         info = _follow(study, poll)
-        best = study.best_trial
         if quiet:
             return
         out = _out()
@@ -364,6 +363,11 @@ def submit(
             f"study {study.id} {info.state.value}: {info.n_complete} complete, "
             f"{info.n_failed} failed, {info.n_pruned} pruned"
         )
+        if len(info.directions) > 1:  # no single best trial: the front, as `pareto` shows it
+            front = study.best_trials
+            out.print(_front_table(info, front) if front else "no complete trial")
+            return
+        best = study.best_trial
         if best is None:
             out.print("no complete trial")
         else:
@@ -499,12 +503,17 @@ def pareto(
     if as_json:
         _print_json(trials)
         return
+    _out().print(_front_table(info, trials))
+
+
+def _front_table(info: Study, trials: list[Trial]) -> Table:
+    """A study's Pareto front (``trials``) under a title naming its objectives."""
     names = ", ".join(
         f"{name} ({direction.value[:3]})"
         for name, direction in zip(info.objective_names, info.directions, strict=True)
     )
-    title = f"study {study_id}: {len(trials)} trials on the Pareto front of {names}"
-    _out().print(_trial_table(trials, title=title))
+    title = f"study {info.id}: {len(trials)} trials on the Pareto front of {names}"
+    return _trial_table(trials, title=title)
 
 
 @app.command()
