@@ -18,6 +18,7 @@ Run: ``.venv/bin/python bench/mo_asklatency.py`` (about a minute);
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -48,6 +49,7 @@ def main() -> None:
     parser.add_argument("--q", type=int, default=1)
     parser.add_argument("--rounds", type=int, default=10)
     parser.add_argument("--constraints", type=int, choices=[0, 1], default=0)
+    parser.add_argument("--options", type=json.loads, default={}, help="qei options (JSON)")
     args = parser.parse_args()
 
     clear_caches()
@@ -72,6 +74,7 @@ def main() -> None:
             n_initial=10,
             objectives=objectives,
             slacks=slacks,
+            options=args.options,
         )
         wall, cpu = time.perf_counter(), time.thread_time()
         proposal = proposer.propose(request)

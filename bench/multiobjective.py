@@ -21,7 +21,9 @@ The goal (issue 17): qei's median hypervolume at 40 evaluations at or above the 
 Optuna sampler's median on each problem. Results are appended to a JSON file
 (``--out``, one record per run) as runs finish, so a partial run keeps what it did;
 the summary (medians and quartiles at 40 and 80 evaluations, seconds per run) is
-printed from that file, and ``--summary-only`` prints it without running.
+printed from that file, and ``--summary-only`` prints it without running (with
+``--inputs``, of several files: seeds run side by side with ``--first-seed`` and
+``--out`` of their own).
 
 Run: ``.venv/bin/python bench/multiobjective.py`` (10 seeds, all problems and
 methods, 80 evaluations; on two shared cores, hours); ``--seeds 3 --evaluations 40``
@@ -188,6 +190,9 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--out", type=Path, default=ROOT / "bench/results/multiobjective.json")
     parser.add_argument("--summary-only", action="store_true")
+    parser.add_argument(
+        "--inputs", nargs="+", type=Path, default=[], help="with --summary-only: more result files"
+    )
     args = parser.parse_args()
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -195,6 +200,8 @@ def main() -> None:
     if args.out.exists():
         records = json.loads(args.out.read_text())
     if args.summary_only:
+        for path in args.inputs:
+            records += json.loads(path.read_text())
         print("\n".join(summarise(records, args.problems)))
         return
     done = {(r["problem"], r["method"], r["seed"], r["evaluations"]) for r in records}

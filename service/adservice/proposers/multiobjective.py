@@ -31,14 +31,19 @@ of the next, as BoTorch's sequential greedy optimisation does), maximised by
   design.
 
 Reference point (several objectives): ``ProposalRequest.ref_point`` when given;
-otherwise inferred as Ax does (``botorch.utils.multi_objective.hypervolume.
-infer_reference_point``, scale 0.1): the nadir (worst value of each objective) of the
-observed Pareto front minus 10% of the front's range in that objective (a front of
-one point: 10% of the point's magnitude). The front is that of the feasible
-observations, or of all observations while none is feasible. It is recomputed at
-every ask, so it moves with the front. Every candidate's info records it, oriented to
-be maximised as the request is, with ``ref_point_source`` (``given`` or
-``inferred``).
+otherwise inferred at every ask as the nadir of the feasible observations (the worst
+observed value of each objective among them) minus 10% of their range in that
+objective (BoTorch's ``infer_reference_point``, scale 0.1, applied to the feasible
+observations; a single observation: 10% of its magnitude; all observations while
+none is feasible). Not Ax's rule, which applies the same formula to the observed
+Pareto front only: its box ends just past the front's current extremes, so no
+candidate beyond them counts as an improvement and the front is never extended. On
+ZDT1 (d = 4, seed 0, bench/multiobjective.py) qei with Ax's rule kept to
+f1 in [0, 0.3] and had a hypervolume of 115.68 against (11, 11) after 40
+evaluations, where Optuna's GPSampler (whose reference point is 1.1 times the worst
+observed value) had 120.50; with the observations' nadir qei had 120.52 after 11.
+Every candidate's info records the point, oriented to be maximised as the request
+is, with ``ref_point_source`` (``given`` or ``inferred``).
 
 Failed and infeasible trials (the policy the docs state):
 
@@ -132,10 +137,8 @@ def reference_point(
 
     if given is not None:
         return np.asarray(given, dtype=np.float64).reshape(-1), "given"
-    front = observed_front(objectives, feasible)
-    if len(front) == 0:
-        front = observed_front(objectives, np.ones(len(objectives), dtype=bool))
-    ref = infer_reference_point(torch.as_tensor(objectives[front], dtype=torch.float64))
+    rows = objectives[feasible] if feasible.any() else objectives
+    ref = infer_reference_point(torch.as_tensor(rows, dtype=torch.float64))
     return ref.numpy().astype(np.float64), "inferred"
 
 
