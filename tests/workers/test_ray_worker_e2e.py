@@ -218,3 +218,8 @@ def test_ray_without_ray_or_a_cluster_exits_3_saying_why(tmp_path: Path) -> None
     assert f"no Ray cluster answers at {nobody}" in unreachable.stderr
     bad = subprocess.run([str(ADWORKER), "--ray", "head-node"], capture_output=True, text=True)
     assert bad.returncode == 3 and "is not a cluster address" in bad.stderr
+    typo = [str(ADWORKER), "--ray", "local", "--function", "no_such_module:score", "--task", "t"]
+    unimportable = subprocess.run(typo, capture_output=True, text=True, cwd=tmp_path)
+    assert unimportable.returncode == 3, unimportable.stderr  # before any cluster starts
+    assert "cannot start: " in unimportable.stderr and "no_such_module" in unimportable.stderr
+    assert "Ray cluster" not in unimportable.stderr

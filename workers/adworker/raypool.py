@@ -26,6 +26,7 @@ imports it.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import socket
@@ -143,7 +144,7 @@ def connect(address: str, max_cpus: float) -> Any:
     started = time.monotonic()
     try:
         if address == LOCAL:
-            cpus = max(os.cpu_count() or 1, int(-(-max_cpus // 1)))
+            cpus = max(os.cpu_count() or 1, math.ceil(max_cpus))
             ray.init(
                 num_cpus=cpus,
                 object_store_memory=LOCAL_OBJECT_STORE_BYTES,
@@ -182,8 +183,6 @@ class RayWorker:
 
     def __init__(self, config: WorkerConfig, log_level: int, budget: Any) -> None:
         configure_logging(log_level, config.worker_id)
-        self.config = config
-        self.pending_signals = 0
         if budget is None:
             self.worker = start_worker(config, lambda: True, lambda: None)
         else:
@@ -330,8 +329,8 @@ def run_ray(
             ):
                 last_pending_report = time.monotonic()
                 log.warning(
-                    "%d of %d Ray workers wait for the cluster's resources (%g CPU, %g GPU "
-                    "each; the cluster has %s)",
+                    "%d of %d Ray workers not started yet: waiting for the cluster's "
+                    "resources (%g CPU, %g GPU each; free now: %s) or for their processes",
                     len(actors) - len(placed),
                     len(actors),
                     sizing.cpus,
