@@ -64,11 +64,18 @@ def finished(client: Client, study_id: int, worker: WorkerProcess) -> list[Trial
     return client.get_study(study_id).trials
 
 
+TRAIN_STEPS = {"ppo": 1024, "sac": 512}
+"""Budgets past the rung's next report (RUNG + 128): PPO's rollouts of 512 steps, the
+pause at 256 inside one; SAC's updates (one per step, the cost of its training) from 128
+steps on (learning_starts is a quarter of the budget), so its checkpoint at the rung
+holds a trained model and a replay buffer in use."""
+
+
 @pytest.mark.parametrize("learner", ["ppo", "sac"])
 def test_paused_trials_are_promoted_and_resume_from_their_checkpoint(
     server: ServerProcess, tmp_path: Path, learner: str
 ) -> None:
-    train_steps = 1024
+    train_steps = TRAIN_STEPS[learner]
     with Client(server.url) as client:
         study = client.create_study(promoting(learner, train_steps))
         worker = WorkerProcess(server, tmp_path, learner, "--no-render", "--idle-exit", "5")
@@ -93,7 +100,9 @@ def test_a_resumed_job_whose_lease_is_lost_resumes_from_the_same_checkpoint(
     """The first resumed job is taken back (an admin's release) while it trains: the
     worker drops it unreported, leases the trial again and resumes it from the same
     checkpoint, to the end of the budget."""
-    train_steps = 8192  # a resumed job long enough to be caught running
+    # A resumed job long enough to be caught running: 1,792 steps past the rung, 14
+    # reports (each an evaluation episode), seconds of training against a 0.05 s poll.
+    train_steps = 2048
     with Client(server.url) as client:
         study = client.create_study(promoting("ppo", train_steps))
         worker = WorkerProcess(server, tmp_path, "ppo", "--no-render", "--idle-exit", "5")
@@ -103,7 +112,7 @@ def test_a_resumed_job_whose_lease_is_lost_resumes_from_the_same_checkpoint(
                 running = [t for t in study.trials if t.state == "running" and t.checkpoint]
                 return running[0] if running else None
 
-            trial = wait_for(resuming, "a promoted trial to be resumed", poll=0.2)
+            trial = wait_for(resuming, "a promoted trial to be resumed")
             assert isinstance(trial, Trial)
             released = httpx.post(
                 f"{server.url}/api/v1/trials/{trial.id}/release", json={}, headers=SDK_HEADERS
