@@ -95,6 +95,9 @@ BASELINE_DRAWS = 256
 RAW_SAMPLES = 1024  # qei._MO_RAW_SAMPLES
 """Sobol points the starts come from, unless ``options["raw_samples"]`` says (Ax's
 default for these acquisitions; qei's 2048 for one objective)."""
+ETA = 0.05
+"""Each constraint's smoothing temperature, in standard deviations of its observed
+slacks (the sigmoid that weights a candidate by its feasibility)."""
 SCREEN_DRAWS = 16  # qei._MO_SCREEN_DRAWS
 """Posterior draws of the cheaper acquisition that scores the raw samples
 (``acquisition.maximise``'s ``screen``); the local searches use all of them."""
@@ -238,6 +241,9 @@ def optimise_outcomes(
     analytic: AnalyticConstrainedLogEI | None = None
     n_feasible = int(feasible.sum())
     constraints = [_slack(m + j) for j in range(c)] or None
+    # the constraints' smoothing temperature in each slack's own units (BoTorch's is
+    # absolute: 1e-3 made an ask with a slack of unit scale take 160 local-search steps)
+    eta = torch.as_tensor(ETA * np.maximum(slacks.std(axis=0), 1e-6) if c else np.ones(1), **tkw)
     baseline = train_Z
     extra: dict[str, Any] = {
         "n_objectives": m,
@@ -287,13 +293,18 @@ def optimise_outcomes(
                 sampler=sampler,
                 objective=IdentityMCMultiOutputObjective(outcomes=list(range(m))) if c else None,
                 constraints=constraints,
+                eta=eta,
                 X_pending=pending_t,
                 prune_baseline=False,
             )
         elif acquisition == "qLogPoF":
             assert constraints is not None
             return qLogProbabilityOfFeasibility(
-                model=model, constraints=constraints, sampler=sampler, X_pending=pending_t
+                model=model,
+                constraints=constraints,
+                eta=eta,
+                sampler=sampler,
+                X_pending=pending_t,
             )
         elif acquisition == "qLogNEI":
             return qLogNoisyExpectedImprovement(
@@ -302,6 +313,7 @@ def optimise_outcomes(
                 sampler=sampler,
                 objective=GenericMCObjective(_first_objective),
                 constraints=constraints,
+                eta=eta,
                 X_pending=pending_t,
                 prune_baseline=False,
             )
@@ -312,6 +324,7 @@ def optimise_outcomes(
                 sampler=sampler,
                 objective=GenericMCObjective(_first_objective),
                 constraints=constraints,
+                eta=eta,
                 X_pending=pending_t,
             )
 
