@@ -1,9 +1,10 @@
 """Shared fixtures: real server processes, and databases of each kind the service runs on.
 
-Tests that ask for ``database_url``, ``new_database_url``, ``server_factory`` or
-``live_server`` run twice: on a SQLite file and on a throwaway PostgreSQL cluster (one
-per test process, started on first use; see ``tests.postgres``). Each test gets fresh
-databases.
+Tests that ask for ``database_url``, ``new_database_url``, ``server_factory``,
+``live_server`` or ``shared_server`` run twice: on a SQLite file and on a throwaway
+PostgreSQL cluster (one per test process, started on first use; see ``tests.postgres``).
+Each test gets fresh databases; ``shared_server`` is one server per test module and kind
+of database.
 """
 
 from __future__ import annotations
@@ -92,3 +93,26 @@ def server_factory(
 def live_server(server_factory: Callable[..., ServerProcess]) -> ServerProcess:
     """One real ``adserver`` on a fresh database; ``.url`` is its base URL."""
     return server_factory()
+
+
+@pytest.fixture(scope="module", params=DATABASES)
+def shared_server(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[ServerProcess]:
+    """One real ``adserver`` per test module and kind of database (sqlite, postgresql),
+    shared by the module's tests that ask for it: for tests that make studies of their
+    own and look only at those (or at what they added). A test that needs an empty
+    server, leases a job of any study, or stops or changes the server takes
+    ``live_server``."""
+    if request.param == "postgresql":
+        cluster: PostgresCluster = request.getfixturevalue("postgres_cluster")
+        url = cluster.create_database()
+    else:
+        url = f"sqlite:///{tmp_path_factory.mktemp('db') / 'studies.db'}"
+    server = ServerProcess(database_url=url, workdir=tmp_path_factory.mktemp("server"))
+    try:
+        yield server.start()
+    finally:
+        server.stop()
+        if request.param == "postgresql":
+            cluster.drop_database(url)

@@ -82,6 +82,7 @@ class ServerProcess:
             except httpx.TransportError:
                 pass
             time.sleep(0.1)
+        self.kill()  # not left running behind a fixture that never got it
         raise RuntimeError(
             f"adserver did not answer within {timeout}s:\n{self.log_path.read_text()}"
         )

@@ -16,7 +16,8 @@ import yaml
 
 from tests.servers import ServerProcess, make_token
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("enqueue")]
+"""One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -41,8 +42,8 @@ def params(i: int) -> dict[str, Any]:
     return {"x": i / 100, "n": 1 + i % 9, "c": "abc"[i % 3]}
 
 
-def test_enqueued_trials_come_first_in_order_then_proposals(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+def test_enqueued_trials_come_first_in_order_then_proposals(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = study(http)["id"]
         added = http.post(
             f"/api/v1/studies/{sid}/trials", json=[{"params": params(i)} for i in range(3)]
@@ -68,9 +69,9 @@ def test_enqueued_trials_come_first_in_order_then_proposals(live_server: ServerP
         assert [t["id"] for t in listed] == [one.json()["id"]]
 
 
-def test_concurrent_asks_take_each_enqueued_trial_once(live_server: ServerProcess) -> None:
+def test_concurrent_asks_take_each_enqueued_trial_once(shared_server: ServerProcess) -> None:
     n_queued, n_clients, asks_each = 24, 6, 6
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = study(http)["id"]
         added = http.post(
             f"/api/v1/studies/{sid}/trials", json=[{"params": params(i)} for i in range(n_queued)]
@@ -80,7 +81,7 @@ def test_concurrent_asks_take_each_enqueued_trial_once(live_server: ServerProces
     guard = threading.Lock()
 
     def asker() -> None:
-        with httpx.Client(base_url=live_server.url, timeout=60) as http:
+        with httpx.Client(base_url=shared_server.url, timeout=60) as http:
             for _ in range(asks_each):
                 answer = http.post(f"/api/v1/studies/{sid}/ask", json={"count": 1})
                 with guard:
@@ -100,12 +101,12 @@ def test_concurrent_asks_take_each_enqueued_trial_once(live_server: ServerProces
     enqueued = {t["id"] for t in added}
     assert enqueued <= set(ids)  # every enqueued trial handed out
     assert len(ids) - len(enqueued) == n_clients * asks_each - n_queued  # the rest proposed
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         assert http.get(f"/api/v1/studies/{sid}").json()["n_trials"] == n_clients * asks_each
 
 
-def test_evaluated_trials_warm_start_the_model(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=60) as http:
+def test_evaluated_trials_warm_start_the_model(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
         sid = study(http, proposer={"name": "qei", "n_initial": 4}, direction="minimize")["id"]
         known = [{"params": params(i), "value": (i - 4) ** 2 / 10} for i in range(8)]
         known.append({"params": params(40), "state": "failed", "message": "fell over"})
@@ -122,8 +123,8 @@ def test_evaluated_trials_warm_start_the_model(live_server: ServerProcess) -> No
         )
 
 
-def test_duplicates_are_kept_unless_skipped(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+def test_duplicates_are_kept_unless_skipped(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = study(http)["id"]
         url = f"/api/v1/studies/{sid}/trials"
         first = http.post(url, json={"params": params(5)}).json()
@@ -169,9 +170,9 @@ def test_duplicates_are_kept_unless_skipped(live_server: ServerProcess) -> None:
     ],
 )
 def test_a_bad_trial_is_named_and_nothing_is_stored(
-    live_server: ServerProcess, body: Any, named: str
+    shared_server: ServerProcess, body: Any, named: str
 ) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = study(http)["id"]
         answer = http.post(f"/api/v1/studies/{sid}/trials", json=body)
         assert answer.status_code == 422, answer.text
@@ -179,8 +180,8 @@ def test_a_bad_trial_is_named_and_nothing_is_stored(
         assert http.get(f"/api/v1/studies/{sid}").json()["n_trials"] == 0
 
 
-def test_no_room_or_a_stopped_study_is_409_and_stores_nothing(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+def test_no_room_or_a_stopped_study_is_409_and_stores_nothing(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = study(http, max_trials=3)["id"]
         url = f"/api/v1/studies/{sid}/trials"
         full = http.post(url, json=[{"params": params(i)} for i in range(4)])
@@ -228,11 +229,11 @@ def test_only_the_owner_hands_trials_to_a_study(
         assert owner.get(f"/api/v1/studies/{sid}").json()["n_trials"] == 1
 
 
-def test_a_design_is_enqueued_by_its_specs(live_server: ServerProcess) -> None:
+def test_a_design_is_enqueued_by_its_specs(shared_server: ServerProcess) -> None:
     body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
     body.pop("task")
     body |= {"proposer": {"name": "random"}, "max_trials": 8}
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = http.post("/api/v1/studies", json=body).json()["id"]
         asked = http.post(f"/api/v1/studies/{sid}/ask", json={"count": 1}).json()["trials"][0]
         url = f"/api/v1/studies/{sid}/trials"

@@ -21,7 +21,8 @@ from adservice.models import StudyRow
 from adservice.views import SERIES_CELLS, SERIES_PAGE
 from tests.servers import ServerProcess
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("hostile-input")]
+"""One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 STUDY = {"name": "hostile", "space": BOX, "proposer": {"name": "random", "seed": 1}}
@@ -29,7 +30,15 @@ EXTERNAL = {"name": "mine", "external": True}
 
 
 @pytest.fixture
-def http(live_server: ServerProcess) -> Iterator[httpx.Client]:
+def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
+    """The module's server: a test looks at its own studies, or at what it added."""
+    with httpx.Client(base_url=shared_server.url, timeout=60) as client:
+        yield client
+
+
+@pytest.fixture
+def own_http(live_server: ServerProcess) -> Iterator[httpx.Client]:
+    """A server of the test's own, for a test that writes to its database."""
     with httpx.Client(base_url=live_server.url, timeout=60) as client:
         yield client
 
@@ -136,19 +145,21 @@ def test_series_of_a_wide_study_ends_each_page_at_the_cell_budget(
 def test_free_json_past_the_limits_is_422_naming_the_field(
     http: httpx.Client, fields: dict[str, Any], named: str
 ) -> None:
+    before = http.get("/api/v1/studies").json()
     response = http.post("/api/v1/studies", json=STUDY | fields)
     assert response.status_code == 422, response.text
     assert response.json()["detail"].startswith(f"{named}: "), response.text
-    assert http.get("/api/v1/studies").json() == []
+    assert http.get("/api/v1/studies").json() == before
 
 
 def test_free_json_at_the_limits_is_stored(http: httpx.Client) -> None:
+    before = len(http.get("/api/v1/studies").json())
     deepest = nested(MAX_JSON_DEPTH)
     study = create(http, metadata={"deep": nested(MAX_JSON_DEPTH - 1)})
     assert depth_of(study["metadata"]) == depth_of(deepest)
     external = create(http, task=EXTERNAL | {"options": deepest}, max_trials=2)
     assert external["task"]["options"] == deepest
-    assert len(http.get("/api/v1/studies").json()) == 2
+    assert len(http.get("/api/v1/studies").json()) == before + 2
 
 
 def test_a_body_nested_past_the_parser_is_refused_not_a_500(http: httpx.Client) -> None:
@@ -161,11 +172,11 @@ def test_a_body_nested_past_the_parser_is_refused_not_a_500(http: httpx.Client) 
 
 
 def test_a_stored_row_past_the_limits_cannot_break_a_listing(
-    live_server: ServerProcess, http: httpx.Client
+    live_server: ServerProcess, own_http: httpx.Client
 ) -> None:
     """A study stored before the limits (written here straight into the database): every
     listing still answers, showing its free JSON cut at MAX_JSON_DEPTH."""
-    create(http)
+    create(own_http)
     engine = sa.create_engine(live_server.database_url)
     with Session(engine) as session, session.begin():
         row = StudyRow(
@@ -183,9 +194,9 @@ def test_a_stored_row_past_the_limits_cannot_break_a_listing(
         old_id = row.id
     engine.dispose()
 
-    listed = http.get("/api/v1/studies")
+    listed = own_http.get("/api/v1/studies")
     assert listed.status_code == 200, listed.text
-    old = http.get(f"/api/v1/studies/{old_id}")
+    old = own_http.get(f"/api/v1/studies/{old_id}")
     assert old.status_code == 200, old.text
     for value in (old.json()["metadata"], old.json()["task"]["options"]):
         assert depth_of(value) == MAX_JSON_DEPTH
@@ -241,7 +252,7 @@ def test_a_chunked_body_over_the_limit_is_413(server_factory: Callable[..., Serv
 # --- docs -----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("database", ["sqlite"])
+@pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True)
 @pytest.mark.parametrize("page", ["/docs", "/redoc"])
 def test_docs_pages_load_only_files_the_server_serves(http: httpx.Client, page: str) -> None:
     response = http.get(page)

@@ -21,6 +21,9 @@ from adservice.proposers import available, get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history
 from tests.servers import ServerProcess
 
+pytestmark = pytest.mark.xdist_group("param-types")
+"""One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""
+
 CHOICES = ["relu", "tanh", "gelu"]
 PARAMS: list[dict[str, Any]] = [
     {"name": "x", "low": -2.0, "high": 2.0},
@@ -65,8 +68,9 @@ def assert_typed(params: dict[str, Any], vector: list[float]) -> None:
 
 
 @pytest.fixture
-def http(live_server: ServerProcess) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=live_server.url, timeout=120) as client:
+def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
+    """The module's server: a test looks at its own studies, or at what it added."""
+    with httpx.Client(base_url=shared_server.url, timeout=120) as client:
         yield client
 
 
@@ -152,6 +156,7 @@ BAD_PARAMS: list[tuple[dict[str, Any], str]] = [
 
 @pytest.mark.e2e
 def test_a_bad_param_is_a_422_naming_it_and_the_problem(http: httpx.Client) -> None:
+    before = http.get("/api/v1/studies").json()
     for param, problem in BAD_PARAMS:
         body = {"name": "bad", "space": {"type": "box", "params": [PARAMS[0], param]}}
         response = http.post("/api/v1/studies", json=body)
@@ -160,7 +165,7 @@ def test_a_bad_param_is_a_422_naming_it_and_the_problem(http: httpx.Client) -> N
         assert "space" in text and problem in text, (param, text)
         if problem != "type":
             assert repr(param["name"]) in text, (param, text)
-    assert http.get("/api/v1/studies").json() == []
+    assert http.get("/api/v1/studies").json() == before
 
 
 def draws(proposer: str, box: BoxEncoding, count: int) -> list[dict[str, Any]]:

@@ -13,7 +13,8 @@ import pytest
 
 from tests.servers import SDK_HEADERS, ServerProcess, make_token
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("pruning")]
+"""One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""
 
 
 def box_study(pruner: dict[str, Any] | None, **extra: Any) -> dict[str, Any]:
@@ -30,8 +31,9 @@ def box_study(pruner: dict[str, Any] | None, **extra: Any) -> dict[str, Any]:
 
 
 @pytest.fixture
-def http(live_server: ServerProcess) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=live_server.url, headers=SDK_HEADERS, timeout=30) as client:
+def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
+    """The module's server: each test looks only at its own study."""
+    with httpx.Client(base_url=shared_server.url, headers=SDK_HEADERS, timeout=30) as client:
         yield client
 
 

@@ -19,7 +19,8 @@ import yaml
 
 from tests.servers import ServerProcess
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("study-checks")]
+"""One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 BOX = {
@@ -47,7 +48,15 @@ def changed(body: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
 
 
 @pytest.fixture
-def http(live_server: ServerProcess) -> Iterator[httpx.Client]:
+def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
+    """The module's server: a test counts the studies before and after its own."""
+    with httpx.Client(base_url=shared_server.url, timeout=60) as client:
+        yield client
+
+
+@pytest.fixture
+def own_http(live_server: ServerProcess) -> Iterator[httpx.Client]:
+    """A server of the test's own, for a test that leases (any study's job) or stops it."""
     with httpx.Client(base_url=live_server.url, timeout=60) as client:
         yield client
 
@@ -96,12 +105,12 @@ def test_task_and_learner_must_be_built_in_and_tasks_need_a_design_space(
     assert_created(http, stand_up)
 
 
-def test_an_external_task_is_left_to_its_own_workers(http: httpx.Client) -> None:
+def test_an_external_task_is_left_to_its_own_workers(own_http: httpx.Client) -> None:
     """Said explicitly, a task of one's own workers may have any name, learner, options
     and space; the lease hands it to whoever asks."""
     task = {"name": "my-sim", "learner": "mine", "options": {"gravity": 3.7}, "external": True}
-    study = assert_created(http, BOX | {"task": task, "max_trials": 2})
-    job = http.post("/api/v1/jobs/lease", json={"worker_id": "own"})
+    study = assert_created(own_http, BOX | {"task": task, "max_trials": 2})
+    job = own_http.post("/api/v1/jobs/lease", json={"worker_id": "own"})
     assert job.status_code == 200, job.text
     assert job.json()["study_id"] == study["id"]
     assert job.json()["task"] == study["task"] and study["task"]["external"] is True
@@ -236,14 +245,14 @@ def _store_options(database_url: str, study_id: int, options: dict[str, Any]) ->
 
 
 def test_stored_bad_proposer_options_answer_409_and_do_not_block_leases(
-    live_server: ServerProcess, http: httpx.Client
+    live_server: ServerProcess, own_http: httpx.Client
 ) -> None:
     asked_studies = {
-        name: assert_created(http, BOX | {"proposer": {"name": name, "n_initial": 1}})["id"]
+        name: assert_created(own_http, BOX | {"proposer": {"name": name, "n_initial": 1}})["id"]
         for name in ("qei", "tpe", "nelder-mead", "random")
     }
-    broken_managed = assert_created(http, example("stand-up"))["id"]
-    good_managed = assert_created(http, changed(example("stand-up"), "proposer.name", "random"))
+    broken_managed = assert_created(own_http, example("stand-up"))["id"]
+    good_managed = assert_created(own_http, changed(example("stand-up"), "proposer.name", "random"))
     bad = {
         "qei": {"num_restarts": "x"},
         "tpe": {"n_startup_trials": "ten"},
@@ -258,17 +267,17 @@ def test_stored_bad_proposer_options_answer_409_and_do_not_block_leases(
 
     for name, study_id in asked_studies.items():
         for _ in range(2):  # the second ask comes from the cached study config
-            response = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 1})
+            response = own_http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 1})
             assert response.status_code == 409, (name, response.text)
             answer = response.json()
             assert answer["error"] == "invalid_study"
             (option,) = bad[name]
             assert answer["problems"][0].startswith(f"proposer.options.{option}:"), answer
-        assert http.get(f"/api/v1/studies/{study_id}").json()["n_trials"] == 0
-    assert http.get("/api/v1/studies").status_code == 200
+        assert own_http.get(f"/api/v1/studies/{study_id}").json()["n_trials"] == 0
+    assert own_http.get("/api/v1/studies").status_code == 200
 
     # The broken managed study is older, so it is asked first: it is skipped.
-    job = http.post("/api/v1/jobs/lease", json={"worker_id": "w1"})
+    job = own_http.post("/api/v1/jobs/lease", json={"worker_id": "w1"})
     assert job.status_code == 200, job.text
     assert job.json()["study_id"] == good_managed["id"]
-    assert http.get(f"/api/v1/studies/{broken_managed}").json()["n_trials"] == 0
+    assert own_http.get(f"/api/v1/studies/{broken_managed}").json()["n_trials"] == 0
