@@ -57,7 +57,7 @@ ENUMERATE_LIMIT = 16
 """With this many structures or fewer, every structure gets a start of its own."""
 DISCRETE_ROUNDS = 2
 INCUMBENTS = 1
-"""Best observed designs started from directly."""
+"""Best observed designs started from directly (unless ``maximise`` is told more)."""
 BOX_ROUNDS = 8
 """Discrete-then-continuous rounds at most for a box of typed params."""
 SCREENED = 64
@@ -286,6 +286,7 @@ def maximise(
     deadline: float | None = None,
     taken: np.ndarray | None = None,
     screen: Acquisition | None = None,
+    n_incumbents: int = INCUMBENTS,
 ) -> Optimum:
     """The best point found, not one of ``taken`` if any other was found (see the
     module docstring). ``screen``: a cheaper estimate of ``acqf`` (a Monte Carlo
@@ -296,7 +297,7 @@ def maximise(
     raw = raw_samples(domain, raw_count, rng)
     values = raw_values = _evaluate(screen or acqf, raw, tkw, deadline)
     chosen = starts(raw, values, num_restarts, rng, 1 < S <= ENUMERATE_LIMIT)
-    initial = np.concatenate([raw[chosen], domain.canonical(incumbents[:INCUMBENTS])])
+    initial = np.concatenate([raw[chosen], domain.canonical(incumbents[:n_incumbents])])
     if screen is not None:
         best_raw = np.argsort(-raw_values, kind="stable")[:SCREENED]
         raw, raw_values = raw[best_raw], _evaluate(acqf, raw[best_raw], tkw)

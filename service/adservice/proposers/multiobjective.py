@@ -95,6 +95,8 @@ BASELINE_DRAWS = 256
 RAW_SAMPLES = 1024  # qei._MO_RAW_SAMPLES
 """Sobol points the starts come from, unless ``options["raw_samples"]`` says (Ax's
 default for these acquisitions; qei's 2048 for one objective)."""
+FRONT_STARTS = 12
+"""Local searches started at the observed front (``front_starts``), at most."""
 ETA = 0.05
 """Each constraint's smoothing temperature, in standard deviations of its observed
 slacks (the sigmoid that weights a candidate by its feasibility)."""
@@ -143,6 +145,24 @@ def reference_point(
     rows = objectives[feasible] if feasible.any() else objectives
     ref = infer_reference_point(torch.as_tensor(rows, dtype=torch.float64))
     return ref.numpy().astype(np.float64), "inferred"
+
+
+def front_starts(Z: np.ndarray, objectives: np.ndarray, front: np.ndarray) -> np.ndarray:
+    """Where the local searches of qLogNEHVI start besides the raw samples: up to
+    ``FRONT_STARTS`` of the observed front's designs and the midpoints (model inputs)
+    of front designs next to each other in the first objective. The hypervolume
+    improves most in the front's gaps, which often lie on a face of the box that
+    random raw samples never come near (ZDT's front has every coordinate but the
+    first at 0): started from the raw samples alone, qei kept probing the corners of
+    the box and fell back to Sobol points for 16 of 40 evaluations on ZDT2."""
+    order = front[np.argsort(objectives[front, 0], kind="stable")]
+    points = Z[order]
+    middles = (points[:-1] + points[1:]) / 2.0
+    starts = np.concatenate([middles, points])
+    if len(starts) <= FRONT_STARTS:
+        return starts
+    pick = np.linspace(0, len(starts) - 1, FRONT_STARTS).round().astype(np.int64)
+    return starts[pick]
 
 
 def _slack(index: int) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -258,7 +278,7 @@ def optimise_outcomes(
             ref_point_source=ref_source,
             n_pareto=len(front),
         )
-        incumbents = Z[front] if len(front) else Z
+        incumbents = front_starts(Z, objectives, front) if len(front) else Z[:1]
         acquisition = "qLogNEHVI"
     else:
         best = np.where(feasible, objectives[:, 0], -np.inf)
@@ -277,7 +297,16 @@ def optimise_outcomes(
 
     default_raw = qei.DEFAULT_RAW_SAMPLES if analytic is not None else RAW_SAMPLES
     greedy = qei.Greedy.of(
-        request, options, bounds, Z, X_pending, incumbents, tkw, deadline, default_raw
+        request,
+        options,
+        bounds,
+        Z,
+        X_pending,
+        incumbents,
+        tkw,
+        deadline,
+        default_raw,
+        n_incumbents=len(incumbents) if m >= 2 else 1,
     )
     mc_samples = options.mc_samples or 128
     started = time.perf_counter()

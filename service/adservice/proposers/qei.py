@@ -650,6 +650,7 @@ class Greedy:
     taken: np.ndarray | None
     tkw: dict[str, Any]
     deadline: float | None
+    n_incumbents: int = 1
 
     @classmethod
     def of(
@@ -663,6 +664,7 @@ class Greedy:
         tkw: dict[str, Any],
         deadline: float | None,
         default_raw: int = DEFAULT_RAW_SAMPLES,
+        n_incumbents: int = 1,
     ) -> Greedy:
         """The search of this ask: its sizes from ``options`` (``default_raw`` raw
         samples unless they say), the observed points ``Z`` and ``X_pending`` taken
@@ -693,6 +695,7 @@ class Greedy:
             taken=None if request.noisy else np.concatenate([Z, pending_Z]),
             tkw=tkw,
             deadline=deadline,
+            n_incumbents=n_incumbents,
         )
 
     def run(
@@ -726,6 +729,7 @@ class Greedy:
                 deadline=self.deadline,
                 taken=None if self.taken is None else np.concatenate([self.taken, *new]),
                 screen=current.screen,
+                n_incumbents=self.n_incumbents,
             )
             found.chosen.append(optimum.z)
             found.methods.append(current.method)
