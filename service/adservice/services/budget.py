@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from adclient.objectives import Outcomes
 from adclient.schemas import ProposerConfig
 from adservice.errors import InvalidError
 from adservice.proposers import options_model, proposer_class
@@ -20,12 +21,15 @@ def _memory_need(
     n_train: int,
     n_pending: int,
     n_failed: int = 0,
+    outcomes: Outcomes | None = None,
 ) -> Any:
     """The proposer's estimate of an ask's peak memory (``qei.MemoryNeed``), or None
-    for proposers whose memory does not grow with their options."""
+    for proposers whose memory does not grow with their options; a model per objective
+    and per constraint of ``outcomes``."""
     estimate = getattr(proposer_class(config.name), "memory_need", None)
     if estimate is None:
         return None
+    outcomes = outcomes or Outcomes()
     return estimate(
         config.options,
         dim=dim,
@@ -33,6 +37,8 @@ def _memory_need(
         n_train=n_train,
         n_pending=n_pending,
         n_failed=n_failed,
+        n_objectives=outcomes.count,
+        n_constraints=len(outcomes.constraints),
     )
 
 
@@ -43,10 +49,12 @@ def _over_budget(need: Any, budget: int) -> str:
     )
 
 
-def check_options_memory(config: ProposerConfig, *, dim: int, budget: int) -> None:
+def check_options_memory(
+    config: ProposerConfig, *, dim: int, budget: int, outcomes: Outcomes | None = None
+) -> None:
     """InvalidError naming the option when one point asked of a study with a few
     observations already exceeds the memory budget."""
-    need = _memory_need(config, dim=dim, count=1, n_train=2, n_pending=0)
+    need = _memory_need(config, dim=dim, count=1, n_train=2, n_pending=0, outcomes=outcomes)
     if need is None or need.bytes <= budget:
         return
     named = need.driver in options_model(config.name).model_fields
@@ -75,6 +83,7 @@ def check_ask_memory(
             n_train=len(history.y),
             n_pending=len(history.pending),
             n_failed=len(history.failed),
+            outcomes=config.outcomes,
         )
 
     asked = need(model_count)

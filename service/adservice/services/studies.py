@@ -37,7 +37,9 @@ def create_study(
     else:
         dim = len(body.space.params)
     if budget is not None and budget.memory_bytes is not None:
-        check_options_memory(body.proposer, dim=dim, budget=budget.memory_bytes)
+        check_options_memory(
+            body.proposer, dim=dim, budget=budget.memory_bytes, outcomes=body.outcomes()
+        )
     with db.write() as session:
         return repository.create_study(
             session, body=body, representation=representation, owner=owner
