@@ -6,7 +6,7 @@ the best and the front, and objectives read from told metrics."""
 from __future__ import annotations
 
 import random
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import httpx
@@ -14,7 +14,8 @@ import pytest
 
 from tests.servers import ServerProcess
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("multiobjective")]
+"""One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""
 
 SPACE = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 
@@ -48,9 +49,9 @@ def brute_front(points: dict[int, list[float]], signs: list[float]) -> set[int]:
     }
 
 
-def test_values_pareto_and_best(live_server: ServerProcess) -> None:
+def test_values_pareto_and_best(shared_server: ServerProcess) -> None:
     rng = random.Random(7)
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         study = create(
             http,
             directions=["maximize", "minimize", "maximize"],
@@ -112,8 +113,8 @@ def test_values_pareto_and_best(live_server: ServerProcess) -> None:
         assert info["best_value"] is None and info["best_trial_id"] is None
 
 
-def test_constraints_mark_infeasible_trials(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+def test_constraints_mark_infeasible_trials(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = create(
             http,
             direction="maximize",
@@ -149,10 +150,10 @@ def test_constraints_mark_infeasible_trials(live_server: ServerProcess) -> None:
         }
 
 
-def test_objectives_read_from_told_metrics(live_server: ServerProcess) -> None:
+def test_objectives_read_from_told_metrics(shared_server: ServerProcess) -> None:
     """A managed study's workers tell the task score as the value and its metrics
     beside it; ``objectives`` picks the objectives from them."""
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         study = create(
             http,
             objectives=[
@@ -180,8 +181,8 @@ def test_objectives_read_from_told_metrics(live_server: ServerProcess) -> None:
         assert direct.status_code == 200 and direct.json()["values"] == [0.7, 2.5], direct.text
 
 
-def test_warm_start_with_values(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+def test_warm_start_with_values(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         sid = create(http, directions=["minimize", "minimize"])["id"]
         bad = http.post(
             f"/api/v1/studies/{sid}/trials",
@@ -237,25 +238,15 @@ def test_warm_start_with_values(live_server: ServerProcess) -> None:
     ],
 )
 def test_bad_objective_settings_store_nothing(
-    api_server: ServerProcess, fields: dict[str, Any], words: str
+    shared_server: ServerProcess, fields: dict[str, Any], words: str
 ) -> None:
-    with httpx.Client(base_url=api_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         before = len(http.get("/api/v1/studies").json())
         body = {"name": "bad", "space": SPACE, "proposer": {"name": "random"}} | fields
         refused = http.post("/api/v1/studies", json=body)
         assert refused.status_code == 422, refused.text
         assert words in refused.text, refused.text
         assert len(http.get("/api/v1/studies").json()) == before
-
-
-@pytest.fixture(scope="module")
-def api_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
-    """One server for the refusal cases (they store nothing, so they can share it)."""
-    workdir = tmp_path_factory.mktemp("mo-refusals")
-    server = ServerProcess(database_url=f"sqlite:///{workdir / 'studies.db'}", workdir=workdir)
-    server.start()
-    yield server
-    server.stop()
 
 
 @pytest.mark.slow
