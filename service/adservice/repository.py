@@ -691,20 +691,20 @@ _SET_OUTCOME = Prepared(
     .returning(*_trials.c)
 )
 
-OutcomesOf = Callable[[int], Outcomes]
-"""A study's objectives and constraints by its id (the server's cached study configs)."""
+CachedOutcomes = Callable[[int], Outcomes | None]
+"""A study's objectives and constraints by its id when a cache has them (the server's
+parsed study configs), else None."""
 
 
-def stored_outcomes_of(session: Session) -> OutcomesOf:
-    """Outcomes read from the study row, for callers without a config cache."""
-
-    def outcomes(study_id: int) -> Outcomes:
-        row = session.execute(
-            sa.select(StudyRow.outcomes, StudyRow.direction).where(StudyRow.id == study_id)
-        ).one()
-        return stored_outcomes(row.outcomes, direction=row.direction)
-
-    return outcomes
+def _outcomes(session: Session, study_id: int, cached: CachedOutcomes | None) -> Outcomes:
+    """The study's outcomes from ``cached``, else read from its row."""
+    found = cached(study_id) if cached is not None else None
+    if found is not None:
+        return found
+    row = session.execute(
+        sa.select(StudyRow.outcomes, StudyRow.direction).where(StudyRow.id == study_id)
+    ).one()
+    return stored_outcomes(row.outcomes, direction=row.direction)
 
 
 def counted_value(outcome: Outcome) -> float | None:
@@ -719,7 +719,7 @@ def tell_trial(
     trial_id: int,
     body: TellRequest,
     caller: Principal,
-    outcomes_of: OutcomesOf | None = None,
+    cached_outcomes: CachedOutcomes | None = None,
 ) -> Trial:
     """Finish a trial. Repeating an identical tell is harmless; a contradicting one is
     a conflict; a worker that no longer holds the lease is told so; a tell that does not
@@ -727,15 +727,14 @@ def tell_trial(
 
     The common case is two conditional UPDATEs (trial, then study counters and best);
     only a tell that changes nothing takes the slow path that finds out why, and only a
-    study of several objectives or with constraints (``outcomes_of``, by default read
-    from the study row) a third that stores the outcome. The UPDATEs are ``Prepared``
+    study of several objectives or with constraints (``cached_outcomes``, else read from
+    the study row) a third that stores the outcome. The UPDATEs are ``Prepared``
     statements, run in the session's transaction."""
     now = utcnow()
     complete = body.state != "failed"  # a pruned trial did its job: the worker's jobs_done
     value = body.value
     if body.state == "pruned" and value is None:
         value = _last_reported_value(session, trial_id=trial_id)
-    outcomes_of = outcomes_of or stored_outcomes_of(session)
     finished = _FINISH[body.worker_id is not None, caller.checked].row(
         session,
         {
@@ -751,10 +750,10 @@ def tell_trial(
     )
     if finished is None:
         return _explain_refused_tell(
-            session, trial_id=trial_id, body=body, caller=caller, outcomes_of=outcomes_of
+            session, trial_id=trial_id, body=body, caller=caller, cached=cached_outcomes
         )
     if body.state == "complete":
-        outcomes = outcomes_of(finished["study_id"])
+        outcomes = _outcomes(session, finished["study_id"], cached_outcomes)
         if not outcomes.plain or body.values is not None:
             try:
                 outcome = outcomes.outcome(
@@ -800,7 +799,7 @@ def _explain_refused_tell(
     trial_id: int,
     body: TellRequest,
     caller: Principal,
-    outcomes_of: OutcomesOf,
+    cached: CachedOutcomes | None,
 ) -> Trial:
     trial = get_trial(session, trial_id=trial_id)
     if body.worker_id is not None:
@@ -814,7 +813,7 @@ def _explain_refused_tell(
         study = get_study(session, study_id=trial.study_id)
         check_manager(study, caller)
     if trial.state in (TrialState.complete, TrialState.failed, TrialState.pruned):
-        if _same_tell(trial, body, outcomes_of(trial.study_id)):
+        if _same_tell(trial, body, _outcomes(session, trial.study_id, cached)):
             return Trial.model_validate(trial, from_attributes=True)
         told = "failed"
         if trial.state != TrialState.failed:

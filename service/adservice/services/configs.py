@@ -10,7 +10,6 @@ from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
-from sqlalchemy.orm import Session
 
 from adclient.boxspace import BoxEncoding
 from adclient.design import DesignSpace, Representation
@@ -166,16 +165,11 @@ class StudyConfigs:
         """The configuration if this process has it already (no database read)."""
         return self._configs.get(study_id)
 
-    def outcomes_in(self, session: Session) -> repository.OutcomesOf:
-        """Studies' outcomes from the cache, else read in ``session`` (a tell's own
-        transaction: no second connection while it holds the write lock)."""
-        stored = repository.stored_outcomes_of(session)
-
-        def outcomes(study_id: int) -> Outcomes:
-            config = self._configs.get(study_id)
-            return config.outcomes if config is not None else stored(study_id)
-
-        return outcomes
+    def cached_outcomes(self, study_id: int) -> Outcomes | None:
+        """A study's objectives and constraints if this process has its configuration
+        (a tell reads the row otherwise, in its own transaction)."""
+        config = self._configs.get(study_id)
+        return config.outcomes if config is not None else None
 
     def get(self, study_id: int) -> StudyConfig:
         config = self._configs.get(study_id)

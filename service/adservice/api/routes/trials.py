@@ -67,7 +67,7 @@ async def tell(
                 trial_id=trial_id,
                 body=body,
                 caller=caller,
-                outcomes_of=proposing.configs.outcomes_in(session),
+                cached_outcomes=proposing.configs.cached_outcomes,
             )
 
     return model_response(await db.run(write))
