@@ -96,6 +96,47 @@ def test_a_csv_goes_into_a_study_of_its_space(
     failed_with(run(server.url, "import", str(plain)), "give --study ID", code=2)
 
 
+def test_a_study_of_two_objectives_round_trips_with_its_front(
+    server: ServerProcess, client: Client, tmp_path: Path
+) -> None:
+    """Issue 17: the export's values, constraints and feasibility come back, by JSON into
+    a new study of the same objectives and by CSV (``values_<i>``) into an existing one."""
+    study = client.create_study(
+        name="two",
+        space=SPACE,
+        directions=["maximize", "minimize"],
+        objective_names=["score", "mass"],
+        constraints=[{"metric": "cost", "op": "<=", "bound": 5.0}],
+        proposer={"name": "random", "seed": 2},
+    )
+    for trial in study.ask(count=8):
+        p = trial.params
+        study.tell(trial, [objective(p), p["x"]], metrics={"cost": float(p["n"])})
+    front = {tuple(t.values or []) for t in study.best_trials}
+    assert front and all(t.feasible for t in study.best_trials)
+    exported = tmp_path / "two.json"
+    ok(run(server.url, "export", str(study.id), "--format", "json", "--output", str(exported)))
+    copy = int(ok(run(server.url, "import", str(exported))).stderr.split("study ")[1].split()[0])
+    info = client.study_info(copy)
+    assert (info.directions, info.objective_names) == (["maximize", "minimize"], ["score", "mass"])
+    assert [str(c) for c in info.constraints] == ["cost <= 5"]
+    assert {tuple(t.values or []) for t in client.pareto(copy)} == front
+    table = tmp_path / "two.csv"
+    ok(run(server.url, "export", str(study.id), "--output", str(table)))
+    header = table.read_text().splitlines()[0].split(",")
+    assert {"values_0", "values_1", "feasible"} <= set(header)
+    target = client.create_study(
+        name="two-csv",
+        space=SPACE,
+        directions=["maximize", "minimize"],
+        constraints=[{"metric": "cost", "op": "<=", "bound": 5.0}],
+    ).id
+    ok(run(server.url, "import", str(table), "--study", str(target)))
+    assert {tuple(t.values or []) for t in client.pareto(target)} == front
+    shown = ok(run(server.url, "pareto", str(target))).stdout
+    assert f"{len(front)} trials on the Pareto front" in shown
+
+
 def test_enqueue_from_the_command_line_and_the_sdk(server: ServerProcess, client: Client) -> None:
     study = client.create_study(name="queue", space=SPACE)
     shown = ok(run(server.url, "enqueue", str(study.id), "--params", '{"x": 2, "n": 3, "c": "z"}'))
