@@ -18,7 +18,7 @@ from botorch.utils.multi_objective.pareto import is_non_dominated
 from adservice.proposers import available, get_proposer, proposer_class
 from adservice.proposers.base import ProposalRequest, SearchStructure, empty_history
 from adservice.proposers.multiobjective import observed_front, reference_point
-from adservice.proposers.qei import QEIOptions, memory_need
+from adservice.proposers.qei import QEIOptions, clear_caches, memory_need
 
 D = 4
 UNIT = np.array([np.zeros(D), np.ones(D)])
@@ -115,11 +115,12 @@ def test_which_proposers_take_several_objectives_and_constraints() -> None:
     }
 
 
-@pytest.mark.parametrize("name", ["qei", "tpe", "random", "sobol"])
+@pytest.mark.parametrize("name", ["qei", "qei-mc", "tpe", "random", "sobol"])
 def test_a_multi_objective_batch_is_in_bounds_and_away_from_pending_points(name: str) -> None:
     X, Y = history(14)
     pending = np.random.default_rng(5).random((2, D))
-    options = FAST if name == "qei" else {}
+    options = {"qei": FAST, "qei-mc": {**FAST, "acquisition": "mc"}}.get(name, {})
+    name = name.removesuffix("-mc")
     request = mo_request(X, Y, count=3, pending=pending, options=options)
     proposal = get_proposer(name).propose(request)
     rows = proposal.candidates
@@ -129,7 +130,8 @@ def test_a_multi_objective_batch_is_in_bounds_and_away_from_pending_points(name:
         assert np.min(np.max(np.abs(pending - row), axis=1)) > 1e-6
     assert len({tuple(np.round(row, 9)) for row in rows}) == 3
     if name == "qei":
-        assert [info["method"] for info in proposal.info] == ["qLogNEHVI"] * 3
+        method = "qLogNEHVI" if options.get("acquisition") == "mc" else "LogEHVI-believer"
+        assert [info["method"] for info in proposal.info] == [method] * 3
         assert proposal.info[0]["n_pending"] == 2
 
 
@@ -138,7 +140,7 @@ def test_qei_infers_the_reference_point_from_the_observations() -> None:
     proposal = get_proposer("qei").propose(mo_request(X, Y, options=FAST))
     info = proposal.info[0]
     nadir, ideal = Y.min(axis=0), Y.max(axis=0)
-    assert info["acquisition"] == "qLogNEHVI"
+    assert info["acquisition"] == "LogEHVI"
     assert info["ref_point_source"] == "inferred"
     np.testing.assert_allclose(info["ref_point"], nadir - 0.1 * (ideal - nadir))
     front = Y[is_non_dominated(torch.as_tensor(Y)).numpy()]
@@ -164,14 +166,20 @@ def test_infeasible_trials_never_count_toward_the_front_or_the_reference_point()
     np.testing.assert_allclose(ref, [-3.0 - 0.5, 0.0 - 0.5])
 
 
-def test_qei_with_objectives_and_a_constraint_counts_only_feasible_trials() -> None:
+@pytest.mark.parametrize("acquisition", ["analytic", "mc"])
+def test_qei_with_objectives_and_a_constraint_counts_only_feasible_trials(
+    acquisition: str,
+) -> None:
     X, Y = history(14, seed=3)
     slacks = 0.5 - X[:, :1]
-    request = mo_request(X, Y, count=2, slacks=slacks, options=FAST)
+    options = {**FAST, "acquisition": acquisition}
+    request = mo_request(X, Y, count=2, slacks=slacks, options=options)
+    clear_caches()  # each outcome's own fit, not the other parametrisation's
     proposal = get_proposer("qei").propose(request)
     info = proposal.info[0]
     feasible = slacks[:, 0] <= 0
-    assert info["acquisition"] == "qLogNEHVI" and info["n_constraints"] == 1
+    expected = {"analytic": "LogEHVI", "mc": "qLogNEHVI"}[acquisition]
+    assert info["acquisition"] == expected and info["n_constraints"] == 1
     assert info["n_feasible"] == int(feasible.sum())
     assert info["n_pareto"] == len(observed_front(Y, feasible))
     assert info["fits"] == ["cold", "cold", "cold"]
@@ -197,12 +205,12 @@ def test_before_n_initial_observations_the_start_is_space_filling() -> None:
     X, Y = history(3)
     proposal = get_proposer("qei").propose(mo_request(X, Y, count=4, options=FAST))
     methods = [info["method"] for info in proposal.info]
-    assert methods == ["sobol-initial"] * 3 + ["qLogNEHVI"]
+    assert methods == ["sobol-initial"] * 3 + ["LogEHVI-believer"]
 
 
 def test_two_structures_with_two_objectives() -> None:
     """A design space of two structures (the mixed representation: the index, then
-    three specs, the first structure using two of them) works with qLogNEHVI."""
+    three specs, the first structure using two of them) works with LogEHVI."""
     search = SearchStructure(
         structure_coords=np.array([[0.0], [1.0]]),
         used=np.array([[True, True, False], [True, True, True]]),
@@ -225,7 +233,7 @@ def test_two_structures_with_two_objectives() -> None:
         mo_request(X, Y, count=2, bounds=bounds, structure=search, options=FAST)
     )
     info, rows = proposal.info[0], proposal.candidates
-    assert info["acquisition"] == "qLogNEHVI" and "structure_correlation" in info
+    assert info["acquisition"] == "LogEHVI" and "structure_correlation" in info
     assert rows.shape == (2, 4) and set(rows[:, 0]) <= {0.0, 1.0}
     assert np.all(rows[rows[:, 0] == 0, 3] == 0.5)  # what structure 0 does not use
 
@@ -312,3 +320,100 @@ def test_qei_gains_more_hypervolume_than_random_on_zdt1() -> None:
         random_X = np.random.default_rng(100 + seed).random((16, D))
         wins += hypervolume(zdt1(X), ref) > hypervolume(zdt1(random_X), ref)
     assert wins >= 2
+
+
+def _fitted(X: np.ndarray, columns: np.ndarray) -> list[Any]:
+    """A GP per column on the box's model inputs (index 0, then X), as qei fits them."""
+    from botorch.models import SingleTaskGP
+    from botorch.models.transforms.outcome import Standardize
+
+    from adservice.proposers.gpmodel import design_kernel, fit_map
+
+    Z = torch.as_tensor(np.column_stack([np.zeros(len(X)), X]))
+    models = []
+    for column in columns.T:
+        model = SingleTaskGP(
+            Z,
+            torch.as_tensor(column).unsqueeze(-1),
+            covar_module=design_kernel(None, X.shape[1], kernel="matern", dtype=torch.float64),
+            outcome_transform=Standardize(m=1),
+        )
+        fit_map(model)
+        models.append(model.eval())
+    return models
+
+
+def _inputs(X: np.ndarray) -> torch.Tensor:
+    return torch.as_tensor(np.concatenate([np.zeros((*X.shape[:-1], 1)), X], axis=-1))
+
+
+@pytest.mark.parametrize("m", [2, 3])
+def test_analytic_log_ehvi_is_the_log_of_botorchs_expected_hypervolume_improvement(
+    m: int,
+) -> None:
+    """The exact expectation: against BoTorch's analytic EHVI (``ExpectedHypervolume
+    Improvement``, same GPs, same box decomposition of the observed front), and with a
+    constraint, plus the log probability that the constraint's GP is <= 0."""
+    from botorch.acquisition.multi_objective.analytic import ExpectedHypervolumeImprovement
+    from botorch.models.model_list_gp_regression import ModelListGP
+    from botorch.utils.multi_objective.box_decompositions.non_dominated import (
+        FastNondominatedPartitioning,
+    )
+
+    from adservice.proposers.multiobjective import AnalyticLogEHVI
+
+    rng = np.random.default_rng(m)
+    X = rng.random((16, D))
+    Y = np.column_stack([zdt1(X), -np.sum((X - 0.5) ** 2, axis=1)])[:, :m]
+    slack = X[:, 1:2] - 0.6
+    models = _fitted(X, np.column_stack([Y, slack]))
+    ref = reference_point(Y, np.ones(16, dtype=bool), None)[0]
+    feasible = np.ones(16, dtype=bool)
+    ours = AnalyticLogEHVI(models[:m], [], _inputs(X), Y, feasible, False, ref)
+    acquisition, name = ours.step(None)
+    partitioning = FastNondominatedPartitioning(
+        ref_point=torch.as_tensor(ref), Y=torch.as_tensor(Y)
+    )
+    theirs = ExpectedHypervolumeImprovement(
+        ModelListGP(*models[:m]), ref_point=ref.tolist(), partitioning=partitioning
+    )
+    points = _inputs(rng.random((64, 1, D)))
+    with torch.no_grad():
+        expected = theirs(points)
+        got = acquisition(points)
+    assert name == "LogEHVI"
+    # BoTorch's EHVI is not in log space: far from the front it underflows (to 0 or to
+    # a few significant digits); the log keeps a value there, far below the rest
+    sure = expected > 1e-12
+    assert int(sure.sum()) >= 32
+    torch.testing.assert_close(got[sure], expected[sure].log(), rtol=1e-6, atol=1e-9)
+    assert torch.all(got[~sure] < -20)
+
+    constrained = AnalyticLogEHVI(models[:m], models[m:], _inputs(X), Y, feasible, False, ref)
+    with torch.no_grad():
+        mean = models[m].posterior(points).mean.reshape(-1)
+        sigma = models[m].posterior(points).variance.sqrt().reshape(-1)
+        log_feasible = torch.special.log_ndtr(-mean / sigma)
+        torch.testing.assert_close(
+            constrained.step(None)[0](points)[sure],
+            (expected.log() + log_feasible)[sure],
+            rtol=1e-6,
+            atol=1e-9,
+        )
+
+
+def test_analytic_log_ehvi_believes_pending_points_onto_the_front() -> None:
+    """A pending point is believed at the model's mean: proposing it again, or next to
+    it, gains far less than without it."""
+    from adservice.proposers.multiobjective import AnalyticLogEHVI
+
+    X, Y = history(16, seed=7)
+    models = _fitted(X, Y)
+    ref = reference_point(Y, np.ones(16, dtype=bool), None)[0]
+    acquisition = AnalyticLogEHVI(models, [], _inputs(X), Y, np.ones(16, dtype=bool), False, ref)
+    point = _inputs(np.array([[[0.3, 0.05, 0.05, 0.05]]]))
+    alone, _ = acquisition.step(None)
+    believed, name = acquisition.step(point[0])
+    with torch.no_grad():
+        assert name == "LogEHVI-believer"
+        assert float(believed(point)) < float(alone(point)) - 2.0  # 7 times less

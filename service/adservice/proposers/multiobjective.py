@@ -14,9 +14,20 @@ Acquisition, greedy over the batch (each chosen candidate joins the pending poin
 of the next, as BoTorch's sequential greedy optimisation does), maximised by
 ``acquisition.maximise`` (the structure held discrete, typed params on their grid):
 
-- Several objectives: ``qLogNoisyExpectedHypervolumeImprovement`` (qLogNEHVI,
-  Daulton et al. 2021, Ament et al. 2023) with the pending points as ``X_pending``
-  (cached box decompositions), over a baseline of the observed points that are
+- Several objectives, ``options["acquisition"]`` ``analytic`` (the default):
+  ``AnalyticLogEHVI``, the exact expected hypervolume improvement of one candidate
+  over the observed feasible front, in log space, weighted by the probability of
+  feasibility, with the pending points as Kriging believers. Each greedy step is one
+  candidate and the GPs are independent, so the expectation that qLogNEHVI estimates
+  by Monte Carlo over draws of the candidate has a closed form, whose cost does not
+  grow with draws: at n = 80 observations of DTLZ2 (a front of 36, d = 6) an ask took
+  0.8 s of CPU against 22 s for qLogNEHVI (bench/mo_asklatency.py). What it gives up:
+  the front is the observations (for a noisy study, the posterior means at them), not
+  integrated over their noise as qLogNEHVI's, and pending points are believed at
+  their means rather than drawn jointly.
+- Several objectives, ``acquisition: mc``: ``qLogNoisyExpectedHypervolumeImprovement``
+  (qLogNEHVI, Daulton et al. 2021, Ament et al. 2023) with the pending points as
+  ``X_pending`` (cached box decompositions), over a baseline of the observed points that are
   Pareto-optimal in at least one of 256 seeded posterior draws (BoTorch's own
   pruning draws from torch's global generator). With constraints, the hypervolume is
   of feasible outcomes only (each draw's infeasible baseline points are left out of
@@ -68,10 +79,10 @@ Each model candidate's info adds ``acquisition`` (the name above), ``n_objective
 ``ref_point``, ``ref_point_source``, ``n_pareto`` (the observed feasible front's size)
 and ``n_baseline``, and the fit of each outcome's GP (``fits``).
 
-The analytic-versus-Monte-Carlo choice of ``options["acquisition"]`` does not apply
-here: these acquisitions are Monte Carlo (``options["mc_samples"]`` draws, default
-128, quasi-random and seeded from ``(seed, n_issued, step)``), and they take turns on
-qei's Monte Carlo lock as qei's ``mc`` acquisitions do.
+The Monte Carlo acquisitions (``acquisition: mc``) use ``options["mc_samples"]``
+draws (default 128, quasi-random and seeded from ``(seed, n_issued, step)``) and take
+turns on qei's Monte Carlo lock as qei's ``mc`` acquisitions do; the analytic ones
+set nothing process-wide and run side by side.
 """
 
 from __future__ import annotations
@@ -85,6 +96,7 @@ import numpy as np
 import torch
 
 from adservice.proposers.base import ProposalRequest, model_inputs
+from adservice.proposers.qei import EHVI_CHUNK
 from adservice.proposers.simple import derived_seed
 
 if TYPE_CHECKING:
@@ -163,6 +175,119 @@ def front_starts(Z: np.ndarray, objectives: np.ndarray, front: np.ndarray) -> np
         return starts
     pick = np.linspace(0, len(starts) - 1, FRONT_STARTS).round().astype(np.int64)
     return starts[pick]
+
+
+class AnalyticLogEHVI:
+    """Analytic LogEHVI for the greedy steps of one ask of several objectives (the
+    default ``acquisition: analytic``): the log of the expected hypervolume improvement
+    of one candidate over the current front, computed exactly rather than by Monte
+    Carlo. The objectives' GPs are independent, so a candidate's improvement in a
+    hyper-rectangle cell of the non-dominated region (BoTorch's
+    ``FastNondominatedPartitioning`` of the front against the reference point) has
+    the expectation prod_j E[clamp(min(Y_j, u_j) - l_j, 0)], each factor a difference
+    of two expected improvements, sigma_j (h(z_l) - h(z_u)) with h(z) = phi(z) + z Phi(z);
+    the sum over cells is taken in log space (``_log_ei_helper``, ``log1mexp``,
+    ``logsumexp``), so it keeps a gradient far from the front as LogEI does. The
+    front is the feasible observations' (for a noisy study the posterior means at
+    them); with constraints, a candidate's LogEHVI adds the log probability that every
+    constraint's GP is at or below 0 there, and while nothing is feasible it is that
+    log probability alone. Pending points are Kriging believers of every GP (as
+    ``gpmodel.AnalyticLogEI``): their believed objectives join the front when their
+    believed slacks are all <= 0, so a candidate gains nothing for duplicating one."""
+
+    def __init__(
+        self,
+        models: list[Any],
+        constraint_models: list[Any],
+        train_Z: torch.Tensor,
+        objectives: np.ndarray,
+        feasible: np.ndarray,
+        noisy: bool,
+        ref_point: np.ndarray,
+    ) -> None:
+        from adservice.proposers.gpmodel import Posterior
+
+        self.objectives = [Posterior(model) for model in models]
+        self.constraints = [Posterior(model) for model in constraint_models]
+        tkw: dict[str, Any] = {"dtype": train_Z.dtype, "device": train_Z.device}
+        self.ref_point = torch.as_tensor(ref_point, **tkw)
+        self.any_feasible = bool(feasible.any())
+        rows = torch.as_tensor(np.flatnonzero(feasible), device=train_Z.device)
+        with torch.no_grad():
+            if noisy:
+                means = [p.mean_sigma(train_Z[rows])[0] for p in self.objectives]
+                self.front = torch.stack(means, dim=-1)
+            else:
+                self.front = torch.as_tensor(objectives, **tkw)[rows]
+
+    def step(self, pending: torch.Tensor | None) -> tuple[Callable, str]:
+        """The acquisition given these pending points, and its name."""
+        from botorch.utils.multi_objective.box_decompositions.non_dominated import (
+            FastNondominatedPartitioning,
+        )
+
+        objectives, constraints, front = self.objectives, self.constraints, self.front
+        any_feasible = self.any_feasible
+        if pending is not None:
+            objectives = [p.believing(pending) for p in objectives]
+            constraints = [p.believing(pending) for p in constraints]
+            believed = torch.stack([p.beliefs for p in objectives], dim=-1)
+            if constraints:
+                keep = torch.stack([p.beliefs <= 0 for p in constraints]).all(dim=0)
+                believed = believed[keep]
+            front = torch.cat([front, believed])
+            any_feasible = any_feasible or len(believed) > 0
+        name = "LogEHVI" if any_feasible or not constraints else "LogPoF"
+        name += "" if pending is None else "-believer"
+        cells = None
+        if name.startswith("LogEHVI"):
+            partitioning = FastNondominatedPartitioning(ref_point=self.ref_point, Y=front)
+            cells = partitioning.get_hypercell_bounds()  # lower, upper: cells x m
+        return _LogEHVI(objectives, constraints, cells), name
+
+
+class _LogEHVI:
+    """One step's acquisition of ``AnalyticLogEHVI``: b x 1 x D -> b."""
+
+    def __init__(self, objectives: list[Any], constraints: list[Any], cells: Any) -> None:
+        self.objectives, self.constraints = objectives, constraints
+        if cells is not None:
+            lower, upper = cells[0], cells[1]
+            self.lower = lower
+            self.upper_finite = torch.isfinite(upper)
+            # a stand-in where the cell is unbounded, its term masked (finite gradients)
+            self.upper = torch.where(self.upper_finite, upper, lower + 1.0)
+        self.cells = cells
+
+    def __call__(self, Z: torch.Tensor) -> torch.Tensor:
+        X = Z.squeeze(-2)
+        value = torch.zeros(X.shape[:-1], dtype=X.dtype, device=X.device)
+        for constraint in self.constraints:
+            mean, sigma = constraint.mean_sigma(X)
+            value = value + torch.special.log_ndtr(-mean / sigma)
+        if self.cells is None:
+            return value
+        per = max(1, EHVI_CHUNK // self.lower.numel())
+        parts = [self._log_ehvi(X[start : start + per]) for start in range(0, len(X), per)]
+        return value + torch.cat(parts)
+
+    def _log_ehvi(self, X: torch.Tensor) -> torch.Tensor:
+        from botorch.acquisition.analytic import _log_ei_helper
+        from botorch.utils.safe_math import log1mexp
+
+        stats = [p.mean_sigma(X) for p in self.objectives]
+        mean = torch.stack([s[0] for s in stats], dim=-1).unsqueeze(-2)  # b x 1 x m
+        sigma = torch.stack([s[1] for s in stats], dim=-1).unsqueeze(-2)
+        log_h_lower = _log_ei_helper((mean - self.lower) / sigma)  # b x cells x m
+        log_h_upper = torch.where(
+            self.upper_finite,
+            _log_ei_helper((mean - self.upper) / sigma),
+            torch.full_like(log_h_lower, -torch.inf),
+        )
+        # log(h(z_l) - h(z_u)) = log h(z_l) + log(1 - h(z_u) / h(z_l)); h(z_u) < h(z_l)
+        gap = (log_h_upper - log_h_lower).clamp_max(-1e-300)
+        log_terms = sigma.log() + log_h_lower + log1mexp(gap)
+        return torch.logsumexp(log_terms.sum(dim=-1), dim=-1)
 
 
 def _slack(index: int) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -258,7 +383,7 @@ def optimise_outcomes(
     fit_seconds = time.perf_counter() - started
 
     feasible = np.all(slacks <= 0, axis=1) if c else np.ones(len(X), dtype=bool)
-    analytic: AnalyticConstrainedLogEI | None = None
+    analytic: AnalyticConstrainedLogEI | AnalyticLogEHVI | None = None
     n_feasible = int(feasible.sum())
     constraints = [_slack(m + j) for j in range(c)] or None
     # the constraints' smoothing temperature in each slack's own units (BoTorch's is
@@ -279,7 +404,13 @@ def optimise_outcomes(
             n_pareto=len(front),
         )
         incumbents = front_starts(Z, objectives, front) if len(front) else Z[:1]
-        acquisition = "qLogNEHVI"
+        if options.acquisition == "analytic":
+            analytic = AnalyticLogEHVI(
+                models[:m], models[m:], train_Z, objectives, feasible, request.noisy, ref
+            )
+            acquisition = "LogEHVI" if n_feasible or not c else "LogPoF"
+        else:
+            acquisition = "qLogNEHVI"
     else:
         best = np.where(feasible, objectives[:, 0], -np.inf)
         incumbents = Z[np.argsort(-best, kind="stable")]

@@ -97,10 +97,11 @@ Decisions worth knowing:
   threads competing with other processes made asks 5 to 20 times slower, and the
   server already runs each ask in its own thread.
 - Several objectives (``ProposalRequest.objectives``) and outcome constraints
-  (``slacks``), issue 17: after the same Sobol start, one GP per outcome and
-  qLogNEHVI (several objectives) or a constrained qLogEI / qLogNEI (one), with the
-  same kernels, domains, pending points, fallbacks and budgets; the reference point,
-  and how failed and infeasible trials are treated, are in ``multiobjective``.
+  (``slacks``), issue 17: after the same Sobol start, one GP per outcome and LogEHVI
+  (several objectives: analytic by default, Monte Carlo qLogNEHVI with ``mc``) or a
+  constrained LogEI (one), with the same kernels, domains, pending points, fallbacks
+  and budgets; the reference point, and how failed and infeasible trials are
+  treated, are in ``multiobjective``.
 - ``QEIOptions`` lists every option. Importing this module does not import torch
   (the service checks a new study's options with it); ``propose`` does.
 """
@@ -250,6 +251,9 @@ _MO_SCREEN_DRAWS = 16
 """``multiobjective.SCREEN_DRAWS``."""
 _MO_BASELINE = 16
 """Observations assumed in the pruned baseline of qLogNEHVI (typically the front)."""
+EHVI_CHUNK = 1 << 20
+"""Candidates x hypervolume cells x objectives that analytic LogEHVI computes at once
+(``multiobjective``; the rest in further chunks): each of its arrays stays under 8 MB."""
 _SCORED_AT_ONCE = 1024
 """Raw samples scored in one batch (``acquisition._CHUNK``)."""
 
@@ -298,7 +302,7 @@ def memory_need(
         parts["mc_samples"] = _FLOAT * batch * joint * (10 * mc + 4 * (joint + n_train))
         sizes += f", {mc} MC samples of {joint} points jointly"
     outcomes = n_objectives + n_constraints
-    if n_objectives > 1 or (n_constraints and options.acquisition == "mc"):
+    if outcomes > 1 and options.acquisition == "mc":
         # issue 17's Monte Carlo acquisitions (``multiobjective``): the raw samples are
         # scored with SCREEN_DRAWS draws of each outcome jointly with the baseline (at
         # most _MO_BASELINE of the observations assumed) and the pending points, against
@@ -319,8 +323,13 @@ def memory_need(
             f"{n_pending} pending, {outcomes} outcomes"
         )
     elif outcomes > 1:
+        # one posterior per outcome; several objectives add the hypervolume cells, which
+        # analytic LogEHVI computes in chunks of EHVI_CHUNK values
         parts["observations"] *= outcomes
-        parts["raw_samples"] += _FLOAT * batch * (conditioned + dim) * 10 * n_constraints
+        parts["raw_samples"] += _FLOAT * batch * (conditioned + dim) * 10 * (outcomes - 1)
+        if n_objectives > 1:
+            cells = float(conditioned + 1) ** (n_objectives - 1)
+            parts["hypercells"] = _FLOAT * 10 * int(min(batch * cells * n_objectives, EHVI_CHUNK))
         sizes += f", {outcomes} outcomes"
     driver = max(parts, key=lambda name: parts[name])
     return MemoryNeed(bytes=int(sum(parts.values())), driver=driver, sizes=sizes)
