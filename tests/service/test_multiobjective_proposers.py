@@ -142,6 +142,7 @@ def test_qei_infers_the_reference_point_from_the_observations() -> None:
     nadir, ideal = Y.min(axis=0), Y.max(axis=0)
     assert info["acquisition"] == "LogEHVI"
     assert info["ref_point_source"] == "inferred"
+    assert info["lengthscale_prior"] == "unit"
     np.testing.assert_allclose(info["ref_point"], nadir - 0.1 * (ideal - nadir))
     front = Y[is_non_dominated(torch.as_tensor(Y)).numpy()]
     assert info["n_pareto"] == len(front)
@@ -417,3 +418,21 @@ def test_analytic_log_ehvi_believes_pending_points_onto_the_front() -> None:
     with torch.no_grad():
         assert name == "LogEHVI-believer"
         assert float(believed(point)) < float(alone(point)) - 2.0  # 7 times less
+
+
+@pytest.mark.parametrize("several", [False, True])
+def test_the_gps_of_several_objectives_have_the_unit_length_scale_prior(several: bool) -> None:
+    """gpmodel.UNIT_LENGTHSCALE_PRIOR for a study of several objectives; one objective
+    keeps BoTorch's dimension-scaled prior (median exp(sqrt(2) + ln(4) / 2) at d = 4)."""
+    import math
+
+    from adservice.proposers.gpmodel import UNIT_LENGTHSCALE_PRIOR
+    from adservice.proposers.qei import fit_outcome
+
+    X, Y = history(10)
+    request = mo_request(X, Y if several else Y[:, :1])
+    tkw = {"dtype": torch.float64, "device": torch.device("cpu")}
+    model, _ = fit_outcome(request, QEIOptions(), UNIT, X, Y[:, 0].copy(), tkw, None, "x")
+    prior = model.covar_module.spec.lengthscale_prior
+    expected = UNIT_LENGTHSCALE_PRIOR[0] if several else math.sqrt(2.0) + 0.5 * math.log(D)
+    assert float(prior.loc) == pytest.approx(expected)

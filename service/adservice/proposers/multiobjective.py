@@ -76,8 +76,9 @@ Failed and infeasible trials (the policy the docs state):
 
 Each model candidate's info adds ``acquisition`` (the name above), ``n_objectives``,
 ``n_constraints``, ``n_feasible`` (observed feasible trials), for several objectives
-``ref_point``, ``ref_point_source``, ``n_pareto`` (the observed feasible front's size)
-and ``n_baseline``, and the fit of each outcome's GP (``fits``).
+``ref_point``, ``ref_point_source``, ``n_pareto`` (the observed feasible front's size),
+``lengthscale_prior`` (``unit``: the GPs' spec length scales have
+``gpmodel.UNIT_LENGTHSCALE_PRIOR``) and, for qLogNEHVI, ``n_baseline``, and the fit of each outcome's GP (``fits``).
 
 The Monte Carlo acquisitions (``acquisition: mc``) use ``options["mc_samples"]``
 draws (default 128, quasi-random and seeded from ``(seed, n_issued, step)``) and take
@@ -402,6 +403,7 @@ def optimise_outcomes(
             ref_point=[float(v) for v in ref],
             ref_point_source=ref_source,
             n_pareto=len(front),
+            lengthscale_prior="unit",  # gpmodel.UNIT_LENGTHSCALE_PRIOR
         )
         incumbents = front_starts(Z, objectives, front) if len(front) else Z[:1]
         if options.acquisition == "analytic":

@@ -825,6 +825,9 @@ def fit_outcome(
         )
         likelihood = likelihood.to(**tkw)
     kernel = options.kernel
+    # several objectives: the unit length-scale prior (gpmodel.UNIT_LENGTHSCALE_PRIOR)
+    objectives = request.objectives
+    unit_prior = objectives is not None and np.ndim(objectives) == 2 and objectives.shape[1] > 1
     model = SingleTaskGP(
         train_Z,
         train_Y,
@@ -835,6 +838,7 @@ def fit_outcome(
             spec_dim,
             kernel=kernel,
             categories=request.box.categorical if request.box is not None else None,
+            unit_prior=unit_prior,
             **tkw,
         ),
         outcome_transform=Standardize(m=1),
@@ -848,7 +852,7 @@ def fit_outcome(
                 y.tobytes(),
                 bounds.tobytes(),
                 layout_key,
-                f"{noise_mode}/{kernel}/{outcome}".encode(),
+                f"{noise_mode}/{kernel}/{outcome}/{unit_prior}".encode(),
             ]
         )
     ).hexdigest()
@@ -860,6 +864,7 @@ def fit_outcome(
         noise_mode,
         kernel,
         outcome,
+        unit_prior,
         # the first observations: two studies of one box and seed are not one study
         X[:2].tobytes(),
         y[:2].tobytes(),
