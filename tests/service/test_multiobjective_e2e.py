@@ -260,7 +260,7 @@ def test_qei_proposes_for_several_objectives_under_a_constraint(
     with httpx.Client(base_url=server.url, timeout=900) as http:
         sid = create(
             http,
-            directions=["maximize", "maximize"],
+            directions=["maximize", "minimize"],
             constraints=[{"metric": "cost", "op": "<=", "bound": 0.8}],
             space={
                 "type": "box",
@@ -289,4 +289,9 @@ def test_qei_proposes_for_several_objectives_under_a_constraint(
             assert info["acquisition"] == "LogEHVI", info
             assert info["method"] in ("LogEHVI", "LogEHVI-believer"), info
             assert (info["n_objectives"], info["n_constraints"], info["n_feasible"]) == (2, 1, 3)
+            # the reference point in each objective's own direction: past the worst
+            # feasible value of each, below for the maximised, above for the minimised
+            feasible = [w["values"] for w, f in zip(warm, [1, 1, 0, 0, 0, 1], strict=True) if f]
+            assert info["ref_point"][0] < min(v[0] for v in feasible), info
+            assert info["ref_point"][1] > max(v[1] for v in feasible), info
             assert 0 <= trial["params"]["x"] <= 1 and 0 <= trial["params"]["y"] <= 1

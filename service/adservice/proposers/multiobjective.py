@@ -53,8 +53,9 @@ ZDT1 (d = 4, seed 0, bench/multiobjective.py) qei with Ax's rule kept to
 f1 in [0, 0.3] and had a hypervolume of 115.68 against (11, 11) after 40
 evaluations, where Optuna's GPSampler (whose reference point is 1.1 times the worst
 observed value) had 120.50; with the observations' nadir qei had 120.52 after 11.
-Every candidate's info records the point, oriented to be maximised as the request
-is, with ``ref_point_source`` (``given`` or ``inferred``).
+Every candidate's info records the point (here oriented to be maximised, as the
+request is; the service stores it in each objective's own direction), with
+``ref_point_source`` (``given`` or ``inferred``).
 
 Failed and infeasible trials (the policy the docs state):
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from sqlalchemy.orm import Session
@@ -105,11 +106,22 @@ def _record(
             first_number=first,
             vectors=candidates.tolist(),
             params=[config.params(vector) for vector in candidates],
-            infos=proposal.info,
+            infos=[_in_own_directions(info, config) for info in proposal.info],
             worker_id=worker_id,
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
+
+
+def _in_own_directions(info: dict[str, Any], config: StudyConfig) -> dict[str, Any]:
+    """A candidate's info with the hypervolume reference point in each objective's own
+    direction, as the study states its values (proposers see every objective
+    maximised)."""
+    ref_point = info.get("ref_point")
+    if not config.outcomes.multi or not isinstance(ref_point, list):
+        return info
+    signs = config.outcomes.signs
+    return {**info, "ref_point": [float(v) * s for v, s in zip(ref_point, signs, strict=True)]}
 
 
 def _leading(proposal: Proposal | None, count: int) -> Proposal:
