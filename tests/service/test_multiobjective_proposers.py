@@ -17,8 +17,9 @@ from botorch.utils.multi_objective.pareto import is_non_dominated
 
 from adservice.proposers import available, get_proposer, proposer_class
 from adservice.proposers.base import ProposalRequest, SearchStructure, empty_history
+from adservice.proposers.gpfit import clear_caches
 from adservice.proposers.multiobjective import observed_front, reference_point
-from adservice.proposers.qei import QEIOptions, clear_caches, memory_need
+from adservice.proposers.qei import QEIOptions, memory_need
 
 D = 4
 UNIT = np.array([np.zeros(D), np.ones(D)])
@@ -426,8 +427,8 @@ def test_the_gps_of_several_objectives_have_the_unit_length_scale_prior(several:
     keeps BoTorch's dimension-scaled prior (median exp(sqrt(2) + ln(4) / 2) at d = 4)."""
     import math
 
+    from adservice.proposers.gpfit import fit_outcome
     from adservice.proposers.gpmodel import UNIT_LENGTHSCALE_PRIOR
-    from adservice.proposers.qei import fit_outcome
 
     X, Y = history(10)
     request = mo_request(X, Y if several else Y[:, :1])

@@ -18,7 +18,8 @@ from bench import ask_isolation
 from bench.ask_isolation import box
 
 from adservice.proposers.base import ProposalRequest
-from adservice.proposers.qei import QLogEIProposer, clear_caches
+from adservice.proposers.gpfit import clear_caches
+from adservice.proposers.qei import QLogEIProposer
 from tests.servers import ServerProcess
 
 HEAVY_DIM = 96

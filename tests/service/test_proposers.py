@@ -15,8 +15,8 @@ from scipy.optimize import minimize
 
 from adservice.proposers import DEFAULT_PROPOSER, available, get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history
+from adservice.proposers.gpfit import clear_caches
 from adservice.proposers.neldermead import _initial_simplex
-from adservice.proposers.qei import clear_caches
 from adservice.proposers.simple import sobol_points
 from tests.servers import ServerProcess
 

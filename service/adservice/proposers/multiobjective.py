@@ -6,7 +6,7 @@ model phase would run; the Sobol start, the fallbacks, the duplicate checks, the
 time and memory budgets and the info common to every candidate stay qei's.
 
 Model: one GP per outcome (each objective, each constraint's slack), each exactly
-the single-objective model of ``qei.fit_outcome`` (``gpmodel.design_kernel``, so
+the single-objective model of ``gpfit.fit_outcome`` (``gpmodel.design_kernel``, so
 design spaces of several structures and typed box params work unchanged; its own
 fit cache entries and warm start), gathered in a BoTorch ``ModelListGP``.
 
@@ -79,7 +79,8 @@ Each model candidate's info adds ``acquisition`` (the name above), ``n_objective
 ``n_constraints``, ``n_feasible`` (observed feasible trials), for several objectives
 ``ref_point``, ``ref_point_source``, ``n_pareto`` (the observed feasible front's size),
 ``lengthscale_prior`` (``unit``: the GPs' spec length scales have
-``gpmodel.UNIT_LENGTHSCALE_PRIOR``) and, for qLogNEHVI, ``n_baseline``, and the fit of each outcome's GP (``fits``).
+``gpmodel.UNIT_LENGTHSCALE_PRIOR``) and, for qLogNEHVI, ``n_baseline``; and the fit
+of each outcome's GP (``fits``).
 
 The Monte Carlo acquisitions (``acquisition: mc``) use ``options["mc_samples"]``
 draws (default 128, quasi-random and seeded from ``(seed, n_issued, step)``) and take
@@ -98,6 +99,7 @@ import numpy as np
 import torch
 
 from adservice.proposers.base import ProposalRequest, model_inputs
+from adservice.proposers.greedy import DEFAULT_RAW_SAMPLES, Greedy, Step
 from adservice.proposers.qei import EHVI_CHUNK
 from adservice.proposers.simple import derived_seed
 
@@ -358,6 +360,7 @@ def optimise_outcomes(
     from botorch.sampling.normal import SobolQMCNormalSampler
 
     from adservice.proposers import qei
+    from adservice.proposers.gpfit import fit_outcome
     from adservice.proposers.gpmodel import AnalyticConstrainedLogEI
 
     qei._limit_threads(torch)
@@ -375,7 +378,7 @@ def optimise_outcomes(
     outcomes = [("" if m == 1 else f"objective {j}", objectives[:, j]) for j in range(m)]
     outcomes += [(f"constraint {j}", slacks[:, j]) for j in range(c)]
     for label, column in outcomes:
-        model_j, source = qei.fit_outcome(
+        model_j, source = fit_outcome(
             request, options, bounds, X, np.ascontiguousarray(column), tkw, deadline, label
         )
         models.append(model_j)
@@ -429,8 +432,8 @@ def optimise_outcomes(
         else:
             acquisition = "qLogNEI" if request.noisy else "qLogEI"
 
-    default_raw = qei.DEFAULT_RAW_SAMPLES if analytic is not None else RAW_SAMPLES
-    greedy = qei.Greedy.of(
+    default_raw = DEFAULT_RAW_SAMPLES if analytic is not None else RAW_SAMPLES
+    greedy = Greedy.of(
         request,
         options,
         bounds,
@@ -491,13 +494,13 @@ def optimise_outcomes(
                 X_pending=pending_t,
             )
 
-    def acquisition_at(step_seed: int, pending_t: torch.Tensor | None) -> qei.Step:
+    def acquisition_at(step_seed: int, pending_t: torch.Tensor | None) -> Step:
         if analytic is not None:
-            return qei.Step(*analytic.step(pending_t))
+            return Step(*analytic.step(pending_t))
         screen = None
         if mc_samples > SCREEN_DRAWS:
             screen = make_acquisition(SCREEN_DRAWS, step_seed, pending_t)
-        return qei.Step(make_acquisition(mc_samples, step_seed, pending_t), acquisition, screen)
+        return Step(make_acquisition(mc_samples, step_seed, pending_t), acquisition, screen)
 
     # the Monte Carlo acquisitions take turns (see qei); the analytic one sets nothing
     with qei._MC_LOCK if analytic is None else contextlib.nullcontext():

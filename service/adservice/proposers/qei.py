@@ -79,7 +79,7 @@ Decisions worth knowing:
 - Acquisition optimisation: as GPSampler, 2048 Sobol points and 10 local searches
   (L-BFGS-B) per candidate (``options`` may override ``num_restarts``,
   ``raw_samples``, ``maxiter``; with only ``raw_samples`` given, the restarts are at
-  most that many); see ``acquisition``. Fitted hyperparameters are kept
+  most that many); see ``acquisition``. Fitted hyperparameters (``gpfit``) are kept
   in two small in-process LRU caches: by a digest of the exact training data (an
   identical request re-uses the exact fit, so it gives bit-identical candidates),
   and by the study's identity (bounds, layout, seed, n_initial, noise, kernel and its
@@ -109,11 +109,8 @@ Decisions worth knowing:
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import threading
 import time
-from collections import OrderedDict
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
@@ -124,22 +121,18 @@ from adservice.proposers.base import (
     Proposal,
     ProposalRequest,
     ProposerOptions,
-    SearchStructure,
     model_inputs,
     search_vectors,
 )
+from adservice.proposers.greedy import DEFAULT_RAW_SAMPLES, DEFAULT_RESTARTS, Greedy, Step
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 from adservice.settings import get_settings
 
 if TYPE_CHECKING:
     import torch
 
-_CACHE_LOCK = threading.Lock()
 _MC_LOCK = threading.Lock()
 _THREAD = threading.local()
-_CACHE_SIZE = 256
-_FITS_BY_DATA: OrderedDict[str, dict[str, torch.Tensor]] = OrderedDict()
-_FITS_BY_STUDY: OrderedDict[tuple[Any, ...], dict[str, torch.Tensor]] = OrderedDict()
 _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
 _DUPLICATE_CANDIDATE_TOL = 1e-6
@@ -148,29 +141,6 @@ _COVERED_CHOICES = 16
 """The most choices of a categorical param the initial design makes sure to try."""
 _TORCH_THREADS = get_settings().torch_threads
 _PROPOSER_DEVICE = get_settings().proposer_device
-
-
-def clear_caches() -> None:
-    """Forget every cached fit (tests and benchmarks measure cold starts with it)."""
-    with _CACHE_LOCK:
-        _FITS_BY_DATA.clear()
-        _FITS_BY_STUDY.clear()
-
-
-def _lru_put(cache: OrderedDict, key: Any, value: Any) -> None:
-    with _CACHE_LOCK:
-        cache[key] = value
-        cache.move_to_end(key)
-        while len(cache) > _CACHE_SIZE:
-            cache.popitem(last=False)
-
-
-def _lru_get(cache: OrderedDict, key: Any) -> Any:
-    with _CACHE_LOCK:
-        value = cache.get(key)
-        if value is not None:
-            cache.move_to_end(key)
-        return value
 
 
 def _limit_threads(torch: Any) -> None:
@@ -192,12 +162,6 @@ def _n_distinct(unit: np.ndarray) -> int:
         return 0
     keys = np.round(unit / _DISTINCT_TOL).astype(np.int64)
     return len(np.unique(keys, axis=0))
-
-
-DEFAULT_RESTARTS = 10
-"""Local searches per candidate (GPSampler's n_local_search)."""
-DEFAULT_RAW_SAMPLES = 2048
-"""Sobol points the starts are chosen from (GPSampler's n_preliminary_samples)."""
 
 
 class QEIOptions(ProposerOptions):
@@ -555,6 +519,7 @@ class QLogEIProposer:
         from botorch.acquisition.utils import prune_inferior_points
         from botorch.sampling.normal import SobolQMCNormalSampler
 
+        from adservice.proposers.gpfit import fit_outcome
         from adservice.proposers.gpmodel import AnalyticLogEI
 
         _limit_threads(torch)
@@ -624,276 +589,6 @@ class QLogEIProposer:
         return greedy.rows(found, request, bounds, model, extra)
 
 
-@dataclass(frozen=True)
-class Step:
-    """One greedy step's acquisition, its name, and optionally a cheaper estimate of it
-    that scores the raw samples (``acquisition.maximise``'s ``screen``)."""
-
-    acqf: Any
-    method: str
-    screen: Any = None
-
-
-@dataclass(frozen=True)
-class Found:
-    """A greedy batch's candidates (model inputs) and what each step recorded."""
-
-    chosen: list[np.ndarray]
-    methods: list[str]
-    values: list[float]
-    switched: int
-
-
-@dataclass(frozen=True)
-class Greedy:
-    """The greedy batch search both model phases share (this module's one-objective
-    ``_optimise`` and ``multiobjective``): each step maximises its acquisition over the
-    mixed domain with the previous steps' candidates pending."""
-
-    domain: Any
-    raw_count: int
-    num_restarts: int
-    maxiter: int
-    incumbents: np.ndarray
-    pending_Z: np.ndarray
-    taken: np.ndarray | None
-    tkw: dict[str, Any]
-    deadline: float | None
-    n_incumbents: int = 1
-
-    @classmethod
-    def of(
-        cls,
-        request: ProposalRequest,
-        options: QEIOptions,
-        bounds: np.ndarray,
-        Z: np.ndarray,
-        X_pending: np.ndarray,
-        incumbents: np.ndarray,
-        tkw: dict[str, Any],
-        deadline: float | None,
-        default_raw: int = DEFAULT_RAW_SAMPLES,
-        n_incumbents: int = 1,
-    ) -> Greedy:
-        """The search of this ask: its sizes from ``options`` (``default_raw`` raw
-        samples unless they say), the observed points ``Z`` and ``X_pending`` taken
-        (noise-free studies), ``incumbents`` (model inputs, best first) to start from."""
-        from adservice.proposers.acquisition import DiscreteColumns, MixedDomain
-
-        search = request.structure
-        if options.num_restarts is not None:
-            num_restarts = options.num_restarts
-        else:
-            num_restarts = min(DEFAULT_RESTARTS, options.raw_samples or DEFAULT_RESTARTS)
-        spec_dim = Z.shape[1] - 1
-        domain = MixedDomain(
-            used=search.used if search is not None else np.ones((1, spec_dim), dtype=bool),
-            pad=search.pad if search is not None else 0.5,
-            discrete=DiscreteColumns(request.box, bounds[0], bounds[1] - bounds[0])
-            if request.box is not None
-            else None,
-        )
-        pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
-        return cls(
-            domain=domain,
-            raw_count=options.raw_samples or max(default_raw, num_restarts),
-            num_restarts=num_restarts,
-            maxiter=options.maxiter,
-            incumbents=incumbents,
-            pending_Z=pending_Z,
-            taken=None if request.noisy else np.concatenate([Z, pending_Z]),
-            tkw=tkw,
-            deadline=deadline,
-            n_incumbents=n_incumbents,
-        )
-
-    def run(
-        self, q: int, seed: int, acquisition_at: Callable[[int, torch.Tensor | None], Step]
-    ) -> Found:
-        """Up to q candidates (fewer past the deadline); ``acquisition_at(step_seed,
-        pending)`` gives each step's acquisition."""
-        import torch
-
-        from adservice.proposers.acquisition import maximise, past
-
-        found = Found(chosen=[], methods=[], values=[], switched=0)
-        switched = 0
-        for step in range(q):
-            if step and past(self.deadline):
-                break
-            step_seed = derived_seed(seed, step)
-            new = [z[None, :] for z in found.chosen]
-            batch_pending = np.concatenate([self.pending_Z, *new])
-            pending_t = torch.as_tensor(batch_pending, **self.tkw) if len(batch_pending) else None
-            current = acquisition_at(step_seed, pending_t)
-            optimum = maximise(
-                current.acqf,
-                self.domain,
-                raw_count=self.raw_count,
-                num_restarts=self.num_restarts,
-                maxiter=self.maxiter,
-                seed=step_seed,
-                incumbents=self.incumbents,
-                tkw=self.tkw,
-                deadline=self.deadline,
-                taken=None if self.taken is None else np.concatenate([self.taken, *new]),
-                screen=current.screen,
-                n_incumbents=self.n_incumbents,
-            )
-            found.chosen.append(optimum.z)
-            found.methods.append(current.method)
-            found.values.append(optimum.value)
-            switched += optimum.structures_switched
-        return Found(found.chosen, found.methods, found.values, switched)
-
-    def rows(
-        self,
-        found: Found,
-        request: ProposalRequest,
-        bounds: np.ndarray,
-        model: Any,
-        extra: dict[str, Any],
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        """The candidates as search vectors, and ``extra`` with what every model phase
-        records (``model``: the GP whose structure kernel is reported)."""
-        from adservice.proposers.acquisition import past
-        from adservice.proposers.gpmodel import structure_correlation, structure_lengthscale
-
-        search = request.structure
-        rows_np = search_vectors(np.array(found.chosen), bounds, search)
-        if not np.all(np.isfinite(rows_np)):
-            raise FloatingPointError("non-finite candidates from the acquisition optimiser")
-        value = found.values[0]
-        extra.update(
-            methods=found.methods,
-            log_acq_value=value if np.isfinite(value) else None,
-            num_restarts=self.num_restarts,
-            raw_samples=self.raw_count,
-            device=self.tkw["device"].type,
-        )
-        if past(self.deadline):
-            extra.update(budget="time", budget_seconds=request.seconds)
-        if search is not None and search.n_structures > 1:
-            extra["structure_lengthscale"] = structure_lengthscale(model)
-            extra["structure_correlation"] = structure_correlation(model, search, self.tkw)
-            extra["structures_switched"] = found.switched
-        return rows_np, extra
-
-
-def fit_outcome(
-    request: ProposalRequest,
-    options: QEIOptions,
-    bounds: np.ndarray,
-    X: np.ndarray,
-    y: np.ndarray,
-    tkw: dict[str, Any],
-    deadline: float | None,
-    outcome: str = "",
-) -> tuple[Any, str]:
-    """A ``SingleTaskGP`` on one outcome ``y`` of the points ``X`` (the study's model:
-    ``gpmodel.design_kernel``, the noise mode, outcomes standardised) with its
-    hyperparameters fitted by ``gpmodel.fit_map`` through the fit caches, in eval mode;
-    and where its fit came from (cached, warm, cold, ``-stopped`` past the deadline).
-    ``outcome`` names the outcome in the cache keys ("" for the one objective, else
-    e.g. ``objective 1`` or ``constraint 0``): each outcome of a study is fitted and
-    warm-started on its own."""
-    import torch
-    from botorch.models import SingleTaskGP
-    from botorch.models.transforms.outcome import Standardize
-
-    from adservice.proposers.acquisition import past
-    from adservice.proposers.gpmodel import design_kernel, fit_map
-
-    search = request.structure
-    device = tkw["device"]
-    Z = model_inputs(X, bounds, search)
-    spec_dim = Z.shape[1] - 1
-    train_Z = torch.as_tensor(Z, **tkw)
-    train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
-    noise_mode = options.noise or ("inferred" if request.noisy else "floor")
-    train_Yvar = None
-    likelihood = None
-    if noise_mode == "fixed":
-        # Standardize divides Yvar by var(y): this is a variance of 1e-6 after scaling.
-        train_Yvar = torch.full_like(train_Y, 1e-6 * max(float(np.var(y)), 1e-12))
-    elif noise_mode == "floor":
-        from gpytorch.constraints import GreaterThan
-        from gpytorch.likelihoods import GaussianLikelihood
-
-        likelihood = GaussianLikelihood(
-            noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
-        )
-        likelihood = likelihood.to(**tkw)
-    kernel = options.kernel
-    # several objectives: the unit length-scale prior (gpmodel.UNIT_LENGTHSCALE_PRIOR)
-    objectives = request.objectives
-    unit_prior = objectives is not None and np.ndim(objectives) == 2 and objectives.shape[1] > 1
-    model = SingleTaskGP(
-        train_Z,
-        train_Y,
-        train_Yvar=train_Yvar,
-        likelihood=likelihood,
-        covar_module=design_kernel(
-            search,
-            spec_dim,
-            kernel=kernel,
-            categories=request.box.categorical if request.box is not None else None,
-            unit_prior=unit_prior,
-            **tkw,
-        ),
-        outcome_transform=Standardize(m=1),
-    )
-
-    layout_key = _layout_key(search, request)
-    data_key = hashlib.sha256(
-        b"".join(
-            [
-                X.tobytes(),
-                y.tobytes(),
-                bounds.tobytes(),
-                layout_key,
-                f"{noise_mode}/{kernel}/{outcome}/{unit_prior}".encode(),
-            ]
-        )
-    ).hexdigest()
-    study_key = (
-        bounds.tobytes(),
-        layout_key,
-        request.seed,
-        request.n_initial,
-        noise_mode,
-        kernel,
-        outcome,
-        unit_prior,
-        # the first observations: two studies of one box and seed are not one study
-        X[:2].tobytes(),
-        y[:2].tobytes(),
-    )
-    use_warm = options.warm_start
-
-    exact = _lru_get(_FITS_BY_DATA, data_key) if use_warm else None
-    if exact is not None:
-        model.load_state_dict(_to_device(exact, device), strict=False)
-        fit_source = "cached"
-    else:
-        previous = _lru_get(_FITS_BY_STUDY, study_key) if use_warm else None
-        fit_source = "cold"
-        if previous is not None:
-            model.load_state_dict(_to_device(previous, device), strict=False)
-            fit_source = "warm"
-        fit_map(model, deadline=deadline)
-        params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
-        if not all(torch.isfinite(p).all() for p in params.values()):
-            raise FloatingPointError("non-finite hyperparameters after the fit")
-        if past(deadline):
-            fit_source += "-stopped"  # not the exact fit: a warm start, never a reuse
-        else:
-            _lru_put(_FITS_BY_DATA, data_key, params)
-        _lru_put(_FITS_BY_STUDY, study_key, params)
-    model.eval()
-    return model, fit_source
-
-
 def _outcomes(request: ProposalRequest, y: np.ndarray) -> np.ndarray:
     """The observations' objectives then slacks, one column each (n x (m + c)); ``y``
     alone for one objective without constraints."""
@@ -955,24 +650,8 @@ def _canonical(candidates: np.ndarray, bounds: np.ndarray, request: ProposalRequ
     )
 
 
-def _layout_key(search: SearchStructure | None, request: ProposalRequest) -> bytes:
-    """What distinguishes one study's model layout from another's in the fit caches."""
-    if search is None and request.box is not None:
-        return f"box/{request.box.ordinal}/{sorted(request.box.categorical.items())}".encode()
-    if search is None:
-        return b"box"
-    axes = repr(
-        [(a.theta, a.phi, a.theta_fixed, a.phi_fixed, a.sign_invariant) for a in search.axes]
-    )
-    return b"".join([search.structure_coords.tobytes(), search.used.tobytes(), axes.encode()])
-
-
 def _nearest_distance(points: np.ndarray, point: np.ndarray) -> float:
     """Max-norm distance from ``point`` to the nearest row of ``points`` (inf if none)."""
     if len(points) == 0:
         return float("inf")
     return float(np.min(np.max(np.abs(points - point), axis=1)))
-
-
-def _to_device(params: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
-    return {name: tensor.to(device) for name, tensor in params.items()}

@@ -1,0 +1,181 @@
+"""Fitting one outcome's GP for ``qei``, through two small in-process LRU caches.
+
+Fitted hyperparameters are kept by a digest of the exact training data (an identical
+request re-uses the exact fit, so it gives bit-identical candidates) and by the
+study's identity (the next ask of the same study warm-starts its fit from the
+previous optimum; see ``qei``'s docstring for why another study of the same box
+never does). Imported only when a proposal is computed (it imports torch).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from collections import OrderedDict
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from adservice.proposers.base import ProposalRequest, SearchStructure, model_inputs
+
+if TYPE_CHECKING:
+    from adservice.proposers.qei import QEIOptions
+
+_CACHE_LOCK = threading.Lock()
+_CACHE_SIZE = 256
+_FITS_BY_DATA: OrderedDict[str, dict[str, torch.Tensor]] = OrderedDict()
+_FITS_BY_STUDY: OrderedDict[tuple[Any, ...], dict[str, torch.Tensor]] = OrderedDict()
+
+
+def clear_caches() -> None:
+    """Forget every cached fit (tests and benchmarks measure cold starts with it)."""
+    with _CACHE_LOCK:
+        _FITS_BY_DATA.clear()
+        _FITS_BY_STUDY.clear()
+
+
+def _lru_put(cache: OrderedDict, key: Any, value: Any) -> None:
+    with _CACHE_LOCK:
+        cache[key] = value
+        cache.move_to_end(key)
+        while len(cache) > _CACHE_SIZE:
+            cache.popitem(last=False)
+
+
+def _lru_get(cache: OrderedDict, key: Any) -> Any:
+    with _CACHE_LOCK:
+        value = cache.get(key)
+        if value is not None:
+            cache.move_to_end(key)
+        return value
+
+
+def fit_outcome(
+    request: ProposalRequest,
+    options: QEIOptions,
+    bounds: np.ndarray,
+    X: np.ndarray,
+    y: np.ndarray,
+    tkw: dict[str, Any],
+    deadline: float | None,
+    outcome: str = "",
+) -> tuple[Any, str]:
+    """A ``SingleTaskGP`` on one outcome ``y`` of the points ``X`` (the study's model:
+    ``gpmodel.design_kernel``, the noise mode, outcomes standardised) with its
+    hyperparameters fitted by ``gpmodel.fit_map`` through the fit caches, in eval mode;
+    and where its fit came from (cached, warm, cold, ``-stopped`` past the deadline).
+    ``outcome`` names the outcome in the cache keys ("" for the one objective, else
+    e.g. ``objective 1`` or ``constraint 0``): each outcome of a study is fitted and
+    warm-started on its own."""
+    import torch
+    from botorch.models import SingleTaskGP
+    from botorch.models.transforms.outcome import Standardize
+
+    from adservice.proposers.acquisition import past
+    from adservice.proposers.gpmodel import design_kernel, fit_map
+
+    search = request.structure
+    device = tkw["device"]
+    Z = model_inputs(X, bounds, search)
+    spec_dim = Z.shape[1] - 1
+    train_Z = torch.as_tensor(Z, **tkw)
+    train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
+    noise_mode = options.noise or ("inferred" if request.noisy else "floor")
+    train_Yvar = None
+    likelihood = None
+    if noise_mode == "fixed":
+        # Standardize divides Yvar by var(y): this is a variance of 1e-6 after scaling.
+        train_Yvar = torch.full_like(train_Y, 1e-6 * max(float(np.var(y)), 1e-12))
+    elif noise_mode == "floor":
+        from gpytorch.constraints import GreaterThan
+        from gpytorch.likelihoods import GaussianLikelihood
+
+        likelihood = GaussianLikelihood(
+            noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
+        )
+        likelihood = likelihood.to(**tkw)
+    kernel = options.kernel
+    # several objectives: the unit length-scale prior (gpmodel.UNIT_LENGTHSCALE_PRIOR)
+    objectives = request.objectives
+    unit_prior = objectives is not None and np.ndim(objectives) == 2 and objectives.shape[1] > 1
+    model = SingleTaskGP(
+        train_Z,
+        train_Y,
+        train_Yvar=train_Yvar,
+        likelihood=likelihood,
+        covar_module=design_kernel(
+            search,
+            spec_dim,
+            kernel=kernel,
+            categories=request.box.categorical if request.box is not None else None,
+            unit_prior=unit_prior,
+            **tkw,
+        ),
+        outcome_transform=Standardize(m=1),
+    )
+
+    layout_key = _layout_key(search, request)
+    data_key = hashlib.sha256(
+        b"".join(
+            [
+                X.tobytes(),
+                y.tobytes(),
+                bounds.tobytes(),
+                layout_key,
+                f"{noise_mode}/{kernel}/{outcome}/{unit_prior}".encode(),
+            ]
+        )
+    ).hexdigest()
+    study_key = (
+        bounds.tobytes(),
+        layout_key,
+        request.seed,
+        request.n_initial,
+        noise_mode,
+        kernel,
+        outcome,
+        unit_prior,
+        # the first observations: two studies of one box and seed are not one study
+        X[:2].tobytes(),
+        y[:2].tobytes(),
+    )
+    use_warm = options.warm_start
+
+    exact = _lru_get(_FITS_BY_DATA, data_key) if use_warm else None
+    if exact is not None:
+        model.load_state_dict(_to_device(exact, device), strict=False)
+        fit_source = "cached"
+    else:
+        previous = _lru_get(_FITS_BY_STUDY, study_key) if use_warm else None
+        fit_source = "cold"
+        if previous is not None:
+            model.load_state_dict(_to_device(previous, device), strict=False)
+            fit_source = "warm"
+        fit_map(model, deadline=deadline)
+        params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
+        if not all(torch.isfinite(p).all() for p in params.values()):
+            raise FloatingPointError("non-finite hyperparameters after the fit")
+        if past(deadline):
+            fit_source += "-stopped"  # not the exact fit: a warm start, never a reuse
+        else:
+            _lru_put(_FITS_BY_DATA, data_key, params)
+        _lru_put(_FITS_BY_STUDY, study_key, params)
+    model.eval()
+    return model, fit_source
+
+
+def _layout_key(search: SearchStructure | None, request: ProposalRequest) -> bytes:
+    """What distinguishes one study's model layout from another's in the fit caches."""
+    if search is None and request.box is not None:
+        return f"box/{request.box.ordinal}/{sorted(request.box.categorical.items())}".encode()
+    if search is None:
+        return b"box"
+    axes = repr(
+        [(a.theta, a.phi, a.theta_fixed, a.phi_fixed, a.sign_invariant) for a in search.axes]
+    )
+    return b"".join([search.structure_coords.tobytes(), search.used.tobytes(), axes.encode()])
+
+
+def _to_device(params: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    return {name: tensor.to(device) for name, tensor in params.items()}

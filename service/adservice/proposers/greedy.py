@@ -1,0 +1,180 @@
+"""The greedy batch search of ``qei``'s model phases (one objective in ``qei``, several
+objectives or constraints in ``multiobjective``): each step maximises its acquisition
+over the mixed domain (``acquisition.maximise``) with the previous steps' candidates
+pending. Imported only when a proposal is computed."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from adservice.proposers.base import ProposalRequest, model_inputs, search_vectors
+from adservice.proposers.simple import derived_seed
+
+if TYPE_CHECKING:
+    import torch
+
+    from adservice.proposers.qei import QEIOptions
+
+DEFAULT_RESTARTS = 10
+"""Local searches per candidate (GPSampler's n_local_search)."""
+DEFAULT_RAW_SAMPLES = 2048
+"""Sobol points the starts are chosen from (GPSampler's n_preliminary_samples)."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One greedy step's acquisition, its name, and optionally a cheaper estimate of it
+    that scores the raw samples (``acquisition.maximise``'s ``screen``)."""
+
+    acqf: Any
+    method: str
+    screen: Any = None
+
+
+@dataclass(frozen=True)
+class Found:
+    """A greedy batch's candidates (model inputs) and what each step recorded."""
+
+    chosen: list[np.ndarray]
+    methods: list[str]
+    values: list[float]
+    switched: int
+
+
+@dataclass(frozen=True)
+class Greedy:
+    """One ask's greedy batch search: its sizes, domain, starts and the points it must
+    not propose again."""
+
+    domain: Any
+    raw_count: int
+    num_restarts: int
+    maxiter: int
+    incumbents: np.ndarray
+    pending_Z: np.ndarray
+    taken: np.ndarray | None
+    tkw: dict[str, Any]
+    deadline: float | None
+    n_incumbents: int = 1
+
+    @classmethod
+    def of(
+        cls,
+        request: ProposalRequest,
+        options: QEIOptions,
+        bounds: np.ndarray,
+        Z: np.ndarray,
+        X_pending: np.ndarray,
+        incumbents: np.ndarray,
+        tkw: dict[str, Any],
+        deadline: float | None,
+        default_raw: int = DEFAULT_RAW_SAMPLES,
+        n_incumbents: int = 1,
+    ) -> Greedy:
+        """The search of this ask: its sizes from ``options`` (``default_raw`` raw
+        samples unless they say), the observed points ``Z`` and ``X_pending`` taken
+        (noise-free studies), ``incumbents`` (model inputs, best first) to start from."""
+        from adservice.proposers.acquisition import DiscreteColumns, MixedDomain
+
+        search = request.structure
+        if options.num_restarts is not None:
+            num_restarts = options.num_restarts
+        else:
+            num_restarts = min(DEFAULT_RESTARTS, options.raw_samples or DEFAULT_RESTARTS)
+        spec_dim = Z.shape[1] - 1
+        domain = MixedDomain(
+            used=search.used if search is not None else np.ones((1, spec_dim), dtype=bool),
+            pad=search.pad if search is not None else 0.5,
+            discrete=DiscreteColumns(request.box, bounds[0], bounds[1] - bounds[0])
+            if request.box is not None
+            else None,
+        )
+        pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
+        return cls(
+            domain=domain,
+            raw_count=options.raw_samples or max(default_raw, num_restarts),
+            num_restarts=num_restarts,
+            maxiter=options.maxiter,
+            incumbents=incumbents,
+            pending_Z=pending_Z,
+            taken=None if request.noisy else np.concatenate([Z, pending_Z]),
+            tkw=tkw,
+            deadline=deadline,
+            n_incumbents=n_incumbents,
+        )
+
+    def run(
+        self, q: int, seed: int, acquisition_at: Callable[[int, torch.Tensor | None], Step]
+    ) -> Found:
+        """Up to q candidates (fewer past the deadline); ``acquisition_at(step_seed,
+        pending)`` gives each step's acquisition."""
+        import torch
+
+        from adservice.proposers.acquisition import maximise, past
+
+        found = Found(chosen=[], methods=[], values=[], switched=0)
+        switched = 0
+        for step in range(q):
+            if step and past(self.deadline):
+                break
+            step_seed = derived_seed(seed, step)
+            new = [z[None, :] for z in found.chosen]
+            batch_pending = np.concatenate([self.pending_Z, *new])
+            pending_t = torch.as_tensor(batch_pending, **self.tkw) if len(batch_pending) else None
+            current = acquisition_at(step_seed, pending_t)
+            optimum = maximise(
+                current.acqf,
+                self.domain,
+                raw_count=self.raw_count,
+                num_restarts=self.num_restarts,
+                maxiter=self.maxiter,
+                seed=step_seed,
+                incumbents=self.incumbents,
+                tkw=self.tkw,
+                deadline=self.deadline,
+                taken=None if self.taken is None else np.concatenate([self.taken, *new]),
+                screen=current.screen,
+                n_incumbents=self.n_incumbents,
+            )
+            found.chosen.append(optimum.z)
+            found.methods.append(current.method)
+            found.values.append(optimum.value)
+            switched += optimum.structures_switched
+        return Found(found.chosen, found.methods, found.values, switched)
+
+    def rows(
+        self,
+        found: Found,
+        request: ProposalRequest,
+        bounds: np.ndarray,
+        model: Any,
+        extra: dict[str, Any],
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """The candidates as search vectors, and ``extra`` with what every model phase
+        records (``model``: the GP whose structure kernel is reported)."""
+        from adservice.proposers.acquisition import past
+        from adservice.proposers.gpmodel import structure_correlation, structure_lengthscale
+
+        search = request.structure
+        rows_np = search_vectors(np.array(found.chosen), bounds, search)
+        if not np.all(np.isfinite(rows_np)):
+            raise FloatingPointError("non-finite candidates from the acquisition optimiser")
+        value = found.values[0]
+        extra.update(
+            methods=found.methods,
+            log_acq_value=value if np.isfinite(value) else None,
+            num_restarts=self.num_restarts,
+            raw_samples=self.raw_count,
+            device=self.tkw["device"].type,
+        )
+        if past(self.deadline):
+            extra.update(budget="time", budget_seconds=request.seconds)
+        if search is not None and search.n_structures > 1:
+            extra["structure_lengthscale"] = structure_lengthscale(model)
+            extra["structure_correlation"] = structure_correlation(model, search, self.tkw)
+            extra["structures_switched"] = found.switched
+        return rows_np, extra
