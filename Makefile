@@ -24,7 +24,7 @@ demo: install
 test: install
 	# Debian's chromium and postgresql, once, before any test process starts.
 	$(BIN)/python tests/system_packages.py
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q --durations=30
 
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser and not postgres"
