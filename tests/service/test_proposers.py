@@ -455,3 +455,33 @@ def test_qei_through_http_spreads_batches_and_reports_its_method(
     assert batches[1][0]["info"]["n_pending"] == 4
     vectors = np.array([t["vector"] for batch in batches for t in batch])
     assert min_pairwise_distance(vectors) > 1e-3
+
+
+def test_the_acquisition_search_answers_a_fresh_point_when_every_search_ends_taken() -> None:
+    """An acquisition whose one maximum is an observed point: every local search climbs
+    there, so the answer is the best raw sample that is not taken (before, the taken
+    point itself, which qei then replaced by a Sobol fallback)."""
+    import torch
+
+    from adservice.proposers.acquisition import MixedDomain, maximise
+
+    peak = np.array([0.0, 0.25, 0.75, 0.5])  # [structure index, three specs]
+    target = torch.as_tensor(peak[1:])
+
+    def acquisition(Z: torch.Tensor) -> torch.Tensor:
+        return -((Z.squeeze(-2)[..., 1:] - target) ** 2).sum(dim=-1)
+
+    optimum = maximise(
+        acquisition,
+        MixedDomain(used=np.ones((1, 3), dtype=bool), pad=0.5),
+        raw_count=256,
+        num_restarts=4,
+        maxiter=50,
+        seed=0,
+        incumbents=peak[None, :],
+        tkw={"dtype": torch.float64, "device": torch.device("cpu")},
+        taken=peak[None, :],
+    )
+    distance = np.max(np.abs(optimum.z - peak))
+    assert 1e-6 < distance < 0.2
+    assert optimum.value == pytest.approx(-float(np.sum((optimum.z[1:] - peak[1:]) ** 2)))
