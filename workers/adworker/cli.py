@@ -25,7 +25,7 @@ from pathlib import Path
 
 import typer
 
-from adclient.cli import CA_BUNDLE_OPTION
+from adclient.cli.common import CA_BUNDLE_OPTION
 from adclient.devices import LEARNER_DEVICE_VARIABLE, device_problem
 from adworker.worker import (
     EXIT_SETUP,

@@ -1,0 +1,266 @@
+"""What every ``adclient`` command shares: the Typer app and its callback (server, token,
+CA bundle), the console helpers, ``fail``, the one-line messages for SDK errors
+(``friendly``), the study and trial scopes, and the tables of trials."""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn, TypeVar
+
+import typer
+from pydantic import BaseModel
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from adclient import __version__
+from adclient.client import Client
+from adclient.errors import (
+    ApiError,
+    Conflict,
+    Forbidden,
+    Invalid,
+    NotFound,
+    PayloadTooLarge,
+    Unauthorized,
+    Unavailable,
+)
+from adclient.schemas import Study, Trial
+
+DEFAULT_SERVER = "http://127.0.0.1:8000"
+CLI_RETRIES = 3
+"""Fewer retries than the SDK's default: a person is waiting for the answer."""
+
+app = typer.Typer(
+    name="adclient",
+    help="Submit and follow activedesign studies; ask and tell trials by hand.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+CA_BUNDLE_OPTION = typer.Option(
+    None,
+    "--ca-bundle",
+    envvar="AD_CA_BUNDLE",
+    exists=True,
+    dir_okay=False,
+    help="CA certificates (PEM) to check an https server against.",
+)
+"""Shared with ``adworker``."""
+
+
+@dataclass
+class Settings:
+    server: str
+    token: str | None
+    ca_bundle: str | None = None
+
+    def client(self) -> Client:
+        verify = self.ca_bundle or True
+        return Client(self.server, self.token, retries=CLI_RETRIES, backoff=0.1, verify=verify)
+
+
+def get_settings(ctx: typer.Context) -> Settings:
+    settings = ctx.find_object(Settings)
+    if settings is None:  # pragma: no cover - the callback always sets it
+        settings = Settings(DEFAULT_SERVER, None)
+    return settings
+
+
+def stdout_console() -> Console:
+    return Console(highlight=False, soft_wrap=False)
+
+
+def stderr_console() -> Console:
+    return Console(stderr=True, highlight=False)
+
+
+def fail(message: str, code: int = 1) -> NoReturn:
+    """End the command with one line on stderr."""
+    stderr_console().print(f"[bold red]error:[/] {escape(message)}", markup=True, highlight=False)
+    raise typer.Exit(code)
+
+
+def api_error_message(exc: ApiError, server: str) -> str:
+    if isinstance(exc, Unavailable):
+        if exc.status_code is None and exc.code == "unreachable":
+            return f"cannot reach server at {server}"
+        if exc.status_code is None:
+            return f"no answer from server at {server}"
+        return f"server at {server} is unavailable: {exc.message} (HTTP {exc.status_code})"
+    if isinstance(exc, Unauthorized):
+        return f"unauthorized: {exc.message} (give a token with --token or AD_TOKEN)"
+    if isinstance(exc, Forbidden):
+        return f"forbidden: {exc.message}"
+    if isinstance(exc, Invalid):
+        return f"invalid request: {exc.message}"
+    if isinstance(exc, Conflict):
+        return f"conflict: {exc.message}"
+    if isinstance(exc, PayloadTooLarge):
+        return f"too large: {exc.message}"
+    if isinstance(exc, NotFound):
+        return f"not found: {exc.message}"
+    return str(exc)
+
+
+def friendly(func: F) -> F:
+    """Turn SDK errors into a one-line message and exit status 1.
+
+    The wrapped command takes the ``typer.Context`` (for the server URL in messages).
+    """
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        ctx = next((arg for arg in (*args, *kwargs.values()) if hasattr(arg, "find_object")), None)
+        server = get_settings(ctx).server if ctx is not None else DEFAULT_SERVER
+        try:
+            return func(*args, **kwargs)
+        except ApiError as exc:
+            fail(api_error_message(exc, server))
+        except KeyboardInterrupt:
+            stderr_console().print("interrupted")
+            raise typer.Exit(130) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+@contextmanager
+def study_scope(study_id: int) -> Iterator[None]:
+    """Name the study in a 404 ('study 7 not found') rather than echo the server."""
+    try:
+        yield
+    except NotFound:
+        fail(f"study {study_id} not found")
+
+
+@contextmanager
+def trial_scope(trial_id: int) -> Iterator[None]:
+    try:
+        yield
+    except NotFound:
+        fail(f"trial {trial_id} not found")
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"adclient {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    ctx: typer.Context,
+    server: str = typer.Option(
+        DEFAULT_SERVER, "--server", "-s", envvar="AD_SERVER_URL", help="Server base URL."
+    ),
+    token: str | None = typer.Option(
+        None, "--token", envvar="AD_TOKEN", help="Bearer token.", show_default=False
+    ),
+    ca_bundle: Path | None = CA_BUNDLE_OPTION,
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version."
+    ),
+) -> None:
+    ctx.obj = Settings(server.rstrip("/"), token or None, str(ca_bundle) if ca_bundle else None)
+
+
+# -- formatting ------------------------------------------------------------------------
+
+
+def number_text(value: float | None) -> str:
+    return "" if value is None else f"{value:.6g}"
+
+
+def compact_text(value: Any, limit: int = 80) -> str:
+    if isinstance(value, float):
+        text = f"{value:.6g}"
+    elif isinstance(value, dict):
+        text = ", ".join(f"{key}={compact_text(item, limit)}" for key, item in value.items())
+    elif isinstance(value, str):
+        text = value
+    else:
+        text = json.dumps(value, separators=(",", ":"), default=str)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def print_json(value: Any) -> None:
+    data: Any
+    if isinstance(value, BaseModel):
+        data = value.model_dump(mode="json")
+    elif isinstance(value, list):
+        data = [item.model_dump(mode="json") for item in value]
+    else:
+        data = value
+    sys.stdout.write(json.dumps(data, indent=2) + "\n")
+
+
+def _state_text(trial: Trial) -> str:
+    """The state, and whether the study's owner handed the trial over (enqueued, or an
+    evaluation added) rather than its proposer making it."""
+    source = trial.info.get("source")
+    return (
+        f"{trial.state.value} ({source})" if source in ("enqueued", "added") else trial.state.value
+    )
+
+
+def trial_table(trials: list[Trial], title: str | None = None) -> Table:
+    table = Table(title=title)
+    for column in ("#", "id", "state", "value", "worker", "attempts", "params"):
+        table.add_column(column, justify="right" if column in {"#", "id", "value"} else "left")
+    for trial in trials:
+        table.add_row(
+            str(trial.number),
+            str(trial.id),
+            _state_text(trial),
+            outcome_text(trial),
+            escape(trial.worker_id or ""),
+            str(trial.attempts),
+            escape(compact_text(trial.params, 100)),
+        )
+    return table
+
+
+def outcome_text(trial: Trial) -> str:
+    """A trial's value, or its values (``0.41, 2.3``), marked when it breaks a
+    constraint."""
+    text = (
+        ", ".join(number_text(v) for v in trial.values)
+        if trial.values
+        else number_text(trial.value)
+    )
+    return f"{text} [red](infeasible)[/red]" if trial.feasible is False else text
+
+
+def print_best(out: Console, trial: Trial) -> None:
+    out.print(f"best trial #{trial.number} (id {trial.id}): value {number_text(trial.value)}")
+    out.print(_best_table(trial))
+
+
+def _best_table(trial: Trial) -> Table:
+    table = Table()
+    table.add_column("param")
+    table.add_column("value", overflow="fold")
+    for name, value in trial.params.items():
+        table.add_row(escape(name), escape(compact_text(value, 200)))
+    for name, value in trial.metrics.items():
+        table.add_row(f"metric {name}", number_text(value))
+    return table
+
+
+def front_table(info: Study, trials: list[Trial]) -> Table:
+    """A study's Pareto front (``trials``) under a title naming its objectives."""
+    names = ", ".join(
+        f"{name} ({direction.value[:3]})"
+        for name, direction in zip(info.objective_names, info.directions, strict=True)
+    )
+    title = f"study {info.id}: {len(trials)} trials on the Pareto front of {names}"
+    return trial_table(trials, title=title)

@@ -1,0 +1,222 @@
+"""``adclient submit``, ``studies`` and ``status``: create a study, follow it, list
+the studies and show one."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import typer
+import yaml
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from adclient.cli.common import (
+    app,
+    compact_text,
+    fail,
+    friendly,
+    front_table,
+    get_settings,
+    number_text,
+    print_best,
+    print_json,
+    stderr_console,
+    stdout_console,
+    study_scope,
+)
+from adclient.client import StudyHandle
+from adclient.schemas import BoxSpace, Study
+
+
+def _when(value: Any) -> str:
+    return "" if value is None else value.strftime("%Y-%m-%d %H:%M:%S")
+
+
+def _space_text(space: Any) -> str:
+    """A box's params with their types and ranges (``n int [1, 64] log``, ``act in relu,
+    tanh``); a design space by its type alone."""
+    if not isinstance(space, BoxSpace):
+        return str(space.type)
+    parts = []
+    for param in space.params:
+        if param.type == "categorical":
+            choices = ", ".join(compact_text(choice) for choice in param.choices or [])
+            parts.append(f"{param.name} in {{{choices}}}")
+            continue
+        text = f"{param.name} {param.type} [{compact_text(param.low)}, {compact_text(param.high)}]"
+        text += " log" if param.log else ""
+        text += f" step {compact_text(param.step)}" if param.step is not None else ""
+        parts.append(text)
+    return "box: " + "; ".join(parts)
+
+
+def _status_table(info: Study, dashboard: str) -> Table:
+    table = Table(title=f"study {info.id}: {escape(info.name)}", show_header=False)
+    table.add_column("field", style="bold")
+    table.add_column("value", overflow="fold")
+    budget = f"/{info.max_trials}" if info.max_trials is not None else ""
+    rows = [
+        ("state", info.state.value),
+        ("direction", info.direction.value),
+        ("managed", "yes" if info.managed else "no"),
+        ("space", _space_text(info.space)),
+        ("proposer", info.proposer.name),
+        ("pruner", info.pruner.name),
+        ("task", info.task.name if info.task is not None else ""),
+        ("trials", f"{info.n_trials}{budget}"),
+        ("queued", str(info.n_queued)),
+        ("running", str(info.n_running)),
+        ("complete", str(info.n_complete)),
+        ("failed", str(info.n_failed)),
+        ("pruned", str(info.n_pruned)),
+        ("paused", str(info.n_paused)),
+        ("best value", number_text(info.best_value)),
+        ("best trial", "" if info.best_trial_id is None else str(info.best_trial_id)),
+        ("created", _when(info.created_at)),
+        ("updated", _when(info.updated_at)),
+        ("dashboard", dashboard),
+        *((f"user attr {key}", compact_text(value, 200)) for key, value in info.user_attrs.items()),
+    ]
+    for field, value in rows:
+        table.add_row(escape(field), escape(value))
+    return table
+
+
+def _read_study_file(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        fail(f"cannot read {path}: {exc.strerror or exc}")
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (ValueError, yaml.YAMLError) as exc:
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        fail(f"cannot parse {path}: {first_line}")
+    if not isinstance(data, dict):
+        fail(f"{path} must hold a mapping with a study body (name, space, ...)")
+    return data
+
+
+@app.command()
+@friendly
+def submit(
+    ctx: typer.Context,
+    study_file: Path = typer.Argument(..., help="YAML or JSON file with a study body."),
+    wait: bool = typer.Option(False, "--wait", "-w", help="Follow the study until it finishes."),
+    poll: float = typer.Option(2.0, "--poll", min=0.01, help="Seconds between polls with --wait."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the study id."),
+) -> None:
+    """Create a study from STUDY_FILE; print its id and dashboard URL."""
+    body = _read_study_file(study_file)
+    settings = get_settings(ctx)
+    with settings.client() as client:
+        study = client.create_study(body)
+        info = study.cached_info
+        if quiet:
+            typer.echo(str(study.id))
+        else:
+            out = stdout_console()
+            out.print(f"study {study.id} created: {escape(info.name)}")
+            out.print(f"dashboard: {study.dashboard_url}")
+        if not wait:
+            return
+        info = _follow(study, poll)
+        if quiet:
+            return
+        out = stdout_console()
+        out.print(
+            f"study {study.id} {info.state.value}: {info.n_complete} complete, "
+            f"{info.n_failed} failed, {info.n_pruned} pruned"
+        )
+        if len(info.directions) > 1:  # no single best trial: the front, as `pareto` shows it
+            front = study.best_trials
+            out.print(front_table(info, front) if front else "no complete trial")
+            return
+        best = study.best_trial
+        if best is None:
+            out.print("no complete trial")
+        else:
+            print_best(out, best)
+
+
+def _follow(study: StudyHandle, poll: float) -> Study:
+    """Poll with a progress bar of finished trials until the study is finished."""
+    info = study.cached_info
+    with Progress(
+        TextColumn(f"study {study.id}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("best {task.fields[best]}"),
+        TimeElapsedColumn(),
+        console=stderr_console(),
+        transient=False,
+    ) as progress:
+        bar = progress.add_task("trials", total=info.max_trials, completed=0, best="-")
+
+        def update(current: Study) -> None:
+            progress.update(
+                bar,
+                completed=current.n_complete + current.n_failed + current.n_pruned,
+                total=current.max_trials,
+                best=number_text(current.best_value) or "-",
+            )
+
+        try:
+            return study.wait(poll=poll, on_update=update)
+        except KeyboardInterrupt:
+            progress.stop()
+            stderr_console().print(f"stopped waiting; study {study.id} keeps running")
+            raise typer.Exit(130) from None
+
+
+@app.command()
+@friendly
+def studies(
+    ctx: typer.Context,
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """List the studies."""
+    with get_settings(ctx).client() as client:
+        items = client.studies()
+    if as_json:
+        print_json(items)
+        return
+    table = Table(title="studies")
+    columns = ("id", "name", "direction", "state", "trials", "complete", "failed", "pruned")
+    for column in (*columns, "best"):
+        left = column in {"name", "direction", "state"}
+        table.add_column(column, justify="left" if left else "right")
+    for info in items:
+        budget = f"/{info.max_trials}" if info.max_trials is not None else ""
+        table.add_row(
+            str(info.id),
+            escape(info.name),
+            info.direction.value,
+            info.state.value,
+            f"{info.n_trials}{budget}",
+            str(info.n_complete),
+            str(info.n_failed),
+            str(info.n_pruned),
+            number_text(info.best_value),
+        )
+    stdout_console().print(table)
+
+
+@app.command()
+@friendly
+def status(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Show one study: state, trial counts, best value."""
+    with get_settings(ctx).client() as client, study_scope(study_id):
+        info = client.study_info(study_id)
+        dashboard = client.dashboard_url(study_id)
+    if as_json:
+        print_json(info)
+        return
+    stdout_console().print(_status_table(info, dashboard))
