@@ -1,0 +1,182 @@
+"""The HTTP contract: every request and response body of the v1 API.
+
+These pydantic models are the one source of truth shared by the server (which
+validates and serialises with them) and by the SDK and workers (which parse with
+them). Fields may be added; the paths, names and codes of v1 stay.
+
+What every body shares (limits, states, checks of free JSON) is in ``common``; the
+search space in ``space``; proposer and task configuration in ``config``; the bodies of
+``studies``, ``trials``, ``workers`` (leases, jobs, artifacts), ``auth`` and ``errors``
+in their modules. Import from this package: its names are the contract.
+"""
+
+from __future__ import annotations
+
+# What the single module this package replaced had in its namespace by importing it;
+# kept importable from here (not part of ``__all__``).
+import json as json
+import math as math
+import unicodedata as unicodedata
+from datetime import datetime as datetime
+from enum import StrEnum as StrEnum
+from typing import Annotated as Annotated
+from typing import Any as Any
+from typing import Literal as Literal
+
+from pydantic import AfterValidator as AfterValidator
+from pydantic import BaseModel as BaseModel
+from pydantic import ConfigDict as ConfigDict
+from pydantic import Discriminator as Discriminator
+from pydantic import Field as Field
+from pydantic import GetJsonSchemaHandler as GetJsonSchemaHandler
+from pydantic import SerializerFunctionWrapHandler as SerializerFunctionWrapHandler
+from pydantic import Tag as Tag
+from pydantic import ValidationError as ValidationError
+from pydantic import ValidationInfo as ValidationInfo
+from pydantic import field_validator as field_validator
+from pydantic import model_serializer as model_serializer
+from pydantic import model_validator as model_validator
+from pydantic.json_schema import JsonSchemaValue as JsonSchemaValue
+from pydantic_core import CoreSchema as CoreSchema
+
+from adclient.design import DesignSpace, Representation
+from adclient.objectives import (
+    MAX_CONSTRAINTS,
+    MAX_OBJECTIVES,
+    Constraint,
+    Direction,
+    Objective,
+    Outcomes,
+    outcomes_of,
+)
+from adclient.plugins import PluginError, catalogue
+from adclient.pruning import Checkpoint, PrunerConfig
+from adclient.schemas.auth import SessionInfo, SignInRequest
+from adclient.schemas.common import (
+    CUT_JSON,
+    MAX_ASK,
+    MAX_JSON_BYTES,
+    MAX_JSON_DEPTH,
+    MAX_STUDY_NAME,
+    MAX_TRIAL_PAGE,
+    MAX_USER_ATTR_KEY,
+    MAX_USER_ATTRS_BYTES,
+    NAME_PATTERN,
+    NO_NUL_PATTERN,
+    JsonObject,
+    StoredJsonObject,
+    StudyName,
+    StudyState,
+    TrialState,
+    UserAttrs,
+    bounded_user_attrs,
+    study_name,
+)
+from adclient.schemas.config import (
+    LearnerInfo,
+    NewProposerConfig,
+    NewTaskConfig,
+    ProposerConfig,
+    TaskConfig,
+    TaskInfo,
+    option_problems,
+)
+from adclient.schemas.errors import ErrorBody
+from adclient.schemas.space import MAX_CHOICES, MAX_STEPS, BoxParam, BoxSpace, Choice, Space
+from adclient.schemas.studies import ObjectiveName, Study, StudyCreate, StudyUpdate
+from adclient.schemas.trials import (
+    MAX_TRIALS_ADDED,
+    AskRequest,
+    AskResponse,
+    StudyCurves,
+    TellRequest,
+    Trial,
+    TrialAdd,
+    TrialAddBody,
+    TrialAdds,
+    TrialColumns,
+    TrialCurve,
+    TrialUpdate,
+)
+from adclient.schemas.workers import (
+    ArtifactInfo,
+    HeartbeatRequest,
+    HeartbeatResponse,
+    Job,
+    LeaseRequest,
+    ReleaseRequest,
+    WorkerInfo,
+)
+
+__all__ = [
+    "CUT_JSON",
+    "MAX_ASK",
+    "MAX_CHOICES",
+    "MAX_CONSTRAINTS",
+    "MAX_JSON_BYTES",
+    "MAX_JSON_DEPTH",
+    "MAX_OBJECTIVES",
+    "MAX_STEPS",
+    "MAX_STUDY_NAME",
+    "MAX_TRIALS_ADDED",
+    "MAX_TRIAL_PAGE",
+    "MAX_USER_ATTRS_BYTES",
+    "MAX_USER_ATTR_KEY",
+    "NAME_PATTERN",
+    "NO_NUL_PATTERN",
+    "ArtifactInfo",
+    "AskRequest",
+    "AskResponse",
+    "BoxParam",
+    "BoxSpace",
+    "Checkpoint",
+    "Choice",
+    "Constraint",
+    "DesignSpace",
+    "Direction",
+    "ErrorBody",
+    "HeartbeatRequest",
+    "HeartbeatResponse",
+    "Job",
+    "JsonObject",
+    "LearnerInfo",
+    "LeaseRequest",
+    "NewProposerConfig",
+    "NewTaskConfig",
+    "Objective",
+    "ObjectiveName",
+    "Outcomes",
+    "PluginError",
+    "ProposerConfig",
+    "PrunerConfig",
+    "ReleaseRequest",
+    "Representation",
+    "SessionInfo",
+    "SignInRequest",
+    "Space",
+    "StoredJsonObject",
+    "Study",
+    "StudyCreate",
+    "StudyCurves",
+    "StudyName",
+    "StudyState",
+    "StudyUpdate",
+    "TaskConfig",
+    "TaskInfo",
+    "TellRequest",
+    "Trial",
+    "TrialAdd",
+    "TrialAddBody",
+    "TrialAdds",
+    "TrialColumns",
+    "TrialCurve",
+    "TrialState",
+    "TrialUpdate",
+    "UserAttrs",
+    "WorkerInfo",
+    "bounded_user_attrs",
+    "catalogue",
+    "option_problems",
+    "outcomes_of",
+    "study_name",
+]

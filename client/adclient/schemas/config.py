@@ -1,0 +1,169 @@
+"""What a study runs: its proposer and its task (as stored, and as a new study
+checks them), and the installed tasks and learners they may name."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import (
+    BaseModel,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
+
+from adclient.plugins import PluginError, catalogue
+from adclient.schemas.common import NAME_PATTERN, JsonObject, StoredJsonObject, Strict, plain_text
+
+
+class ProposerConfig(Strict):
+    """Which proposer suggests new vectors, and how it starts."""
+
+    name: str = Field(default="qei", pattern=NAME_PATTERN)
+    n_initial: int = Field(default=2, ge=1, le=1000)
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    noisy: bool | None = Field(
+        default=None,
+        description="Model observation noise (qLogNEI). Default: true for managed studies.",
+    )
+    options: StoredJsonObject = Field(default_factory=dict)
+
+    @field_validator("options")
+    @classmethod
+    def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
+        return plain_text(options, "options")
+
+
+class NewProposerConfig(ProposerConfig):
+    """A new study's proposer: its options are bounded (:data:`JsonObject`)."""
+
+    options: JsonObject = Field(default_factory=dict)
+
+
+class TaskConfig(Strict):
+    """What a worker does with a design: the task, the learner and their budgets.
+
+    This is the form a study keeps and a job carries. A new study gives its task as
+    :class:`NewTaskConfig`, which checks more; studies stored before those checks still
+    load through this one (a mistake in them fails each trial in the worker)."""
+
+    external: bool = Field(
+        default=False,
+        description="Run by workers of your own (SDK lease/tell), not adworker: the name, "
+        "learner and options are theirs, unchecked, and any space is allowed",
+    )
+    name: str = Field(pattern=NAME_PATTERN)
+    learner: str = Field(default="fast", pattern=NAME_PATTERN)
+    train_steps: int | None = Field(default=None, ge=0, le=10_000_000)
+    eval_episodes: int = Field(default=3, ge=1, le=100)
+    episode_steps: int | None = Field(default=None, ge=1, le=100_000)
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    options: StoredJsonObject = Field(default_factory=dict)
+
+    @field_validator("options")
+    @classmethod
+    def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
+        return plain_text(options, "options")
+
+
+def option_problems(
+    error: ValidationError, model: type[BaseModel], owner: str, prefix: str = ""
+) -> list[str]:
+    """An options model's errors, each naming its option (after ``prefix``); an unknown
+    key lists the options ``owner`` has. Shared by task options here and the service's
+    check of proposer options."""
+    known = ", ".join(model.model_fields) or "none"
+    problems = []
+    for item in error.errors():
+        message = str(item["msg"]).removeprefix("Value error, ")
+        if item["type"] == "extra_forbidden":
+            message = f"unknown option of {owner} (its options: {known})"
+        where = ".".join([*filter(None, [prefix]), *(str(part) for part in item["loc"])])
+        problems.append(f"{where}: {message}")
+    return problems
+
+
+class NewTaskConfig(TaskConfig):
+    """A new study's task: an installed task and learner (:mod:`adclient.plugins`) and
+    options their models accept, unless the task is ``external``."""
+
+    episode_steps: int | None = Field(default=None, ge=2, le=100_000)
+    options: JsonObject = Field(default_factory=dict)
+
+    @field_validator("name")
+    @classmethod
+    def _installed_task(cls, name: str, info: ValidationInfo) -> str:
+        if not info.data.get("external"):
+            try:
+                catalogue().task(name)
+            except PluginError as error:
+                raise ValueError(
+                    f"{error} (a task that workers of your own serve, such as adworker "
+                    "--function, needs external: true)"
+                ) from None
+        return name
+
+    @field_validator("learner")
+    @classmethod
+    def _installed_learner(cls, learner: str, info: ValidationInfo) -> str:
+        if not info.data.get("external"):
+            try:
+                catalogue().learner(learner)
+            except PluginError as error:
+                raise ValueError(str(error)) from None
+        return learner
+
+    @field_validator("options")
+    @classmethod
+    def _known_options(cls, options: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        plain_text(options, "options", finite=True)
+        task, learner = str(info.data.get("name")), str(info.data.get("learner"))
+        installed = catalogue()
+        if info.data.get("external") or task not in installed.tasks:
+            return options  # the task's own, or the name's error says what is wrong
+        model = installed.tasks[task].options
+        try:
+            parsed = model.model_validate(options)
+        except ValidationError as error:
+            raise ValueError("; ".join(option_problems(error, model, f"task {task!r}"))) from None
+        spec = installed.learners.get(learner)
+        if parsed.learner_kwargs is None or spec is None:
+            return options
+        if spec.options is None:
+            takes = [name for name, other in installed.learners.items() if other.options]
+            raise ValueError(
+                f"learner_kwargs: learner {learner!r} takes none (only {', '.join(takes)} do)"
+            )
+        try:
+            spec.options.model_validate(parsed.learner_kwargs)
+        except ValidationError as error:
+            problems = option_problems(
+                error, spec.options, f"learner {learner!r}", prefix="learner_kwargs"
+            )
+            raise ValueError("; ".join(problems)) from None
+        return options
+
+    def links_looked_up(self) -> list[tuple[str, str]]:
+        """(option, link name) for each link an installed task looks up in the robot."""
+        if self.external:
+            return []
+        return catalogue().task(self.name).options.model_validate(self.options).link_names()
+
+
+class TaskInfo(BaseModel):
+    """An installed task (``GET /api/v1/tasks``): what a study's ``task.name`` may be."""
+
+    name: str
+    description: str
+    options_schema: dict[str, Any] = Field(description="JSON schema of its task.options")
+
+
+class LearnerInfo(BaseModel):
+    """An installed learner (``GET /api/v1/learners``)."""
+
+    name: str
+    description: str
+    options_schema: dict[str, Any] | None = Field(
+        description="JSON schema of task.options.learner_kwargs; null: it takes none"
+    )

@@ -1,0 +1,249 @@
+"""Studies: the body that creates one, a study as answers carry it, and the update
+of its user attributes."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from typing import Annotated, Any
+
+from pydantic import (
+    BaseModel,
+    Field,
+    field_validator,
+    model_validator,
+)
+
+from adclient.design import DesignSpace
+from adclient.objectives import (
+    MAX_CONSTRAINTS,
+    MAX_OBJECTIVES,
+    Constraint,
+    Direction,
+    Objective,
+    Outcomes,
+    outcomes_of,
+)
+from adclient.pruning import PrunerConfig
+from adclient.schemas.common import (
+    NO_NUL_PATTERN,
+    JsonObject,
+    StoredJsonObject,
+    Strict,
+    StudyName,
+    StudyState,
+    UserAttrs,
+    plain_text,
+)
+from adclient.schemas.config import NewProposerConfig, NewTaskConfig, ProposerConfig, TaskConfig
+from adclient.schemas.space import BoxSpace, Space
+
+ObjectiveName = Annotated[str, Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)]
+
+
+class StudyCreate(Strict):
+    name: StudyName
+    direction: Direction = Direction.maximize
+    directions: list[Direction] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=MAX_OBJECTIVES,
+        description="several objectives (a tell gives `values`, one per direction), "
+        "instead of `direction`",
+    )
+    objective_names: list[ObjectiveName] | None = Field(
+        default=None, description="a name per direction (default: value_0, value_1, ...)"
+    )
+    objectives: list[Objective] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=MAX_OBJECTIVES,
+        description="objectives read from a tell's value (`value` or `score`) and metrics "
+        "(a managed study's task metrics, such as `mass`), instead of `direction(s)`",
+    )
+    constraints: list[Constraint] = Field(
+        default_factory=list,
+        min_length=0,
+        max_length=MAX_CONSTRAINTS,
+        description="outcome constraints on told metrics (or objectives by name): a trial "
+        "that breaks one is complete but infeasible",
+    )
+    reference_point: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        default=None,
+        description="the hypervolume reference point of a study of several objectives, in "
+        "the objectives' own units (default: inferred from the trials)",
+    )
+    space: Space
+    proposer: NewProposerConfig = Field(default_factory=NewProposerConfig)
+    pruner: PrunerConfig = Field(default_factory=PrunerConfig)
+    task: NewTaskConfig | None = None
+    max_trials: int | None = Field(default=None, ge=1, le=1_000_000)
+    max_attempts: int = Field(default=3, ge=1, le=100)
+    metadata: JsonObject = Field(default_factory=dict)
+
+    @field_validator("metadata")
+    @classmethod
+    def _metadata_text(cls, metadata: dict[str, Any]) -> dict[str, Any]:
+        return plain_text(metadata, "metadata", finite=True)
+
+    @field_validator("proposer", "task", mode="before")
+    @classmethod
+    def _checked_as_new(cls, value: Any) -> Any:
+        """A ``ProposerConfig`` or ``TaskConfig`` built in Python is checked as a new
+        study's (``NewProposerConfig``, ``NewTaskConfig``)."""
+        if isinstance(value, ProposerConfig | TaskConfig):
+            return value.model_dump(exclude_unset=True)
+        return value
+
+    @field_validator("proposer")
+    @classmethod
+    def _proposer_numbers(cls, proposer: ProposerConfig) -> ProposerConfig:
+        plain_text(proposer.options, "options", finite=True)
+        return proposer
+
+    @field_validator("space")
+    @classmethod
+    def _searchable_widths(cls, space: BoxSpace | DesignSpace) -> BoxSpace | DesignSpace:
+        """Each searched range's width must be a number too (high - low of two huge
+        bounds overflows, and every proposed value would then be the upper bound)."""
+        if isinstance(space, BoxSpace):
+            ranges = [
+                (f"param {p.name!r}", p.low, p.high)
+                for p in space.params
+                if p.low is not None and p.high is not None
+            ]
+        else:
+            names, bounds = space.spec_slots()
+            ranges = [
+                (f"spec {name!r}", low, high)
+                for name, (low, high) in zip(names, bounds, strict=True)
+            ]
+        for what, low, high in ranges:
+            if not math.isfinite(high - low):
+                raise ValueError(
+                    f"{what}: the width high - low ({high} - {low}) overflows; "
+                    "choose bounds closer together"
+                )
+        return space
+
+    @model_validator(mode="after")
+    def _objectives(self) -> StudyCreate:
+        if self.directions is not None and self.objectives is not None:
+            raise ValueError("directions and objectives: give one of them")
+        outcomes = self.outcomes()
+        first = outcomes.directions[0]
+        if "direction" in self.model_fields_set and self.direction != first:
+            several = "directions" if self.directions is not None else "objectives"
+            raise ValueError(
+                f"direction ({self.direction.value}) and {several} (first: {first.value}) "
+                f"disagree: give one of direction and {several}"
+            )
+        if self.objective_names is not None:
+            if self.directions is None:
+                raise ValueError("objective_names: name the objectives of `directions`")
+            if len(self.objective_names) != len(self.directions):
+                raise ValueError(
+                    f"objective_names: {len(self.objective_names)} names for "
+                    f"{len(self.directions)} directions"
+                )
+        if len(set(outcomes.names)) != outcomes.count:
+            raise ValueError(f"objectives: each objective needs its own name, got {outcomes.names}")
+        if self.reference_point is not None:
+            if not outcomes.multi:
+                raise ValueError("reference_point: only a study of several objectives has one")
+            if len(self.reference_point) != outcomes.count:
+                raise ValueError(
+                    f"reference_point: {len(self.reference_point)} numbers for "
+                    f"{outcomes.count} objectives"
+                )
+        if outcomes.multi and self.pruner.name != "none":
+            raise ValueError(
+                f"pruner: {self.pruner.name!r} ranks trials by one value; a study of several "
+                "objectives takes pruner none"
+            )
+        return self
+
+    def outcomes(self) -> Outcomes:
+        """The study's objectives and constraints, as tells are checked against them."""
+        return outcomes_of(
+            direction=self.direction,
+            directions=self.directions,
+            objective_names=self.objective_names,
+            objectives=self.objectives,
+            constraints=self.constraints,
+            reference_point=self.reference_point,
+        )
+
+    @model_validator(mode="after")
+    def _managed_study(self) -> StudyCreate:
+        if self.task is None:
+            return self
+        if self.max_trials is None:
+            raise ValueError("max_trials is required for a study with a task (a managed study)")
+        if self.task.external:
+            return self
+        if not isinstance(self.space, DesignSpace):
+            raise ValueError(
+                f"task {self.task.name!r} builds a robot: it needs a design space "
+                f"(space.type: design), not {self.space.type!r}"
+            )
+        for option, link in self.task.links_looked_up():
+            missing = [
+                index
+                for index, edges in enumerate(self.space.tree_structures())
+                if link not in {name for edge in edges for name in edge}
+            ]
+            if missing:
+                raise ValueError(
+                    f"task {self.task.name!r} looks up link {link!r} (task.options.{option}), "
+                    f"but structures[{missing[0]}] has no link of that name; name the "
+                    f"instances accordingly or set task.options.{option}"
+                )
+        return self
+
+
+class Study(BaseModel):
+    id: int
+    name: str
+    direction: Direction = Field(description="the first objective's direction")
+    directions: list[Direction] = Field(
+        default_factory=list, description="one per objective (empty in answers of old servers)"
+    )
+    objective_names: list[str] = Field(default_factory=list)
+    objectives: list[Objective] | None = Field(
+        default=None, description="where each objective is read from in a tell, if not `values`"
+    )
+    constraints: list[Constraint] = Field(default_factory=list)
+    reference_point: list[float] | None = None
+    state: StudyState
+    managed: bool
+    space: Space
+    proposer: ProposerConfig
+    pruner: PrunerConfig = Field(default_factory=PrunerConfig)
+    task: TaskConfig | None
+    max_trials: int | None
+    max_attempts: int
+    n_trials: int
+    n_queued: int
+    n_running: int
+    n_complete: int
+    n_failed: int
+    n_pruned: int = 0
+    n_paused: int = 0
+    best_value: float | None
+    best_trial_id: int | None
+    metadata: StoredJsonObject
+    user_attrs: StoredJsonObject = Field(
+        default_factory=dict, description="set with PATCH /studies/{id}"
+    )
+    created_by: str | None = Field(
+        default=None, description="the name of the token that created the study (auth on)"
+    )
+    created_at: datetime
+    updated_at: datetime
+
+
+class StudyUpdate(Strict):
+    """``PATCH /studies/{id}``: its user attributes, merged into those it has."""
+
+    user_attrs: UserAttrs

@@ -1,0 +1,86 @@
+"""Workers: leasing a trial, keeping and giving back its lease, the job a worker
+evaluates, the artifacts it uploads, and the workers the server has seen."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any
+
+from pydantic import (
+    BaseModel,
+    Field,
+)
+
+from adclient.design import Representation
+from adclient.pruning import Checkpoint, PrunerConfig
+from adclient.schemas.common import NAME_PATTERN, NO_NUL_PATTERN, Strict
+from adclient.schemas.config import TaskConfig
+from adclient.schemas.space import Space
+
+
+class LeaseRequest(Strict):
+    worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
+    tasks: list[Annotated[str, Field(pattern=NAME_PATTERN)]] | None = Field(
+        default=None,
+        max_length=256,
+        description="lease only trials of studies whose task has one of these names "
+        "(the tasks this worker can run); none: any task",
+    )
+
+
+class HeartbeatRequest(Strict):
+    worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
+
+
+class ReleaseRequest(Strict):
+    """The lease holder giving a trial back to the queue (``POST /trials/{id}/release``);
+    an admin may name no worker, to take back a trial whatever holds it."""
+
+    worker_id: str | None = Field(
+        default=None, min_length=1, max_length=128, pattern=NO_NUL_PATTERN
+    )
+
+
+class HeartbeatResponse(BaseModel):
+    trial_id: int
+    lease_expires_at: datetime
+
+
+class Job(BaseModel):
+    """Everything a stateless worker needs to evaluate one trial."""
+
+    trial_id: int
+    study_id: int
+    number: int
+    attempt: int
+    vector: list[float]
+    params: dict[str, Any]
+    task: TaskConfig
+    space: Space
+    representation: Representation | None
+    lease_expires_at: datetime
+    pruner: PrunerConfig = Field(
+        default_factory=PrunerConfig,
+        description="the study's pruner: with one, adworker evaluates and reports while "
+        "it trains (every pruner.report_every steps) and stops when told",
+    )
+    resume: Checkpoint | None = Field(
+        default=None,
+        description="a promoted trial: download this checkpoint artifact and train on from "
+        "its step to the budget instead of starting over",
+    )
+
+
+class ArtifactInfo(BaseModel):
+    name: str
+    size: int
+    content_type: str
+    created_at: datetime
+
+
+class WorkerInfo(BaseModel):
+    worker_id: str
+    last_seen_at: datetime
+    current_trial_id: int | None
+    jobs_done: int
+    jobs_failed: int
