@@ -12,33 +12,6 @@ in their modules. Import from this package: its names are the contract.
 
 from __future__ import annotations
 
-# What the single module this package replaced had in its namespace by importing it;
-# kept importable from here (not part of ``__all__``).
-import json as json
-import math as math
-import unicodedata as unicodedata
-from datetime import datetime as datetime
-from enum import StrEnum as StrEnum
-from typing import Annotated as Annotated
-from typing import Any as Any
-from typing import Literal as Literal
-
-from pydantic import AfterValidator as AfterValidator
-from pydantic import BaseModel as BaseModel
-from pydantic import ConfigDict as ConfigDict
-from pydantic import Discriminator as Discriminator
-from pydantic import Field as Field
-from pydantic import GetJsonSchemaHandler as GetJsonSchemaHandler
-from pydantic import SerializerFunctionWrapHandler as SerializerFunctionWrapHandler
-from pydantic import Tag as Tag
-from pydantic import ValidationError as ValidationError
-from pydantic import ValidationInfo as ValidationInfo
-from pydantic import field_validator as field_validator
-from pydantic import model_serializer as model_serializer
-from pydantic import model_validator as model_validator
-from pydantic.json_schema import JsonSchemaValue as JsonSchemaValue
-from pydantic_core import CoreSchema as CoreSchema
-
 from adclient.design import DesignSpace, Representation
 from adclient.objectives import (
     MAX_CONSTRAINTS,
