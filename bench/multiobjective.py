@@ -163,6 +163,8 @@ def run_robot(
         ]
         try:
             while http.get(f"/api/v1/studies/{study_id}").json()["state"] != "complete":
+                if all(worker.process.poll() is not None for worker in workers):
+                    raise RuntimeError(f"every adworker exited:\n{workers[0].log()[-2000:]}")
                 time.sleep(1.0)
         finally:
             for worker in workers:

@@ -20,8 +20,8 @@ of the next, as BoTorch's sequential greedy optimisation does), maximised by
   feasibility, with the pending points as Kriging believers. Each greedy step is one
   candidate and the GPs are independent, so the expectation that qLogNEHVI estimates
   by Monte Carlo over draws of the candidate has a closed form, whose cost does not
-  grow with draws: at n = 80 observations of DTLZ2 (a front of 36, d = 6) an ask took
-  0.8 s of CPU against 22 s for qLogNEHVI (bench/mo_asklatency.py). What it gives up:
+  grow with draws: at n = 80 observations of DTLZ2 (a front of 38, d = 6) an ask took
+  0.43 s of CPU against 24 s for qLogNEHVI (bench/mo_asklatency.py). What it gives up:
   the front is the observations (for a noisy study, the posterior means at them), not
   integrated over their noise as qLogNEHVI's, and pending points are believed at
   their means rather than drawn jointly.
