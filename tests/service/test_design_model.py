@@ -309,8 +309,8 @@ def test_many_structures_are_searched_by_alternating_steps() -> None:
     representation = build_representation(space)
     search = search_structure(space, representation)
     assert search is not None and search.n_structures == 125
-    X = random_vectors(representation, 12, seed=6)
-    y = np.random.default_rng(6).random(12)
+    X = random_vectors(representation, 20, seed=6)
+    y = np.random.default_rng(6).random(20)
     proposal = get_proposer("qei").propose(design_request(representation, search, X, y, count=2))
     check_candidates(space, representation, search, proposal.candidates)
     assert proposal.info[0]["num_restarts"] >= 1

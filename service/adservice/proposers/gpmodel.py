@@ -46,7 +46,7 @@ from gpytorch.priors import LogNormalPrior
 from linear_operator.utils.warnings import NumericalWarning
 
 from adservice.proposers.acquisition import OutOfTime, past
-from adservice.proposers.base import SearchStructure
+from adservice.proposers.base import AxisColumns, SearchStructure
 
 STRUCTURE_LENGTHSCALE_PRIOR = (math.log(0.5), 1.0)
 """(loc, scale) of the structure length scale's log-normal prior: structure distances
@@ -72,7 +72,12 @@ warnings.filterwarnings("ignore", category=NumericalWarning)
 
 
 class SpecFeatures:
-    """u -> the spec kernel's features, and which length-scale group each one has."""
+    """u -> the spec kernel's features, and which length-scale group each one has.
+
+    The features are plain specs, then the axes that keep their sign (3 each), then
+    the sign-invariant ones (6 each), then the categories' one-hot vectors; every axis
+    is computed at once (a few tensor operations whatever their number: the fit and
+    the acquisition differentiate through them hundreds of times an ask)."""
 
     def __init__(
         self,
@@ -87,42 +92,80 @@ class SpecFeatures:
         skip = on_axis | {column for column, _ in self.categories}
         self.plain = [k for k in range(spec_dim) if k not in skip]
         self.axes = axes
-        self.scales: dict[int, tuple[float, float, bool]] = {}
-        if search is not None:  # an axis's angles, to turn their slots back into radians
-            for column in sorted(on_axis):
-                start, width = search.scale(column)
-                self.scales[column] = (start, width, search.is_log(column))
+        self.angles = [
+            self._angle_table(search, axes, "theta"),
+            self._angle_table(search, axes, "phi"),
+        ]
+        self.invariant = torch.as_tensor([axis.sign_invariant for axis in axes], dtype=torch.bool)
         groups = list(range(len(self.plain)))
-        for number, axis in enumerate(axes):
-            groups += [len(self.plain) + number] * (6 if axis.sign_invariant else 3)
+        for sign_invariant in (False, True):
+            for number, axis in enumerate(axes):
+                if axis.sign_invariant == sign_invariant:
+                    groups += [len(self.plain) + number] * (6 if sign_invariant else 3)
         for number, (_, count) in enumerate(self.categories):
             groups += [len(self.plain) + len(axes) + number] * count
         self.n_groups = len(self.plain) + len(axes) + len(self.categories)
         self.group_index = torch.as_tensor(groups, dtype=torch.long)
 
-    def _angle(self, u: torch.Tensor, column: int, fixed: float) -> torch.Tensor:
-        """An axis angle in radians: a fixed one, or its slot denormalised (a log-scaled
-        angle, ``{low, high, log: true}``, through exp)."""
-        if column < 0:
-            return torch.full_like(u[..., 0], fixed)
-        start, width, log = self.scales[column]
-        angle = start + u[..., column] * width
-        return torch.exp(angle) if log else angle
+    @staticmethod
+    def _angle_table(
+        search: SearchStructure | None, axes: tuple[AxisColumns, ...], which: str
+    ) -> tuple[torch.Tensor, ...]:
+        """Per axis: the slot of its angle (clamped to 0 when fixed), whether it is
+        searched, its fixed value, the slot's start and width in radians, whether it
+        is log-scaled (``{low, high, log: true}``: the angle is exp of the value)."""
+        columns = [getattr(axis, which) for axis in axes]
+        scales = [
+            (*search.scale(c), search.is_log(c))
+            if search is not None and c >= 0
+            else (0.0, 0.0, False)
+            for c in columns
+        ]
+        return (
+            torch.as_tensor([max(c, 0) for c in columns], dtype=torch.long),
+            torch.as_tensor([c >= 0 for c in columns], dtype=torch.bool),
+            torch.as_tensor(
+                [getattr(axis, f"{which}_fixed") for axis in axes], dtype=torch.float64
+            ),
+            torch.as_tensor([scale[0] for scale in scales], dtype=torch.float64),
+            torch.as_tensor([scale[1] for scale in scales], dtype=torch.float64),
+            torch.as_tensor([scale[2] for scale in scales], dtype=torch.bool),
+        )
+
+    @staticmethod
+    def _angle(u: torch.Tensor, table: tuple[torch.Tensor, ...]) -> torch.Tensor:
+        """Every axis's angle in radians (... x A): fixed, or its slot denormalised."""
+        column, searched, fixed, start, width, log = (t.to(u.device) for t in table)
+        angle = start.to(u.dtype) + u[..., column] * width.to(u.dtype)
+        if bool(log.any()):
+            angle = torch.where(log, torch.exp(angle), angle)
+        return torch.where(searched, angle, fixed.to(u.dtype))
 
     def __call__(self, u: torch.Tensor) -> torch.Tensor:
         parts = [u[..., self.plain]]
-        for axis in self.axes:
-            theta = self._angle(u, axis.theta, axis.theta_fixed)
-            phi = self._angle(u, axis.phi, axis.phi_fixed)
-            x = torch.sin(theta) * torch.cos(phi)
-            y = torch.sin(theta) * torch.sin(phi)
-            z = torch.cos(theta)
-            if axis.sign_invariant:
+        if self.axes:
+            theta, phi = self._angle(u, self.angles[0]), self._angle(u, self.angles[1])
+            sin_theta = torch.sin(theta)
+            x, y, z = sin_theta * torch.cos(phi), sin_theta * torch.sin(phi), torch.cos(theta)
+            invariant = self.invariant.to(u.device)
+            shape = (*u.shape[:-1], -1)
+            if not bool(invariant.all()):
+                keep = ~invariant
+                parts.append(
+                    torch.stack([x[..., keep], y[..., keep], z[..., keep]], -1).reshape(shape) / 2.0
+                )
+            if bool(invariant.any()):
+                xi, yi, zi = x[..., invariant], y[..., invariant], z[..., invariant]
                 root2 = math.sqrt(2.0)
-                line = [x * x, y * y, z * z, root2 * x * y, root2 * x * z, root2 * y * z]
-                parts.append(torch.stack(line, dim=-1) / root2)
-            else:
-                parts.append(torch.stack([x, y, z], dim=-1) / 2.0)
+                line = [
+                    xi * xi,
+                    yi * yi,
+                    zi * zi,
+                    root2 * xi * yi,
+                    root2 * xi * zi,
+                    root2 * yi * zi,
+                ]
+                parts.append(torch.stack(line, -1).reshape(shape) / root2)
         for column, count in self.categories:
             index = (u[..., column] * count - 0.5).round().clamp(0, count - 1).long()
             one_hot = torch.nn.functional.one_hot(index, count).to(u.dtype)
@@ -150,11 +193,18 @@ class SpecKernel(Kernel):
         self.features = features
         self.rbf = rbf
 
-    def embed(self, x: torch.Tensor) -> torch.Tensor:
+    def inputs(self, x: torch.Tensor) -> torch.Tensor:
+        """The spec features of model inputs: free of hyperparameters, so a fit
+        computes them once for its training points."""
+        return self.features(x[..., 1:])
+
+    def scaled(self, features: torch.Tensor) -> torch.Tensor:
         """Features divided by their length scales: the kernel is a function of the
         distance between two embeddings."""
-        scale = self.lengthscale[..., self.features.group_index.to(x.device)]
-        return self.features(x[..., 1:]) / scale
+        return features / self.lengthscale[..., self.features.group_index.to(features.device)]
+
+    def embed(self, x: torch.Tensor) -> torch.Tensor:
+        return self.scaled(self.inputs(x))
 
     def from_embeddings(
         self, e1: torch.Tensor, e2: torch.Tensor, diag: bool = False
@@ -185,9 +235,15 @@ class StructureKernel(Kernel):
         )
         self.register_buffer("coords", coords)
 
+    def inputs(self, x: torch.Tensor) -> torch.Tensor:
+        """The structures' coordinates of model inputs (free of hyperparameters)."""
+        return self.coords[x[..., 0].round().clamp(0, self.coords.shape[0] - 1).long()]
+
+    def scaled(self, coords: torch.Tensor) -> torch.Tensor:
+        return coords / self.lengthscale
+
     def embed(self, x: torch.Tensor) -> torch.Tensor:
-        index = x[..., 0].round().clamp(0, self.coords.shape[0] - 1).long()
-        return self.coords[index] / self.lengthscale
+        return self.scaled(self.inputs(x))
 
     def from_embeddings(
         self, e1: torch.Tensor, e2: torch.Tensor, diag: bool = False
@@ -238,11 +294,23 @@ class DesignKernel(Kernel):
         value = torch.as_tensor(value).to(self.raw_weights)
         self.initialize(raw_weights=self.raw_weights_constraint.inverse_transform(value))
 
-    def embed(self, x: torch.Tensor) -> Embedding:
+    def inputs(self, x: torch.Tensor) -> Embedding:
+        """What ``embed`` scales: the part of the embedding that no hyperparameter
+        changes (``fit_map`` computes it once per fit)."""
         return (
-            self.spec.embed(x),
-            self.structure.embed(x) if self.structure is not None else None,
+            self.spec.inputs(x),
+            self.structure.inputs(x) if self.structure is not None else None,
         )
+
+    def scaled(self, inputs: Embedding) -> Embedding:
+        spec, structure = inputs
+        return (
+            self.spec.scaled(spec),
+            self.structure.scaled(structure) if self.structure is not None else None,
+        )
+
+    def embed(self, x: torch.Tensor) -> Embedding:
+        return self.scaled(self.inputs(x))
 
     def from_embeddings(self, e1: Embedding, e2: Embedding, diag: bool = False) -> torch.Tensor:
         spec = self.spec.from_embeddings(e1[0], e2[0], diag=diag)
@@ -256,7 +324,8 @@ class DesignKernel(Kernel):
     def forward(
         self, x1: torch.Tensor, x2: torch.Tensor, diag: bool = False, **params: object
     ) -> torch.Tensor:
-        return self.from_embeddings(self.embed(x1), self.embed(x2), diag=diag)
+        e1 = self.embed(x1)
+        return self.from_embeddings(e1, e1 if x2 is x1 else self.embed(x2), diag=diag)
 
 
 Embedding = tuple[torch.Tensor, torch.Tensor | None]
@@ -475,6 +544,8 @@ def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) ->
         ]
     )
     train = model.train_inputs[0]
+    kernel = model.covar_module
+    inputs = kernel.inputs(train) if isinstance(kernel, DesignKernel) else None
     targets = model.train_targets
     count = len(targets)
     priors = list(model.named_priors())
@@ -498,9 +569,12 @@ def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) ->
         for tensor in tensors:
             tensor.grad = None
         noise = model.likelihood.noise.reshape(-1)
-        K = model.covar_module.forward(train, train) + torch.diag(
-            noise.expand(count) if noise.numel() == 1 else noise
-        )
+        if inputs is not None:
+            embedded = kernel.scaled(inputs)
+            covariance = kernel.from_embeddings(embedded, embedded)
+        else:
+            covariance = kernel.forward(train, train)
+        K = covariance + torch.diag(noise.expand(count) if noise.numel() == 1 else noise)
         residual = targets - model.mean_module.constant
         factor, info = torch.linalg.cholesky_ex(K)
         if int(info) != 0:

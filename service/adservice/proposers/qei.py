@@ -121,6 +121,7 @@ from adservice.proposers.base import (
     Proposal,
     ProposalRequest,
     ProposerOptions,
+    SearchStructure,
     model_inputs,
     search_vectors,
 )
@@ -138,7 +139,8 @@ _DISTINCT_TOL = 1e-9
 _DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
 _COVERED_CHOICES = 16
-"""The most choices of a categorical param the initial design makes sure to try."""
+"""The most choices of a categorical param, or structures of a design space, the
+initial design makes sure to try."""
 _TORCH_THREADS = get_settings().torch_threads
 _PROPOSER_DEVICE = get_settings().proposer_device
 
@@ -614,24 +616,53 @@ def columns_of(values: np.ndarray, n: int) -> np.ndarray:
 
 def _initial_count(request: ProposalRequest) -> int:
     """``n_initial``, or enough initial points to try every choice of each categorical
-    param (up to ``_COVERED_CHOICES``): the model knows nothing of a choice it never saw
-    and, with the one-hot kernel, expects it to be average, so a study started on two
-    choices of four kept to them (bench/RESULTS.md, issue 16)."""
-    if request.box is None or not request.box.categorical:
-        return request.n_initial
-    most = max(request.box.categorical.values())
+    param and every structure of a design space (up to ``_COVERED_CHOICES`` of each):
+    the model knows nothing of a choice it never saw and, with the one-hot kernel,
+    expects it to be average, so a study started on two choices of four kept to them
+    (bench/RESULTS.md, issue 16); a design study started on two trees of eight kept
+    to the first good one (issue 26)."""
+    most = 0
+    if request.box is not None and request.box.categorical:
+        most = max(request.box.categorical.values())
+    if request.structure is not None:
+        most = max(most, request.structure.n_structures)
     return max(request.n_initial, min(most, _COVERED_CHOICES))
+
+
+def structure_order(search: SearchStructure, seed: int) -> np.ndarray:
+    """The order in which the initial design deals the structures: from a seeded first
+    structure, each next one the farthest (in the fused geometry) from those already
+    dealt, ties broken by a seeded shuffle; so when only some can be covered, they
+    spread over the kinds of tree instead of clustering."""
+    coords = np.asarray(search.structure_coords, dtype=np.float64)
+    count = len(coords)
+    rng = np.random.default_rng([seed, 26])
+    shuffled = rng.permutation(count)
+    order = [int(shuffled[0])]
+    nearest = np.linalg.norm(coords - coords[order[0]], axis=1)
+    for _ in range(count - 1):
+        candidates = shuffled[np.argsort(-nearest[shuffled], kind="stable")]
+        chosen = int(candidates[0])
+        order.append(chosen)
+        nearest = np.minimum(nearest, np.linalg.norm(coords - coords[chosen], axis=1))
+    return np.asarray(order, dtype=np.int64)
 
 
 def _covering_choices(points: np.ndarray, request: ProposalRequest) -> np.ndarray:
     """Initial Sobol points (numbers ``n_issued`` on) with each categorical column dealt
     round-robin through a seeded order of its choices, as design structures are dealt
-    to raw samples (``acquisition.raw_samples``), then snapped."""
+    to raw samples (``acquisition.raw_samples``), then snapped; a design space's
+    structure index dealt through ``structure_order``."""
+    numbers = request.n_issued + np.arange(len(points))
+    search = request.structure
+    if search is not None and search.n_structures > 1:
+        points = points.copy()
+        order = structure_order(search, request.seed)
+        points[:, 0] = order[numbers % len(order)]
     box = request.box
     if box is None:
         return points
     points = points.copy()
-    numbers = request.n_issued + np.arange(len(points))
     for column, count in box.categorical.items():
         order = np.random.default_rng([request.seed, column]).permutation(count)
         points[:, column] = order[numbers % count]
