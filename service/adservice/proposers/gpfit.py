@@ -26,6 +26,10 @@ _CACHE_LOCK = threading.Lock()
 _CACHE_SIZE = 256
 _FITS_BY_DATA: OrderedDict[str, dict[str, torch.Tensor]] = OrderedDict()
 _FITS_BY_STUDY: OrderedDict[tuple[Any, ...], dict[str, torch.Tensor]] = OrderedDict()
+FIT_POINTS = 300
+"""The most observations a GP's hyperparameters are fitted on (``fit_subset``)."""
+FIT_BEST = 75
+"""Of those, the best observations always in."""
 
 
 def clear_caches() -> None:
@@ -64,7 +68,9 @@ def fit_outcome(
     """A ``SingleTaskGP`` on one outcome ``y`` of the points ``X`` (the study's model:
     ``gpmodel.design_kernel``, the noise mode, outcomes standardised) with its
     hyperparameters fitted by ``gpmodel.fit_map`` through the fit caches, in eval mode;
-    and where its fit came from (cached, warm, cold, ``-stopped`` past the deadline).
+    and where its fit came from (cached, warm, cold; ``-subset-N`` when a long history's
+    hyperparameters were fitted on N of its observations, ``fit_subset``; ``-stopped``
+    past the deadline).
     ``outcome`` names the outcome in the cache keys ("" for the one objective, else
     e.g. ``objective 1`` or ``constraint 0``): each outcome of a study is fitted and
     warm-started on its own."""
@@ -82,38 +88,43 @@ def fit_outcome(
     train_Z = torch.as_tensor(Z, **tkw)
     train_Y = torch.as_tensor(y, **tkw).unsqueeze(-1)
     noise_mode = options.noise or ("inferred" if request.noisy else "floor")
-    train_Yvar = None
-    likelihood = None
-    if noise_mode == "fixed":
-        # Standardize divides Yvar by var(y): this is a variance of 1e-6 after scaling.
-        train_Yvar = torch.full_like(train_Y, 1e-6 * max(float(np.var(y)), 1e-12))
-    elif noise_mode == "floor":
-        from gpytorch.constraints import GreaterThan
-        from gpytorch.likelihoods import GaussianLikelihood
-
-        likelihood = GaussianLikelihood(
-            noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
-        )
-        likelihood = likelihood.to(**tkw)
     kernel = options.kernel
     # several objectives: the unit length-scale prior (gpmodel.UNIT_LENGTHSCALE_PRIOR)
     objectives = request.objectives
     unit_prior = objectives is not None and np.ndim(objectives) == 2 and objectives.shape[1] > 1
-    model = SingleTaskGP(
-        train_Z,
-        train_Y,
-        train_Yvar=train_Yvar,
-        likelihood=likelihood,
-        covar_module=design_kernel(
-            search,
-            spec_dim,
-            kernel=kernel,
-            categories=request.box.categorical if request.box is not None else None,
-            unit_prior=unit_prior,
-            **tkw,
-        ),
-        outcome_transform=Standardize(m=1),
-    )
+
+    def gp(rows: np.ndarray | slice) -> Any:
+        train_Yvar = None
+        likelihood = None
+        if noise_mode == "fixed":
+            # Standardize divides Yvar by var(y): this is a variance of 1e-6 after scaling.
+            train_Yvar = torch.full_like(train_Y[rows], 1e-6 * max(float(np.var(y)), 1e-12))
+        elif noise_mode == "floor":
+            from gpytorch.constraints import GreaterThan
+            from gpytorch.likelihoods import GaussianLikelihood
+
+            likelihood = GaussianLikelihood(
+                noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
+            ).to(**tkw)
+        return SingleTaskGP(
+            train_Z[rows],
+            train_Y[rows],
+            train_Yvar=train_Yvar,
+            likelihood=likelihood,
+            covar_module=design_kernel(
+                search,
+                spec_dim,
+                kernel=kernel,
+                categories=request.box.categorical if request.box is not None else None,
+                unit_prior=unit_prior,
+                **tkw,
+            ),
+            outcome_transform=Standardize(m=1),
+        )
+
+    model = gp(slice(None))
+    subset = fit_subset(y, request.seed)
+    fitted = model if subset is None else gp(subset)
 
     layout_key = _layout_key(search, request)
     data_key = hashlib.sha256(
@@ -150,10 +161,13 @@ def fit_outcome(
         previous = _lru_get(_FITS_BY_STUDY, study_key) if use_warm else None
         fit_source = "cold"
         if previous is not None:
-            model.load_state_dict(_to_device(previous, device), strict=False)
+            fitted.load_state_dict(_to_device(previous, device), strict=False)
             fit_source = "warm"
-        fit_map(model, deadline=deadline)
-        params = {name: p.detach().cpu().clone() for name, p in model.named_parameters()}
+        fit_map(fitted, deadline=deadline)
+        params = {name: p.detach().cpu().clone() for name, p in fitted.named_parameters()}
+        if fitted is not model:
+            model.load_state_dict(_to_device(params, device), strict=False)
+            fit_source += f"-subset-{len(subset)}"  # type: ignore[arg-type]
         if not all(torch.isfinite(p).all() for p in params.values()):
             raise FloatingPointError("non-finite hyperparameters after the fit")
         if past(deadline):
@@ -163,6 +177,22 @@ def fit_outcome(
         _lru_put(_FITS_BY_STUDY, study_key, params)
     model.eval()
     return model, fit_source
+
+
+def fit_subset(y: np.ndarray, seed: int) -> np.ndarray | None:
+    """The observations a large history's hyperparameters are fitted on (None: all of
+    them): the ``FIT_BEST`` best and a seeded sample of the rest, ``FIT_POINTS`` in all.
+    Each likelihood evaluation of the fit factors an n x n matrix, a few hundred times
+    a fit; the posterior the acquisition uses still conditions on every observation
+    with those hyperparameters, so only their estimate loses data (bench/RESULTS.md,
+    issue 26, measures what that costs)."""
+    if len(y) <= FIT_POINTS:
+        return None
+    order = np.argsort(-y, kind="stable")
+    rest = np.random.default_rng([seed, len(y)]).choice(
+        order[FIT_BEST:], FIT_POINTS - FIT_BEST, replace=False
+    )
+    return np.sort(np.concatenate([order[:FIT_BEST], rest]))
 
 
 def _layout_key(search: SearchStructure | None, request: ProposalRequest) -> bytes:
