@@ -66,6 +66,10 @@ BOX_ROUNDS = 8
 """Discrete-then-continuous rounds at most for a box of typed params."""
 SCREENED = 64
 """Raw samples scored by the acquisition itself after a ``screen``."""
+LOCAL_GTOL = 1e-2
+"""A local search stops when no gradient of log EI (per unit of a spec's range) exceeds
+this: moving a spec by 1% of its range then changes EI by about 0.01%. GPSampler stops
+its local searches at the same gradient in length-scale units."""
 _TAKEN_TOL = 1e-9
 _CHUNK = 1024
 
@@ -268,7 +272,7 @@ def _local(
             jac=True,
             method="L-BFGS-B",
             bounds=[(0.0, 1.0)] * int(used.sum()),
-            options={"maxiter": maxiter},
+            options={"maxiter": maxiter, "gtol": LOCAL_GTOL},
         ).x
     except OutOfTime:
         found = best_free
@@ -327,8 +331,8 @@ def maximise(
     order = np.argsort(-values, kind="stable")
     top = int(order[0])
     if taken is not None and len(taken):
-        fresh = [int(i) for i in order if _distance(taken, points[i]) > _TAKEN_TOL]
-        top = fresh[0] if fresh else top
+        fresh = (int(i) for i in order if _distance(taken, points[i]) > _TAKEN_TOL)
+        top = next(fresh, top)
     return Optimum(z=points[top], value=float(values[top]), structures_switched=switched)
 
 

@@ -26,6 +26,12 @@ _CACHE_LOCK = threading.Lock()
 _CACHE_SIZE = 256
 _FITS_BY_DATA: OrderedDict[str, dict[str, torch.Tensor]] = OrderedDict()
 _FITS_BY_STUDY: OrderedDict[tuple[Any, ...], dict[str, torch.Tensor]] = OrderedDict()
+WARM_MAXITER = 50
+"""L-BFGS-B iterations of a fit warm-started from the study's previous one (a cold fit
+has 200): one new observation moves the optimum little, and the next ask goes on from
+where this one stopped. On the 8-tree suite space at n = 30 a warm fit took 50 to 210
+likelihood evaluations to converge, the same candidates' acquisition values within
+0.03 in log space with this cap (issue 26)."""
 FIT_POINTS = 300
 """The most observations a GP's hyperparameters are fitted on (``fit_subset``)."""
 FIT_BEST = 75
@@ -163,7 +169,7 @@ def fit_outcome(
         if previous is not None:
             fitted.load_state_dict(_to_device(previous, device), strict=False)
             fit_source = "warm"
-        fit_map(fitted, deadline=deadline)
+        fit_map(fitted, deadline=deadline, maxiter=WARM_MAXITER if previous is not None else 200)
         params = {name: p.detach().cpu().clone() for name, p in fitted.named_parameters()}
         if fitted is not model:
             model.load_state_dict(_to_device(params, device), strict=False)
