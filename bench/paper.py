@@ -340,7 +340,14 @@ def run(args: argparse.Namespace) -> int:
     workers_checked = False
     if args.code and learner == "fast":
         # the fast learner's scores must be the pinned code's: re-score stored designs
-        check = subprocess.run([sys.executable, str(REPO / "bench" / "fast_scores_check.py")])
+        check = subprocess.run(
+            [
+                sys.executable,
+                str(REPO / "bench" / "fast_scores_check.py"),
+                "--tolerance",
+                str(args.score_tolerance),
+            ]
+        )
         workers_checked = check.returncode == 0
     code, _ = use_snapshot(quick=args.quick, ref=args.code, workers_checked=workers_checked)
     from adclient.client import Client
@@ -441,6 +448,14 @@ def main(argv: list[str] | None = None) -> int:
         "--code",
         help="run this commit instead of the pinned one (refused if workers/ differs), "
         "e.g. --methods qei-mixed --code HEAD",
+    )
+    parser.add_argument(
+        "--score-tolerance",
+        type=float,
+        default=0.0,
+        help="with --code: the largest difference from the pinned code's fast-learner "
+        "scores still taken as the same tasks (bench/fast_scores_check.py); say it with "
+        "the results",
     )
     parser.add_argument("--workers", type=int, default=2, help="adworker --concurrency")
     parser.add_argument("--quick", action="store_true", help="smoke run: 1 seed, 5 evaluations")
