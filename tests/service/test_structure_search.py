@@ -63,6 +63,23 @@ def trap_score(design: Design, best: int) -> float:
     return tree + 0.55 * fit
 
 
+def request(
+    search: Any, bounds: np.ndarray, X: np.ndarray, y: np.ndarray, *, seed: int, count: int = 1
+) -> ProposalRequest:
+    return ProposalRequest(
+        bounds=bounds,
+        count=count,
+        seed=seed,
+        n_issued=len(y),
+        X=X.reshape(-1, bounds.shape[1]),
+        y=y,
+        failed=empty_history(bounds.shape[1]),
+        pending=empty_history(bounds.shape[1]),
+        structure=search,
+        options={"raw_samples": 512},
+    )
+
+
 def run_study(space: DesignSpace, best: int, evaluations: int, seed: int) -> list[int]:
     """The trees a qei study of ``evaluations`` asks proposes, in order."""
     representation = build_representation(space)
@@ -72,20 +89,9 @@ def run_study(space: DesignSpace, best: int, evaluations: int, seed: int) -> lis
     X: list[np.ndarray] = []
     y: list[float] = []
     trees: list[int] = []
-    for issued in range(evaluations):
-        request = ProposalRequest(
-            bounds=bounds,
-            count=1,
-            seed=seed,
-            n_issued=issued,
-            X=np.array(X).reshape(-1, bounds.shape[1]),
-            y=np.array(y),
-            failed=empty_history(bounds.shape[1]),
-            pending=empty_history(bounds.shape[1]),
-            structure=search,
-            options={"raw_samples": 512},
-        )
-        vector = proposer.propose(request).candidates[0]
+    for _ in range(evaluations):
+        asked = request(search, bounds, np.array(X), np.array(y), seed=seed)
+        vector = proposer.propose(asked).candidates[0]
         design = decode(space, representation, vector)
         X.append(vector)
         y.append(trap_score(design, best))
@@ -125,18 +131,8 @@ def test_the_initial_design_spreads_over_more_trees_than_it_can_cover() -> None:
     random = [spread(np.random.default_rng(s).choice(125, 16, replace=False)) for s in range(20)]
     assert spread(order[:16]) > max(random)
     bounds = np.asarray(representation.bounds, dtype=np.float64)
-    request = ProposalRequest(
-        bounds=bounds,
-        count=16,
-        seed=3,
-        n_issued=0,
-        X=empty_history(bounds.shape[1]),
-        y=np.zeros(0),
-        failed=empty_history(bounds.shape[1]),
-        pending=empty_history(bounds.shape[1]),
-        structure=search,
-    )
-    proposal = get_proposer("qei").propose(request)
+    start = request(search, bounds, np.zeros(0), np.zeros(0), seed=3, count=16)
+    proposal = get_proposer("qei").propose(start)
     assert proposal.candidates[:, 0].astype(int).tolist() == order[:16].tolist()
     assert {info["method"] for info in proposal.info} == {"sobol-initial"}
 
@@ -154,18 +150,8 @@ def test_trees_the_data_never_saw_stay_uncertain() -> None:
     X = bounds[0] + rng.random((24, bounds.shape[1])) * (bounds[1] - bounds[0])
     X[:, 0] = [3] * 23 + [1]
     y = np.array([trap_score(decode(space, representation, v), best=5) for v in X])
-    request = ProposalRequest(
-        bounds=bounds,
-        count=1,
-        seed=0,
-        n_issued=len(y),
-        X=X,
-        y=y,
-        failed=empty_history(bounds.shape[1]),
-        pending=empty_history(bounds.shape[1]),
-        structure=search,
-    )
-    model, _ = fit_outcome(request, QEIOptions(), bounds, X, y, TKW, None)
+    history = request(search, bounds, X, y, seed=0)
+    model, _ = fit_outcome(history, QEIOptions(), bounds, X, y, TKW, None)
     incumbent = X[np.argmax(y)]
     every_tree = np.repeat(incumbent[None], len(CHAINS), axis=0)
     every_tree[:, 0] = np.arange(len(CHAINS))
