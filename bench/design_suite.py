@@ -1,7 +1,9 @@
 """Synthetic design-space objectives: the service's proposers against Optuna's, 30 evaluations.
 
 Each objective scores a decoded robot design (tree + specs) in [0, 1], so every method
-optimises the identical function of the design:
+optimises the identical function of the design.
+
+Multiplicative families (issue 12): a wrong tree scores low whatever its specs.
 
 - ``tree-similarity`` (8 trees of 3 to 5 links, 13 specs): the score falls with the
   tree's edit distance (edges added or removed) to a target tree, times how well the
@@ -14,6 +16,18 @@ optimises the identical function of the design:
 - ``interaction`` (4 trees of 4 links, lengths, radii and axes: 14 specs): every tree
   has its own optimal lengths and axes and its own ceiling; nothing carries over.
 
+Additive families (issue 26): a tree's value adds to a spec term, so a wrong tree keeps
+scoring a little better as its specs improve, the trap of a search that believes the
+trees it has not seen behave like the ones it has (see the functions' docstrings).
+
+- ``additive-trap`` (the 8-tree space): the best tree is the smallest, a-b-c.
+- ``shifted-optima`` (the 8-tree space): each tree's best specs lie near, not at, a
+  shared optimum; the best tree is the star a-(b, c, d).
+- ``needle-16`` (every tree of 4 links: 16, 14 specs): one tree far better, unrelated
+  to how alike the trees are.
+- ``tree-shape-64`` (64 of the 125 trees of 5 links): the tree's value follows its
+  shape (depth, leaves, root degree), so alike trees score alike.
+
 Methods:
 - ``qei``: the service's default (the ``mixed`` encoding), ``qei-fused`` (the
   preprint's encoding), ``qei-onehot``: a real ``adserver`` on a SQLite file, plain
@@ -22,14 +36,23 @@ Methods:
   RandomSampler in-process with their defaults (GPSampler: deterministic_objective),
   the structure as a categorical and every spec as a float in its physical range.
 
-Every method and seed (0..N-1) gets the same budget. The report gives the median
-best score by 30 (and by 15) with its IQR, and the ratio of each method's median to
-GPSampler's, objective by objective. Results append to
-bench/results/design_suite.jsonl (a rerun resumes).
+Every method and seed gets the same budget. The report gives, per objective and method,
+the median and lower quartile of the best score by 30 and the trees a run tried, and
+issue 26's goals: qei's median at or above GPSampler's, its lower quartile at or above
+random search's. Results append to ``--results`` (a rerun resumes).
 
-Run: ``.venv/bin/python bench/design_suite.py`` (10 seeds, all objectives, the
-default methods, writes bench/RESULTS.md); ``--seeds 2 --no-write`` while developing;
-``--report`` to rewrite the report from the stored results.
+Run: ``.venv/bin/python bench/design_suite.py`` (20 seeds, every objective, the default
+methods; writes bench/RESULTS.md). Issue 26 ran two halves side by side, each with its
+own server and results file, then reported them together:
+
+    M="qei gp-optuna tpe-optuna random-optuna"
+    .venv/bin/python bench/design_suite.py --seeds 10 --methods $M --no-write
+    .venv/bin/python bench/design_suite.py --seeds 10 --first-seed 10 --methods $M \\
+        --results bench/results/design_suite-i26b.jsonl --no-write
+    cat bench/results/design_suite-i26b.jsonl >> bench/results/design_suite-i26.jsonl
+    .venv/bin/python bench/design_suite.py --report
+
+``--seeds 2 --no-write --results /tmp/x.jsonl`` while developing.
 """
 
 from __future__ import annotations
@@ -575,7 +598,7 @@ def main() -> int:
     text = report(read_results(args.results))
     print(text)
     if not args.no_write:
-        write_subsection("### Design-space suite (bench/design_suite.py)", text)
+        write_subsection("### Design-space suite, issue 26 (bench/design_suite.py)", text)
     return 0
 
 
