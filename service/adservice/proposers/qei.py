@@ -36,6 +36,17 @@ Decisions worth knowing:
   reached the 1% target in 6 of 10 seeds where the RBF reached it in 4 of 9) or
   ``"rbf"``, both with BoTorch's dimension-scaled length-scale prior.
 
+- The start covers the structures (issue 26): a design space's initial Sobol points
+  are dealt one per structure, up to ``_COVERED_CHOICES`` (``structure_order``:
+  farthest-first in the fused geometry from a seeded first one), as a typed box's
+  categorical choices are. A GP cannot rank a structure it never saw: from the
+  preprint's two-design start the model kept to the first good tree on every objective
+  where a wrong tree improves with its specs (bench/RESULTS.md, issue 26).
+- Fit and search tolerances: the MAP fit stops at GPSampler's gradient tolerance
+  (``gpmodel.FIT_GTOL``), a warm-started fit after ``gpfit.WARM_MAXITER`` iterations,
+  a local search of the acquisition at ``acquisition.LOCAL_GTOL``; a history longer than
+  ``gpfit.FIT_POINTS`` has its hyperparameters fitted on a subset (``gpfit.fit_subset``)
+  and its posterior on every observation.
 - Failed trials are *excluded* from the GP (a crashed simulation says nothing
   about the score surface), and enter the acquisition as pending points, so that
   the exact design that failed is not proposed again and its neighbourhood is
