@@ -22,7 +22,8 @@ from adservice.proposers import get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
 from adservice.proposers.gpfit import fit_outcome
 from adservice.proposers.gpmodel import Posterior
-from adservice.proposers.qei import QEIOptions, structure_order
+from adservice.proposers.initial import structure_order
+from adservice.proposers.qei import QEIOptions
 from adservice.representation import build_representation, search_structure
 
 TKW: dict[str, Any] = {"dtype": torch.float64, "device": torch.device("cpu")}

@@ -323,10 +323,9 @@ class DesignKernel(Kernel):
 
     def scaled(self, inputs: Embedding) -> Embedding:
         spec, structure = inputs
-        return (
-            self.spec.scaled(spec),
-            self.structure.scaled(structure) if self.structure is not None else None,
-        )
+        if self.structure is None or structure is None:
+            return self.spec.scaled(spec), None
+        return self.spec.scaled(spec), self.structure.scaled(structure)
 
     def embed(self, x: torch.Tensor) -> Embedding:
         return self.scaled(self.inputs(x))

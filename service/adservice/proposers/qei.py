@@ -37,7 +37,7 @@ Decisions worth knowing:
   ``"rbf"``, both with BoTorch's dimension-scaled length-scale prior.
 
 - The start covers the structures (issue 26): a design space's initial Sobol points
-  are dealt one per structure, up to ``_COVERED_CHOICES`` (``structure_order``:
+  are dealt one per structure, up to ``initial.COVERED_CHOICES`` (``structure_order``:
   farthest-first in the fused geometry from a seeded first one), as a typed box's
   categorical choices are. A GP cannot rank a structure it never saw: from the
   preprint's two-design start the model kept to the first good tree on every objective
@@ -132,11 +132,11 @@ from adservice.proposers.base import (
     Proposal,
     ProposalRequest,
     ProposerOptions,
-    SearchStructure,
     model_inputs,
     search_vectors,
 )
 from adservice.proposers.greedy import DEFAULT_RAW_SAMPLES, DEFAULT_RESTARTS, Greedy, Step
+from adservice.proposers.initial import initial_count, initial_points
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 from adservice.settings import get_settings
 
@@ -149,9 +149,6 @@ _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
 _DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
-_COVERED_CHOICES = 16
-"""The most choices of a categorical param, or structures of a design space, the
-initial design makes sure to try."""
 _TORCH_THREADS = get_settings().torch_threads
 _PROPOSER_DEVICE = get_settings().proposer_device
 
@@ -359,10 +356,9 @@ class QLogEIProposer:
         candidates = np.empty((count, request.dim), dtype=np.float64)
         info: list[dict[str, Any]] = [{} for _ in range(count)]
 
-        n_sobol = min(max(_initial_count(request) - request.n_issued, 0), count)
+        n_sobol = min(max(initial_count(request) - request.n_issued, 0), count)
         if n_sobol:
-            unit = sobol_points(request.dim, request.seed, request.n_issued, n_sobol)
-            candidates[:n_sobol] = _covering_choices(scale_to_bounds(unit, bounds), request)
+            candidates[:n_sobol] = initial_points(request, bounds, n_sobol)
             for i in range(n_sobol):
                 info[i] = {
                     "proposer": self.name,
@@ -623,61 +619,6 @@ def columns_of(values: np.ndarray, n: int) -> np.ndarray:
     one column)."""
     values = np.asarray(values, dtype=np.float64)
     return values.reshape(n, values.shape[-1] if values.ndim == 2 else 1)
-
-
-def _initial_count(request: ProposalRequest) -> int:
-    """``n_initial``, or enough initial points to try every choice of each categorical
-    param and every structure of a design space (up to ``_COVERED_CHOICES`` of each):
-    the model knows nothing of a choice it never saw and, with the one-hot kernel,
-    expects it to be average, so a study started on two choices of four kept to them
-    (bench/RESULTS.md, issue 16); a design study started on two trees of eight kept
-    to the first good one (issue 26)."""
-    most = 0
-    if request.box is not None and request.box.categorical:
-        most = max(request.box.categorical.values())
-    if request.structure is not None:
-        most = max(most, request.structure.n_structures)
-    return max(request.n_initial, min(most, _COVERED_CHOICES))
-
-
-def structure_order(search: SearchStructure, seed: int) -> np.ndarray:
-    """The order in which the initial design deals the structures: from a seeded first
-    structure, each next one the farthest (in the fused geometry) from those already
-    dealt, ties broken by a seeded shuffle; so when only some can be covered, they
-    spread over the kinds of tree instead of clustering."""
-    coords = np.asarray(search.structure_coords, dtype=np.float64)
-    count = len(coords)
-    rng = np.random.default_rng([seed, 26])
-    shuffled = rng.permutation(count)
-    order = [int(shuffled[0])]
-    nearest = np.linalg.norm(coords - coords[order[0]], axis=1)
-    for _ in range(count - 1):
-        candidates = shuffled[np.argsort(-nearest[shuffled], kind="stable")]
-        chosen = int(candidates[0])
-        order.append(chosen)
-        nearest = np.minimum(nearest, np.linalg.norm(coords - coords[chosen], axis=1))
-    return np.asarray(order, dtype=np.int64)
-
-
-def _covering_choices(points: np.ndarray, request: ProposalRequest) -> np.ndarray:
-    """Initial Sobol points (numbers ``n_issued`` on) with each categorical column dealt
-    round-robin through a seeded order of its choices, as design structures are dealt
-    to raw samples (``acquisition.raw_samples``), then snapped; a design space's
-    structure index dealt through ``structure_order``."""
-    numbers = request.n_issued + np.arange(len(points))
-    search = request.structure
-    if search is not None and search.n_structures > 1:
-        points = points.copy()
-        order = structure_order(search, request.seed)
-        points[:, 0] = order[numbers % len(order)]
-    box = request.box
-    if box is None:
-        return points
-    points = points.copy()
-    for column, count in box.categorical.items():
-        order = np.random.default_rng([request.seed, column]).permutation(count)
-        points[:, column] = order[numbers % count]
-    return box.snap(points)
 
 
 def _snapped(candidates: np.ndarray, request: ProposalRequest) -> np.ndarray:
