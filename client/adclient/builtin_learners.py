@@ -27,22 +27,26 @@ DDPG = LearnerSpec(
     "Ornstein-Uhlenbeck exploration.",
     factory="adworker.learners:DDPGLearner",
     options=StableBaselinesOptions,
+    transfers=True,
 )
 TD3 = LearnerSpec(
     name="td3",
     description="stable-baselines3 TD3, settings as ddpg.",
     factory="adworker.learners:TD3Learner",
     options=StableBaselinesOptions,
+    transfers=True,
 )
 SAC = LearnerSpec(
     name="sac",
     description="stable-baselines3 SAC, [64, 64] networks, entropy weight 0.01.",
     factory="adworker.learners:SACLearner",
     options=StableBaselinesOptions,
+    transfers=True,
 )
 PPO = LearnerSpec(
     name="ppo",
     description="stable-baselines3 PPO, [64, 64] networks, rollouts of 512.",
     factory="adworker.learners:PPOLearner",
     options=StableBaselinesOptions,
+    transfers=True,
 )

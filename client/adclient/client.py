@@ -236,6 +236,7 @@ class Client(Transport):
         message: str | None = None,
         metrics: Mapping[str, float] | None = None,
         worker_id: str | None = None,
+        transfer_from: int | None = None,
     ) -> Trial:
         """Report a trial's result and return the finished trial.
 
@@ -243,6 +244,8 @@ class Client(Transport):
         otherwise; ``pruned`` ends a trial its pruner stopped (with ``value``, or the
         server keeps its last reported value). A study of several objectives is told a
         sequence, one value per objective (Optuna's ``study.tell(trial, [v1, v2])``).
+        ``transfer_from``: the trial of the same study whose controller this one started
+        from (``task.transfer``), kept as its ``info.transfer_from``.
         The body is checked here first (finite values, finite metrics), so a NaN never
         travels; such mistakes raise :class:`Invalid`. Repeating an identical tell is
         harmless; a contradicting one raises :class:`Conflict`.
@@ -260,6 +263,7 @@ class Client(Transport):
                 message=message,
                 worker_id=worker_id,
                 metrics={str(key): float(metric) for key, metric in (metrics or {}).items()},
+                transfer_from=transfer_from,
             )
         except ValidationError as exc:
             raise Invalid(None, "invalid", _validation_message(exc)) from exc
@@ -335,6 +339,7 @@ class Client(Transport):
         checkpoint: str = CHECKPOINT_ARTIFACT,
         value: float | None = None,
         metrics: Mapping[str, float] | None = None,
+        transfer_from: int | None = None,
     ) -> Trial:
         """Pause a held trial at ``step`` with the checkpoint artifact it uploaded (its
         study's ASHA pruner said ``pause``); it waits for promotion. A repeat is
@@ -346,6 +351,7 @@ class Client(Transport):
                 checkpoint=checkpoint,
                 value=value,
                 metrics=dict(metrics or {}),
+                transfer_from=transfer_from,
             )
         except ValidationError as exc:
             raise Invalid(None, "invalid", _validation_message(exc)) from exc

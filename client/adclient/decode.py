@@ -68,13 +68,7 @@ class SpecLayout:
 
     def used_slots(self, structure: Sequence[Edge]) -> np.ndarray:
         """Boolean mask of the slots a structure uses (its links, its non-root joints)."""
-        members = {name for edge in structure for name in edge}
-        children = {child for _, child in structure}
-        mask = np.zeros(len(self.names), dtype=bool)
-        for k, key in enumerate(self.names):
-            instance, _, rest = key.partition(".")
-            mask[k] = instance in children if rest.startswith("joint.") else instance in members
-        return mask
+        return used_slots(self.names, structure)
 
     def _scaled(self, values: np.ndarray) -> np.ndarray:
         """Values on each slot's own scale: their natural log where ``log``."""
@@ -114,6 +108,18 @@ class SpecLayout:
         values = np.clip(np.exp(np.where(self.log, scaled, 0.0)), self.low, self.high)
         values = np.where(x <= 0.0, self.low, np.where(x >= 1.0, self.high, values))
         return np.where(self.log, values, scaled)
+
+
+def used_slots(names: Sequence[str], structure: Sequence[Edge]) -> np.ndarray:
+    """Boolean mask of the spec slots ``names`` a structure uses (its links, its
+    non-root joints)."""
+    members = {name for edge in structure for name in edge}
+    children = {child for _, child in structure}
+    mask = np.zeros(len(names), dtype=bool)
+    for k, key in enumerate(names):
+        instance, _, rest = key.partition(".")
+        mask[k] = instance in children if rest.startswith("joint.") else instance in members
+    return mask
 
 
 def spec_layout(space: DesignSpace) -> SpecLayout:

@@ -41,7 +41,8 @@ def export_json(study: Study, trials: list[Trial]) -> str:
 def export_csv(trials: list[Trial]) -> str:
     """A study of several objectives has a ``values_<i>`` column per objective (in the
     order of its ``objective_names``), as Optuna's ``trials_dataframe``; a study with
-    constraints a ``feasible`` column."""
+    constraints a ``feasible`` column; a study with ``task.transfer`` a ``transfer_from``
+    column (the trial each one's controller started from)."""
     rows: list[dict[str, Any]] = []
     value_columns: dict[str, None] = {}
     param_columns: dict[str, None] = {}
@@ -61,6 +62,9 @@ def export_csv(trials: list[Trial]) -> str:
             "duration_s": _duration(trial.started_at, trial.finished_at),
             "message": trial.message or "",
         }
+        if trial.info.get("transfer_from") is not None:
+            value_columns.setdefault("transfer_from")
+            row["transfer_from"] = trial.info["transfer_from"]
         for index, objective in enumerate(trial.values or []):
             value_columns.setdefault(f"values_{index}")
             row[f"values_{index}"] = _cell(objective)

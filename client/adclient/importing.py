@@ -174,9 +174,13 @@ def _plan(
 
 
 def _about_the_run(column: str) -> bool:
-    """A column of the CSV export that is not a param (the run's own, feasibility, user
-    attributes: they do not come back in)."""
-    return column in CSV_FIELDS or column == "feasible" or column.startswith("user_attrs_")
+    """A column of the CSV export that is not a param (the run's own, feasibility, the
+    trial a controller started from, user attributes: they do not come back in)."""
+    return (
+        column in CSV_FIELDS
+        or column in ("feasible", "transfer_from")
+        or column.startswith("user_attrs_")
+    )
 
 
 def _box_types(space: dict[str, Any] | None) -> dict[str, Any]:

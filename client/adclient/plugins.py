@@ -128,12 +128,17 @@ class TaskSpec:
 class LearnerSpec:
     """A learner: its name, the options model of ``task.options.learner_kwargs`` (None:
     it takes none), and the factory the worker calls with those options (a model
-    instance, or None) to get an object with ``train(env, steps=, seed=, check=)``."""
+    instance, or None) to get an object with ``train(env, steps=, seed=, check=)``.
+
+    ``transfers``: it takes part in a study's ``task.transfer`` (docs/worker.md): it
+    trains on from ``learner.warm_start`` (bytes of a checkpoint it returned) when the
+    worker sets it, and returns its final state as ``TrainResult.checkpoint``."""
 
     name: str
     description: str
     factory: Factory = field(repr=False)
     options: type[BaseModel] | None = None
+    transfers: bool = False
 
     def load_factory(self) -> Callable[..., Any]:
         return _resolve(self.factory, f"learner {self.name!r}")

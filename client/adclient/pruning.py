@@ -162,6 +162,9 @@ class PauseRequest(_Strict):
     )
     value: float | None = Field(default=None, description="default: the last reported value")
     metrics: dict[str, float] = Field(default_factory=dict, max_length=256)
+    transfer_from: int | None = Field(
+        default=None, ge=1, description="as a tell's: the trial its controller started from"
+    )
 
     @field_validator("value")
     @classmethod

@@ -47,6 +47,7 @@ from adservice.models import (
     utcnow,
 )
 from adservice.principals import Principal
+from adservice.repository_transfer import record_transfer_from
 
 TRIAL_ORDERS = {
     "number": TrialRow.number,
@@ -752,6 +753,9 @@ def tell_trial(
         return _explain_refused_tell(
             session, trial_id=trial_id, body=body, caller=caller, cached=cached_outcomes
         )
+    if body.transfer_from is not None:
+        record_transfer_from(session, trial_id=trial_id, source_id=body.transfer_from)
+        finished = {**finished, "info": {**finished["info"], "transfer_from": body.transfer_from}}
     if body.state == "complete":
         outcomes = _outcomes(session, finished["study_id"], cached_outcomes)
         if not outcomes.plain or body.values is not None:

@@ -31,6 +31,7 @@ from adservice.repository import (
     held_trial,
 )
 from adservice.repository_reports import curves_by_trial
+from adservice.repository_transfer import check_transfer_from
 
 
 def asha_promotion(pruner: dict[str, Any] | PrunerConfig | None) -> AshaOptions | None:
@@ -98,6 +99,9 @@ def pause_trial(
     trial.lease_token_id = None
     trial.lease_expires_at = None
     trial.attempts -= 1  # the attempt did not fail: it ran to its rung
+    if body.transfer_from is not None:
+        check_transfer_from(session, trial_id=trial_id, source_id=body.transfer_from)
+        trial.info = {**(trial.info or {}), "transfer_from": body.transfer_from}
     worker = session.get(WorkerRow, holder)
     if worker is not None:
         worker.last_seen_at = now

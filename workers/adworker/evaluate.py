@@ -32,6 +32,7 @@ import numpy as np
 
 from adclient.design import Design, DesignSpace
 from adclient.plugins import PluginError, TaskOptions, catalogue
+from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Job, TaskConfig
 from adworker.learners import (
     EpisodeResult,
@@ -39,9 +40,19 @@ from adworker.learners import (
     Policy,
     Reporting,
     TrainResult,
+    WarmStart,
     evaluate_policy,
 )
-from adworker.runner import Artifact, JobError, Outcome, Report, factory_problem, no_report
+from adworker.runner import (
+    TRANSFER_FILE,
+    Artifact,
+    JobError,
+    Outcome,
+    Pruned,
+    Report,
+    factory_problem,
+    no_report,
+)
 
 log = logging.getLogger("adworker")
 
@@ -63,6 +74,8 @@ class Evaluation:
     timings: dict[str, float] = field(default_factory=dict)
     episodes: list[EpisodeResult] = field(default_factory=list)
     train: TrainResult | None = None
+    transfer_from: int | None = None
+    """The trial whose controller this one started from (``job.transfer``), if it did."""
 
 
 def evaluation_seeds(task: TaskConfig) -> list[int]:
@@ -145,8 +158,12 @@ def evaluate_job(
     options = task_options(task)
     make_env = catalogue().task(task.name).load_factory()
     learner = make_learner(task, options)
+    learner.keep_checkpoint = task.transfer != "none"
     if job.resume is not None:  # a promoted trial: the worker put its checkpoint here
         learner.resume_from = (workdir / job.resume.artifact).read_bytes()
+    elif job.transfer is not None and (workdir / TRANSFER_FILE).exists():
+        checkpoint = (workdir / TRANSFER_FILE).read_bytes()
+        learner.warm_start = WarmStart(checkpoint, task.warm_steps(learner.default_steps))
 
     t = time.perf_counter()
     design = decode_job(job)
@@ -160,6 +177,8 @@ def evaluate_job(
     try:
         t = lap("env", t)
         steps = task.train_steps if task.train_steps is not None else learner.default_steps
+        if job.resume is not None and "transfer_steps" in job.resume.metrics:
+            steps = int(job.resume.metrics["transfer_steps"])  # it was warm-started
         if report is not None and job.pruner.name != "none":
 
             def interim(policy: Policy) -> float:
@@ -173,7 +192,13 @@ def evaluate_job(
 
             every = job.pruner.report_every or max(1, steps // 10)
             learner.reporting = Reporting(every=every, evaluate=interim, report=report)
-        trained = learner.train(env, steps=steps, seed=task.seed, check=check)
+        try:
+            trained = learner.train(env, steps=steps, seed=task.seed, check=check)
+        except Pruned as stopped:
+            if learner.warm_start is not None and learner.warm_problem is None:
+                stopped.transfer_from = _transfer_from(job)
+                stopped.metrics.update(_transfer_metrics(job, learner))
+            raise
         t = lap("train", t)
         # A task env of this package meters its motors; a plugin's env may not.
         meter_motors = getattr(env, "meter_motors", None)
@@ -184,6 +209,8 @@ def evaluate_job(
             Artifact("robot.urdf", "application/xml", urdf_text.encode()),
             Artifact("curve.json", "application/json", _curve_json(job, trained, episodes)),
         ]
+        if trained.checkpoint is not None:
+            artifacts.append(Artifact(CHECKPOINT_ARTIFACT, "application/zip", trained.checkpoint))
         if render:
             # The last evaluation episode has just ended: its final pose.
             artifacts.append(Artifact("robot.png", "image/png", _png(env.render_image())))
@@ -207,6 +234,8 @@ def evaluate_job(
         "time_total_s": total,
         **design_metrics(design),
     }
+    if trained.warm_started:
+        metrics.update(_transfer_metrics(job, learner))
     if meter is not None:
         metrics["effort"] = float(meter.effort)
         metrics["energy"] = float(meter.energy)
@@ -227,7 +256,23 @@ def evaluate_job(
         timings=timings,
         episodes=episodes,
         train=trained,
+        transfer_from=_transfer_from(job) if trained.warm_started else None,
     )
+
+
+def _transfer_from(job: Job) -> int:
+    assert job.transfer is not None
+    return job.transfer.trial_id
+
+
+def _transfer_metrics(job: Job, learner: Learner) -> dict[str, float]:
+    """A warm-started trial's budget (a promoted one trains to it) and its distance to
+    the design it started from."""
+    assert job.transfer is not None and learner.warm_start is not None
+    return {
+        "transfer_steps": float(learner.warm_start.steps),
+        "transfer_distance": job.transfer.distance,
+    }
 
 
 class TaskRunner:
@@ -270,6 +315,7 @@ class TaskRunner:
             evaluation.metrics,
             evaluation.artifacts,
             summary=f"score {evaluation.value:.4f} ± {spread:.4f} ({timings} s)",
+            transfer_from=evaluation.transfer_from,
         )
 
 

@@ -28,6 +28,7 @@ direction long enough to find a pose.
 from __future__ import annotations
 
 import io
+import logging
 import math
 import os
 import zipfile
@@ -46,6 +47,7 @@ Policy = Callable[[np.ndarray], np.ndarray]
 MODEL_MEMBER = "model.zip"
 REPLAY_MEMBER = "replay_buffer.pkl"
 """The members of an SB3 learner's checkpoint zip."""
+log = logging.getLogger("adworker")
 
 
 @dataclass
@@ -55,6 +57,19 @@ class TrainResult:
     curve: list[dict[str, float]] = field(default_factory=list)
     """One point per training episode (or candidate): steps so far and its score."""
     info: dict[str, Any] = field(default_factory=dict)
+    checkpoint: bytes | None = None
+    """The learner's final state, when the worker asked for it (``keep_checkpoint``)."""
+    warm_started: bool = False
+    """It trained on from ``Learner.warm_start``: another design's controller."""
+
+
+@dataclass
+class WarmStart:
+    """Another design's controller to start from (a study with ``task.transfer``): the
+    checkpoint its learner returned and the steps to train from there."""
+
+    checkpoint: bytes
+    steps: int
 
 
 @dataclass
@@ -128,6 +143,14 @@ class Learner:
         self.resume_from: bytes | None = None
         """Set by the worker for a promoted trial: the checkpoint a learner that pauses
         (attaching one to ``Pruned``) made; it trains on from there to the budget."""
+        self.warm_start: WarmStart | None = None
+        """Set by the worker for a study with ``task.transfer``: a learner that transfers
+        loads it (when it fits this design) and trains ``warm_start.steps``."""
+        self.keep_checkpoint = False
+        self.warm_problem: str | None = None
+        """Why ``warm_start`` was not used (the learner trained from scratch), if so."""
+        """Set by the worker for a study with ``task.transfer``: return the final state
+        as ``TrainResult.checkpoint``, so later designs can start from it."""
 
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
@@ -349,10 +372,13 @@ class StableBaselinesLearner(Learner):
                 return True
 
         resuming = self.resume_from is not None
+        warm = None if resuming else self._warm_model(env, seed=seed)
         if self.resume_from is not None:
             model = self.load_checkpoint(env, self.resume_from, seed=seed)
             if reporting is not None:
                 reporting.resume_at(int(model.num_timesteps))
+        elif warm is not None:
+            model, steps = warm, self.warm_start.steps if self.warm_start else steps
         else:
             model = self.make_model(env, steps=steps, seed=seed)
         resumed_at = int(model.num_timesteps)
@@ -373,7 +399,28 @@ class StableBaselinesLearner(Learner):
             train_steps=int(model.num_timesteps),
             curve=curve,
             info={"algorithm": self.algorithm},
+            checkpoint=self.checkpoint(model) if self.keep_checkpoint else None,
+            warm_started=warm is not None,
         )
+
+    def _warm_model(self, env: Any, *, seed: int) -> Any:
+        """The model of ``warm_start`` on this design's env, its step count at zero and
+        its replay buffer kept (an off-policy learner updates from the first step);
+        None, with the reason logged, when there is none or it does not fit (another
+        observation or action space, a corrupt file): the design trains from scratch."""
+        if self.warm_start is None:
+            return None
+        try:
+            model = self.load_checkpoint(env, self.warm_start.checkpoint, seed=seed)
+        except Exception as error:
+            self.warm_problem = f"{type(error).__name__}: {error}"
+            log.warning("warm start refused (%s): training from scratch", self.warm_problem)
+            return None
+        model.num_timesteps = 0
+        if hasattr(model, "learning_starts"):
+            model.learning_starts = 0
+        model.set_random_seed(seed)
+        return model
 
     def checkpoint(self, model: Any) -> bytes:
         """The model (``model.save``) and, for an off-policy learner, its replay buffer,

@@ -17,6 +17,9 @@ from typing import Protocol
 from adclient.plugins import LearnerSpec, TaskSpec
 from adclient.schemas import Job
 
+TRANSFER_FILE = "transfer-source.zip"
+"""Where the worker puts the checkpoint a job's controller starts from (``job.transfer``)."""
+
 
 class Cancelled(Exception):
     """The worker asked the evaluation to stop (lease lost, or shutting down)."""
@@ -35,6 +38,10 @@ class Pruned(Exception):
         self.value = value
         self.pause = pause
         self.checkpoint: bytes | None = None
+        self.transfer_from: int | None = None
+        """The trial whose controller the stopped one started from, if it did."""
+        self.metrics: dict[str, float] = {}
+        """Metrics the learner's caller adds to the pause (a warm start's budget)."""
 
 
 Report = Callable[[int, float], None]
@@ -65,6 +72,8 @@ class Outcome:
     metrics: dict[str, float]
     artifacts: list[Artifact] = field(default_factory=list)
     summary: str = ""
+    transfer_from: int | None = None
+    """The trial of the same study whose controller this job started from, if any."""
 
 
 class Runner(Protocol):

@@ -53,7 +53,7 @@ from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorize
 from adclient.pruning import CHECKPOINT_ARTIFACT, ReportResponse
 from adclient.schemas import Job
 from adworker.heartbeat import Heartbeat
-from adworker.runner import Artifact, Cancelled, Pruned, Runner
+from adworker.runner import TRANSFER_FILE, Artifact, Cancelled, Pruned, Runner
 
 log = logging.getLogger("adworker")
 
@@ -274,6 +274,8 @@ class Worker:
             try:
                 if job.resume is not None:
                     self._fetch_checkpoint(job, jobdir)
+                elif job.transfer is not None:
+                    self._fetch_transfer(job, jobdir)
                 outcome = self.runner(job, jobdir, check, report)
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
@@ -290,12 +292,13 @@ class Worker:
                         "train_steps": float(exc.step),
                         "time_total_s": busy,
                         "time_cpu_s": time.process_time() - cpu_started,
+                        **exc.metrics,
                     },
                 )
                 checkpoint = Artifact(CHECKPOINT_ARTIFACT, "application/zip", exc.checkpoint or b"")
                 if exc.checkpoint is not None and self._upload(job, heartbeat, label, [checkpoint]):
                     result = "paused"
-                    step, value = exc.step, exc.value
+                    step, value, source = exc.step, exc.value, exc.transfer_from
 
                     def pause() -> object:
                         return self.client.pause(
@@ -304,6 +307,7 @@ class Worker:
                             step=step,
                             value=value,
                             metrics=metrics,
+                            transfer_from=source,
                         )
 
                     unreported = not self._deliver(label, pause)
@@ -344,6 +348,7 @@ class Worker:
                     value=outcome.value,
                     metrics=_spent(job, {**outcome.metrics, "time_cpu_s": cpu}),
                     worker_id=self.config.worker_id,
+                    transfer_from=outcome.transfer_from,
                 )
                 log.info("%s: %s in %.1f s; %s", label, outcome.summary, busy, self.rates.line())
         if unreported and self.abandon.is_set() and not heartbeat.lost.is_set():
@@ -381,6 +386,43 @@ class Worker:
         jobdir.mkdir(parents=True, exist_ok=True)
         (jobdir / job.resume.artifact).write_bytes(data)
         log.info("trial %s: resuming from step %d", job.trial_id, job.resume.step)
+
+    def _fetch_transfer(self, job: Job, jobdir: Path) -> None:
+        """The checkpoint a job's controller starts from (``job.transfer``) into its job
+        folder. One that is not there, not of this study or not downloaded is skipped
+        with the reason logged: the design then trains from scratch."""
+        assert job.transfer is not None
+        source = job.transfer.trial_id
+        try:
+            study_id = self.client.get_trial(source).study_id
+            if study_id != job.study_id:
+                log.warning(
+                    "trial %s: transfer source %s is of study %s, not %s: training from scratch",
+                    job.trial_id,
+                    source,
+                    study_id,
+                    job.study_id,
+                )
+                return
+            data = self.client.get_artifact(source, job.transfer.artifact)
+        except (Unauthorized, Forbidden) as exc:
+            raise AuthError(str(exc)) from exc
+        except ApiError as exc:
+            log.warning(
+                "trial %s: checkpoint of trial %s not downloaded (%s): training from scratch",
+                job.trial_id,
+                source,
+                exc,
+            )
+            return
+        jobdir.mkdir(parents=True, exist_ok=True)
+        (jobdir / TRANSFER_FILE).write_bytes(data)
+        log.info(
+            "trial %s: starting from trial %s's controller (spec distance %.3f)",
+            job.trial_id,
+            source,
+            job.transfer.distance,
+        )
 
     def _release(self, job: Job, label: str) -> None:
         """Hand the lease back so the trial is queued now, not when the lease expires."""
@@ -449,11 +491,13 @@ class Worker:
 
 def _spent(job: Job, metrics: dict[str, float]) -> dict[str, float]:
     """A resumed job's times count its trial's attempts up to the pause too, so a trial's
-    ``time_total_s`` and ``time_cpu_s`` are all it took; it says where it resumed."""
+    ``time_total_s`` and ``time_cpu_s`` are all it took; it says where it resumed, and
+    a warm-started trial keeps its ``transfer_*`` metrics."""
     if job.resume is None:
         return metrics
     earlier = job.resume.metrics
     return {
+        **{key: value for key, value in earlier.items() if key.startswith("transfer_")},
         **metrics,
         **{key: metrics.get(key, 0.0) + earlier.get(key, 0.0) for key in TIMES},
         "resumed_from_step": float(job.resume.step),

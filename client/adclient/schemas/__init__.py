@@ -78,6 +78,7 @@ from adclient.schemas.workers import (
     Job,
     LeaseRequest,
     ReleaseRequest,
+    TransferSource,
     WorkerInfo,
 )
 
@@ -137,6 +138,7 @@ __all__ = [
     "TaskConfig",
     "TaskInfo",
     "TellRequest",
+    "TransferSource",
     "Trial",
     "TrialAdd",
     "TrialAddBody",

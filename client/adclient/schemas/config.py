@@ -3,7 +3,7 @@ checks them), and the installed tasks and learners they may name."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -60,11 +60,38 @@ class TaskConfig(Strict):
     episode_steps: int | None = Field(default=None, ge=1, le=100_000)
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
     options: StoredJsonObject = Field(default_factory=dict)
+    transfer: Literal["none", "nearest"] = Field(
+        default="none",
+        description="nearest: a design starts its controller from the checkpoint of the "
+        "nearest of the study's best evaluated designs of the same tree and trains "
+        "transfer_steps (docs/worker.md); none: every design trains from scratch",
+    )
+    transfer_steps: int | None = Field(
+        default=None,
+        ge=1,
+        le=10_000_000,
+        description="steps a warm-started design trains (default: a quarter of train_steps, "
+        "or of the learner's own budget)",
+    )
+    transfer_among: int = Field(
+        default=4,
+        ge=1,
+        le=1000,
+        description="the source is the nearest of this many best evaluated designs of the tree",
+    )
 
     @field_validator("options")
     @classmethod
     def _options_text(cls, options: dict[str, Any]) -> dict[str, Any]:
         return plain_text(options, "options")
+
+    def warm_steps(self, default_steps: int) -> int:
+        """Steps a warm-started design trains: ``transfer_steps``, else a quarter of the
+        from-scratch budget (``train_steps``, else the learner's ``default_steps``)."""
+        if self.transfer_steps is not None:
+            return self.transfer_steps
+        budget = self.train_steps if self.train_steps is not None else default_steps
+        return max(1, budget // 4)
 
 
 def option_problems(
@@ -143,6 +170,19 @@ class NewTaskConfig(TaskConfig):
             )
             raise ValueError("; ".join(problems)) from None
         return options
+
+    @field_validator("transfer")
+    @classmethod
+    def _learner_transfers(cls, transfer: str, info: ValidationInfo) -> str:
+        learner = catalogue().learners.get(str(info.data.get("learner")))
+        external = info.data.get("external")
+        if transfer != "none" and not external and learner is not None and not learner.transfers:
+            takes = [name for name, spec in catalogue().learners.items() if spec.transfers]
+            raise ValueError(
+                f"learner {learner.name!r} cannot start from another design's controller "
+                f"(transfer: none; learners that can: {', '.join(takes)})"
+            )
+        return transfer
 
     def links_looked_up(self) -> list[tuple[str, str]]:
         """(option, link name) for each link an installed task looks up in the robot."""

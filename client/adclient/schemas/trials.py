@@ -145,6 +145,12 @@ class TellRequest(Strict):
         default=None, min_length=1, max_length=128, pattern=NO_NUL_PATTERN
     )
     metrics: dict[str, float] = Field(default_factory=dict, max_length=256)
+    transfer_from: int | None = Field(
+        default=None,
+        ge=1,
+        description="the trial of the same study whose controller this one started from "
+        "(task.transfer); kept as the trial's info.transfer_from",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> TellRequest:

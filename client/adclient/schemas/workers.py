@@ -69,6 +69,20 @@ class Job(BaseModel):
         description="a promoted trial: download this checkpoint artifact and train on from "
         "its step to the budget instead of starting over",
     )
+    transfer: TransferSource | None = Field(
+        default=None,
+        description="start the controller from this trial's checkpoint and train "
+        "transfer.steps instead of the task's budget from scratch",
+    )
+
+
+class TransferSource(BaseModel):
+    """Where a job's controller starts (a study with ``task.transfer``): an evaluated
+    design of the same study and tree, the nearest of its best."""
+
+    trial_id: int = Field(description="the trial whose checkpoint the job starts from")
+    artifact: str = Field(description="that trial's artifact holding the learner's state")
+    distance: float = Field(description="its spec distance to the job's design (0 to 1)")
 
 
 class ArtifactInfo(BaseModel):

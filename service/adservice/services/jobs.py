@@ -5,7 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from adclient.schemas import Job, Trial
-from adservice import repository, repository_promotion
+from adservice import repository, repository_promotion, repository_transfer
+from adservice.db import Database
 from adservice.errors import ConflictError
 from adservice.principals import Principal
 from adservice.services.configs import StudyConfigs
@@ -43,7 +44,7 @@ async def lease_job(
                 tasks=tasks,
             )
             trial = Trial.model_validate(row, from_attributes=True) if row else None
-        return _job(configs, trial) if trial else None
+        return job_for(db, configs, trial) if trial else None
 
     def wanting() -> list[int]:
         with db.read() as session:
@@ -66,7 +67,7 @@ async def lease_job(
                 lease_seconds=lease_seconds,
                 budget=proposals.budget,
             )
-            return _job(configs, trial)
+            return job_for(db, configs, trial)
 
         try:
             if proposes_instantly(configs, study_id):
@@ -77,9 +78,22 @@ async def lease_job(
     return None
 
 
-def _job(configs: StudyConfigs, trial: Trial) -> Job:
+def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
+    """The job of a leased trial; for a study with ``task.transfer``, with its source
+    (read after the lease's write, so the lease never waits on it)."""
     config = configs.get(trial.study_id)
     assert config.task is not None and trial.lease_expires_at is not None
+    transfer = None
+    if config.task.transfer != "none":
+        with db.read() as session:
+            transfer = repository_transfer.transfer_source(
+                session,
+                trial=trial,
+                task=config.task,
+                representation=config.representation,
+                bounds=config.bounds,
+                maximize=config.maximize,
+            )
     return Job.model_validate(
         {
             "trial_id": trial.id,
@@ -94,5 +108,6 @@ def _job(configs: StudyConfigs, trial: Trial) -> Job:
             "lease_expires_at": trial.lease_expires_at,
             "pruner": config.pruner,
             "resume": trial.checkpoint,
+            "transfer": transfer,
         }
     )

@@ -21,6 +21,13 @@ function handedOver(trial) {
   return ` <span class="meta" data-source="${esc(source)}" title="${esc(HANDED_OVER[source])}">${esc(source)}</span>`;
 }
 
+/** A mark on trials whose controller started from another trial's (task.transfer). */
+function warmStarted(trial) {
+  const source = trial.info?.transfer_from;
+  if (!Number.isInteger(source)) return '';
+  return ` <span class="meta" data-transfer-from="${source}" title="its controller started from trial ${source}'s (task.transfer)">from trial ${source}</span>`;
+}
+
 const COLUMNS = [
   { key: 'number', label: '#', sort: 'number' },
   { key: 'state', label: 'State', sort: 'state' },
@@ -240,7 +247,7 @@ export class TrialsPanel {
         const star = several ? 'on the Pareto front' : 'best';
         return `<tr data-trial-id="${trial.id}" class="${best ? 'is-best' : ''}">
           <td class="num">${trial.number}${best ? ` <span title="${star}">★</span>` : ''}</td>
-          <td>${badge(trial.state)}${trial.feasible === false ? INFEASIBLE : ''}${handedOver(trial)}</td>
+          <td>${badge(trial.state)}${trial.feasible === false ? INFEASIBLE : ''}${handedOver(trial)}${warmStarted(trial)}</td>
           ${outcomeCells(study, trial)}
           <td>${esc(trial.worker_id ?? '—')}</td>
           <td class="num">${trial.attempts}</td>

@@ -1,0 +1,278 @@
+"""Controller transfer across designs (issue 27): training every design from scratch
+against starting each from the nearest evaluated design's checkpoint, with and without
+ASHA, through a real ``adserver`` and real ``adworker`` processes.
+
+Each run: a fresh server on a SQLite file, one managed study (stand-up from
+examples/stand-up.yaml, lift-highest from examples/multi-structure.yaml, walk-forward
+from examples/walk-forward.yaml) with an SB3 learner at a budget where RL matters
+(``--train-steps``, 20,000 by default), ``--trials`` designs proposed by ``qei`` with the
+run's seed, and ``--workers`` adworker processes. Arms:
+
+- ``scratch``: every design trains ``--train-steps`` from scratch (``transfer: none``);
+- ``nearest``: ``transfer: nearest``; a design with an evaluated design of its tree
+  starts from the nearest of the best four and trains ``--transfer-steps`` (default a
+  quarter of the budget);
+- ``scratch+asha``, ``nearest+asha``: the same with the ASHA pruner of bench/pruning.py
+  (rungs from a fifth of the budget, reduction factor 3).
+
+Measured per trial as in bench/pruning.py: worker CPU seconds (``time_cpu_s``) and the
+score. Per run: the best score and the worker CPU spent until the best so far first
+reached 95% of the ``scratch`` arm's median best of that task and learner (trials in
+the order they finished; never reached: the run's whole CPU, marked). Goal (issue 27):
+the same best within the seeds' spread (median at least the scratch arm's lowest) for
+at least 3x less worker CPU to that 95% mark (moonshot 5x), on every task.
+
+Results append to bench/results/transfer.jsonl (a rerun skips the runs it has); the
+report and the PNG (best so far against cumulative worker CPU) come from ``--report``.
+
+Run: ``.venv/bin/python bench/transfer.py`` (all of it: days on two cores);
+``--tasks stand-up --learners ppo --seeds 2 --arms scratch nearest`` for a part;
+``--quick`` to check it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tests.servers import ServerProcess  # noqa: E402
+from tests.workers.processes import WorkerProcess  # noqa: E402
+
+from adclient import Client  # noqa: E402
+from bench.pruning import pruner_of, time_to_target  # noqa: E402
+
+RESULTS = ROOT / "bench" / "results" / "transfer.jsonl"
+FIGURE = ROOT / "bench" / "results" / "transfer.png"
+EXAMPLES = {
+    "stand-up": "stand-up.yaml",
+    "lift-highest": "multi-structure.yaml",
+    "walk-forward": "walk-forward.yaml",
+}
+ARMS = ["scratch", "nearest", "scratch+asha", "nearest+asha"]
+REACHED = 0.95
+
+
+def study_body(task: str, learner: str, arm: str, seed: int, args: argparse.Namespace) -> dict:
+    body = yaml.safe_load((ROOT / "examples" / EXAMPLES[task]).read_text())
+    body["name"] = f"transfer-{task}-{learner}-{arm}-{seed}"
+    body["proposer"] = {"name": "qei", "n_initial": 4, "seed": seed}
+    body["task"] = {
+        "name": task,
+        "learner": learner,
+        "train_steps": args.train_steps,
+        "seed": seed,
+        "transfer": "nearest" if arm.startswith("nearest") else "none",
+        "transfer_steps": args.transfer_steps,
+    }
+    body["max_trials"] = args.trials
+    body["pruner"] = pruner_of("asha" if arm.endswith("+asha") else "none", args.train_steps)
+    return body
+
+
+def run_one(task: str, learner: str, arm: str, seed: int, args: argparse.Namespace) -> dict:
+    """One study end to end; its trials as records."""
+    with tempfile.TemporaryDirectory(prefix="bench-transfer-") as folder:
+        work = Path(folder)
+        server = ServerProcess(database_url=f"sqlite:///{work / 'studies.db'}", workdir=work)
+        server.start()
+        workers: list[WorkerProcess] = []
+        try:
+            with Client(server.url) as client:
+                study = client.create_study(study_body(task, learner, arm, seed, args))
+                started = time.monotonic()
+                workers = [
+                    WorkerProcess(server, work, f"w{i}", "--no-render", "--poll", "0.5")
+                    for i in range(args.workers)
+                ]
+                info = study.wait(poll=1.0, timeout=args.timeout)
+                wall = time.monotonic() - started
+                trials = [
+                    {
+                        "number": t.number,
+                        "state": t.state.value,
+                        "value": t.value,
+                        "seconds": t.metrics.get("time_total_s"),
+                        "cpu_seconds": t.metrics.get("time_cpu_s"),
+                        "train_steps": t.metrics.get("train_steps"),
+                        "transfer_from": t.info.get("transfer_from"),
+                        "transfer_distance": t.metrics.get("transfer_distance"),
+                        "finished_at": t.finished_at.isoformat() if t.finished_at else None,
+                    }
+                    for t in study.trials
+                ]
+        finally:
+            for worker in workers:
+                worker.stop()
+            server.stop()
+    return {
+        "task": task,
+        "learner": learner,
+        "arm": arm,
+        "seed": seed,
+        "train_steps": args.train_steps,
+        "transfer_steps": args.transfer_steps,
+        "max_trials": args.trials,
+        "trials": trials,
+        "best": info.best_value,
+        "n_pruned": info.n_pruned,
+        "n_failed": info.n_failed,
+        "n_transferred": sum(1 for t in trials if t["transfer_from"] is not None),
+        "wall_s": wall,
+        "worker_cpu_s": sum(t["cpu_seconds"] or 0.0 for t in trials),
+    }
+
+
+def cpu_to_reach(run: dict[str, Any], target: float) -> tuple[float, bool]:
+    """Worker CPU spent until the best so far first reached ``target``; (the run's whole
+    CPU, False) if it never did."""
+    for spent, best in time_to_target(run):
+        if best >= target:
+            return spent, True
+    return run["worker_cpu_s"], False
+
+
+def report(runs: list[dict[str, Any]]) -> str:
+    lines = [
+        "| task | learner | arm | seeds | best (median, min..max) | worker CPU s (median) | "
+        f"CPU to {REACHED:.0%} of scratch's median best (median; reached) | "
+        "less than scratch | transferred | goal |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for run in runs:
+        groups.setdefault((run["task"], run["learner"], run["arm"]), []).append(run)
+    for (task, learner, arm), group in sorted(groups.items()):
+        scratch = groups.get((task, learner, "scratch"))
+        bests = [r["best"] for r in group if r["best"] is not None]
+        cpu = statistics.median(r["worker_cpu_s"] for r in group)
+        to_target, ratio, goal = "-", "-", "-"
+        if scratch:
+            target = REACHED * statistics.median(r["best"] for r in scratch)
+            reach = [cpu_to_reach(r, target) for r in group]
+            spent = statistics.median(s for s, _ in reach)
+            to_target = f"{spent:.0f} ({sum(ok for _, ok in reach)}/{len(reach)})"
+            if arm != "scratch":
+                base = statistics.median(cpu_to_reach(r, target)[0] for r in scratch)
+                less = base / spent if spent > 0 else math.inf
+                ratio = f"{less:.2f}x"
+                floor = min(r["best"] for r in scratch)
+                same = bool(bests) and statistics.median(bests) >= floor
+                goal = "met" if same and less >= 3 else "missed"
+        best = f"{statistics.median(bests):.4f} ({min(bests):.4f}..{max(bests):.4f})"
+        moved = statistics.median(r["n_transferred"] for r in group)
+        lines.append(
+            f"| {task} | {learner} | {arm} | {len(group)} | {best} | {cpu:.0f} | {to_target} "
+            f"| {ratio} | {moved:g} | {goal} |"
+        )
+    return "\n".join(lines)
+
+
+COLOURS = {
+    "scratch": "black",
+    "nearest": "tab:red",
+    "scratch+asha": "tab:gray",
+    "nearest+asha": "tab:orange",
+}
+
+
+def plot(runs: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = sorted({(run["task"], run["learner"]) for run in runs})
+    figure, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4), squeeze=False)
+    for axis, (task, learner) in zip(axes[0], panels, strict=True):
+        for run in (r for r in runs if (r["task"], r["learner"]) == (task, learner)):
+            points = time_to_target(run)
+            if points:
+                xs, ys = zip(*points, strict=True)
+                colour = COLOURS.get(run["arm"], "tab:green")
+                axis.step(xs, ys, where="post", color=colour, alpha=0.6, label=run["arm"])
+        handles, labels = axis.get_legend_handles_labels()
+        unique = dict(zip(labels, handles, strict=True))
+        axis.legend(unique.values(), unique.keys())
+        axis.set(
+            title=f"{task}, {learner}", xlabel="worker CPU seconds", ylabel="best complete score"
+        )
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+
+
+def _key(run: dict[str, Any]) -> tuple[Any, ...]:
+    fields = ("task", "learner", "arm", "seed", "train_steps", "transfer_steps", "max_trials")
+    return tuple(run[field] for field in fields)
+
+
+def load(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The stored runs at this command's budgets and trial count."""
+    if not RESULTS.exists():
+        return []
+    runs = [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
+    setting = (args.train_steps, args.transfer_steps, args.trials)
+    return [r for r in runs if (r["train_steps"], r["transfer_steps"], r["max_trials"]) == setting]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(EXAMPLES), choices=list(EXAMPLES))
+    parser.add_argument("--learners", nargs="+", default=["ppo", "sac"])
+    parser.add_argument("--arms", nargs="+", default=ARMS, choices=ARMS)
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--trials", type=int, default=16)
+    parser.add_argument("--train-steps", type=int, default=20_000)
+    parser.add_argument(
+        "--transfer-steps", type=int, default=None, help="default: a quarter of the budget"
+    )
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--timeout", type=float, default=12 * 3600)
+    parser.add_argument("--quick", action="store_true", help="a smoke run, not recorded")
+    parser.add_argument("--report", action="store_true", help="report the stored runs only")
+    args = parser.parse_args()
+    if args.quick:
+        args.tasks, args.learners, args.seeds, args.trials = ["stand-up"], ["ppo"], 1, 4
+        args.train_steps, args.arms = 512, ["scratch", "nearest"]
+    if not args.report:
+        done = {_key(run) for run in load(args)}
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            for task in args.tasks:
+                for learner in args.learners:
+                    for arm in args.arms:
+                        key = (task, learner, arm, seed, args.train_steps)
+                        key += (args.transfer_steps, args.trials)
+                        if key in done and not args.quick:
+                            continue
+                        run = run_one(task, learner, arm, seed, args)
+                        print(
+                            f"{task} {learner} {arm} seed {seed}: best {run['best']}, "
+                            f"{run['worker_cpu_s']:.0f} worker CPU s, "
+                            f"{run['n_transferred']} transferred, {run['n_pruned']} pruned",
+                            flush=True,
+                        )
+                        if not args.quick:
+                            RESULTS.parent.mkdir(parents=True, exist_ok=True)
+                            with RESULTS.open("a") as out:
+                                out.write(json.dumps(run) + "\n")
+    runs = load(args) if not args.quick else []
+    if runs:
+        print(report(runs))
+        plot(runs, FIGURE)
+        print(f"figure: {FIGURE}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,168 @@
+"""Issue 27, controller transfer with real ``adworker`` processes, real PyBullet and real
+stable-baselines3 against a real adserver: a design starts from the checkpoint of an
+evaluated design of its own tree and records it; a design of another tree never gets
+a foreign one; a corrupt or missing source checkpoint means training from scratch with
+the reason logged; a warm start whose lease is lost loses nothing."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import yaml
+
+from adclient import Client
+from adclient.pruning import CHECKPOINT_ARTIFACT
+from adclient.schemas import Trial
+from tests.servers import SDK_HEADERS, ServerProcess
+from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+CHAIN, STAR = 0, 1
+"""The two trees: a chain of three links (two joints), a star of four (three joints),
+so their controllers' observation and action spaces differ."""
+
+
+def study_body(learner: str, train_steps: int, transfer_steps: int) -> dict[str, Any]:
+    body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
+    body["space"]["structures"] = [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"], ["a", "d"]]]
+    body["space"]["instances"] = body["space"]["instances"][:4]
+    body["proposer"] = {"name": "random", "seed": 3}
+    body["task"] = {
+        "name": "lift-highest",
+        "learner": learner,
+        "train_steps": train_steps,
+        "eval_episodes": 1,
+        "transfer": "nearest",
+        "transfer_steps": transfer_steps,
+    }
+    return {**body, "name": f"transfer-{learner}", "max_trials": 20}
+
+
+def design(tree: int, angle: float) -> dict[str, Any]:
+    """Params of a design of ``tree`` with every joint axis at (angle, angle)."""
+    children = ["b", "c"] if tree == CHAIN else ["b", "c", "d"]
+    params: dict[str, Any] = {"structure_index": tree}
+    for child in children:
+        params[f"{child}.joint.axis_theta"] = angle
+        params[f"{child}.joint.axis_phi"] = angle
+    return params
+
+
+def run(
+    server: ServerProcess, tmp_path: Path, client: Client, study_id: int, *trees: dict
+) -> list[Trial]:
+    """Enqueue designs and let one worker evaluate them, one after the other."""
+    added = client.add_trials(study_id, [{"params": params} for params in trees])
+    worker = WorkerProcess(
+        server, tmp_path, f"w{added[0].id}", "--no-render", "--max-jobs", str(len(added))
+    )
+    try:
+        assert worker.wait() == 0, worker.log()
+    finally:
+        worker.stop()
+    trials = [client.get_trial(trial.id) for trial in added]
+    assert all(trial.state == "complete" for trial in trials), worker.log()
+    return trials
+
+
+def replay_size(client: Client, trial: Trial) -> int:
+    """Transitions in the replay buffer of a trial's final checkpoint."""
+    archive = zipfile.ZipFile(io.BytesIO(client.get_artifact(trial, CHECKPOINT_ARTIFACT)))
+    buffer = pickle.loads(archive.read("replay_buffer.pkl"))
+    return int(buffer.buffer_size if buffer.full else buffer.pos)
+
+
+def test_a_design_starts_from_its_trees_checkpoint_and_keeps_its_replay_buffer(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """SAC: each tree's first design trains 256 steps from scratch; the next design of
+    each tree starts from its tree's first, trains 64, and its replay buffer holds both
+    designs' transitions (256 + 64)."""
+    with Client(server.url) as client:
+        study = client.create_study(study_body("sac", 256, 64))
+        chain, star, chain2, star2 = run(
+            server,
+            tmp_path,
+            client,
+            study.id,
+            design(CHAIN, 1.0),
+            design(STAR, 1.0),
+            design(CHAIN, 1.2),
+            design(STAR, 0.8),
+        )
+        for first in (chain, star):
+            assert "transfer_from" not in first.info and first.metrics["train_steps"] == 256
+            assert replay_size(client, first) == 256
+        for warm, source in ((chain2, chain), (star2, star)):
+            assert warm.info["transfer_from"] == source.id
+            assert warm.metrics["train_steps"] == 64 and warm.metrics["transfer_steps"] == 64
+            assert 0 < warm.metrics["transfer_distance"] < 0.2
+            assert replay_size(client, warm) == 256 + 64
+
+
+def test_a_corrupt_or_missing_source_checkpoint_means_training_from_scratch(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    with Client(server.url) as client:
+        study = client.create_study(study_body("ppo", 256, 64))
+        run(server, tmp_path, client, study.id, design(CHAIN, 1.0))
+        stored = sorted(server.artifact_dir.rglob(f"{CHECKPOINT_ARTIFACT}.*"))
+        assert len(stored) == 1
+        stored[0].write_bytes(b"\0" * stored[0].stat().st_size)  # corrupt, same size
+
+        (corrupt,) = run(server, tmp_path, client, study.id, design(CHAIN, 1.1))
+        log = (tmp_path / f"w{corrupt.id}.log").read_text()
+        assert "warm start refused" in log and "training from scratch" in log, log
+        assert "transfer_from" not in corrupt.info and corrupt.metrics["train_steps"] >= 256
+
+        for path in server.artifact_dir.rglob(f"{CHECKPOINT_ARTIFACT}.*"):
+            path.unlink()
+        (missing,) = run(server, tmp_path, client, study.id, design(CHAIN, 0.9))
+        log = (tmp_path / f"w{missing.id}.log").read_text()
+        assert "not downloaded" in log and "training from scratch" in log, log
+        assert "transfer_from" not in missing.info and missing.metrics["train_steps"] >= 256
+
+
+def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """The warm-started job is taken back (an admin's release) while it trains: its
+    result is not taken, the worker leases it again, starts again from the same source
+    checkpoint (unchanged) and trains its whole warm budget."""
+    with Client(server.url) as client:
+        study = client.create_study(study_body("ppo", 256, 2048))
+        (source,) = run(server, tmp_path, client, study.id, design(CHAIN, 1.0))
+        before = hashlib.sha256(client.get_artifact(source, CHECKPOINT_ARTIFACT)).hexdigest()
+        (queued,) = client.add_trials(study.id, [{"params": design(CHAIN, 1.1)}])
+        worker = WorkerProcess(server, tmp_path, "w", "--no-render", "--idle-exit", "3")
+        try:
+
+            def training() -> bool:
+                return client.get_trial(queued.id).state == "running"
+
+            wait_for(training, "the warm-started trial to run")
+            released = httpx.post(
+                f"{server.url}/api/v1/trials/{queued.id}/release", json={}, headers=SDK_HEADERS
+            )
+            assert released.status_code == 200 and released.json()["state"] == "queued"
+            assert worker.wait(PATIENCE) == 0, worker.log()
+        finally:
+            worker.stop()
+        trial = client.get_trial(queued.id)
+        log = worker.log()
+        assert trial.state == "complete" and trial.info["transfer_from"] == source.id, log
+        assert trial.metrics["train_steps"] == 2048
+        # dropped when the heartbeat saw the lease gone, else refused when it told
+        assert "abandoned" in log or "result not accepted" in log, log
+        assert log.count(f"trial {queued.id}: starting from trial {source.id}'s") == 2, log
+        after = hashlib.sha256(client.get_artifact(source, CHECKPOINT_ARTIFACT)).hexdigest()
+        assert after == before
