@@ -37,6 +37,7 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -89,22 +90,23 @@ def study_body(task: str, variant: str, seed: int, args: argparse.Namespace) -> 
     return body
 
 
-def run_one(task: str, variant: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
-    """One study end to end; its trials as records."""
-    with tempfile.TemporaryDirectory(prefix="bench-pruning-") as folder:
+def run_study(body: dict[str, Any], *, workers: int, timeout: float) -> tuple[Any, list, float]:
+    """A managed study end to end on a fresh server (a SQLite file) with ``workers``
+    adworker processes: (its final info, its trials as records, wall seconds)."""
+    with tempfile.TemporaryDirectory(prefix="bench-study-") as folder:
         work = Path(folder)
         server = ServerProcess(database_url=f"sqlite:///{work / 'studies.db'}", workdir=work)
         server.start()
-        workers: list[WorkerProcess] = []
+        processes: list[WorkerProcess] = []
         try:
             with Client(server.url) as client:
-                study = client.create_study(study_body(task, variant, seed, args))
+                study = client.create_study(body)
                 started = time.monotonic()
-                workers = [
+                processes = [
                     WorkerProcess(server, work, f"w{i}", "--no-render", "--poll", "0.5")
-                    for i in range(args.workers)
+                    for i in range(workers)
                 ]
-                info = study.wait(poll=1.0, timeout=args.timeout)
+                info = study.wait(poll=1.0, timeout=timeout)
                 wall = time.monotonic() - started
                 trials = [
                     {
@@ -115,14 +117,23 @@ def run_one(task: str, variant: str, seed: int, args: argparse.Namespace) -> dic
                         "cpu_seconds": t.metrics.get("time_cpu_s"),
                         "resumed_from_step": t.metrics.get("resumed_from_step"),
                         "train_steps": t.metrics.get("train_steps"),
+                        "transfer_from": t.info.get("transfer_from"),
+                        "transfer_distance": t.metrics.get("transfer_distance"),
                         "finished_at": t.finished_at.isoformat() if t.finished_at else None,
                     }
                     for t in study.trials
                 ]
         finally:
-            for worker in workers:
-                worker.stop()
+            for process in processes:
+                process.stop()
             server.stop()
+    return info, trials, wall
+
+
+def run_one(task: str, variant: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """One study end to end; its trials as records."""
+    body = study_body(task, variant, seed, args)
+    info, trials, wall = run_study(body, workers=args.workers, timeout=args.timeout)
     return {
         "task": task,
         "variant": variant,
@@ -194,24 +205,37 @@ COLOURS = {"none": "black", "median": "tab:blue", "asha": "tab:orange", "asha-pr
 
 
 def plot(runs: list[dict[str, Any]], path: Path) -> None:
+    plot_best_against_cpu(runs, path, panel=lambda run: run["task"], arm="variant", colours=COLOURS)
+
+
+def plot_best_against_cpu(
+    runs: list[dict[str, Any]],
+    path: Path,
+    *,
+    panel: Callable[[dict[str, Any]], str],
+    arm: str,
+    colours: dict[str, str],
+) -> None:
+    """One panel per ``panel(run)``: each run's best complete score so far against the
+    worker CPU seconds spent, coloured by its ``run[arm]``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    tasks = sorted({run["task"] for run in runs})
-    figure, axes = plt.subplots(1, len(tasks), figsize=(6 * len(tasks), 4), squeeze=False)
-    for axis, task in zip(axes[0], tasks, strict=True):
-        for run in (r for r in runs if r["task"] == task):
+    titles = sorted({panel(run) for run in runs})
+    figure, axes = plt.subplots(1, len(titles), figsize=(6 * len(titles), 4), squeeze=False)
+    for axis, title in zip(axes[0], titles, strict=True):
+        for run in (r for r in runs if panel(r) == title):
             points = time_to_target(run)
             if points:
                 xs, ys = zip(*points, strict=True)
-                colour = COLOURS.get(run["variant"], "tab:green")
-                axis.step(xs, ys, where="post", color=colour, alpha=0.6, label=run["variant"])
+                colour = colours.get(run[arm], "tab:green")
+                axis.step(xs, ys, where="post", color=colour, alpha=0.6, label=run[arm])
         handles, labels = axis.get_legend_handles_labels()
         unique = dict(zip(labels, handles, strict=True))
         axis.legend(unique.values(), unique.keys())
-        axis.set(title=task, xlabel="worker CPU seconds", ylabel="best complete score")
+        axis.set(title=title, xlabel="worker CPU seconds", ylabel="best complete score")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
 

@@ -37,8 +37,6 @@ import json
 import math
 import statistics
 import sys
-import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
@@ -47,11 +45,13 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.servers import ServerProcess  # noqa: E402
-from tests.workers.processes import WorkerProcess  # noqa: E402
 
-from adclient import Client  # noqa: E402
-from bench.pruning import pruner_of, time_to_target  # noqa: E402
+from bench.pruning import (  # noqa: E402
+    plot_best_against_cpu,
+    pruner_of,
+    run_study,
+    time_to_target,
+)
 
 RESULTS = ROOT / "bench" / "results" / "transfer.jsonl"
 FIGURE = ROOT / "bench" / "results" / "transfer.png"
@@ -83,39 +83,8 @@ def study_body(task: str, learner: str, arm: str, seed: int, args: argparse.Name
 
 def run_one(task: str, learner: str, arm: str, seed: int, args: argparse.Namespace) -> dict:
     """One study end to end; its trials as records."""
-    with tempfile.TemporaryDirectory(prefix="bench-transfer-") as folder:
-        work = Path(folder)
-        server = ServerProcess(database_url=f"sqlite:///{work / 'studies.db'}", workdir=work)
-        server.start()
-        workers: list[WorkerProcess] = []
-        try:
-            with Client(server.url) as client:
-                study = client.create_study(study_body(task, learner, arm, seed, args))
-                started = time.monotonic()
-                workers = [
-                    WorkerProcess(server, work, f"w{i}", "--no-render", "--poll", "0.5")
-                    for i in range(args.workers)
-                ]
-                info = study.wait(poll=1.0, timeout=args.timeout)
-                wall = time.monotonic() - started
-                trials = [
-                    {
-                        "number": t.number,
-                        "state": t.state.value,
-                        "value": t.value,
-                        "seconds": t.metrics.get("time_total_s"),
-                        "cpu_seconds": t.metrics.get("time_cpu_s"),
-                        "train_steps": t.metrics.get("train_steps"),
-                        "transfer_from": t.info.get("transfer_from"),
-                        "transfer_distance": t.metrics.get("transfer_distance"),
-                        "finished_at": t.finished_at.isoformat() if t.finished_at else None,
-                    }
-                    for t in study.trials
-                ]
-        finally:
-            for worker in workers:
-                worker.stop()
-            server.stop()
+    body = study_body(task, learner, arm, seed, args)
+    info, trials, wall = run_study(body, workers=args.workers, timeout=args.timeout)
     return {
         "task": task,
         "learner": learner,
@@ -188,28 +157,10 @@ COLOURS = {
 
 
 def plot(runs: list[dict[str, Any]], path: Path) -> None:
-    import matplotlib
+    def panel(run: dict[str, Any]) -> str:
+        return f"{run['task']}, {run['learner']}"
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = sorted({(run["task"], run["learner"]) for run in runs})
-    figure, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4), squeeze=False)
-    for axis, (task, learner) in zip(axes[0], panels, strict=True):
-        for run in (r for r in runs if (r["task"], r["learner"]) == (task, learner)):
-            points = time_to_target(run)
-            if points:
-                xs, ys = zip(*points, strict=True)
-                colour = COLOURS.get(run["arm"], "tab:green")
-                axis.step(xs, ys, where="post", color=colour, alpha=0.6, label=run["arm"])
-        handles, labels = axis.get_legend_handles_labels()
-        unique = dict(zip(labels, handles, strict=True))
-        axis.legend(unique.values(), unique.keys())
-        axis.set(
-            title=f"{task}, {learner}", xlabel="worker CPU seconds", ylabel="best complete score"
-        )
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
+    plot_best_against_cpu(runs, path, panel=panel, arm="arm", colours=COLOURS)
 
 
 def _key(run: dict[str, Any]) -> tuple[Any, ...]:
