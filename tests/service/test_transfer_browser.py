@@ -1,0 +1,42 @@
+"""A trial whose controller started from another trial's (``task.transfer``, issue 27)
+is marked in the dashboard's trials table with that trial, in a real headless Chromium
+against a real ``adserver``; a trial trained from scratch carries no mark."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+
+from tests.servers import SDK_HEADERS, ServerProcess
+from tests.service.chromium import Chromium
+from tests.service.test_dashboard_browser import browser, chromium_executable
+
+__all__ = ["browser", "chromium_executable"]  # the fixtures, shared
+
+pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+
+
+def test_a_warm_started_trial_names_its_source(
+    live_server: ServerProcess, browser: Chromium
+) -> None:
+    with httpx.Client(base_url=live_server.url, headers=SDK_HEADERS, timeout=30) as http:
+        space = {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]}
+        task = {"name": "mine", "external": True, "transfer": "nearest"}
+        body = {"name": "warm", "space": space, "task": task, "max_trials": 2}
+        study = http.post("/api/v1/studies", json=body).json()["id"]
+        first = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+        second = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+        for job, source in ((first, None), (second, first["trial_id"])):
+            told = {"value": 1.0, "worker_id": "w", "transfer_from": source}
+            response = http.post(f"/api/v1/trials/{job['trial_id']}/tell", json=told)
+            assert response.status_code == 200, response.text
+    browser.navigate(f"{live_server.url}/#/studies/{study}")
+    marks = browser.wait_for(
+        "(() => { const rows = [...document.querySelectorAll('[data-trial-id]')];"
+        " return rows.length === 2 ? Object.fromEntries(rows.map(row => [row.dataset.trialId,"
+        " row.querySelector('[data-transfer-from]')?.textContent ?? null])) : null; })()"
+    )
+    assert marks == {
+        str(first["trial_id"]): None,
+        str(second["trial_id"]): f"from trial {first['trial_id']}",
+    }
