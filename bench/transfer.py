@@ -10,15 +10,16 @@ run's seed, and ``--workers`` adworker processes. Arms:
 
 - ``scratch``: every design trains ``--train-steps`` from scratch (``transfer: none``);
 - ``nearest``: ``transfer: nearest``; a design with an evaluated design of its tree
-  starts from the nearest of the best four and trains ``--transfer-steps`` (default a
-  quarter of the budget);
+  starts from the nearest of the best four and trains the task's default warm budget (a
+  quarter of ``--train-steps``);
+- ``nearest/8``: the same with an eighth of the budget (``transfer_steps``);
 - ``scratch+asha``, ``nearest+asha``: the same with the ASHA pruner of bench/pruning.py
   (rungs from a fifth of the budget, reduction factor 3).
 
 Measured per trial as in bench/pruning.py: worker CPU seconds (``time_cpu_s``) and the
 score. Per run: the best score and the worker CPU spent until the best so far first
 reached 95% of the ``scratch`` arm's median best of that task and learner (trials in
-the order they finished; never reached: the run's whole CPU, marked). Goal (issue 27):
+the order they finished; a run that never reached it counts as infinite). Goal (issue 27):
 the same best within the seeds' spread (median at least the scratch arm's lowest) for
 at least 3x less worker CPU to that 95% mark (moonshot 5x), on every task.
 
@@ -60,7 +61,7 @@ EXAMPLES = {
     "lift-highest": "multi-structure.yaml",
     "walk-forward": "walk-forward.yaml",
 }
-ARMS = ["scratch", "nearest", "scratch+asha", "nearest+asha"]
+ARMS = ["scratch", "nearest", "nearest/8", "scratch+asha", "nearest+asha"]
 REACHED = 0.95
 
 
@@ -74,11 +75,17 @@ def study_body(task: str, learner: str, arm: str, seed: int, args: argparse.Name
         "train_steps": args.train_steps,
         "seed": seed,
         "transfer": "nearest" if arm.startswith("nearest") else "none",
-        "transfer_steps": args.transfer_steps,
+        "transfer_steps": warm_steps(arm, args.train_steps),
     }
     body["max_trials"] = args.trials
     body["pruner"] = pruner_of("asha" if arm.endswith("+asha") else "none", args.train_steps)
     return body
+
+
+def warm_steps(arm: str, train_steps: int) -> int | None:
+    """A warm start's budget: the task's default (a quarter) or, for ``nearest/8``, an
+    eighth of the from-scratch budget."""
+    return train_steps // 8 if arm.endswith("/8") else None
 
 
 def run_one(task: str, learner: str, arm: str, seed: int, args: argparse.Namespace) -> dict:
@@ -91,7 +98,7 @@ def run_one(task: str, learner: str, arm: str, seed: int, args: argparse.Namespa
         "arm": arm,
         "seed": seed,
         "train_steps": args.train_steps,
-        "transfer_steps": args.transfer_steps,
+        "transfer_steps": warm_steps(arm, args.train_steps),
         "max_trials": args.trials,
         "trials": trials,
         "best": info.best_value,
@@ -159,6 +166,7 @@ COLOURS = {
     "scratch": "black",
     "nearest": "tab:red",
     "scratch+asha": "tab:gray",
+    "nearest/8": "tab:purple",
     "nearest+asha": "tab:orange",
 }
 
@@ -180,8 +188,8 @@ def load(args: argparse.Namespace) -> list[dict[str, Any]]:
     if not RESULTS.exists():
         return []
     runs = [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
-    setting = (args.train_steps, args.transfer_steps, args.trials)
-    return [r for r in runs if (r["train_steps"], r["transfer_steps"], r["max_trials"]) == setting]
+    setting = (args.train_steps, args.trials)
+    return [r for r in runs if (r["train_steps"], r["max_trials"]) == setting]
 
 
 def main() -> None:
@@ -193,9 +201,6 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--trials", type=int, default=16)
     parser.add_argument("--train-steps", type=int, default=20_000)
-    parser.add_argument(
-        "--transfer-steps", type=int, default=None, help="default: a quarter of the budget"
-    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--timeout", type=float, default=12 * 3600)
     parser.add_argument("--quick", action="store_true", help="a smoke run, not recorded")
@@ -211,7 +216,7 @@ def main() -> None:
                 for learner in args.learners:
                     for arm in args.arms:
                         key = (task, learner, arm, seed, args.train_steps)
-                        key += (args.transfer_steps, args.trials)
+                        key += (warm_steps(arm, args.train_steps), args.trials)
                         if key in done and not args.quick:
                             continue
                         run = run_one(task, learner, arm, seed, args)
