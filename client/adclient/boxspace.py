@@ -166,6 +166,31 @@ class BoxEncoding:
             vector.append(self._coordinate(p, params[p.name]))
         return self.snap(np.array(vector, dtype=np.float64))
 
+    def given(self, params: dict[str, Any]) -> dict[str, Any]:
+        """Params a user hands over (enqueued or added) as their trial keeps them: each
+        value exactly as given, in its param's type (a float as float, an int as int, a
+        choice as the space names it), so what is enqueued comes back bit for bit, where
+        ``decode(encode(...))`` would give ``exp(ln 0.01)`` for a log param. ValueError
+        as :meth:`encode`, and for a stepped float off its grid."""
+        self.encode(params)
+        kept: dict[str, Any] = {}
+        for p in self.params:
+            value = params[p.name]
+            if p.type == "categorical":
+                kept[p.name] = (p.choices or [])[round(self._coordinate(p, value))]
+            elif p.type == "int":
+                kept[p.name] = int(value)
+            else:
+                if p.step is not None:
+                    assert p.low is not None
+                    k = (value - p.low) / p.step
+                    if abs(k - round(k)) > 1e-9:
+                        raise ValueError(
+                            f"param {p.name!r}: {value} is not on its grid {p.low} + k * {p.step}"
+                        )
+                kept[p.name] = float(value)
+        return kept
+
     @staticmethod
     def _coordinate(param: BoxParam, value: Any) -> float:
         where = f"param {param.name!r}"

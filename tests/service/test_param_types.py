@@ -17,6 +17,7 @@ import pytest
 from scipy import stats
 
 from adclient.boxspace import BoxEncoding
+from adclient.schemas.common import MAX_ASK
 from adservice.proposers import available, get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history
 from tests.servers import ServerProcess
@@ -166,6 +167,66 @@ def test_a_bad_param_is_a_422_naming_it_and_the_problem(http: httpx.Client) -> N
         if problem != "type":
             assert repr(param["name"]) in text, (param, text)
     assert http.get("/api/v1/studies").json() == before
+
+
+def given_values(rng: np.random.Generator, count: int) -> list[dict[str, Any]]:
+    """Values a user types or computes for each param of SPACE: any float in range,
+    log-uniform floats (and 0.01, the value that came back as 0.010000000000000004),
+    ints, grid values written out (0.3) or computed (3 * 0.1), the ends, every choice."""
+    rows = []
+    for i in range(count):
+        k = int(rng.integers(0, 6))
+        rows.append(
+            {
+                "x": [-2.0, 2.0, float(rng.uniform(-2, 2))][min(i % 7, 2)],
+                "lr": [0.01, 1e-5, 0.1, float(10 ** rng.uniform(-5, -1))][min(i % 11, 3)],
+                "width": int(rng.integers(1, 65)),
+                "layers": 2 * int(rng.integers(0, 4)),
+                "dropout": k / 10 if i % 2 else k * 0.1,
+                "activation": CHOICES[i % 3],
+                "batch": [16, 32, 64][int(rng.integers(0, 3))],
+            }
+        )
+    return rows
+
+
+def all_trials(http: httpx.Client, sid: int) -> list[dict[str, Any]]:
+    trials: list[dict[str, Any]] = []
+    while page := http.get(f"/api/v1/studies/{sid}/trials", params={"after": len(trials)}).json():
+        trials += page
+    return trials
+
+
+@pytest.mark.e2e
+def test_enqueued_and_added_values_come_back_exactly_as_given(http: httpx.Client) -> None:
+    """Thousands of random values of every box type: enqueued ones come back from the
+    POST, the list and the ask bit for bit and in their types; added (evaluated) ones
+    from the POST and the list. A stepped float off its grid is a 422 naming it."""
+    body = {"name": "exact", "space": SPACE, "proposer": {"name": "random"}}
+    sid = http.post("/api/v1/studies", json=body).json()["id"]
+    rng = np.random.default_rng(29)
+    queued, added = given_values(rng, 1500), given_values(rng, 1500)
+    posted = http.post(
+        f"/api/v1/studies/{sid}/trials",
+        json=[{"params": p} for p in queued]
+        + [{"params": p, "state": "complete", "value": 1.0} for p in added],
+    )
+    assert posted.status_code == 201, posted.text
+    assert [t["params"] for t in posted.json()] == queued + added
+    assert [t["params"] for t in all_trials(http, sid)] == queued + added
+    handed: list[dict[str, Any]] = []
+    while len(handed) < len(queued):
+        count = min(MAX_ASK, len(queued) - len(handed))
+        asked = http.post(f"/api/v1/studies/{sid}/ask", json={"count": count})
+        handed += [t["params"] for t in asked.json()["trials"]]
+    assert handed == queued
+    for trial in handed:
+        assert [type(trial[p["name"]]) for p in PARAMS] == [float, float, int, int, float, str, int]
+    off_grid = {**queued[0], "dropout": 0.25}
+    refused = http.post(f"/api/v1/studies/{sid}/trials", json={"params": off_grid})
+    assert refused.status_code == 422
+    assert "param 'dropout': 0.25 is not on its grid" in refused.text
+    assert len(all_trials(http, sid)) == len(queued) + len(added)
 
 
 def draws(proposer: str, box: BoxEncoding, count: int) -> list[dict[str, Any]]:

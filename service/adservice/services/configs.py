@@ -131,6 +131,14 @@ class StudyConfig:
 
         return design_params(decode(self.design_space, self.representation, vector.tolist()))
 
+    def given(self, params: dict[str, Any], vector: np.ndarray) -> dict[str, Any]:
+        """Params a user hands over (checked by :meth:`vector`, whose result ``vector``
+        is) as their trial keeps them: box params exactly as given, a design's as decoded
+        (its specs round-trip exactly already)."""
+        if self.representation is None or self.design_space is None:
+            return (self.box or BoxEncoding.of(self.space)).given(params)
+        return self.params(vector)
+
     def vector(self, params: dict[str, Any]) -> np.ndarray:
         """The inverse of :meth:`params`, for params a user hands over: ValueError naming a
         missing, unknown, out-of-range or mistyped param. A design's params are its specs

@@ -255,12 +255,15 @@ def add_trials(
         owner_name=config.owner_name,
     )
     vectors: list[list[float]] = []
+    kept: list[dict[str, Any]] = []
     outcomes: list[Outcome | None] = []
     problems: list[str] = []
     for index, add in enumerate(adds):
         where = "trial" if len(adds) == 1 else f"trials[{index}]"
         try:
-            vectors.append(config.canonical(config.vector(add.params)[None, :])[0].tolist())
+            vector = config.canonical(config.vector(add.params)[None, :])[0]
+            kept.append(config.given(add.params, vector))
+            vectors.append(vector.tolist())
         except ValueError as error:
             problems.append(f"{where}.params: {error}")
         outcomes.append(None)
@@ -297,7 +300,7 @@ def add_trials(
                 study_id=study_id,
                 first_number=first,
                 vectors=[vectors[index] for index in new],
-                params=[config.params(np.asarray(vectors[index])) for index in new],
+                params=[kept[index] for index in new],
                 adds=[adds[index] for index in new],
                 outcomes=[outcomes[index] for index in new],
             )
