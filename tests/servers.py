@@ -107,8 +107,8 @@ class ServerProcess:
 
 
 SDK_HEADERS = {"X-Activedesign-Client": "test"}
-"""What the SDK sends with every request; a raw client changing something without it
-(or a JSON body) is refused 415, as a cross-site page would be."""
+"""What the SDK sends with every request; a raw client's POST without it (or a JSON
+body) is refused 415, as a cross-site page's would be."""
 
 
 def make_token(server: ServerProcess, role: str, name: str = "") -> str:

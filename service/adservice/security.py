@@ -2,11 +2,14 @@
 another web page could make on a visitor's behalf.
 
 A page on another origin can send a "simple" cross-site request (a form post, a
-``no-cors`` fetch) without asking the server first; such a request can carry neither a
-JSON content type nor a custom header. So every state-changing API request must carry
-one of them: ``Content-Type: application/json``, the SDK's ``X-Activedesign-Client`` or
-the dashboard's ``X-CSRF-Token``. This matters most with auth off (loopback), where no
-token stands in the way.
+``no-cors`` fetch) without asking the server first: only a POST (or GET/HEAD) with no
+content type or a CORS-simple one (a form's, ``text/plain``) and no custom header. So
+such a POST to the API is refused unless it carries one of the SDK's
+``X-Activedesign-Client`` or the dashboard's ``X-CSRF-Token``; a JSON body, or any
+other content type, is preflighted by a browser, which this server never answers with
+CORS leave. DELETE, PUT and PATCH are always preflighted, so they pass to
+authentication as any REST client expects (``curl -X DELETE``). This matters most with
+auth off (loopback), where no token stands in the way.
 """
 
 from __future__ import annotations
@@ -34,11 +37,15 @@ API_HEADERS = {
 bytes on the API's hot path than a page's set."""
 CHANGE_HEADERS = (b"x-activedesign-client", b"x-csrf-token")
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+SIMPLE_CONTENT_TYPES = frozenset(
+    {b"", b"application/x-www-form-urlencoded", b"multipart/form-data", b"text/plain"}
+)
+"""What a browser sends cross-site without a preflight (the Fetch standard's
+CORS-safelisted request header values of ``Content-Type``, or none)."""
 
 
-def is_json(content_type: bytes) -> bool:
-    media = content_type.split(b";")[0].strip().lower()
-    return media == b"application/json" or media.endswith(b"+json")
+def is_simple(content_type: bytes) -> bool:
+    return content_type.split(b";")[0].strip().lower() in SIMPLE_CONTENT_TYPES
 
 
 def host_name(host: bytes) -> str:
@@ -55,8 +62,8 @@ def _encoded(headers: dict[str, str]) -> list[tuple[bytes, bytes]]:
 
 class BrowserEdge:
     """Pure ASGI middleware, the outermost: a ``Host`` the server is not served under is
-    400 (DNS rebinding); a state-changing /api request that another origin's page could
-    send unasked (no JSON body, no custom header) is 415; every answer, errors included,
+    400 (DNS rebinding); a POST to /api that another origin's page could send unasked (a
+    simple content type, no custom header) is 415; every answer, errors included,
     carries the headers above (the CSP unless the answer set a stricter one of its own:
     artifacts are sandboxed). One layer, not three: it runs on every request."""
 
@@ -102,17 +109,17 @@ class BrowserEdge:
             await refused(scope, receive, send_with_headers)
             return
         if (
-            scope["method"] not in SAFE_METHODS
+            scope["method"] == "POST"
             and scope["path"].startswith("/api/")
-            and not is_json(headers.get(b"content-type", b""))
+            and is_simple(headers.get(b"content-type", b""))
             and not any(name in headers for name in CHANGE_HEADERS)
         ):
             refused = JSONResponse(
                 {
                     "error": "unsupported_media_type",
-                    "detail": "a request that changes something must send a JSON body "
-                    "(Content-Type: application/json) or the X-Activedesign-Client "
-                    "header: other web pages can send neither without the server's leave",
+                    "detail": "a POST must send a JSON body (Content-Type: "
+                    "application/json) or the X-Activedesign-Client header: other web "
+                    "pages can send neither without the server's leave",
                 },
                 status_code=415,
             )

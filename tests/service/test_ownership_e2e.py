@@ -250,6 +250,10 @@ def test_a_simple_cross_site_request_changes_nothing(live_server: ServerProcess)
                 assert refused.status_code == 415, (path, headers, refused.text)
         assert browser_like.get(url).json()["state"] == "running"
         assert browser_like.get(url).json()["n_trials"] == 0
+        # DELETE, PUT and PATCH are preflighted by a browser: they pass as a REST
+        # client sends them, to be refused by the route for what they are.
+        patched = browser_like.patch(url, content=b"x=1", headers={"Content-Type": "text/plain"})
+        assert patched.status_code == 422, patched.text
         # The SDK's header, or JSON, is what a client sends.
         stopped = browser_like.post(url + "/stop", headers={"X-Activedesign-Client": "x"})
         assert stopped.status_code == 200 and stopped.json()["state"] == "stopped"
