@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from adservice.proposers import gpfit
 from adservice.proposers.base import ProposalRequest, empty_history
 from adservice.proposers.gpmodel import Posterior
-from adservice.proposers.qei import QEIOptions
+from adservice.proposers.qei_shared import QEIOptions
 from bench.asklatency import objective
 
 TKW: dict[str, Any] = {"dtype": torch.float64, "device": torch.device("cpu")}

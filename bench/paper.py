@@ -47,9 +47,13 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.paperlib import (
+    BASELINE_BUDGET,
+    DEFAULT_SEEDS,
+    MODEL_BUDGET,
     QUICK,
     REPO,
     RESULTS,
+    RL_SEEDS,
     TASKS,
     append_jsonl,
     interrupt_on_sigterm,
@@ -71,10 +75,6 @@ METHODS: dict[str, tuple[str, str]] = {
 kernel, axis features and GPSampler-style acquisition), measured from a later commit
 (``--code``) whose tasks and learners are the pinned ones."""
 PLAIN_ONLY_MULTI = {"qei-onehot"}
-MODEL_BUDGET = 15
-BASELINE_BUDGET = 30
-DEFAULT_SEEDS = {"fast": 10}
-RL_SEEDS = 3
 VAR = REPO / "var" / "paper"
 
 

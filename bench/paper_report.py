@@ -27,10 +27,14 @@ from typing import Any
 import numpy as np
 
 from bench.paperlib import (
+    BASELINE_BUDGET,
     BEST_KNOWN,
+    DEFAULT_SEEDS,
+    MODEL_BUDGET,
     QUICK,
     REPO,
     RESULTS,
+    RL_SEEDS,
     TARGET_FRACTION,
     TASK_LABELS,
     TASKS,
@@ -717,8 +721,6 @@ def write_report(console: Any, *, quick: bool) -> None:
 
 def estimate(console: Any, studies: dict[str, list[Study]]) -> None:
     """From a quick run: seconds per evaluation by (task, method), scaled to the full grid."""
-    from bench.paper import BASELINE_BUDGET, DEFAULT_SEEDS, MODEL_BUDGET, RL_SEEDS
-
     for learner, group in studies.items():
         seeds = DEFAULT_SEEDS.get(learner, RL_SEEDS)
         total = 0.0

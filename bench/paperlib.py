@@ -15,6 +15,13 @@ RESULTS = REPO / "bench" / "results"
 BEST_KNOWN = RESULTS / "best_known.json"
 QUICK = REPO / "var" / "paper" / "quick"
 """Where --quick (smoke) runs of both scripts write everything: ignored by git."""
+MODEL_BUDGET = 15
+"""qei's evaluations per study (the preprint's budget)."""
+BASELINE_BUDGET = 30
+"""The other methods' evaluations per study."""
+DEFAULT_SEEDS = {"fast": 10}
+"""Seeds per learner; RL learners get RL_SEEDS."""
+RL_SEEDS = 3
 TARGET_FRACTION = 0.95
 """A study reaches the target when a trial scores at least this fraction of the best known."""
 

@@ -19,7 +19,7 @@ from adclient.pruning import TrialPruned
 from adclient.schemas import Study, StudyState, Trial, TrialState, WorkerInfo
 
 if TYPE_CHECKING:
-    from adclient.client import Client, TrialRef
+    from adclient.calls import ServerCalls, TrialRef
 
 
 def study_finished(study: Study) -> bool:
@@ -44,11 +44,11 @@ class LiveTrial(Trial):
                 raise TrialPruned()   # study.optimize tells it pruned
     """
 
-    _client: Client | None = PrivateAttr(default=None)
+    _client: ServerCalls | None = PrivateAttr(default=None)
     _should_stop: bool = PrivateAttr(default=False)
 
     @classmethod
-    def bound(cls, trial: Trial, client: Client) -> LiveTrial:
+    def bound(cls, trial: Trial, client: ServerCalls) -> LiveTrial:
         live = cls.model_validate(trial.model_dump())
         live._client = client
         return live
@@ -85,7 +85,7 @@ class StudyHandle:
     (a list even for ``n == 1``), so the return type follows from the call.
     """
 
-    def __init__(self, client: Client, study_id: int, info: Study | None = None) -> None:
+    def __init__(self, client: ServerCalls, study_id: int, info: Study | None = None) -> None:
         self.client = client
         self.id = int(study_id)
         self._info = info

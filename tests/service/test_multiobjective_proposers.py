@@ -19,7 +19,8 @@ from adservice.proposers import available, get_proposer, proposer_class
 from adservice.proposers.base import ProposalRequest, SearchStructure, empty_history
 from adservice.proposers.gpfit import clear_caches
 from adservice.proposers.multiobjective import observed_front, reference_point
-from adservice.proposers.qei import QEIOptions, memory_need
+from adservice.proposers.qei import memory_need
+from adservice.proposers.qei_shared import QEIOptions
 
 D = 4
 UNIT = np.array([np.zeros(D), np.ones(D)])

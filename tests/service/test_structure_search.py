@@ -23,7 +23,7 @@ from adservice.proposers.base import ProposalRequest, empty_history, model_input
 from adservice.proposers.gpfit import fit_outcome
 from adservice.proposers.gpmodel import Posterior
 from adservice.proposers.initial import structure_order
-from adservice.proposers.qei import QEIOptions
+from adservice.proposers.qei_shared import QEIOptions
 from adservice.representation import build_representation, search_structure
 
 TKW: dict[str, Any] = {"dtype": torch.float64, "device": torch.device("cpu")}

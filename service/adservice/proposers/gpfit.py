@@ -20,7 +20,7 @@ import torch
 from adservice.proposers.base import ProposalRequest, SearchStructure, model_inputs
 
 if TYPE_CHECKING:
-    from adservice.proposers.qei import QEIOptions
+    from adservice.proposers.qei_shared import QEIOptions
 
 _CACHE_LOCK = threading.Lock()
 _CACHE_SIZE = 256

@@ -17,7 +17,7 @@ from adservice.proposers.simple import derived_seed
 if TYPE_CHECKING:
     import torch
 
-    from adservice.proposers.qei import QEIOptions
+    from adservice.proposers.qei_shared import QEIOptions
 
 DEFAULT_RESTARTS = 10
 """Local searches per candidate (GPSampler's n_local_search)."""

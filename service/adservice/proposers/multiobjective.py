@@ -93,32 +93,31 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
 
 from adservice.proposers.base import ProposalRequest, model_inputs
 from adservice.proposers.greedy import DEFAULT_RAW_SAMPLES, Greedy, Step
-from adservice.proposers.qei import EHVI_CHUNK
+from adservice.proposers.qei_shared import (
+    EHVI_CHUNK,
+    MC_LOCK,
+    MO_RAW_SAMPLES,
+    MO_SCREEN_DRAWS,
+    PROPOSER_DEVICE,
+    QEIOptions,
+    limit_threads,
+)
 from adservice.proposers.simple import derived_seed
-
-if TYPE_CHECKING:
-    from adservice.proposers.qei import QEIOptions
 
 BASELINE_DRAWS = 256
 """Posterior draws that decide which observed points stay in qLogNEHVI's baseline."""
-RAW_SAMPLES = 1024  # qei._MO_RAW_SAMPLES
-"""Sobol points the starts come from, unless ``options["raw_samples"]`` says (Ax's
-default for these acquisitions; qei's 2048 for one objective)."""
 FRONT_STARTS = 12
 """Local searches started at the observed front (``front_starts``), at most."""
 ETA = 0.05
 """Each constraint's smoothing temperature, in standard deviations of its observed
 slacks (the sigmoid that weights a candidate by its feasibility)."""
-SCREEN_DRAWS = 16  # qei._MO_SCREEN_DRAWS
-"""Posterior draws of the cheaper acquisition that scores the raw samples
-(``acquisition.maximise``'s ``screen``); the local searches use all of them."""
 
 
 def _no_kernel_compilation() -> None:
@@ -359,13 +358,12 @@ def optimise_outcomes(
     from botorch.models.model_list_gp_regression import ModelListGP
     from botorch.sampling.normal import SobolQMCNormalSampler
 
-    from adservice.proposers import qei
     from adservice.proposers.gpfit import fit_outcome
     from adservice.proposers.gpmodel import AnalyticConstrainedLogEI
 
-    qei._limit_threads(torch)
+    limit_threads(torch)
     _no_kernel_compilation()
-    device = torch.device(options.device or qei._PROPOSER_DEVICE)
+    device = torch.device(options.device or PROPOSER_DEVICE)
     tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
     search = request.structure
     seed = derived_seed(request.seed, request.n_issued)
@@ -432,7 +430,7 @@ def optimise_outcomes(
         else:
             acquisition = "qLogNEI" if request.noisy else "qLogEI"
 
-    default_raw = DEFAULT_RAW_SAMPLES if analytic is not None else RAW_SAMPLES
+    default_raw = DEFAULT_RAW_SAMPLES if analytic is not None else MO_RAW_SAMPLES
     greedy = Greedy.of(
         request,
         options,
@@ -498,12 +496,12 @@ def optimise_outcomes(
         if analytic is not None:
             return Step(*analytic.step(pending_t))
         screen = None
-        if mc_samples > SCREEN_DRAWS:
-            screen = make_acquisition(SCREEN_DRAWS, step_seed, pending_t)
+        if mc_samples > MO_SCREEN_DRAWS:
+            screen = make_acquisition(MO_SCREEN_DRAWS, step_seed, pending_t)
         return Step(make_acquisition(mc_samples, step_seed, pending_t), acquisition, screen)
 
     # the Monte Carlo acquisitions take turns (see qei); the analytic one sets nothing
-    with qei._MC_LOCK if analytic is None else contextlib.nullcontext():
+    with MC_LOCK if analytic is None else contextlib.nullcontext():
         if acquisition == "qLogNEHVI":
             baseline = _pruned_baseline(model, train_Z, m, constraints, derived_seed(seed, q))
             extra["n_baseline"] = len(baseline)

@@ -101,7 +101,7 @@ Decisions worth knowing:
   optimum up to the optimiser's tolerance, so candidates agree closely but are
   not guaranteed bit-identical to those of the server that warm-started. Set
   ``options["warm_start"] = False`` for strict restart-independence.
-- The device is the server's ``AD_PROPOSER_DEVICE`` (``cpu`` unless set to ``cuda``);
+- The device is the server's ``ADPROPOSER_DEVICE`` (``cpu`` unless set to ``cuda``);
   ``options["device"]`` overrides it for one study. Everything runs in float64.
 - Threads: torch's intra-op pool is set to one thread (``AD_TORCH_THREADS``
   overrides). These are small matrices; on a shared two-core machine two torch
@@ -120,13 +120,11 @@ Decisions worth knowing:
 from __future__ import annotations
 
 import contextlib
-import threading
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from pydantic import Field, model_validator
 
 from adservice.proposers.base import (
     Proposal,
@@ -137,34 +135,24 @@ from adservice.proposers.base import (
 )
 from adservice.proposers.greedy import DEFAULT_RAW_SAMPLES, DEFAULT_RESTARTS, Greedy, Step
 from adservice.proposers.initial import initial_count, initial_points
+from adservice.proposers.qei_shared import (
+    EHVI_CHUNK,
+    MC_LOCK,
+    MO_RAW_SAMPLES,
+    MO_SCREEN_DRAWS,
+    PROPOSER_DEVICE,
+    QEIOptions,
+    limit_threads,
+)
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
-from adservice.settings import get_settings
 
 if TYPE_CHECKING:
     import torch
 
-_MC_LOCK = threading.Lock()
-_THREAD = threading.local()
 _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
 _DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
-_TORCH_THREADS = get_settings().torch_threads
-_PROPOSER_DEVICE = get_settings().proposer_device
-
-
-def _limit_threads(torch: Any) -> None:
-    """torch's intra-op threads (OpenMP: a per-thread setting) and the BLAS's (global
-    for OpenBLAS) for this thread, once: every thread sets the same values and none
-    restores them, so concurrent asks cannot leave each other with the wrong count."""
-    if getattr(_THREAD, "limited", False):
-        return
-    from threadpoolctl import threadpool_limits
-
-    if torch.get_num_threads() != _TORCH_THREADS:
-        torch.set_num_threads(_TORCH_THREADS)
-    threadpool_limits(limits=1, user_api="blas")  # L-BFGS-B's small products only contend
-    _THREAD.limited = True
 
 
 def _n_distinct(unit: np.ndarray) -> int:
@@ -174,60 +162,9 @@ def _n_distinct(unit: np.ndarray) -> int:
     return len(np.unique(keys, axis=0))
 
 
-class QEIOptions(ProposerOptions):
-    """qei's options; see the module docstring for what each choice does."""
-
-    noise: Literal["inferred", "floor", "fixed"] | None = Field(
-        default=None, description="Default: inferred for a noisy study, else floor"
-    )
-    kernel: Literal["rbf", "matern"] = "matern"
-    num_restarts: int | None = Field(
-        default=None, ge=1, le=128, description="Local searches per candidate. Default: 10"
-    )
-    raw_samples: int | None = Field(
-        default=None,
-        ge=1,
-        le=16_384,
-        description="Sobol points the starts come from. Default: 2048",
-    )
-    maxiter: int = Field(default=100, ge=1, le=10_000)
-    mc_samples: int | None = Field(
-        default=None, ge=1, le=4096, description="acquisition: mc only. Default: 128"
-    )
-    acquisition: Literal["analytic", "mc"] = Field(
-        default="analytic",
-        description="analytic LogEI with pending points as Kriging believers, or "
-        "Monte Carlo qLogEI / qLogNEI with pending points",
-    )
-    warm_start: bool = True
-    device: Literal["cpu", "cuda"] | None = Field(
-        default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"
-    )
-
-    @model_validator(mode="after")
-    def _enough_raw_samples(self) -> QEIOptions:
-        if (
-            self.num_restarts is not None
-            and self.raw_samples is not None
-            and self.raw_samples < self.num_restarts
-        ):
-            raise ValueError(
-                f"raw_samples ({self.raw_samples}) must be >= num_restarts "
-                f"({self.num_restarts}): each restart starts from one raw sample"
-            )
-        return self
-
-
 _FLOAT = 8
-_MO_RAW_SAMPLES = 1024
-"""``multiobjective.RAW_SAMPLES`` (that module imports torch)."""
-_MO_SCREEN_DRAWS = 16
-"""``multiobjective.SCREEN_DRAWS``."""
 _MO_BASELINE = 16
 """Observations assumed in the pruned baseline of qLogNEHVI (typically the front)."""
-EHVI_CHUNK = 1 << 20
-"""Candidates x hypervolume cells x objectives that analytic LogEHVI computes at once
-(``multiobjective``; the rest in further chunks): each of its arrays stays under 8 MB."""
 _SCORED_AT_ONCE = 1024
 """Raw samples scored in one batch (``acquisition._CHUNK``)."""
 
@@ -278,16 +215,16 @@ def memory_need(
     outcomes = n_objectives + n_constraints
     if outcomes > 1 and options.acquisition == "mc":
         # issue 17's Monte Carlo acquisitions (``multiobjective``): the raw samples are
-        # scored with SCREEN_DRAWS draws of each outcome jointly with the baseline (at
+        # scored with MO_SCREEN_DRAWS draws of each outcome jointly with the baseline (at
         # most _MO_BASELINE of the observations assumed) and the pending points, against
         # every observation, and a draw's hypervolume cells: an upper estimate from the
         # shapes, checked against a fresh process's peak at n = 80 and 200, 0 and 16
         # pending, 2 and 3 outcomes (65, 123, 334 MB measured; 109, 226, 501 estimated)
-        raw = options.raw_samples or max(_MO_RAW_SAMPLES, restarts)
+        raw = options.raw_samples or max(MO_RAW_SAMPLES, restarts)
         batch = min(_SCORED_AT_ONCE, raw)
         joint = min(n_train, _MO_BASELINE) + n_pending + count
         mc = options.mc_samples or 128
-        draws = max(_MO_SCREEN_DRAWS, mc * 64 // batch)
+        draws = max(MO_SCREEN_DRAWS, mc * 64 // batch)
         parts["raw_samples"] = _FLOAT * raw * (dim + 1) * 6 + _FLOAT * batch * joint * (
             outcomes * (2 * n_train + 2 * joint + 3 * draws) + 10 * draws * n_objectives
         )
@@ -536,8 +473,8 @@ class QLogEIProposer:
         from adservice.proposers.gpfit import fit_outcome
         from adservice.proposers.gpmodel import AnalyticLogEI
 
-        _limit_threads(torch)
-        device = torch.device(options.device or _PROPOSER_DEVICE)
+        limit_threads(torch)
+        device = torch.device(options.device or PROPOSER_DEVICE)
         tkw: dict[str, Any] = {"dtype": torch.float64, "device": device}
         search = request.structure
         seed = derived_seed(request.seed, request.n_issued)
@@ -561,7 +498,7 @@ class QLogEIProposer:
         # gpytorch's settings are class attributes that BoTorch's Monte Carlo posterior
         # sets and restores at every call: those acquisitions take turns (the analytic
         # one sets none)
-        with _MC_LOCK if analytic is None else contextlib.nullcontext():
+        with MC_LOCK if analytic is None else contextlib.nullcontext():
             baseline = train_Z
             if analytic is None and request.noisy:
                 # BoTorch's own pruning would seed its sampler from torch's global generator

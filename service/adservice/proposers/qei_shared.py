@@ -1,0 +1,90 @@
+"""What qei shares with the modules it drives (gpfit, greedy, multiobjective), below
+them all so none imports another's privates: qei's options, torch's thread limits, the
+Monte Carlo lock, the proposer's device and the sizes that qei's memory estimate and
+the multi-objective acquisitions agree on."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Literal
+
+from pydantic import Field, model_validator
+
+from adservice.proposers.base import ProposerOptions
+from adservice.settings import get_settings
+
+MC_LOCK = threading.Lock()
+"""Held by a Monte Carlo acquisition while it optimises (its samplers' state is shared)."""
+_THREAD = threading.local()
+TORCH_THREADS = get_settings().torch_threads
+PROPOSER_DEVICE = get_settings().proposer_device
+
+MO_RAW_SAMPLES = 1024
+"""Sobol points the starts of a multi-objective or constrained acquisition come from,
+unless ``options["raw_samples"]`` says (Ax's default for these acquisitions; qei's 2048
+for one objective)."""
+MO_SCREEN_DRAWS = 16
+"""Posterior draws of the cheaper acquisition that scores the raw samples of a Monte
+Carlo multi-objective acquisition (``acquisition.maximise``'s ``screen``); the local
+searches use all of them."""
+EHVI_CHUNK = 1 << 20
+"""Candidates x hypervolume cells x objectives that analytic LogEHVI computes at once
+(``multiobjective``; the rest in further chunks): each of its arrays stays under 8 MB."""
+
+
+def limit_threads(torch: Any) -> None:
+    """torch's intra-op threads (OpenMP: a per-thread setting) and the BLAS's (global
+    for OpenBLAS) for this thread, once: every thread sets the same values and none
+    restores them, so concurrent asks cannot leave each other with the wrong count."""
+    if getattr(_THREAD, "limited", False):
+        return
+    from threadpoolctl import threadpool_limits
+
+    if torch.get_num_threads() != TORCH_THREADS:
+        torch.set_num_threads(TORCH_THREADS)
+    threadpool_limits(limits=1, user_api="blas")  # L-BFGS-B's small products only contend
+    _THREAD.limited = True
+
+
+class QEIOptions(ProposerOptions):
+    """qei's options; see the module docstring for what each choice does."""
+
+    noise: Literal["inferred", "floor", "fixed"] | None = Field(
+        default=None, description="Default: inferred for a noisy study, else floor"
+    )
+    kernel: Literal["rbf", "matern"] = "matern"
+    num_restarts: int | None = Field(
+        default=None, ge=1, le=128, description="Local searches per candidate. Default: 10"
+    )
+    raw_samples: int | None = Field(
+        default=None,
+        ge=1,
+        le=16_384,
+        description="Sobol points the starts come from. Default: 2048",
+    )
+    maxiter: int = Field(default=100, ge=1, le=10_000)
+    mc_samples: int | None = Field(
+        default=None, ge=1, le=4096, description="acquisition: mc only. Default: 128"
+    )
+    acquisition: Literal["analytic", "mc"] = Field(
+        default="analytic",
+        description="analytic LogEI with pending points as Kriging believers, or "
+        "Monte Carlo qLogEI / qLogNEI with pending points",
+    )
+    warm_start: bool = True
+    device: Literal["cpu", "cuda"] | None = Field(
+        default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"
+    )
+
+    @model_validator(mode="after")
+    def _enough_raw_samples(self) -> QEIOptions:
+        if (
+            self.num_restarts is not None
+            and self.raw_samples is not None
+            and self.raw_samples < self.num_restarts
+        ):
+            raise ValueError(
+                f"raw_samples ({self.raw_samples}) must be >= num_restarts "
+                f"({self.num_restarts}): each restart starts from one raw sample"
+            )
+        return self
