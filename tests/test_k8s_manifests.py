@@ -405,5 +405,5 @@ def test_manifest_files_parse_as_plain_yaml() -> None:
 
 
 def test_the_readme_links_the_deploy_doc() -> None:
-    section = (REPO / "README.md").read_text().split("## Scaling out", 1)[1]
+    section = (REPO / "README.md").read_text().split("## Docs", 1)[1]
     assert "(docs/deploy.md)" in section
