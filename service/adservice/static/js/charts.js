@@ -22,7 +22,7 @@ export function formatNumber(value) {
   return String(Number(value.toPrecision(4)));
 }
 
-function niceTicks(low, high, count = 5) {
+export function niceTicks(low, high, count = 5) {
   if (!(high > low)) return [low];
   const rough = (high - low) / count;
   const magnitude = 10 ** Math.floor(Math.log10(rough));
@@ -63,6 +63,22 @@ export function prepare(canvas) {
   ctx.clearRect(0, 0, width, height);
   ctx.font = FONT;
   return { ctx, width, height };
+}
+
+/** `text` cut at its start with an ellipsis to fit `width` pixels. */
+export function clipText(ctx, text, width) {
+  if (ctx.measureText(text).width <= width) return text;
+  let cut = text;
+  while (cut.length > 1 && ctx.measureText(`…${cut}`).width > width) cut = cut.slice(1);
+  return `…${cut}`;
+}
+
+const MAX_TICKS = 12;
+
+/** Which tick indices of a categorical axis to label: all, or an even subset of many. */
+export function labelled(labels) {
+  const stride = Math.ceil(labels.length / MAX_TICKS);
+  return labels.map((_, i) => i).filter((i) => i % stride === 0);
 }
 
 export function message(ctx, width, height, text) {
@@ -132,12 +148,13 @@ export function drawXAxis(ctx, left, right, bottom, low, high, x, integers) {
  * Hovering and clicking a chart's points: `nearest(x, y)` finds the point within reach
  * of the pointer (or null), `describe(point)` gives its tooltip's markup, and `open(point)`
  * is what a click on it does. With `flip`, the tooltip sits left of the pointer on the
- * chart's right half, so the card does not cut it off.
+ * chart's right half, so the card does not cut it off. `clickable(point)` says whether a
+ * point opens anything (all do unless it says otherwise).
  */
-export function bindPoints(canvas, tooltip, { nearest, describe, open, flip = false }) {
+export function bindPoints(canvas, tooltip, { nearest, describe, open, flip = false, clickable = () => true }) {
   canvas.addEventListener('mousemove', (event) => {
     const point = nearest(event.offsetX, event.offsetY);
-    canvas.style.cursor = point ? 'pointer' : 'default';
+    canvas.style.cursor = point && clickable(point) ? 'pointer' : 'default';
     if (!point) {
       tooltip.hidden = true;
       return;
@@ -154,7 +171,7 @@ export function bindPoints(canvas, tooltip, { nearest, describe, open, flip = fa
   });
   canvas.addEventListener('click', (event) => {
     const point = nearest(event.offsetX, event.offsetY);
-    if (point) open(point);
+    if (point && clickable(point)) open(point);
   });
 }
 

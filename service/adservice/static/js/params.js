@@ -1,34 +1,31 @@
-// The params-and-score panel: parallel coordinates, slice plots and rank correlations of
-// the varying params with the score, over complete trials, one tab each.
+// The params-and-score panel: parallel coordinates, slice plots, rank correlations,
+// parameter importance (importance.js) and a contour of two params (contour.js) against
+// the score, over complete trials, one tab each.
 
 import {
   AXIS,
   FONT,
   PALETTE,
   bucket,
+  clipText,
   drawXAxis,
   drawYAxis,
   extent,
   formatNumber,
   goodness,
+  labelled,
   message,
   prepare,
 } from './charts.js';
+import { ContourView } from './contour.js';
 import { element, esc, finder } from './html.js';
+import { pedAnova, renderImportance, varyingParams } from './importance.js';
 import { isChoices } from './series.js';
 
 const PARALLEL_AXES = 8;
 const SLICE_PLOTS = 12;
 
-function clipText(ctx, text, width) {
-  if (ctx.measureText(text).width <= width) return text;
-  let cut = text;
-  while (cut.length > 1 && ctx.measureText(`…${cut}`).width > width) cut = cut.slice(1);
-  return `…${cut}`;
-}
-
 const MAX_LINES = 2500;
-const MAX_TICKS = 12;
 
 /**
  * A param's column as numbers to plot, and for a categorical param the labels of its
@@ -45,12 +42,6 @@ function plotted(series, name, study) {
     column: column.map((value) => index.get(value) ?? null),
     labels: labels.map(String),
   };
-}
-
-/** Which tick indices of a categorical axis to label: all, or an even subset of many. */
-function labelled(labels) {
-  const stride = Math.ceil(labels.length / MAX_TICKS);
-  return labels.map((_, i) => i).filter((i) => i % stride === 0);
 }
 
 /**
@@ -234,12 +225,17 @@ export class ParamsPanel {
         <button data-tab="parallel" class="active">Parallel coordinates</button>
         <button data-tab="slices">Slices</button>
         <button data-tab="correlation">Rank correlation</button>
+        <button data-tab="importance">Importance</button>
+        <button data-tab="contour">Contour</button>
       </nav>
       <p class="meta" data-params-note></p>
       <canvas class="chart tall" data-parallel></canvas>
       <div class="slices" data-slices hidden></div>
       <div class="correlation" data-correlation hidden></div>
+      <div class="importance" data-importance hidden></div>
     </section>`);
+    this.contour = new ContourView(page);
+    this.root.append(this.contour.root);
     this.$ = finder(this.root);
     const tabs = this.$('tabs');
     tabs.addEventListener('click', (event) => {
@@ -259,10 +255,12 @@ export class ParamsPanel {
     parallel.hidden = this.tab !== 'parallel';
     slices.hidden = this.tab !== 'slices';
     correlation.hidden = this.tab !== 'correlation';
+    this.$('importance').hidden = this.tab !== 'importance';
+    this.contour.root.hidden = this.tab !== 'contour';
     const names = correlations.map((c) => c.name);
     const shown = this.tab === 'slices' ? SLICE_PLOTS : PARALLEL_AXES;
     const notes = [];
-    if (names.length > shown && this.tab !== 'correlation') {
+    if (names.length > shown && (this.tab === 'parallel' || this.tab === 'slices')) {
       notes.push(`The ${shown} of ${names.length} varying params most rank-correlated with the score.`);
     }
     if (this.tab === 'parallel') {
@@ -278,6 +276,7 @@ export class ParamsPanel {
       notes.push('Colour: trial number, yellow early to purple late.');
     }
     this.$('params-note').textContent = notes.join(' ');
+    if (this.tab === 'importance' || this.tab === 'contour') this.drawImportance(names);
     if (this.tab === 'correlation') {
       correlation.innerHTML = correlations.length
         ? correlations
@@ -291,5 +290,20 @@ export class ParamsPanel {
           '<p class="meta">Spearman rank correlation of each param with the score over complete trials.</p>'
         : '<p class="meta">Not enough complete trials yet.</p>';
     }
+  }
+
+  /** PED-ANOVA's ranking, shown as bars or used to pick the contour's two params (the
+   * varying params most important first, then by rank correlation). */
+  drawImportance(correlated) {
+    const { series, study } = this.page;
+    const result = pedAnova(series, study);
+    if (this.tab === 'importance') {
+      renderImportance(this.$('importance'), result, study);
+      return;
+    }
+    const varying = varyingParams(series);
+    const ranked = result.status === 'ok' ? result.importances.map((p) => p.name) : [];
+    const order = [...new Set([...ranked, ...correlated, ...varying])].filter((name) => varying.has(name));
+    this.contour.draw(order);
   }
 }
