@@ -20,7 +20,6 @@ from starlette.middleware.cors import CORSMiddleware
 from adclient import __version__
 from adclient.plugins import catalogue
 from adclient.schemas import ErrorBody
-from adservice import repository, repository_promotion
 from adservice.api.routes import (
     artifacts,
     dashboard,
@@ -52,6 +51,8 @@ from adservice.limits import BodyLimits
 from adservice.locks import StudyLocks
 from adservice.metrics import install_metrics
 from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
+from adservice.repository import leases as lease_repo
+from adservice.repository import promotion as promotion_repo
 from adservice.security import BrowserEdge
 from adservice.services.configs import StudyConfigs
 from adservice.services.trials import Proposing
@@ -185,8 +186,8 @@ def _sweep_leases(db: Database, interval: float, stop: threading.Event) -> None:
     while not stop.wait(interval):
         try:
             with db.write() as session:
-                expired = repository.expire_leases(session)
-                settled = repository_promotion.settle_spent_studies(session)
+                expired = lease_repo.expire_leases(session)
+                settled = promotion_repo.settle_spent_studies(session)
             if expired:
                 log.info("returned %d expired lease(s) to the queue", expired)
             if settled:

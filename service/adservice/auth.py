@@ -32,10 +32,10 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from adservice import repository
 from adservice.db import Database
 from adservice.errors import ForbiddenError, UnauthorizedError
 from adservice.principals import OPEN_ADMIN, RANK, Principal, Role
+from adservice.repository import tokens as token_repo
 from adservice.security import SAFE_METHODS
 
 CACHE_SECONDS = 5.0
@@ -113,13 +113,13 @@ def session_id_of(headers: dict[bytes, bytes]) -> str | None:
 
 def _look_up_token(db: Database, digest: str) -> Principal | None:
     with db.read() as session:
-        row = repository.find_token(session, digest=digest)
+        row = token_repo.find_token(session, digest=digest)
         return Principal(role=Role(row.role), token_id=row.id, name=row.name) if row else None
 
 
 def _look_up_session(db: Database, digest: str) -> Principal | None:
     with db.read() as session:
-        found = repository.find_session(session, digest=digest)
+        found = token_repo.find_session(session, digest=digest)
         if found is None:
             return None
         row, token = found

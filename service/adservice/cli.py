@@ -123,9 +123,9 @@ def create_token(
     database_url: str | None = DATABASE_OPTION,
 ) -> None:
     """Create a token and print it (only its hash is stored: it is shown this once)."""
-    from adservice import repository
     from adservice.auth import Role, new_token, token_digest
     from adservice.db import Database, upgrade_to_head
+    from adservice.repository import tokens as token_repo
 
     if role not in Role.__members__:
         typer.echo(
@@ -137,7 +137,7 @@ def create_token(
     db = Database(settings.database_url)
     token = new_token()
     with db.write() as session:
-        repository.create_token(session, name=name or role, role=role, digest=token_digest(token))
+        token_repo.create_token(session, name=name or role, role=role, digest=token_digest(token))
     db.dispose()
     typer.echo(token)
 
@@ -145,14 +145,14 @@ def create_token(
 @tokens.command("list")
 def list_tokens(database_url: str | None = DATABASE_OPTION) -> None:
     """List tokens (id, role, name, created, revoked)."""
-    from adservice import repository
     from adservice.db import Database, upgrade_to_head
+    from adservice.repository import tokens as token_repo
 
     settings = _settings(database_url=database_url)
     upgrade_to_head(settings.database_url)
     db = Database(settings.database_url)
     with db.read() as session:
-        for row in repository.list_tokens(session):
+        for row in token_repo.list_tokens(session):
             revoked = row.revoked_at.isoformat() if row.revoked_at else "-"
             typer.echo(f"{row.id}\t{row.role}\t{row.name}\t{row.created_at.isoformat()}\t{revoked}")
     db.dispose()
@@ -161,14 +161,14 @@ def list_tokens(database_url: str | None = DATABASE_OPTION) -> None:
 @tokens.command("revoke")
 def revoke_token(token_id: int, database_url: str | None = DATABASE_OPTION) -> None:
     """Revoke a token by id; servers stop accepting it within seconds."""
-    from adservice import repository
     from adservice.db import Database
     from adservice.errors import NotFoundError
+    from adservice.repository import tokens as token_repo
 
     db = Database(_settings(database_url=database_url).database_url)
     try:
         with db.write() as session:
-            repository.revoke_token(session, token_id=token_id)
+            token_repo.revoke_token(session, token_id=token_id)
     except NotFoundError as error:
         typer.echo(f"adserver: {error.detail}", err=True)
         raise typer.Exit(1) from None

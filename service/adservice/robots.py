@@ -5,16 +5,17 @@ from __future__ import annotations
 from sqlalchemy.orm import Session
 
 from adclient.design import DesignSpace, Representation
-from adservice import repository
 from adservice.errors import InvalidError
+from adservice.repository import studies as study_repo
+from adservice.repository import trials as trial_repo
 
 
 def trial_urdf(session: Session, *, trial_id: int) -> str:
     from adclient.decode import decode
     from adclient.urdf import design_to_urdf
 
-    trial = repository.get_trial(session, trial_id=trial_id)
-    study = repository.get_study(session, study_id=trial.study_id)
+    trial = trial_repo.get_trial(session, trial_id=trial_id)
+    study = study_repo.get_study(session, study_id=trial.study_id)
     if study.representation is None:
         raise InvalidError(f"trial {trial_id} belongs to a box study: it has no robot design")
     space = DesignSpace.model_validate(study.space)

@@ -17,8 +17,8 @@ from sqlalchemy.orm import Session
 
 from adclient.objectives import stored_outcomes
 from adclient.schemas import StudyCurves, TrialColumns, TrialCurve, TrialState
-from adservice import repository
 from adservice.models import ArtifactRow, TrialReportRow, TrialRow
+from adservice.repository import studies as study_repo
 
 SERIES_PAGE = 5000
 """The most trials one page of columns holds (also the default)."""
@@ -49,7 +49,7 @@ def trial_columns(
     ``numbers`` (the ones the caller last saw still open), in order of number: at most
     ``limit`` trials and about ``SERIES_CELLS`` param values. ``next`` says where the
     following page starts; the listed ``numbers`` below it are all in this page."""
-    study = repository.get_study(session, study_id=study_id)
+    study = study_repo.get_study(session, study_id=study_id)
     outcomes = stored_outcomes(study.outcomes, direction=study.direction)
     choices = {
         param["name"]
@@ -119,7 +119,7 @@ CURVES_PAGE = 500
 def study_curves(session: Session, *, study_id: int, limit: int) -> StudyCurves:
     """The reported curves of the study's latest ``limit`` trials that reported: two
     indexed queries (which trials, then their points), whatever the study's size."""
-    repository.get_study(session, study_id=study_id)
+    study_repo.get_study(session, study_id=study_id)
     latest = session.execute(
         sa.select(TrialRow.id, TrialRow.number, TrialRow.state)
         .where(
@@ -158,7 +158,7 @@ def artifact_names(
     session: Session, *, study_id: int, trial_ids: Sequence[int]
 ) -> dict[int, list[str]]:
     """Names of the artifacts of each of ``trial_ids`` that belongs to the study."""
-    repository.get_study(session, study_id=study_id)
+    study_repo.get_study(session, study_id=study_id)
     names: dict[int, list[str]] = {trial_id: [] for trial_id in trial_ids}
     if not trial_ids:
         return names

@@ -22,9 +22,10 @@ import yaml
 from PIL import Image
 
 from adclient.schemas import TellRequest
-from adservice import repository
 from adservice.db import Database
 from adservice.principals import OPEN_ADMIN
+from adservice.repository import tell as tell_repo
+from adservice.repository import trials as trial_repo
 from tests.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium, find_chromium
 
@@ -585,8 +586,8 @@ def seed_many(database_url: str, study_id: int, count: int, open_count: int) -> 
     db = Database(database_url)
     try:
         with db.write() as session:
-            first = repository.reserve_numbers(session, study_id=study_id, count=count)
-            trials = repository.insert_trials(
+            first = trial_repo.reserve_numbers(session, study_id=study_id, count=count)
+            trials = trial_repo.insert_trials(
                 session,
                 study_id=study_id,
                 first_number=first,
@@ -600,7 +601,7 @@ def seed_many(database_url: str, study_id: int, count: int, open_count: int) -> 
                     if k % 50 == 7
                     else TellRequest(value=score(trial.params))
                 )
-                repository.tell_trial(session, trial_id=trial.id, body=body, caller=OPEN_ADMIN)
+                tell_repo.tell_trial(session, trial_id=trial.id, body=body, caller=OPEN_ADMIN)
     finally:
         db.dispose()
     return [trial.id for trial in trials[count - open_count :]]

@@ -12,10 +12,13 @@ import pytest
 import sqlalchemy as sa
 
 from adclient.schemas import StudyCreate, TellRequest
-from adservice import repository
 from adservice.db import Database, upgrade_to_head
 from adservice.models import utcnow
 from adservice.principals import OPEN_ADMIN
+from adservice.repository import leases as lease_repo
+from adservice.repository import studies as study_repo
+from adservice.repository import tell as tell_repo
+from adservice.repository import trials as trial_repo
 
 pytestmark = pytest.mark.postgres
 
@@ -56,12 +59,12 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
         }
     )
     with db.write() as session:
-        study_id = repository.create_study(
+        study_id = study_repo.create_study(
             session, body=body, representation=None, owner=OPEN_ADMIN
         ).id
-        first = repository.reserve_numbers(session, study_id=study_id, count=2)
+        first = trial_repo.reserve_numbers(session, study_id=study_id, count=2)
         told, expiring = (
-            repository.insert_trials(
+            trial_repo.insert_trials(
                 session,
                 study_id=study_id,
                 first_number=first + i,
@@ -73,7 +76,7 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
             for i in range(2)
         )
     with db.write() as session:
-        trial = repository.get_trial(session, trial_id=expiring)
+        trial = trial_repo.get_trial(session, trial_id=expiring)
         trial.lease_expires_at = utcnow() - timedelta(seconds=1)
 
     tell_stored = threading.Event()
@@ -83,13 +86,13 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
     def tell() -> None:
         with db.write() as session:
             request = TellRequest(state="failed", message="crashed", worker_id="w0")
-            repository.tell_trial(session, trial_id=told, body=request, caller=OPEN_ADMIN)
+            tell_repo.tell_trial(session, trial_id=told, body=request, caller=OPEN_ADMIN)
             tell_stored.set()
             commit_tell.wait()
 
     def sweep() -> None:
         with db.write() as session:
-            expired.append(repository.expire_leases(session))
+            expired.append(lease_repo.expire_leases(session))
 
     teller = threading.Thread(target=tell)
     teller.start()
@@ -103,7 +106,7 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
 
     assert expired == [1]
     with db.read() as session:
-        study = repository.get_study(session, study_id=study_id)
-        states = [t.state for t in repository.list_trials(session, study_id=study_id)[0]]
+        study = study_repo.get_study(session, study_id=study_id)
+        states = [t.state for t in trial_repo.list_trials(session, study_id=study_id)[0]]
     assert states == ["failed", "failed"]
     assert (study.n_failed, study.n_complete, study.state) == (2, 0, "complete")

@@ -13,11 +13,14 @@ import pytest
 import sqlalchemy as sa
 
 from adclient.schemas import StudyCreate, TellRequest, Trial
-from adservice import repository
 from adservice.auth import Role
 from adservice.db import Database, Prepared, upgrade_to_head
 from adservice.errors import ConflictError, LeaseLostError
 from adservice.principals import Principal
+from adservice.repository import studies as study_repo
+from adservice.repository import tell as tell_repo
+from adservice.repository import tokens as token_repo
+from adservice.repository import trials as trial_repo
 
 ADMIN = Principal(role=Role.admin, token_id=None)
 
@@ -40,19 +43,19 @@ def _script(db: Database) -> list[Any]:
     out: list[Any] = []
     with db.write() as session:
         owner_digest, worker_digest = "a" * 64, "b" * 64
-        owner = repository.create_token(session, name="owner", role="user", digest=owner_digest)
-        worker = repository.create_token(session, name="fleet", role="worker", digest=worker_digest)
+        owner = token_repo.create_token(session, name="owner", role="user", digest=owner_digest)
+        worker = token_repo.create_token(session, name="fleet", role="worker", digest=worker_digest)
         user = Principal(role=Role.user, token_id=owner.id, name="owner")
         fleet = Principal(role=Role.worker, token_id=worker.id, name="fleet")
         studies = [
-            repository.create_study(session, body=_study(d), representation=None, owner=user).id
+            study_repo.create_study(session, body=_study(d), representation=None, owner=user).id
             for d in ("maximize", "minimize")
         ]
     for study_id in studies:
         with db.write() as session:
-            first = repository.reserve_numbers(session, study_id=study_id, count=4)
+            first = trial_repo.reserve_numbers(session, study_id=study_id, count=4)
             out.append(first)
-            asked = repository.insert_trials(
+            asked = trial_repo.insert_trials(
                 session,
                 study_id=study_id,
                 first_number=first,
@@ -60,7 +63,7 @@ def _script(db: Database) -> list[Any]:
                 params=[{"x": 0.1 * (i + 1)} for i in range(3)],
                 infos=[{"proposer": "random", "i": i} for i in range(3)],
             )
-            leased = repository.insert_trials(
+            leased = trial_repo.insert_trials(
                 session,
                 study_id=study_id,
                 first_number=first + 3,
@@ -85,13 +88,13 @@ def _script(db: Database) -> list[Any]:
             try:
                 with db.write() as session:
                     out.append(
-                        repository.tell_trial(session, trial_id=trial_id, body=body, caller=caller)
+                        tell_repo.tell_trial(session, trial_id=trial_id, body=body, caller=caller)
                     )
             except (ConflictError, LeaseLostError) as error:
                 out.append(type(error).__name__)
         with db.write() as session:
             try:
-                repository.reserve_numbers(session, study_id=study_id, count=3)  # over max
+                trial_repo.reserve_numbers(session, study_id=study_id, count=3)  # over max
             except ConflictError as error:
                 out.append(str(error))
     return out

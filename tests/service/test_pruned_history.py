@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from adservice import repository
 from adservice.db import Database
+from adservice.repository import studies as study_repo
 from adservice.services.configs import StudyConfigs
 from adservice.services.trials import proposer_history
 from adservice.settings import Settings
@@ -38,7 +38,7 @@ def test_history_counts_a_pruned_trial_as_its_pruner_says(
         config = StudyConfigs(database).get(study["id"])
         assert config.pruner.pruned_as == pruned_as
         with database.read() as session:
-            history = repository.study_history(
+            history = study_repo.study_history(
                 session,
                 study_id=study["id"],
                 dim=2,

@@ -10,7 +10,7 @@ for others to reach its rung.
 
 With ``promotion`` a stopped trial is paused rather than pruned, waiting at its rung
 (:func:`waiting_rung`); it is promoted once it :func:`qualifies` there among the values
-more trials have brought since (``adservice.repository_promotion``)."""
+more trials have brought since (``adservice.repository.promotion``)."""
 
 from __future__ import annotations
 

@@ -6,7 +6,7 @@
 - ``jobs``: leasing work to workers;
 - ``budget``: an ask's memory budget.
 
-Routes validate and call one function here or in ``adservice.repository``; these
+Routes validate and call one function here or in a module of ``adservice.repository``; these
 functions own their transactions (``Database.read``/``Database.write``, the one place that
 commits) and never see HTTP.
 """

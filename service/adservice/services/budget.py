@@ -9,7 +9,7 @@ from adclient.objectives import Outcomes
 from adclient.schemas import ProposerConfig
 from adservice.errors import InvalidError
 from adservice.proposers import options_model, proposer_class
-from adservice.repository import History
+from adservice.repository.studies import History
 from adservice.services.configs import StudyConfig
 
 

@@ -16,12 +16,12 @@ from adclient.design import DesignSpace, Representation
 from adclient.objectives import Outcomes, stored_outcomes
 from adclient.pruning import PrunerConfig
 from adclient.schemas import ProposerConfig, TaskConfig, option_problems
-from adservice import repository
 from adservice.db import Database
 from adservice.errors import InvalidError
 from adservice.models import StudyRow
 from adservice.proposers import available, options_model
 from adservice.proposers.base import SearchStructure
+from adservice.repository import studies as study_repo
 
 log = logging.getLogger("adservice")
 
@@ -183,7 +183,7 @@ class StudyConfigs:
         config = self._configs.get(study_id)
         if config is None:
             with self._db.read() as session:
-                config = StudyConfig.from_row(repository.get_study(session, study_id=study_id))
+                config = StudyConfig.from_row(study_repo.get_study(session, study_id=study_id))
             with self._lock:
                 config = self._configs.setdefault(study_id, config)
         return config

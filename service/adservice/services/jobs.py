@@ -5,10 +5,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from adclient.schemas import Job, Trial
-from adservice import repository, repository_promotion, repository_transfer
 from adservice.db import Database
 from adservice.errors import ConflictError
 from adservice.principals import Principal
+from adservice.repository import leases as lease_repo
+from adservice.repository import promotion as promotion_repo
+from adservice.repository import transfer as transfer_repo
 from adservice.services.configs import StudyConfigs
 from adservice.services.trials import Proposing, propose_trials, proposes_instantly
 
@@ -35,8 +37,8 @@ async def lease_job(
 
     def queued() -> Job | None:
         with db.write() as session:
-            repository_promotion.settle_spent_studies(session)
-            row = repository.lease_queued_trial(
+            promotion_repo.settle_spent_studies(session)
+            row = lease_repo.lease_queued_trial(
                 session,
                 worker_id=worker_id,
                 lease_token_id=caller.token_id,
@@ -48,7 +50,7 @@ async def lease_job(
 
     def wanting() -> list[int]:
         with db.read() as session:
-            return repository.studies_wanting_trials(session, tasks=tasks)
+            return lease_repo.studies_wanting_trials(session, tasks=tasks)
 
     job = await db.run(queued)
     if job is not None:
@@ -86,7 +88,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
     transfer = None
     if config.task.transfer != "none":
         with db.read() as session:
-            transfer = repository_transfer.transfer_source(
+            transfer = transfer_repo.transfer_source(
                 session,
                 trial=trial,
                 task=config.task,

@@ -7,7 +7,6 @@ from typing import Any
 
 from adclient.design import DesignSpace
 from adclient.schemas import StudyCreate
-from adservice import repository, repository_edits
 from adservice.artifacts import ArtifactStore
 from adservice.db import Database
 from adservice.errors import InvalidError
@@ -15,6 +14,8 @@ from adservice.models import StudyRow
 from adservice.principals import Principal
 from adservice.proposal_runner import AskBudget
 from adservice.proposers import available, proposer_class
+from adservice.repository import edits as edit_repo
+from adservice.repository import studies as study_repo
 from adservice.services.budget import check_options_memory
 from adservice.services.configs import check_proposer
 
@@ -41,7 +42,7 @@ def create_study(
             body.proposer, dim=dim, budget=budget.memory_bytes, outcomes=body.outcomes()
         )
     with db.write() as session:
-        return repository.create_study(
+        return study_repo.create_study(
             session, body=body, representation=representation, owner=owner
         )
 
@@ -71,9 +72,7 @@ def delete_study(
     """Delete the study's rows in one write, then its files: a crash in between leaves
     files no row points at (never served), never a row without its file."""
     with db.write() as session:
-        paths = repository_edits.delete_study(
-            session, study_id=study_id, caller=caller, force=force
-        )
+        paths = edit_repo.delete_study(session, study_id=study_id, caller=caller, force=force)
     for path in paths:
         store.discard(path)
     store.remove_study(study_id)

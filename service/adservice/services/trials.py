@@ -19,7 +19,6 @@ from sqlalchemy.orm import Session
 
 from adclient.objectives import Outcome, OutcomeError
 from adclient.schemas import Trial, TrialAdd
-from adservice import repository, repository_promotion
 from adservice.db import Database
 from adservice.errors import ConflictError, InvalidError, StudyConfigError
 from adservice.locks import StudyLocks
@@ -27,7 +26,10 @@ from adservice.principals import Principal, check_manager
 from adservice.proposal_runner import AskBudget, ProposalRunner
 from adservice.proposers import Proposal, ProposalRequest, get_proposer
 from adservice.proposers.base import empty_history
-from adservice.repository import History
+from adservice.repository import promotion as promotion_repo
+from adservice.repository import studies as study_repo
+from adservice.repository import trials as trial_repo
+from adservice.repository.studies import History
 from adservice.services.budget import check_ask_memory
 from adservice.services.configs import StudyConfig, StudyConfigs
 
@@ -93,14 +95,14 @@ def _record(
     with db.write() as session:
         claimed: list[Trial] = []
         if worker_id is None and config.task is None:
-            claimed = repository.claim_queued(session, study_id=config.study_id, count=count)
+            claimed = trial_repo.claim_queued(session, study_id=config.study_id, count=count)
         wanted = count - len(claimed)
         if wanted == 0:
             return claimed
-        first = repository.reserve_numbers(session, study_id=config.study_id, count=wanted)
+        first = trial_repo.reserve_numbers(session, study_id=config.study_id, count=wanted)
         proposal = propose(first, wanted)
         candidates = config.canonical(proposal.candidates)
-        return claimed + repository.insert_trials(
+        return claimed + trial_repo.insert_trials(
             session,
             study_id=config.study_id,
             first_number=first,
@@ -136,15 +138,15 @@ def proposer_history(session: Session, config: StudyConfig) -> History:
     """The study's trials as its proposer sees them: pruned and paused trials are their
     last values (or left out, as ``pruner.pruned_as`` says), each trial counted once."""
     observed = config.pruner.pruned_as == "last_value"
-    history = repository.study_history(
+    history = study_repo.study_history(
         session,
         study_id=config.study_id,
         dim=config.dim,
         pruned_as_observed=observed,
         outcomes=config.outcomes,
     )
-    if observed and repository_promotion.asha_promotion(config.pruner):
-        history = repository_promotion.with_paused(
+    if observed and promotion_repo.asha_promotion(config.pruner):
+        history = promotion_repo.with_paused(
             session, history=history, study_id=config.study_id, dim=config.dim
         )
     return history
@@ -204,12 +206,12 @@ def propose_trials(
         )
     with locks.hold(db, study_id):
         with db.read() as session:
-            study = repository.get_study(session, study_id=study_id)
+            study = study_repo.get_study(session, study_id=study_id)
             queued = 0
             if worker_id is None and config.task is None:
-                queued = repository.count_queued(session, study_id=study_id)
+                queued = trial_repo.count_queued(session, study_id=study_id)
             wanted = max(count - queued, 0)
-            repository.check_room(study, count=wanted)
+            trial_repo.check_room(study, count=wanted)
             history = proposer_history(session, config) if wanted else None
         proposal = None
         if history is not None:
@@ -279,7 +281,7 @@ def add_trials(
     with db.write() as session:
         existing: dict[tuple[float, ...], Trial] = {}
         if any(add.skip_if_exists for add in adds):
-            existing = repository.trials_of_vectors(session, study_id=study_id, vectors=vectors)
+            existing = trial_repo.trials_of_vectors(session, study_id=study_id, vectors=vectors)
         new: list[int] = []
         repeats: dict[int, int] = {}  # index -> the earlier new one of this body it repeats
         first_of: dict[tuple[float, ...], int] = {}
@@ -294,8 +296,8 @@ def add_trials(
             new.append(index)
         added: list[Trial] = []
         if new:
-            first = repository.reserve_numbers(session, study_id=study_id, count=len(new))
-            added = repository.add_trials(
+            first = trial_repo.reserve_numbers(session, study_id=study_id, count=len(new))
+            added = trial_repo.add_trials(
                 session,
                 study_id=study_id,
                 first_number=first,

@@ -11,7 +11,6 @@ from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import NAME_PATTERN, ArtifactInfo
-from adservice import repository
 from adservice.api.deps import (
     ArtifactStoreDep,
     DatabaseDep,
@@ -25,6 +24,7 @@ from adservice.artifacts import INERT_HEADERS, SNIFF_BYTES, served_type
 from adservice.convert import artifact_schema
 from adservice.db import Database
 from adservice.errors import NotFoundError
+from adservice.repository import artifacts as artifact_repo
 
 router = APIRouter(prefix="/api/v1/trials/{trial_id}/artifacts", tags=["artifacts"])
 
@@ -33,7 +33,9 @@ ArtifactName = Annotated[str, PathParam(pattern=NAME_PATTERN, max_length=128)]
 
 @router.get("")
 def list_artifacts(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> list[ArtifactInfo]:
-    return [artifact_schema(row) for row in repository.list_artifacts(session, trial_id=trial_id)]
+    return [
+        artifact_schema(row) for row in artifact_repo.list_artifacts(session, trial_id=trial_id)
+    ]
 
 
 @router.put("/{name}", status_code=201)
@@ -52,13 +54,13 @@ async def put_artifact(
     trial asked from a study without workers, as the study's owner; within the trial's
     quota. The body is stored as it comes; the type it is served with is decided from
     its bytes when it is read back."""
-    quota = repository.ArtifactQuota(
+    quota = artifact_repo.ArtifactQuota(
         count=settings.max_artifacts_per_trial, total_bytes=settings.max_trial_artifact_bytes
     )
 
     def room() -> tuple[int, int]:
         with db.write() as session:
-            trial, left = repository.artifact_room(
+            trial, left = artifact_repo.artifact_room(
                 session,
                 trial_id=trial_id,
                 name=name,
@@ -79,7 +81,7 @@ async def put_artifact(
 
     def record() -> tuple[ArtifactInfo, str | None]:
         with db.write() as session:
-            row, replaced = repository.record_artifact(
+            row, replaced = artifact_repo.record_artifact(
                 session,
                 trial_id=trial_id,
                 name=name,
@@ -108,7 +110,7 @@ async def put_artifact(
 
 def _recorded(db: Database, trial_id: int, name: str, path: str) -> bool:
     with db.read() as session:
-        return repository.artifact_path(session, trial_id=trial_id, name=name) == path
+        return artifact_repo.artifact_path(session, trial_id=trial_id, name=name) == path
 
 
 @router.get(
@@ -126,7 +128,7 @@ def _recorded(db: Database, trial_id: int, name: str, path: str) -> bool:
 def get_artifact(
     trial_id: TrialId, name: ArtifactName, session: SessionDep, _: ReaderDep
 ) -> FileResponse:
-    row = repository.get_artifact(session, trial_id=trial_id, name=name)
+    row = artifact_repo.get_artifact(session, trial_id=trial_id, name=name)
     path = Path(row.path)
     if not path.is_file() or path.stat().st_size != row.size:
         raise NotFoundError(f"artifact {name!r} of trial {trial_id} is missing or incomplete")

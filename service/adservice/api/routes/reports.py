@@ -7,8 +7,8 @@ from fastapi import APIRouter
 
 from adclient.pruning import PauseRequest, ReportRequest, ReportResponse, TrialReport
 from adclient.schemas import Trial
-from adservice import repository_reports
 from adservice.api.deps import DatabaseDep, ReaderDep, SessionDep, TrialId, WorkerDep
+from adservice.repository import reports as report_repo
 from adservice.services import reports as report_service
 
 router = APIRouter(prefix="/api/v1/trials", tags=["reports"])
@@ -27,7 +27,7 @@ def report(
 @router.get("/{trial_id}/reports")
 def reports(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> list[TrialReport]:
     """The trial's reported curve, in order of step."""
-    rows = repository_reports.trial_reports(session, trial_id=trial_id)
+    rows = report_repo.trial_reports(session, trial_id=trial_id)
     return [TrialReport(step=row.step, value=row.value, created_at=row.created_at) for row in rows]
 
 

@@ -10,12 +10,12 @@ from datetime import timedelta
 from fastapi import APIRouter, Request, Response
 
 from adclient.schemas import SessionInfo, SignInRequest
-from adservice import repository
 from adservice.api.deps import DatabaseDep, SettingsDep
 from adservice.auth import SESSION_COOKIE, authenticate, new_session_id, session_id_of, token_digest
 from adservice.errors import UnauthorizedError
 from adservice.models import utcnow
 from adservice.principals import Principal, Role
+from adservice.repository import tokens as token_repo
 
 router = APIRouter(prefix="/api/v1/session", tags=["session"])
 
@@ -55,10 +55,10 @@ def sign_in(
     csrf_token = secrets.token_urlsafe(24)
     lifetime = timedelta(hours=settings.session_hours)
     with db.write() as session:
-        token = repository.find_token(session, digest=token_digest(body.token))
+        token = token_repo.find_token(session, digest=token_digest(body.token))
         if token is None:
             raise UnauthorizedError("unknown or revoked token")
-        repository.create_session(
+        token_repo.create_session(
             session,
             digest=token_digest(session_id),
             token_id=token.id,
@@ -87,7 +87,7 @@ def sign_out(request: Request, db: DatabaseDep) -> Response:
     if session_id is not None:
         digest = token_digest(session_id)
         with db.write() as session:
-            repository.delete_session(session, digest=digest)
+            token_repo.delete_session(session, digest=digest)
         request.app.state.principals.forget("s:" + digest)
     response = Response(status_code=204)
     response.delete_cookie(SESSION_COOKIE, path="/", httponly=True, samesite="strict")

@@ -21,7 +21,7 @@ from adclient.schemas import (
     TrialState,
     WorkerInfo,
 )
-from adservice import repository, repository_edits, views
+from adservice import views
 from adservice.api.deps import (
     MAX_ID,
     ArtifactStoreDep,
@@ -34,6 +34,10 @@ from adservice.api.deps import (
 )
 from adservice.api.responses import model_response
 from adservice.convert import study_schema, trial_schema, worker_schema
+from adservice.repository import edits as edit_repo
+from adservice.repository import leases as lease_repo
+from adservice.repository import studies as study_repo
+from adservice.repository import trials as trial_repo
 from adservice.services import studies as study_service
 from adservice.services import trials as trial_service
 
@@ -71,15 +75,15 @@ def create_study(body: StudyCreate, proposing: ProposingDep, caller: UserDep) ->
 
 @router.get("")
 def list_studies(session: SessionDep, _: ReaderDep) -> list[Study]:
-    rows = repository.list_studies(session)
-    counts = repository.state_counts(session, study_ids=[row.id for row in rows])
+    rows = study_repo.list_studies(session)
+    counts = study_repo.state_counts(session, study_ids=[row.id for row in rows])
     return [study_schema(row, counts[row.id]) for row in rows]
 
 
 @router.get("/{study_id}")
 def get_study(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Study:
-    row = repository.get_study(session, study_id=study_id)
-    counts = repository.state_counts(session, study_ids=[study_id])
+    row = study_repo.get_study(session, study_id=study_id)
+    counts = study_repo.state_counts(session, study_ids=[study_id])
     return study_schema(row, counts[study_id])
 
 
@@ -99,8 +103,8 @@ async def ask(
 @router.post("/{study_id}/stop")
 def stop_study(study_id: StudyId, db: DatabaseDep, caller: UserDep) -> Study:
     with db.write() as session:
-        row = repository.stop_study(session, study_id=study_id, caller=caller)
-        counts = repository.state_counts(session, study_ids=[study_id])
+        row = study_repo.stop_study(session, study_id=study_id, caller=caller)
+        counts = study_repo.state_counts(session, study_ids=[study_id])
     return study_schema(row, counts[study_id])
 
 
@@ -124,10 +128,10 @@ def delete_study(
 def update_study(study_id: StudyId, body: StudyUpdate, db: DatabaseDep, caller: UserDep) -> Study:
     """Set user attributes (a null value deletes its key); its owner or an admin."""
     with db.write() as session:
-        row = repository_edits.set_study_user_attrs(
+        row = edit_repo.set_study_user_attrs(
             session, study_id=study_id, changes=body.user_attrs, caller=caller
         )
-        counts = repository.state_counts(session, study_ids=[study_id])
+        counts = study_repo.state_counts(session, study_ids=[study_id])
     return study_schema(row, counts[study_id])
 
 
@@ -150,7 +154,7 @@ def list_trials(
     cheap); the total that match is in ``X-Total-Count``. Page with ``offset``, or in
     order of number with ``after`` (the last number seen plus one), which skips no trial
     when others change state between pages."""
-    rows, total = repository.list_trials(
+    rows, total = trial_repo.list_trials(
         session,
         study_id=study_id,
         state=state,
@@ -168,19 +172,19 @@ def list_trials(
 def best_trial(study_id: StudyId, session: SessionDep, _: ReaderDep) -> Trial:
     """The best complete (and feasible) trial of a study of one objective; a study of
     several has its best trials at ``/pareto`` (409 here)."""
-    return trial_schema(repository.best_trial(session, study_id=study_id))
+    return trial_schema(trial_repo.best_trial(session, study_id=study_id))
 
 
 @router.get("/{study_id}/pareto")
 def pareto_trials(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[Trial]:
     """The complete, feasible trials that no other one dominates (Optuna's
     ``best_trials``), by number; for one objective, those with the best value."""
-    return [trial_schema(row) for row in repository.pareto_trials(session, study_id=study_id)]
+    return [trial_schema(row) for row in trial_repo.pareto_trials(session, study_id=study_id)]
 
 
 @router.get("/{study_id}/workers")
 def study_workers(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[WorkerInfo]:
-    return [worker_schema(row) for row in repository.list_workers(session, study_id=study_id)]
+    return [worker_schema(row) for row in lease_repo.list_workers(session, study_id=study_id)]
 
 
 @router.get("/{study_id}/series", response_model=TrialColumns)

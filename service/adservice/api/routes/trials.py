@@ -13,7 +13,7 @@ from adclient.schemas import (
     Trial,
     TrialUpdate,
 )
-from adservice import repository, repository_edits, robots
+from adservice import robots
 from adservice.api.deps import (
     DatabaseDep,
     ProposingDep,
@@ -27,13 +27,17 @@ from adservice.api.responses import model_response
 from adservice.auth import Role
 from adservice.convert import trial_schema
 from adservice.errors import ForbiddenError
+from adservice.repository import edits as edit_repo
+from adservice.repository import leases as lease_repo
+from adservice.repository import tell as tell_repo
+from adservice.repository import trials as trial_repo
 
 router = APIRouter(prefix="/api/v1/trials", tags=["trials"])
 
 
 @router.get("/{trial_id}")
 def get_trial(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> Trial:
-    return trial_schema(repository.get_trial(session, trial_id=trial_id))
+    return trial_schema(trial_repo.get_trial(session, trial_id=trial_id))
 
 
 @router.patch("/{trial_id}")
@@ -42,7 +46,7 @@ def update_trial(trial_id: TrialId, body: TrialUpdate, db: DatabaseDep, caller: 
     or the worker holding the trial's lease, naming itself in ``worker_id``."""
     with db.write() as session:
         return trial_schema(
-            repository_edits.set_trial_user_attrs(
+            edit_repo.set_trial_user_attrs(
                 session,
                 trial_id=trial_id,
                 changes=body.user_attrs,
@@ -62,7 +66,7 @@ async def tell(
 
     def write() -> Trial:
         with db.write() as session:
-            return repository.tell_trial(
+            return tell_repo.tell_trial(
                 session,
                 trial_id=trial_id,
                 body=body,
@@ -82,7 +86,7 @@ def heartbeat(
     caller: WorkerDep,
 ) -> HeartbeatResponse:
     with db.write() as session:
-        row = repository.heartbeat(
+        row = lease_repo.heartbeat(
             session,
             trial_id=trial_id,
             worker_id=body.worker_id,
@@ -99,7 +103,7 @@ def release(trial_id: TrialId, body: ReleaseRequest, db: DatabaseDep, caller: Wo
     for another token); an admin may name no worker."""
     with db.write() as session:
         return trial_schema(
-            repository.release_lease(
+            lease_repo.release_lease(
                 session, trial_id=trial_id, worker_id=body.worker_id, caller=caller
             )
         )

@@ -1,12 +1,12 @@
 """Repository of controller transfer (``task.transfer: nearest``): which evaluated
 design a job's controller starts from, and recording where a trial started.
 
-Same conventions as ``adservice.repository`` (an open session, keyword-only arguments,
-domain errors). A source is a finished trial of the same study whose checkpoint artifact
-was uploaded, of the same tree as the job's design (so the same observation and action
-spaces), among the ``transfer_among`` best of that tree; of those, the nearest by the
-normalised spec distance. The choice runs when a job is leased, never on the ask/tell
-hot path of a study without transfer.
+Same conventions as every module of :mod:`adservice.repository` (an open session,
+keyword-only arguments, domain errors). A source is a finished trial of the same study
+whose checkpoint artifact was uploaded, of the same tree as the job's design (so the
+same observation and action spaces), among the ``transfer_among`` best of that tree; of
+those, the nearest by the normalised spec distance. The choice runs when a job is
+leased, never on the ask/tell hot path of a study without transfer.
 """
 
 from __future__ import annotations

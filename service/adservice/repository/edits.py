@@ -1,7 +1,8 @@
 """Repository: deleting a study, and the user attributes of studies and trials.
 
-Apart from :mod:`adservice.repository` (the ask/tell path) because neither runs per
-trial; the same conventions: an open session, keyword-only arguments, domain errors.
+Apart from the ask/tell path because neither runs per trial; the same conventions as
+every module of :mod:`adservice.repository`: an open session, keyword-only arguments,
+domain errors.
 """
 
 from __future__ import annotations
@@ -15,13 +16,10 @@ from adclient.schemas import TrialState, bounded_user_attrs
 from adservice.errors import ConflictError, ForbiddenError, InvalidError
 from adservice.models import ArtifactRow, StudyRow, TrialReportRow, TrialRow, WorkerRow, utcnow
 from adservice.principals import Principal, Role
-from adservice.repository import (
-    _locking,
-    check_manager,
-    get_study,
-    get_trial,
-    held_trial,
-)
+from adservice.repository._shared import locking
+from adservice.repository.leases import held_trial
+from adservice.repository.studies import check_manager, get_study
+from adservice.repository.trials import get_trial
 
 
 def _leases(session: Session, *, study_id: int) -> list[tuple[int, str]]:
@@ -35,7 +33,7 @@ def _leases(session: Session, *, study_id: int) -> list[tuple[int, str]]:
         )
         .order_by(TrialRow.id)
     )
-    if _locking(session):
+    if locking(session):
         query = query.with_for_update()
     return [(trial_id, str(worker)) for trial_id, worker in session.execute(query)]
 
@@ -46,7 +44,7 @@ def delete_study(session: Session, *, study_id: int, caller: Principal, force: b
 
     Refused while workers hold leases on its trials, unless ``force``: then the leases go
     with the trials, and a holder's next heartbeat, report or tell is a 404."""
-    if _locking(session):
+    if locking(session):
         # Trials before the study: the order a tell and the lease sweep lock them in, so
         # a delete and a tell never wait on each other. No worker leases a locked trial.
         session.execute(

@@ -1,7 +1,7 @@
 """Repository of intermediate reports: record a trial's report, read curves.
 
-Kept apart from ``adservice.repository`` (same conventions: an open session, keyword-only
-arguments, domain errors, rows out). Nothing here is on the ask/tell hot path.
+Same conventions as every module of :mod:`adservice.repository` (an open session,
+keyword-only arguments, domain errors, rows out). Nothing here is on the ask/tell hot path.
 """
 
 from __future__ import annotations
@@ -20,7 +20,9 @@ from adservice.errors import ConflictError, ForbiddenError
 from adservice.models import StudyRow, TrialReportRow, TrialRow, utcnow
 from adservice.principals import Principal, Role
 from adservice.pruners.base import Curve
-from adservice.repository import check_lease_token, check_manager, get_study, get_trial, held_trial
+from adservice.repository.leases import check_lease_token, held_trial
+from adservice.repository.studies import check_manager, get_study
+from adservice.repository.trials import get_trial
 
 FINISHED = (TrialState.complete, TrialState.failed, TrialState.pruned)
 

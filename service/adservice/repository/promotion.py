@@ -1,9 +1,9 @@
 """Repository of ASHA promotion: pause a trial with its checkpoint, promote the paused
 trials that qualify at their rung, end the ones left when the study's budget is spent.
 
-Same conventions as ``adservice.repository`` (an open session, keyword-only arguments,
-domain errors, rows out). Nothing here is on the ask/tell hot path: pausing and
-promoting happen on reports, settling when a worker asks for work.
+Same conventions as every module of :mod:`adservice.repository` (an open session,
+keyword-only arguments, domain errors, rows out). Nothing here is on the ask/tell hot
+path: pausing and promoting happen on reports, settling when a worker asks for work.
 """
 
 from __future__ import annotations
@@ -21,17 +21,12 @@ from adservice.models import StudyRow, TrialRow, WorkerRow, utcnow
 from adservice.principals import Principal
 from adservice.pruners.asha import qualifies, rung_values, waiting_rung
 from adservice.pruners.base import Curve
-from adservice.repository import (
-    History,
-    _finish_study_if_done,
-    artifact_path,
-    check_lease_token,
-    get_study,
-    get_trial,
-    held_trial,
-)
-from adservice.repository_reports import curves_by_trial
-from adservice.repository_transfer import check_transfer_from
+from adservice.repository.artifacts import artifact_path
+from adservice.repository.leases import check_lease_token, held_trial
+from adservice.repository.reports import curves_by_trial
+from adservice.repository.studies import History, finish_study_if_done, get_study
+from adservice.repository.transfer import check_transfer_from
+from adservice.repository.trials import get_trial
 
 
 def asha_promotion(pruner: dict[str, Any] | PrunerConfig | None) -> AshaOptions | None:
@@ -180,7 +175,7 @@ def settle(session: Session, *, study: StudyRow) -> int:
     if ended:
         study.n_pruned += ended
         study.updated_at = now
-        _finish_study_if_done(study)
+        finish_study_if_done(study)
     return ended or 0
 
 

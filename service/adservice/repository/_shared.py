@@ -1,0 +1,195 @@
+"""What several modules of :mod:`adservice.repository` share: whether the database locks
+rows, a worker's last-seen upkeep, the value a finished trial offers as a study's best,
+and the hot-path statements ask and tell run on every request (built once).
+
+Private to the package: it imports no module of it.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, cast
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from adclient.objectives import Outcome
+from adclient.schemas import TrialState
+from adservice.db import Prepared
+from adservice.models import StudyRow, TrialRow, WorkerRow
+
+
+def locking(session: Session) -> bool:
+    """Row locks (``FOR UPDATE SKIP LOCKED``) where the database has them."""
+    return session.get_bind().dialect.name == "postgresql"
+
+
+def touch_worker(
+    session: Session, *, worker_id: str, now: datetime, current_trial_id: int | None
+) -> None:
+    """Record that ``worker_id`` was seen at ``now``, holding ``current_trial_id`` (a
+    worker seen for the first time gets its row)."""
+    worker = session.get(WorkerRow, worker_id)
+    if worker is None:
+        worker = WorkerRow(worker_id=worker_id, jobs_done=0, jobs_failed=0)
+        session.add(worker)
+    worker.last_seen_at = now
+    worker.current_trial_id = current_trial_id
+
+
+def counted_value(outcome: Outcome) -> float | None:
+    """The value a finished trial offers as the study's best: none for several
+    objectives, or for a trial that breaks a constraint."""
+    return outcome.value if outcome.feasible is not False else None
+
+
+_studies = cast(sa.Table, StudyRow.__table__)
+_trials = cast(sa.Table, TrialRow.__table__)
+_workers = cast(sa.Table, WorkerRow.__table__)
+
+# Hot-path statements, built once: ask and tell run these on every request.
+RESERVE = Prepared(
+    sa.update(_studies)
+    .where(
+        _studies.c.id == sa.bindparam("sid"),
+        _studies.c.state == "running",
+        sa.or_(
+            _studies.c.max_trials.is_(None),
+            _studies.c.n_trials + sa.bindparam("count") <= _studies.c.max_trials,
+        ),
+    )
+    .values(n_trials=_studies.c.n_trials + sa.bindparam("count"), updated_at=sa.bindparam("now"))
+    .returning(_studies.c.n_trials)
+)
+
+
+INSERT_TRIALS = Prepared(sa.insert(_trials).returning(_trials.c.id, sort_by_parameter_order=True))
+
+
+_queued = _trials.alias("queued")
+CLAIM_QUEUED = Prepared(
+    sa.update(_trials)
+    .where(
+        _trials.c.id.in_(
+            sa.select(_queued.c.id)
+            .where(_queued.c.study_id == sa.bindparam("sid"), _queued.c.state == "queued")
+            .order_by(_queued.c.id)  # the (study_id, state) index's own order: no scan
+            .limit(sa.bindparam("count"))
+            .with_for_update(skip_locked=True)
+        )
+    )
+    .values(state=TrialState.running.value, started_at=sa.bindparam("now"))
+    .returning(*_trials.c)
+)
+
+
+def _finish_statement(*, by_worker: bool, checked: bool) -> sa.Update:
+    """Finish a trial the caller may finish: a worker the trial it holds (with auth on,
+    leased by its own token); otherwise a trial no worker holds (with auth on, of a study
+    the caller owns); ``checked=False`` for admins and with auth off."""
+    holder: list[sa.ColumnElement[bool]]
+    if by_worker:
+        holder = [
+            _trials.c.state == TrialState.running.value,
+            _trials.c.worker_id == sa.bindparam("wid"),
+        ]
+        if checked:
+            holder.append(_trials.c.lease_token_id == sa.bindparam("tok"))
+    else:
+        holder = [  # not IN: a prepared statement takes no expanding parameters
+            sa.or_(
+                _trials.c.state == TrialState.queued.value,
+                _trials.c.state == TrialState.running.value,
+            )
+        ]
+        if checked:
+            owned = sa.select(_studies.c.id).where(_studies.c.owner_token_id == sa.bindparam("tok"))
+            holder += [_trials.c.worker_id.is_(None), _trials.c.study_id.in_(owned)]
+    return (
+        sa.update(_trials)
+        .where(_trials.c.id == sa.bindparam("tid"), *holder)
+        .values(
+            state=sa.bindparam("state"),
+            value=sa.bindparam("value"),
+            message=sa.bindparam("message"),
+            metrics=sa.bindparam("metrics", type_=sa.JSON),
+            finished_at=sa.bindparam("now"),
+            lease_expires_at=None,
+            started_at=sa.func.coalesce(_trials.c.started_at, sa.bindparam("now")),
+        )
+        .returning(*_trials.c)
+    )
+
+
+def _count_statement(*, state: str) -> sa.Update:
+    complete = state == TrialState.complete
+    counter = {
+        TrialState.complete: _studies.c.n_complete,
+        TrialState.failed: _studies.c.n_failed,
+        TrialState.pruned: _studies.c.n_pruned,
+    }[TrialState(state)]
+    updates: dict[Any, Any] = {counter: counter + 1, _studies.c.updated_at: sa.bindparam("now")}
+    if complete:
+        value = sa.bindparam("value", type_=sa.Double)
+        # No value (several objectives, or a trial breaking a constraint): not a best.
+        better = sa.and_(
+            sa.cast(value, sa.Double).is_not(None),  # typed: PostgreSQL infers none here
+            sa.or_(
+                _studies.c.best_value.is_(None),
+                sa.case(
+                    (_studies.c.direction == "maximize", _studies.c.best_value < value),
+                    else_=_studies.c.best_value > value,
+                ),
+            ),
+        )
+        updates[_studies.c.best_value] = sa.case((better, value), else_=_studies.c.best_value)
+        updates[_studies.c.best_trial_id] = sa.case(
+            (better, sa.bindparam("tid")), else_=_studies.c.best_trial_id
+        )
+    finished = _studies.c.n_complete + _studies.c.n_failed + _studies.c.n_pruned
+    done = finished + 1 >= _studies.c.max_trials
+    updates[_studies.c.state] = sa.case(
+        (sa.and_(_studies.c.state == "running", done), "complete"), else_=_studies.c.state
+    )
+    return sa.update(_studies).where(_studies.c.id == sa.bindparam("sid")).values(updates)
+
+
+def _worker_statement(*, complete: bool) -> sa.Update:
+    counter = _workers.c.jobs_done if complete else _workers.c.jobs_failed
+    return (
+        sa.update(_workers)
+        .where(_workers.c.worker_id == sa.bindparam("wid"))
+        .values(
+            {
+                counter: counter + 1,
+                _workers.c.last_seen_at: sa.bindparam("now"),
+                _workers.c.current_trial_id: sa.case(
+                    (_workers.c.current_trial_id == sa.bindparam("tid"), None),
+                    else_=_workers.c.current_trial_id,
+                ),
+            }
+        )
+    )
+
+
+FINISH = {
+    (by_worker, checked): Prepared(_finish_statement(by_worker=by_worker, checked=checked))
+    for by_worker in (False, True)
+    for checked in (False, True)
+}
+COUNT = {
+    state: Prepared(_count_statement(state=state)) for state in ("complete", "failed", "pruned")
+}
+WORKER_COUNT = {
+    complete: Prepared(_worker_statement(complete=complete)) for complete in (False, True)
+}
+SET_OUTCOME = Prepared(
+    sa.update(_trials)
+    .where(_trials.c.id == sa.bindparam("tid"))
+    .values(
+        value=sa.bindparam("value"),
+        values=sa.bindparam("values", type_=sa.JSON(none_as_null=True)),
+        feasible=sa.bindparam("feasible"),
+    )
+    .returning(*_trials.c)
+)

@@ -1,0 +1,133 @@
+"""Repository of artifacts: the files a running trial uploads, within its quota.
+
+Same conventions as every module of :mod:`adservice.repository` (an open session,
+keyword-only arguments, domain errors, rows out); the files themselves are the caller's
+(``adservice.artifacts``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from adclient.schemas import TrialState
+from adservice.errors import ConflictError, NotFoundError, TooLargeError
+from adservice.models import ArtifactRow, TrialRow, utcnow
+from adservice.principals import Principal
+from adservice.repository.leases import held_trial
+from adservice.repository.studies import check_manager, get_study
+from adservice.repository.trials import get_trial
+
+
+@dataclass(frozen=True)
+class ArtifactQuota:
+    count: int
+    """Artifacts one trial may have."""
+    total_bytes: int
+    """Bytes all of one trial's artifacts may take."""
+
+
+def artifact_room(
+    session: Session,
+    *,
+    trial_id: int,
+    name: str,
+    worker_id: str | None,
+    caller: Principal,
+    quota: ArtifactQuota,
+) -> tuple[TrialRow, int]:
+    """The trial an upload may write to, and how many bytes it may write: only while the
+    trial runs, by its lease holder (or, for an asked trial, the study's owner), within
+    the trial's quota (``name``'s present file, which it would replace, not counted)."""
+    trial = get_trial(session, trial_id=trial_id, for_update=True)
+    if trial.state != TrialState.running:
+        raise ConflictError(
+            f"trial {trial_id} is {trial.state}: artifacts are uploaded while it runs"
+        )
+    if trial.worker_id is None:
+        check_manager(get_study(session, study_id=trial.study_id), caller)
+    else:
+        held_trial(session, trial_id=trial_id, worker_id=worker_id, caller=caller)
+    others = session.execute(
+        sa.select(sa.func.count(), sa.func.coalesce(sa.func.sum(ArtifactRow.size), 0)).where(
+            ArtifactRow.trial_id == trial_id, ArtifactRow.name != name
+        )
+    ).one()
+    if others[0] >= quota.count:
+        raise TooLargeError(f"trial {trial_id} already has {others[0]} artifacts, the most allowed")
+    room = quota.total_bytes - int(others[1])
+    if room <= 0:
+        raise TooLargeError(
+            f"trial {trial_id}'s artifacts already take {others[1]} bytes of its "
+            f"{quota.total_bytes}"
+        )
+    return trial, room
+
+
+def record_artifact(
+    session: Session,
+    *,
+    trial_id: int,
+    name: str,
+    content_type: str,
+    size: int,
+    sha256: str,
+    path: str,
+    worker_id: str | None,
+    caller: Principal,
+    quota: ArtifactQuota,
+) -> tuple[ArtifactRow, str | None]:
+    """Record an artifact whose file is already complete on disk (last step of a PUT),
+    checking again that the lease and the quota still allow it; also returns the path of
+    the file it replaces, if any (the caller removes it after the commit)."""
+    _, room = artifact_room(
+        session, trial_id=trial_id, name=name, worker_id=worker_id, caller=caller, quota=quota
+    )
+    if size > room:
+        raise TooLargeError(f"trial {trial_id}'s artifacts would exceed {quota.total_bytes} bytes")
+    row = session.scalars(
+        sa.select(ArtifactRow).where(ArtifactRow.trial_id == trial_id, ArtifactRow.name == name)
+    ).one_or_none()
+    replaced = row.path if row is not None and row.path != path else None
+    if row is None:
+        row = ArtifactRow(trial_id=trial_id, name=name)
+        session.add(row)
+    row.content_type = content_type
+    row.size = size
+    row.sha256 = sha256
+    row.path = path
+    row.created_at = utcnow()
+    session.flush()
+    return row, replaced
+
+
+def artifact_path(session: Session, *, trial_id: int, name: str) -> str | None:
+    """Where the stored artifact ``name`` of a trial lives, if there is one."""
+    return session.scalar(
+        sa.select(ArtifactRow.path).where(
+            ArtifactRow.trial_id == trial_id, ArtifactRow.name == name
+        )
+    )
+
+
+def get_artifact(session: Session, *, trial_id: int, name: str) -> ArtifactRow:
+    row = session.scalars(
+        sa.select(ArtifactRow).where(ArtifactRow.trial_id == trial_id, ArtifactRow.name == name)
+    ).one_or_none()
+    if row is None:
+        get_trial(session, trial_id=trial_id)
+        raise NotFoundError(f"trial {trial_id} has no artifact {name!r}")
+    return row
+
+
+def list_artifacts(session: Session, *, trial_id: int) -> list[ArtifactRow]:
+    get_trial(session, trial_id=trial_id)
+    return list(
+        session.scalars(
+            sa.select(ArtifactRow)
+            .where(ArtifactRow.trial_id == trial_id)
+            .order_by(ArtifactRow.name)
+        )
+    )

@@ -1,0 +1,199 @@
+"""Repository of studies: create, read, count and stop them, check who manages one, and
+read a study's trials as a proposer's history.
+
+Same conventions as every module of :mod:`adservice.repository` (an open session,
+keyword-only arguments, domain errors, rows out).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, cast
+
+import numpy as np
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from adclient.objectives import OutcomeError, Outcomes, outcomes_json
+from adclient.schemas import StudyCreate, TrialState
+from adservice import principals
+from adservice.errors import NotFoundError
+from adservice.models import StudyRow, TrialRow, utcnow
+from adservice.principals import Principal
+from adservice.repository._shared import locking
+
+
+def create_study(
+    session: Session,
+    *,
+    body: StudyCreate,
+    representation: dict[str, Any] | None,
+    owner: Principal,
+) -> StudyRow:
+    outcomes = body.outcomes()
+    row = StudyRow(
+        owner_token_id=owner.token_id,
+        created_by=owner.name or None,
+        name=body.name,
+        direction=outcomes.directions[0].value,
+        outcomes=outcomes_json(outcomes),
+        state="running",
+        space=body.space.model_dump(mode="json"),
+        proposer=body.proposer.model_dump(mode="json"),
+        pruner=body.pruner.model_dump(mode="json"),
+        task=body.task.model_dump(mode="json") if body.task else None,
+        representation=representation,
+        max_trials=body.max_trials,
+        max_attempts=body.max_attempts,
+        metadata_=body.metadata,
+    )
+    session.add(row)
+    session.flush()
+    return row
+
+
+def get_study(session: Session, *, study_id: int, for_update: bool = False) -> StudyRow:
+    query = sa.select(StudyRow).where(StudyRow.id == study_id)
+    if for_update and locking(session):
+        query = query.with_for_update()
+    row = session.scalars(query).one_or_none()
+    if row is None:
+        raise NotFoundError(f"study {study_id} not found")
+    return row
+
+
+def list_studies(session: Session) -> list[StudyRow]:
+    return list(session.scalars(sa.select(StudyRow).order_by(StudyRow.id)))
+
+
+def state_counts(session: Session, *, study_ids: Sequence[int]) -> dict[int, dict[str, int]]:
+    """Trials per state for each study: {study_id: {state: count}}."""
+    counts: dict[int, dict[str, int]] = {sid: {} for sid in study_ids}
+    if not study_ids:
+        return counts
+    rows = session.execute(
+        sa.select(TrialRow.study_id, TrialRow.state, sa.func.count())
+        .where(TrialRow.study_id.in_(study_ids))
+        .group_by(TrialRow.study_id, TrialRow.state)
+    )
+    for study_id, state, count in rows:
+        counts[study_id][state] = count
+    return counts
+
+
+def stop_study(session: Session, *, study_id: int, caller: Principal) -> StudyRow:
+    """Stop proposing and leasing; queued trials are dropped as failed."""
+    study = get_study(session, study_id=study_id, for_update=True)
+    check_manager(study, caller)
+    if study.state != "running":
+        return study
+    now = utcnow()
+    dropped = cast(
+        sa.CursorResult[Any],
+        session.execute(
+            sa.update(TrialRow)
+            .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
+            .values(state=TrialState.failed, message="study stopped", finished_at=now)
+        ),
+    ).rowcount
+    study.n_failed += dropped or 0
+    study.state = "stopped"
+    study.updated_at = now
+    return study
+
+
+def check_manager(study: StudyRow, caller: Principal) -> None:
+    """Asking, telling, stopping or deleting a study is for its owner (or an admin)."""
+    principals.check_manager(
+        caller, study_id=study.id, owner_token_id=study.owner_token_id, owner_name=study.created_by
+    )
+
+
+def finish_study_if_done(study: StudyRow) -> None:
+    """Mark a running study complete once its finished trials reach ``max_trials`` (a
+    tell's counting statement does the same in SQL)."""
+    if (
+        study.state == "running"
+        and study.max_trials is not None
+        and study.n_complete + study.n_failed + study.n_pruned >= study.max_trials
+    ):
+        study.state = "complete"
+
+
+# --- history for proposers ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class History:
+    """A study's trials as arrays, values as stored (not yet oriented). For a study of
+    several objectives or with constraints: ``values`` (n x m, each observed trial's
+    objective values; ``y`` is its first column) and ``slacks`` (n x c, <= 0 where a
+    constraint holds)."""
+
+    X: np.ndarray
+    y: np.ndarray
+    failed: np.ndarray
+    pending: np.ndarray
+    values: np.ndarray | None = None
+    slacks: np.ndarray | None = None
+
+
+def study_history(
+    session: Session,
+    *,
+    study_id: int,
+    dim: int,
+    pruned_as_observed: bool = True,
+    outcomes: Outcomes | None = None,
+) -> History:
+    """``pruned_as_observed``: a pruned trial with a value (its last report) counts as an
+    observation of that value; otherwise it is left out (docs/pruning.md). A study of
+    several objectives observes its complete trials only (a pruned one has no values);
+    an infeasible trial is observed, with its slacks."""
+    outcomes = outcomes or Outcomes()
+    columns: list[Any] = [TrialRow.state, TrialRow.vector, TrialRow.value]
+    if not outcomes.plain:
+        columns += [TrialRow.values, TrialRow.metrics]
+    rows = session.execute(
+        sa.select(*columns).where(TrialRow.study_id == study_id).order_by(TrialRow.number)
+    ).all()
+    observed = {TrialState.complete, TrialState.pruned if pruned_as_observed else "complete"}
+    if outcomes.multi:
+        observed = {TrialState.complete}
+    empty = np.zeros((0, dim))
+
+    def stack(vectors: list[list[float]]) -> np.ndarray:
+        return np.asarray(vectors, dtype=np.float64).reshape(-1, dim) if vectors else empty
+
+    def point(row: Any) -> list[float] | None:
+        if outcomes.multi:
+            return list(row.values) if row.values else None
+        return None if row.value is None else [row.value]
+
+    seen = [(row, p) for row in rows if row.state in observed and (p := point(row)) is not None]
+    values = np.asarray([p for _, p in seen], dtype=np.float64).reshape(-1, outcomes.count)
+    slacks = None
+    if outcomes.constraints:
+        slacks = np.asarray(
+            [_slacks(outcomes, row, p) for row, p in seen], dtype=np.float64
+        ).reshape(-1, len(outcomes.constraints))
+    return History(
+        X=stack([row.vector for row, _ in seen]),
+        y=values[:, 0].copy(),
+        failed=stack([row.vector for row in rows if row.state == TrialState.failed]),
+        pending=stack(
+            [row.vector for row in rows if row.state in (TrialState.queued, TrialState.running)]
+        ),
+        values=values if outcomes.multi else None,
+        slacks=slacks,
+    )
+
+
+def _slacks(outcomes: Outcomes, row: Any, values: list[float]) -> list[float]:
+    """A trial's constraint slacks; a pruned trial (no metrics told) counts as breaking
+    none, as its value alone is what the proposer learns from it."""
+    try:
+        return outcomes.slacks(row.metrics or {}, values)
+    except OutcomeError:
+        return [0.0] * len(outcomes.constraints)
