@@ -9,16 +9,15 @@ from __future__ import annotations
 import json
 import subprocess
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
 from tests.servers import ServerProcess, make_token
-from tests.service.chromium import Chromium, find_chromium
+from tests.service.chromium import Chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
@@ -79,15 +78,6 @@ class AttackerSite:
     def close(self) -> None:
         self.server.shutdown()
         self.server.server_close()
-
-
-@pytest.fixture
-def browser(tmp_path: Path) -> Iterator[Chromium]:
-    profile = tmp_path / "chromium-profile"
-    profile.mkdir()
-    chromium = Chromium(find_chromium(), profile)
-    yield chromium
-    chromium.close()
 
 
 @pytest.mark.parametrize("auth", [False, True], ids=["auth-off", "auth-on"])

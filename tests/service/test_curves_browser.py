@@ -10,9 +10,6 @@ import pytest
 
 from tests.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.test_dashboard_browser import browser, chromium_executable
-
-__all__ = ["browser", "chromium_executable"]  # the fixtures, shared
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

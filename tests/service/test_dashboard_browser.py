@@ -11,7 +11,7 @@ from __future__ import annotations
 import io
 import json
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,7 @@ from adservice.principals import OPEN_ADMIN
 from adservice.repository import tell as tell_repo
 from adservice.repository import trials as trial_repo
 from tests.servers import ServerProcess, make_token
-from tests.service.chromium import Chromium, find_chromium
+from tests.service.chromium import Chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
@@ -114,20 +114,6 @@ TABLE_STATES = (
     "[...document.querySelectorAll('[data-trials] tbody tr[data-trial-id]')]"
     ".map(row => row.cells[1].textContent.trim())"
 )
-
-
-@pytest.fixture(scope="session")
-def chromium_executable() -> str:
-    return find_chromium()
-
-
-@pytest.fixture
-def browser(chromium_executable: str, tmp_path: Path) -> Iterator[Chromium]:
-    profile = tmp_path / "chromium-profile"
-    profile.mkdir()
-    chromium = Chromium(chromium_executable, profile)
-    yield chromium
-    chromium.close()
 
 
 def png(width: int, height: int) -> bytes:

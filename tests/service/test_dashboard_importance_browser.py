@@ -35,12 +35,11 @@ from tests.service.test_dashboard_browser import (
     DISPLAY,
     EXAMPLES,
     STUDY_PAGE_READY,
-    chromium_executable,
     tell,
 )
 from tests.service.test_pareto_browser import browser, http
 
-__all__ = ["browser", "chromium_executable", "http"]  # the fixtures, shared (on `server` here)
+__all__ = ["browser", "http"]  # the fixtures, shared (on `server` here)
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

@@ -3,24 +3,12 @@ server's own files under its Content-Security-Policy, asking nothing of another 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from pathlib import Path
-
 import pytest
 
 from tests.servers import ServerProcess
-from tests.service.chromium import Chromium, find_chromium
+from tests.service.chromium import Chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
-
-
-@pytest.fixture
-def browser(tmp_path: Path) -> Iterator[Chromium]:
-    profile = tmp_path / "chromium-profile"
-    profile.mkdir()
-    chromium = Chromium(find_chromium(), profile)
-    yield chromium
-    chromium.close()
 
 
 @pytest.mark.parametrize("database", ["sqlite"])

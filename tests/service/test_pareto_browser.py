@@ -23,15 +23,12 @@ from tests.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.test_dashboard_browser import (
     COUNT_PIXELS,
-    chromium_executable,
     lease,
     png,
     tell,
     upload,
 )
 from tests.service.test_multiobjective_e2e import brute_front
-
-__all__ = ["chromium_executable"]  # the fixture, shared
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
