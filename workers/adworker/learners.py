@@ -344,7 +344,8 @@ class StableBaselinesLearner(Learner):
         if noise is not None:
             kwargs["action_noise"] = _action_noise(env, **noise)
         cls = getattr(stable_baselines3, self.algorithm)
-        return cls("MlpPolicy", env, seed=seed, device=learner_device(), verbose=0, **kwargs)
+        model = cls("MlpPolicy", env, seed=seed, device=learner_device(), verbose=0, **kwargs)
+        return _without_log_folder(model)
 
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
@@ -452,10 +453,23 @@ class StableBaselinesLearner(Learner):
             )
             if REPLAY_MEMBER in archive.namelist():
                 model.load_replay_buffer(io.BytesIO(archive.read(REPLAY_MEMBER)))
+        _without_log_folder(model)  # a loaded model has SB3's default logger again
         model._last_obs = None
         # Seeded from the step it resumes at: not the exploration it started with.
         model.set_random_seed(seed + int(model.num_timesteps))
         return model
+
+
+def _without_log_folder(model: Any) -> Any:
+    """``model`` with a logger that writes nothing: without one, SB3's ``learn`` makes
+    its default, which creates a folder ``SB3-<date-time>`` in the system temporary
+    folder and leaves it there, one per training (issue 29). A ``tensorboard_log`` the
+    study's options ask for keeps SB3's logger: its folder is theirs."""
+    from stable_baselines3.common.logger import Logger
+
+    if model.tensorboard_log is None:
+        model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
 
 
 def learner_device() -> str:

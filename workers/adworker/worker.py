@@ -29,10 +29,16 @@ The rules it keeps:
   one abandons the current job, gives its lease back (the server queues the trial for
   another worker at once, without counting the attempt; if that call fails the lease
   simply expires) and exits.
+- Files: a job writes only in its own folder, removed when the job ends however it
+  ends (unless ``--keep-files``), inside the worker's folder (``--workdir``, else a
+  temporary ``adworker-*`` made at its first job and removed when it stops). A worker
+  that could not clean up (SIGKILL, out of memory) leaves its temporary folder; the
+  next worker to start on the machine removes it (:func:`remove_abandoned_workdirs`).
 """
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
 import random
@@ -67,6 +73,9 @@ EXIT_SETUP = 3
 """The runner could not be made (a --function that does not import...)."""
 TIMES = ("time_total_s", "time_cpu_s")
 """The metrics of a trial's time, summed over a paused trial's attempts."""
+WORKDIR_PREFIX = "adworker-"
+WORKDIR_LOCK = ".lock"
+"""In a worker's temporary folder: a file locked (flock) while the worker lives."""
 
 
 class AuthError(Exception):
@@ -165,7 +174,10 @@ class Worker:
         self._claim = claim
         self._unclaim = unclaim
         self._own_workdir = config.workdir is None
-        self.workdir = Path(config.workdir or tempfile.mkdtemp(prefix="adworker-"))
+        self.workdir: Path | None = config.workdir
+        """Where job folders go: ``--workdir``, else a temporary folder made at the first
+        job (:meth:`_workdir`) and removed when :meth:`run` ends."""
+        self._workdir_lock: int | None = None
 
     # ------------------------------------------------------------------ signals
 
@@ -195,6 +207,8 @@ class Worker:
         log.info("worker %s serving %s: tasks %s", config.worker_id, config.server, tasks)
         idle_since = time.monotonic()
         failures = 0
+        if self._own_workdir:
+            remove_abandoned_workdirs()
         try:
             while not self.stopping.is_set():
                 if config.max_jobs is not None and self.rates.jobs >= config.max_jobs:
@@ -237,9 +251,21 @@ class Worker:
             return EXIT_AUTH
         finally:
             log.info("worker %s stopping: %s", config.worker_id, self.rates.line())
-            if self._own_workdir and not config.keep_files:
+            if self._own_workdir and self.workdir is not None and not config.keep_files:
                 shutil.rmtree(self.workdir, ignore_errors=True)
+                self.workdir = None
+            if self._workdir_lock is not None:
+                os.close(self._workdir_lock)
+                self._workdir_lock = None
         return EXIT_OK
+
+    def _workdir(self) -> Path:
+        """The folder job folders go in: ``--workdir``, else this worker's temporary
+        folder, made now if it has none, locked while the process lives (unless its
+        files are kept: a kept folder is never taken for an abandoned one)."""
+        if self.workdir is None:
+            self.workdir, self._workdir_lock = make_workdir(lock=not self.config.keep_files)
+        return self.workdir
 
     def _unclaim_job(self) -> None:
         if self._unclaim is not None:
@@ -255,7 +281,14 @@ class Worker:
         or 'abandoned'."""
         label = f"trial {job.trial_id} (study {job.study_id} #{job.number}, attempt {job.attempt})"
         log.info("%s: task %s", label, job.task.name)
-        jobdir = self.workdir / f"trial-{job.trial_id}-attempt-{job.attempt}"
+        jobdir = self._workdir() / f"trial-{job.trial_id}-attempt-{job.attempt}"
+        try:
+            return self._process(job, label, jobdir)
+        finally:
+            if not self.config.keep_files:
+                shutil.rmtree(jobdir, ignore_errors=True)
+
+    def _process(self, job: Job, label: str, jobdir: Path) -> str:
         started, cpu_started = time.monotonic(), time.process_time()
         with Heartbeat(self.client, job, self.config.worker_id) as heartbeat:
 
@@ -353,8 +386,6 @@ class Worker:
                 log.info("%s: %s in %.1f s; %s", label, outcome.summary, busy, self.rates.line())
         if unreported and self.abandon.is_set() and not heartbeat.lost.is_set():
             self._release(job, label)
-        if not self.config.keep_files:
-            shutil.rmtree(jobdir, ignore_errors=True)
         return result
 
     def _reported(self, job: Job, label: str, step: int, value: float) -> ReportResponse:
@@ -487,6 +518,48 @@ class Worker:
             except ApiError as exc:
                 log.error("%s: result refused: %s", label, exc)
                 return True
+
+
+def make_workdir(*, lock: bool = True) -> tuple[Path, int | None]:
+    """A new temporary folder ``adworker-*`` and, with ``lock``, the descriptor of its
+    lock file, locked (flock) until closed or the process ends, however it ends: what
+    tells a live worker's folder from an abandoned one. The lock is taken before the
+    file has its name, so no folder is ever seen with an unlocked lock of a live
+    worker."""
+    path = Path(tempfile.mkdtemp(prefix=WORKDIR_PREFIX))
+    if not lock:
+        return path, None
+    staging = path / f"{WORKDIR_LOCK}.new"
+    descriptor = os.open(staging, os.O_CREAT | os.O_RDWR, 0o600)
+    fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    os.rename(staging, path / WORKDIR_LOCK)
+    return path, descriptor
+
+
+def remove_abandoned_workdirs() -> list[Path]:
+    """Remove the temporary folders of this machine's workers that died without
+    cleaning up (SIGKILL, the out-of-memory killer): those whose lock file no process
+    holds. Folders without one (being made, kept with ``--keep-files``, or another
+    program's) are left alone. Returns what it removed (logged)."""
+    removed = []
+    for path in Path(tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*"):
+        try:
+            descriptor = os.open(path / WORKDIR_LOCK, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            continue  # its worker is alive
+        else:
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+        finally:
+            os.close(descriptor)
+    if removed:
+        names = ", ".join(path.name for path in removed)
+        log.info("removed the folders of workers that died: %s", names)
+    return removed
 
 
 def _spent(job: Job, metrics: dict[str, float]) -> dict[str, float]:
