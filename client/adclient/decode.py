@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -34,7 +34,9 @@ from adclient.design import (
     Link,
     Representation,
     link_mass,
+    with_tie_sources,
 )
+from adclient.ties import Tie, mirrored_angle
 
 PAD = 0.5
 """Normalised value of the spec slots a structure does not use."""
@@ -61,6 +63,8 @@ class SpecLayout:
     structures: list[list[Edge]]
     log: np.ndarray
     """Boolean mask of the slots searched on a log scale (``Bound.log``)."""
+    ties: dict[str, Tie] = field(default_factory=dict)
+    """The tied instances (``same_as``), whose free specs are their sources' slots."""
 
     @property
     def size(self) -> int:
@@ -68,7 +72,21 @@ class SpecLayout:
 
     def used_slots(self, structure: Sequence[Edge]) -> np.ndarray:
         """Boolean mask of the slots a structure uses (its links, its non-root joints)."""
-        return used_slots(self.names, structure)
+        return used_slots(self.names, structure, self.ties)
+
+    def value(self, key: str, free: Mapping[str, float]) -> float:
+        """A spec's value in a design whose free specs are ``free``: its own slot's, a
+        fixed spec's, or a tied instance's source slot (a joint axis mirrored)."""
+        if key in free:
+            return float(free[key])
+        if key in self.fixed:
+            return self.fixed[key]
+        instance, _, rest = key.partition(".")
+        tie = self.ties.get(instance)
+        if tie is None:
+            raise KeyError(key)
+        value = float(free[f"{tie.source}.{rest}"])
+        return mirrored_angle(rest.removeprefix("joint."), value, tie)
 
     def _scaled(self, values: np.ndarray) -> np.ndarray:
         """Values on each slot's own scale: their natural log where ``log``."""
@@ -110,11 +128,13 @@ class SpecLayout:
         return np.where(self.log, values, scaled)
 
 
-def used_slots(names: Sequence[str], structure: Sequence[Edge]) -> np.ndarray:
+def used_slots(
+    names: Sequence[str], structure: Sequence[Edge], ties: Mapping[str, Tie] | None = None
+) -> np.ndarray:
     """Boolean mask of the spec slots ``names`` a structure uses (its links, its
-    non-root joints)."""
-    members = {name for edge in structure for name in edge}
-    children = {child for _, child in structure}
+    non-root joints; a tied instance's are its source's)."""
+    members = with_tie_sources((name for edge in structure for name in edge), ties or {})
+    children = with_tie_sources((child for _, child in structure), ties or {})
     mask = np.zeros(len(names), dtype=bool)
     for k, key in enumerate(names):
         instance, _, rest = key.partition(".")
@@ -141,6 +161,7 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
         fixed=fixed,
         structures=[list(s) for s in space.tree_structures()],
         log=np.array([bound.log for _, bound in slots], dtype=bool),
+        ties=space.ties(),
     )
 
 
@@ -271,7 +292,7 @@ def build_design(
     edges = layout.structures[structure]
 
     def spec(key: str) -> float:
-        return float(values[key]) if key in values else layout.fixed[key]
+        return layout.value(key, values)
 
     children = {child for _, child in edges}
     members: list[str] = []
@@ -427,6 +448,7 @@ def encode(
         physical[k] = min(max(value, low), high)
     if not isinstance(design_or_specs, Design):
         _check_derived_masses(space, layout, structure, values, design_or_specs)
+        _check_tied_values(layout, structure, values, design_or_specs)
     x = np.where(used, layout.normalise(physical), PAD)
     if representation.kind == "identity":
         return x.tolist()
@@ -458,8 +480,7 @@ def _check_derived_masses(
             continue
 
         def spec(name: str, link: str = instance.name) -> float:
-            full = f"{link}.{name}"
-            return float(values[full]) if full in layout.names else layout.fixed[full]
+            return layout.value(f"{link}.{name}", values)
 
         try:
             derived = link_mass(
@@ -477,6 +498,35 @@ def _check_derived_masses(
                 f"encode: spec {key!r} = {mass!r} is not this link's mass: it is given by "
                 f"density, so its mass is density x volume = {derived!r}; leave {key!r} "
                 "out or give that value"
+            )
+
+
+def _check_tied_values(
+    layout: SpecLayout, structure: int, values: Mapping[str, float], given: Mapping[str, Any]
+) -> None:
+    """A spec given for a tied instance must be its source's (a mirrored axis angle
+    mirrored, to 1e-9): the params the server showed are; another value is a design
+    the space cannot hold (ignoring it would store another robot)."""
+    members = {name for edge in layout.structures[structure] for name in edge}
+    spec_names = {*PART_SPECS, *(f"joint.{name}" for name in JOINT_SPECS)}
+    for key, value in given.items():
+        instance, _, rest = key.partition(".")
+        if instance not in layout.ties or instance not in members or rest not in spec_names:
+            continue
+        try:
+            expected = layout.value(key, values)
+        except KeyError:
+            continue  # not a spec of this link (the mass spec it does not use)
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isclose(value, expected, rel_tol=1e-9, abs_tol=1e-12)
+        ):
+            source = layout.ties[instance].source
+            raise ValueError(
+                f"encode: spec {key!r} = {value!r} differs from {expected!r}: {instance!r} is "
+                f"tied to {source!r} (same_as), so its specs are those of {source!r}; leave "
+                f"{key!r} out or give that value"
             )
 
 

@@ -35,7 +35,7 @@ import heapq
 import itertools
 import math
 import re
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from typing import Annotated, Any, Literal, NotRequired, cast
 
 from pydantic import (
@@ -50,6 +50,9 @@ from pydantic import (
     model_validator,
 )
 from typing_extensions import TypedDict
+
+from adclient.spec_constraints import SpecConstraint
+from adclient.ties import Mirror, Tie, mirrored_angle, resolve_ties
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]{0,63}$"
 
@@ -268,13 +271,50 @@ class JointType(_Strict):
 
 
 class PartInstance(_Strict):
+    """One link of the robot, of a ``part`` type, with its own overrides; or tied:
+    ``same_as`` another instance, whose specs and joint it takes (searched once),
+    reflected across x = 0 or y = 0 with ``mirror`` (``adclient.ties``). A tied
+    instance may leave ``part`` out (it is its source's) and overrides only where it
+    sits on its parent (``joint_overrides: {position: ..}``: a robot's front and back
+    legs are alike but not in one place)."""
+
     name: str = Field(pattern=NAME_PATTERN)
-    part: str
+    part: str = ""
+    same_as: str | None = Field(default=None, pattern=NAME_PATTERN)
+    mirror: Mirror | None = None
     overrides: dict[str, SpecValue] = Field(default_factory=dict)
     joint_overrides: dict[str, SpecValue] = Field(default_factory=dict)
 
+    @model_serializer(mode="wrap")
+    def _tie_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """``same_as`` and ``mirror`` are written only when set: an untied instance's
+        JSON is what it was before ties, so older servers and workers read it."""
+        data: dict[str, Any] = handler(self)
+        for key in ("same_as", "mirror"):
+            if key in data and data[key] is None:
+                data.pop(key)
+        return data
+
     @model_validator(mode="after")
     def _check(self) -> PartInstance:
+        if self.mirror is not None and self.same_as is None:
+            raise ValueError(
+                f"instance {self.name!r}: mirror: {self.mirror} needs same_as (the instance "
+                "it mirrors)"
+            )
+        own = sorted(set(self.joint_overrides) - {"position"})
+        if self.same_as is not None and (self.overrides or own):
+            names = [*self.overrides, *own]
+            raise ValueError(
+                f"instance {self.name!r}: same_as {self.same_as!r} takes every spec and the "
+                f"joint of that instance, so it overrides none of them ({', '.join(names)}); "
+                "only joint_overrides.position (where it sits on its parent) is its own"
+            )
+        if self.same_as is None and not self.part:
+            raise ValueError(
+                f"instance {self.name!r}: part is required (or same_as: <instance> to take "
+                "another instance's part and specs)"
+            )
         for field, known in (("overrides", PART_SPECS), ("joint_overrides", JOINT_SPECS)):
             for key, value in getattr(self, field).items():
                 if key not in known:
@@ -334,6 +374,11 @@ class DesignSpace(_Strict):
         "vector (mixed), the preprint's fused MDS embedding (fused), or one-hot "
         "structure + spec vector (onehot)",
     )
+    spec_constraints: list[SpecConstraint] = Field(
+        default_factory=list,
+        max_length=64,
+        description="Linear budgets on specs every design satisfies",
+    )
     fusion_solver: Literal["osqp", "exact"] = "osqp"
     fusion_margin: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)
     reference_per_structure: int = Field(default=16, ge=2, le=256)
@@ -354,11 +399,13 @@ class DesignSpace(_Strict):
     )
 
     _trees: list[list[Edge]] | None = PrivateAttr(default=None)
+    _ties: dict[str, Tie] = PrivateAttr(default_factory=dict)
 
     @model_validator(mode="after")
     def _check(self) -> DesignSpace:
         if not self.parts:
             raise ValueError("parts: at least one part type is needed")
+        self._tie_instances()
         for part_name, part in self.parts.items():
             if not _valid_name(part_name):
                 raise ValueError(f"parts: part type name {part_name!r} must match {NAME_PATTERN}")
@@ -403,12 +450,92 @@ class DesignSpace(_Strict):
                 )
         else:
             self._check_structures(self.structures)
+        for number, constraint in enumerate(self.spec_constraints):
+            self._check_spec_constraint(constraint, f"spec_constraints[{number}]")
         if not self.spec_slots()[0] and len(self.tree_structures()) == 1:
             raise ValueError(
                 "nothing to search: no spec used by the structure is given as "
                 "{low, high}, and there is a single structure"
             )
         return self
+
+    def _tie_instances(self) -> None:
+        """Resolve ``same_as`` chains; a tied instance's part is its source's."""
+        names = [instance.name for instance in self.instances]
+        if len(set(names)) != len(names):
+            return  # the duplicate is named next
+        self._ties = resolve_ties(
+            {instance.name: instance.same_as for instance in self.instances},
+            {instance.name: instance.mirror for instance in self.instances},
+        )
+        for index, instance in enumerate(self.instances):
+            tie = self._ties.get(instance.name)
+            if tie is None:
+                continue
+            source_part = self.instance(tie.source).part
+            if not instance.part:
+                instance.part = source_part
+            elif instance.part != source_part:
+                raise ValueError(
+                    f"instances[{index}] ({instance.name!r}): part {instance.part!r} differs "
+                    f"from {tie.source!r}'s part {source_part!r}; a tied instance is its "
+                    "source's part (leave part out)"
+                )
+
+    def _check_spec_constraint(self, constraint: SpecConstraint, where: str) -> None:
+        """Each term is a spec every structure has, on a linear scale (a log spec is not
+        linear in the searched coordinate); the fused encoding decodes non-linearly."""
+        if self.encoding == "fused" and len(self.tree_structures()) > 1:
+            raise ValueError(
+                f"{where}: spec_constraints need the mixed or onehot encoding (the fused "
+                "encoding's decoding is not linear, so a proposal could not be kept inside)"
+            )
+        names = {instance.name for instance in self.instances}
+        for key in constraint.terms:
+            instance, _, spec = key.partition(".")
+            if instance not in names:
+                raise ValueError(
+                    f"{where}.terms: {key!r} names unknown instance {instance!r} "
+                    f"(instances: {', '.join(sorted(names))})"
+                )
+            joint = spec.startswith("joint.")
+            known = [f"joint.{name}" for name in JOINT_SPECS] if joint else list(PART_SPECS)
+            if spec not in known:
+                raise ValueError(
+                    f"{where}.terms: {key!r} is no spec (an instance's specs: "
+                    f"{', '.join(PART_SPECS)}; its joint's: joint.{', joint.'.join(JOINT_SPECS)})"
+                )
+            value = (
+                self.joint_spec(instance, spec.removeprefix("joint."))
+                if joint
+                else self.part_spec(instance, spec)
+            )
+            if value is None:
+                raise ValueError(
+                    f"{where}.terms: {key!r}: {instance!r}'s mass is given by "
+                    f"{self.mass_spec(instance)}, so it has no {spec} spec"
+                )
+            if isinstance(value, Bound) and value.log:
+                raise ValueError(
+                    f"{where}.terms: {key!r} is searched on a log scale; spec_constraints are "
+                    "linear in the searched coordinates, so constrain specs on a linear scale"
+                )
+            for index, edges in enumerate(self.tree_structures()):
+                present = {child for _, child in edges} if joint else {n for e in edges for n in e}
+                if instance not in present:
+                    raise ValueError(
+                        f"{where}.terms: {key!r} is not in structures[{index}] ({instance!r} "
+                        f"{'is no child' if joint else 'is absent'} there); a constraint's "
+                        "specs must be in every structure"
+                    )
+
+    def tie(self, instance_name: str) -> Tie | None:
+        """Where a tied instance's specs come from; None for an untied one."""
+        return self._ties.get(instance_name)
+
+    def ties(self) -> dict[str, Tie]:
+        """Every tied instance's Tie, by instance name."""
+        return dict(self._ties)
 
     def _check_structures(self, structures: list[list[Edge]]) -> None:
         if not structures:
@@ -448,6 +575,9 @@ class DesignSpace(_Strict):
     def mass_spec(self, instance_name: str) -> Literal["mass", "density"]:
         """Which spec gives an instance's mass: the one it overrides, else the one its
         part gives (``density``: the mass is density times the link's volume)."""
+        tie = self.tie(instance_name)
+        if tie is not None:
+            return self.mass_spec(tie.source)
         instance = self.instance(instance_name)
         for name in MASS_SPECS:
             if name in instance.overrides:
@@ -456,7 +586,11 @@ class DesignSpace(_Strict):
 
     def part_spec(self, instance_name: str, spec: str) -> float | Bound | None:
         """An instance's part spec: its override, else its part type's value; ``None``
-        for the one of ``mass`` and ``density`` that does not give its mass."""
+        for the one of ``mass`` and ``density`` that does not give its mass. A tied
+        instance's is its source's."""
+        tie = self.tie(instance_name)
+        if tie is not None:
+            return self.part_spec(tie.source, spec)
         instance = self.instance(instance_name)
         if spec in MASS_SPECS and spec != self.mass_spec(instance_name):
             return None
@@ -466,7 +600,13 @@ class DesignSpace(_Strict):
         return value
 
     def joint_spec(self, instance_name: str, spec: str) -> float | Bound:
-        """The spec of the joint from an instance to its parent."""
+        """The spec of the joint from an instance to its parent; a tied instance's is
+        its source's, a fixed axis angle mirrored (a searched one is the source's slot)."""
+        tie = self.tie(instance_name)
+        own = self.instance(instance_name).joint_overrides
+        if tie is not None and spec not in own:
+            value = self.joint_spec(tie.source, spec)
+            return value if isinstance(value, Bound) else mirrored_angle(spec, value, tie)
         instance = self.instance(instance_name)
         if spec in instance.joint_overrides:
             return instance.joint_overrides[spec]
@@ -486,18 +626,20 @@ class DesignSpace(_Strict):
         """The free specs' keys in spec-vector order, with their Bounds.
 
         A part slot exists when its instance is in some structure and its spec is a
-        Bound; a joint slot when its instance is a child in some structure.
+        Bound; a joint slot when its instance is a child in some structure. A tied
+        instance's specs are its source's slots, which exist when either would; its
+        own searched ``position`` is its only slot.
         """
         structures = self.tree_structures()
         members: set[str] = set()
         children: set[str] = set()
         for edges in structures:
             for parent, child in edges:
-                members.update((parent, child))
-                children.add(child)
+                members.update(with_tie_sources((parent, child), self._ties))
+                children.update(with_tie_sources((child,), self._ties))
         slots: list[tuple[str, Bound]] = []
         for instance in self.instances:
-            if instance.name not in members:
+            if instance.name not in members or instance.name in self._ties:
                 continue
             for spec in PART_SPECS:
                 value = self.part_spec(instance.name, spec)
@@ -507,6 +649,8 @@ class DesignSpace(_Strict):
             if instance.name not in children:
                 continue
             for spec in JOINT_SPECS:
+                if instance.name in self._ties and spec not in instance.joint_overrides:
+                    continue
                 value = self.joint_spec(instance.name, spec)
                 if isinstance(value, Bound):
                     slots.append((f"{instance.name}.joint.{spec}", value))
@@ -521,6 +665,13 @@ class DesignSpace(_Strict):
         """
         slots = self.free_specs()
         return [key for key, _ in slots], [(bound.low, bound.high) for _, bound in slots]
+
+
+def with_tie_sources(names: Iterable[str], ties: Mapping[str, Tie]) -> set[str]:
+    """``names`` and the sources of the tied instances among them: the instances whose
+    spec slots they use."""
+    names = set(names)
+    return names | {ties[name].source for name in names if name in ties}
 
 
 def _check_mass_specs(

@@ -24,6 +24,7 @@ from adclient.schemas import (
     ProposerConfig,
     StudyCreate,
 )
+from adclient.spec_constraints import SpecConstraint
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = (ROOT / "docs" / "study-file.md").read_text(encoding="utf-8")
@@ -36,6 +37,7 @@ TABLES: dict[str, type[BaseModel]] = {
     "PartType": PartType,
     "JointType": JointType,
     "PartInstance": PartInstance,
+    "SpecConstraint": SpecConstraint,
     "ProposerConfig": ProposerConfig,
     "PrunerConfig": PrunerConfig,
     "NewTaskConfig": NewTaskConfig,
@@ -79,8 +81,10 @@ def _range_texts(metadata: list[Any], unit: str = "items") -> list[str]:
             if isinstance(item, annotated_types.BaseMetadata) and value is not None:
                 limits[kind] = value
     texts = []
-    if "min_length" in limits or "max_length" in limits:
+    if "min_length" in limits:
         texts.append(f"{limits['min_length']} to {limits['max_length']} {unit}")
+    elif "max_length" in limits:
+        texts.append(f"up to {limits['max_length']} {unit}")
     if "ge" in limits and "le" in limits:
         texts.append(f"{_number(limits['ge'])} to {_number(limits['le'])}")
     else:

@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -10,6 +10,7 @@ from adclient.design import Design
 from adclient.plugins import catalogue
 from adworker import designs
 from tests.servers import ServerProcess
+from tests.workers.processes import WorkerProcess
 from tests.workers.robots import write_urdf
 
 
@@ -21,6 +22,20 @@ def server(tmp_path: Path) -> Iterator[ServerProcess]:
     ).start()
     yield process
     process.stop()
+
+
+@pytest.fixture
+def workers(tmp_path: Path) -> Iterator[Callable[..., WorkerProcess]]:
+    started: list[WorkerProcess] = []
+
+    def start(server: ServerProcess, worker_id: str, *args: str) -> WorkerProcess:
+        worker = WorkerProcess(server, tmp_path, worker_id, *args)
+        started.append(worker)
+        return worker
+
+    yield start
+    for worker in started:
+        worker.stop()
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ import pytest
 from adclient import Client
 from adclient.schemas import Trial
 from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
+from tests.workers.processes import PATIENCE, wait_for
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e
@@ -33,20 +33,6 @@ def server_factory(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
     yield start
     for server in started:
         server.stop()
-
-
-@pytest.fixture
-def workers(tmp_path: Path) -> Iterator[Callable[..., WorkerProcess]]:
-    started: list[WorkerProcess] = []
-
-    def start(server: ServerProcess, worker_id: str, *args: str) -> WorkerProcess:
-        worker = WorkerProcess(server, tmp_path, worker_id, *args)
-        started.append(worker)
-        return worker
-
-    yield start
-    for worker in started:
-        worker.stop()
 
 
 def stand_up_study(client: Client, *, max_trials: int, **task: object):

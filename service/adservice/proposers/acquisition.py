@@ -52,6 +52,7 @@ from scipy.stats import qmc
 
 if TYPE_CHECKING:
     from adclient.boxspace import BoxEncoding
+    from adservice.proposers.base import SpecRegion
 
 # Set once, not per call: catch_warnings swaps the process's filter list, which is not
 # safe while other threads propose.
@@ -231,10 +232,12 @@ def _local(
     maxiter: int,
     tkw: dict,
     deadline: float | None = None,
+    region: SpecRegion | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """L-BFGS-B on every start's used specs at once (the others stay at the pad, out of
     the optimiser's vector); (points, values). Past ``deadline``, each start's best
-    point evaluated so far."""
+    point evaluated so far. With a ``region``, each end moved to the nearest point
+    inside it."""
     b, p = starts.shape[0], starts.shape[1] - 1
     used = domain.used[starts[:, 0].astype(np.int64)] & domain.free
     if p == 0 or not used.any():
@@ -278,6 +281,8 @@ def _local(
         found = best_free
     points = starts.copy()
     points[:, 1:][used] = np.clip(found, 0.0, 1.0)
+    if region is not None:
+        points = region.inside(points)
     return points, _evaluate(acqf, points, tkw)
 
 
@@ -295,21 +300,27 @@ def maximise(
     taken: np.ndarray | None = None,
     screen: Acquisition | None = None,
     n_incumbents: int = INCUMBENTS,
+    region: SpecRegion | None = None,
 ) -> Optimum:
     """The best point found, not one of ``taken`` if any other was found (see the
     module docstring). ``screen``: a cheaper estimate of ``acqf`` (a Monte Carlo
     acquisition with fewer draws) that scores the raw samples and picks the starts;
-    then only the ``SCREENED`` best raw samples are scored with ``acqf`` itself."""
+    then only the ``SCREENED`` best raw samples are scored with ``acqf`` itself.
+    ``region``: spec constraints; the raw samples are the feasible ones (topped up
+    with the nearest feasible points to others), and every local search's end is
+    moved to the nearest feasible point, so the best point found satisfies them."""
     rng = np.random.default_rng(seed)
     S = domain.n_structures
     raw = raw_samples(domain, raw_count, rng)
+    if region is not None:
+        raw = _feasible_raw(raw, region, num_restarts)
     values = raw_values = _evaluate(screen or acqf, raw, tkw, deadline)
     chosen = starts(raw, values, num_restarts, rng, 1 < S <= ENUMERATE_LIMIT)
     initial = np.concatenate([raw[chosen], domain.canonical(incumbents[:n_incumbents])])
     if screen is not None:
         best_raw = np.argsort(-raw_values, kind="stable")[:SCREENED]
         raw, raw_values = raw[best_raw], _evaluate(acqf, raw[best_raw], tkw)
-    points, values = _local(acqf, domain, initial, maxiter, tkw, deadline)
+    points, values = _local(acqf, domain, initial, maxiter, tkw, deadline, region)
     switched = 0
     for _ in range(DISCRETE_ROUNDS if S > 1 else 0):
         if past(deadline):
@@ -324,7 +335,7 @@ def maximise(
             break
         switched += int(better.sum())
         moved = variants.reshape(len(points), S, -1)[better, best[better]]
-        points[better], values[better] = _local(acqf, domain, moved, maxiter, tkw, deadline)
+        points[better], values[better] = _local(acqf, domain, moved, maxiter, tkw, deadline, region)
     if domain.discrete is not None:
         points, values = _discrete_rounds(acqf, domain, points, values, maxiter, tkw, deadline)
     points, values = np.concatenate([points, raw]), np.concatenate([values, raw_values])
@@ -334,6 +345,17 @@ def maximise(
         fresh = (int(i) for i in order if _distance(taken, points[i]) > _TAKEN_TOL)
         top = next(fresh, top)
     return Optimum(z=points[top], value=float(values[top]), structures_switched=switched)
+
+
+def _feasible_raw(raw: np.ndarray, region: SpecRegion, at_least: int) -> np.ndarray:
+    """The raw samples inside the spec constraints; when fewer than ``at_least`` are,
+    the nearest feasible points to the first others make up the number."""
+    inside = region.holds(raw)
+    kept = raw[inside]
+    missing = at_least - len(kept)
+    if missing > 0:
+        kept = np.concatenate([kept, region.inside(raw[~inside][:missing])])
+    return kept
 
 
 def _distance(points: np.ndarray, point: np.ndarray) -> float:

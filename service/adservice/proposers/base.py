@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict
 
 if TYPE_CHECKING:
     from adclient.boxspace import BoxEncoding
+    from adclient.polytope import SpecPolytope
 
 FloatArray = NDArray[np.float64]
 
@@ -120,6 +121,27 @@ def search_vectors(Z: np.ndarray, bounds: np.ndarray, search: SearchStructure | 
 
 
 @dataclass(frozen=True)
+class SpecRegion:
+    """A design space's spec constraints over model inputs (``acquisition.maximise``
+    keeps its search inside): which points satisfy them, and the nearest that do."""
+
+    polytope: SpecPolytope
+    bounds: np.ndarray
+    search: SearchStructure | None
+
+    def holds(self, Z: np.ndarray) -> np.ndarray:
+        return self.polytope.holds(search_vectors(Z, self.bounds, self.search))
+
+    def inside(self, Z: np.ndarray) -> np.ndarray:
+        from adservice.feasibility import into_polytope
+
+        vectors, moved = into_polytope(
+            search_vectors(Z, self.bounds, self.search), self.polytope, self.bounds
+        )
+        return model_inputs(vectors, self.bounds, self.search) if moved.any() else Z
+
+
+@dataclass(frozen=True)
 class ProposalRequest:
     """A study's history, as arrays.
 
@@ -147,6 +169,11 @@ class ProposalRequest:
     slacks: (n, c) constraint slacks of X's trials, a trial satisfying constraint j
     when ``slacks[:, j] <= 0`` (BoTorch's convention); None: no constraints. Also
     with one objective.
+
+    spec_polytope: a design space's spec constraints, ``A v <= b`` over search vectors
+    (``adclient.polytope``); None: none. The service moves a candidate that breaks one
+    to the nearest that does not, so a proposer may ignore them; one that reads them
+    (random draws again, qei scores only feasible points) proposes better.
     """
 
     bounds: FloatArray
@@ -167,6 +194,7 @@ class ProposalRequest:
     objectives: FloatArray | None = None
     ref_point: FloatArray | None = None
     slacks: FloatArray | None = None
+    spec_polytope: SpecPolytope | None = None
 
     @property
     def dim(self) -> int:

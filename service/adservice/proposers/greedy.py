@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from adservice.proposers.base import ProposalRequest, model_inputs, search_vectors
+from adservice.proposers.base import ProposalRequest, SpecRegion, model_inputs, search_vectors
 from adservice.proposers.simple import derived_seed
 
 if TYPE_CHECKING:
@@ -60,6 +60,7 @@ class Greedy:
     tkw: dict[str, Any]
     deadline: float | None
     n_incumbents: int = 1
+    region: SpecRegion | None = None
 
     @classmethod
     def of(
@@ -105,6 +106,9 @@ class Greedy:
             tkw=tkw,
             deadline=deadline,
             n_incumbents=n_incumbents,
+            region=SpecRegion(request.spec_polytope, bounds, search)
+            if request.spec_polytope is not None
+            else None,
         )
 
     def run(
@@ -139,6 +143,7 @@ class Greedy:
                 taken=None if self.taken is None else np.concatenate([self.taken, *new]),
                 screen=current.screen,
                 n_incumbents=self.n_incumbents,
+                region=self.region,
             )
             found.chosen.append(optimum.z)
             found.methods.append(current.method)

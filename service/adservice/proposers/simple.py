@@ -14,8 +14,15 @@ def scale_to_bounds(unit: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     return bounds[0] + unit * (bounds[1] - bounds[0])
 
 
+REJECTION_DRAWS = 1000
+"""Draws a random proposal makes at most to land inside a design space's spec
+constraints; past them the service moves the last draw inside."""
+
+
 class RandomProposer:
-    """Uniform samples; trial ``n`` always draws from the stream seeded by (seed, n)."""
+    """Uniform samples; trial ``n`` always draws from the stream seeded by (seed, n).
+    Within spec constraints, uniform over the designs that satisfy them: the stream
+    draws until one does (rejection sampling)."""
 
     name: ClassVar[str] = "random"
     needs_history: ClassVar[bool] = False
@@ -25,14 +32,20 @@ class RandomProposer:
 
     def propose(self, request: ProposalRequest) -> Proposal:
         NoOptions.model_validate(request.options)
-        rows = [
-            np.random.default_rng([request.seed, request.n_issued + i]).random(request.dim)
-            for i in range(request.count)
-        ]
-        return Proposal(
-            candidates=scale_to_bounds(np.array(rows), request.bounds),
-            info=[{"proposer": self.name}] * request.count,
-        )
+        rows, infos = [], []
+        for i in range(request.count):
+            stream = np.random.default_rng([request.seed, request.n_issued + i])
+            row = scale_to_bounds(stream.random(request.dim), request.bounds)
+            info: dict[str, object] = {"proposer": self.name}
+            if request.spec_polytope is not None:
+                draws = 1
+                while not request.spec_polytope.holds(row)[0] and draws < REJECTION_DRAWS:
+                    row = scale_to_bounds(stream.random(request.dim), request.bounds)
+                    draws += 1
+                info["draws"] = draws
+            rows.append(row)
+            infos.append(info)
+        return Proposal(candidates=np.array(rows), info=infos)
 
 
 def derived_seed(*parts: int) -> int:

@@ -11,7 +11,7 @@ leased, never on the ask/tell hot path of a study without transfer.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import sqlalchemy as sa
@@ -21,6 +21,7 @@ from adclient.decode import spec_vector, used_slots
 from adclient.design import Representation
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import TaskConfig, TransferSource, Trial, TrialState
+from adclient.ties import Tie
 from adservice.errors import InvalidError
 from adservice.models import ArtifactRow, TrialRow
 
@@ -34,6 +35,7 @@ def transfer_source(
     trial: Trial,
     task: TaskConfig,
     representation: Representation | None,
+    ties: Mapping[str, Tie],
     bounds: np.ndarray,
     maximize: bool,
 ) -> TransferSource | None:
@@ -55,10 +57,10 @@ def transfer_source(
         .order_by(order, TrialRow.id)
         .limit(SCANNED_SOURCES)
     ).all()
-    tree, specs, used = _key(representation, bounds, trial.vector)
+    tree, specs, used = _key(representation, ties, bounds, trial.vector)
     best: list[tuple[int, np.ndarray]] = []
     for row in rows:
-        other_tree, other_specs, _ = _key(representation, bounds, row.vector)
+        other_tree, other_specs, _ = _key(representation, ties, bounds, row.vector)
         if other_tree == tree:
             best.append((row.id, other_specs))
             if len(best) == task.transfer_among:
@@ -76,7 +78,10 @@ def transfer_source(
 
 
 def _key(
-    representation: Representation | None, bounds: np.ndarray, vector: Sequence[float]
+    representation: Representation | None,
+    ties: Mapping[str, Tie],
+    bounds: np.ndarray,
+    vector: Sequence[float],
 ) -> tuple[int, np.ndarray, np.ndarray]:
     """(tree, coordinates in [0, 1], the tree's coordinates) of a trial's vector."""
     if representation is None:
@@ -88,7 +93,7 @@ def _key(
     return (
         structure,
         specs,
-        used_slots(representation.spec_names, representation.structures[structure]),
+        used_slots(representation.spec_names, representation.structures[structure], ties),
     )
 
 

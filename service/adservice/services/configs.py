@@ -14,6 +14,7 @@ from pydantic import ValidationError
 from adclient.boxspace import BoxEncoding
 from adclient.design import DesignSpace, Representation
 from adclient.objectives import Outcomes, stored_outcomes
+from adclient.polytope import SpecPolytope, broken_spec_constraints, spec_polytope
 from adclient.pruning import PrunerConfig
 from adclient.schemas import ProposerConfig, TaskConfig, option_problems
 from adservice.db import Database
@@ -56,6 +57,8 @@ class StudyConfig:
     representation: Representation | None
     bounds: np.ndarray
     search: SearchStructure | None = None
+    polytope: SpecPolytope | None = None
+    """A design space's spec constraints over its search vectors (None: none)."""
     """What a design vector's coordinates mean, for proposers that model them."""
     box: BoxEncoding | None = None
     """A box of typed params (int, log, step, categorical): how its vectors encode them.
@@ -80,6 +83,7 @@ class StudyConfig:
         representation: Representation | None = None
         design_space: DesignSpace | None = None
         search: SearchStructure | None = None
+        polytope: SpecPolytope | None = None
         box: BoxEncoding | None = None
         if row.representation is not None:
             from adservice.representation import search_structure
@@ -88,6 +92,7 @@ class StudyConfig:
             bounds = np.asarray(representation.bounds, dtype=np.float64)
             design_space = DesignSpace.model_validate(row.space)
             search = search_structure(design_space, representation)
+            polytope = spec_polytope(design_space, representation)
         else:
             box = BoxEncoding.of(row.space)
             bounds = box.bounds
@@ -104,6 +109,7 @@ class StudyConfig:
             representation=representation,
             bounds=bounds,
             search=search,
+            polytope=polytope,
             box=box,
             proposer_error=proposer_error,
             pruner=PrunerConfig.model_validate(row.pruner or {}),
@@ -145,12 +151,17 @@ class StudyConfig:
         (``structure_index`` picks the structure; a ``structure`` given must agree)."""
         if self.representation is None or self.design_space is None:
             return (self.box or BoxEncoding.of(self.space)).encode(params)
-        from adclient.decode import encode
+        from adclient.decode import decode, encode
 
         try:
             vector = np.asarray(encode(self.design_space, self.representation, params))
         except (TypeError, ValueError) as error:
             raise ValueError(str(error).removeprefix("encode: ")) from None
+        broken = broken_spec_constraints(
+            self.design_space, decode(self.design_space, self.representation, vector.tolist())
+        )
+        if broken:
+            raise ValueError(f"the design breaks {'; '.join(broken)}")
         if "structure" in params:
             decoded = self.params(vector)["structure"]
             if params["structure"] != decoded:

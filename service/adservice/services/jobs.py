@@ -93,6 +93,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
                 trial=trial,
                 task=config.task,
                 representation=config.representation,
+                ties=config.design_space.ties() if config.design_space else {},
                 bounds=config.bounds,
                 maximize=config.maximize,
             )

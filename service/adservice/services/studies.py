@@ -5,7 +5,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from adclient.design import DesignSpace
+import numpy as np
+
+from adclient.design import DesignSpace, Representation
+from adclient.polytope import spec_polytope
 from adclient.schemas import StudyCreate
 from adservice.artifacts import ArtifactStore
 from adservice.db import Database
@@ -32,8 +35,10 @@ def create_study(
     if isinstance(body.space, DesignSpace):
         from adservice.representation import build_representation
 
-        representation = build_representation(body.space).model_dump(mode="json")
+        built = build_representation(body.space)
+        representation = built.model_dump(mode="json")
         _check_finite(body.space, representation)
+        _check_spec_constraints(body.space, built)
         dim = len(representation["bounds"][0])
     else:
         dim = len(body.space.params)
@@ -93,6 +98,19 @@ def _non_finite(value: Any, where: str) -> str | None:
         if found is not None:
             return found
     return None
+
+
+def _check_spec_constraints(space: DesignSpace, representation: Representation) -> None:
+    """Spec constraints some design in the search box satisfies (else no ask could)."""
+    from adservice.feasibility import check_satisfiable
+
+    polytope = spec_polytope(space, representation)
+    if polytope is None:
+        return
+    try:
+        check_satisfiable(polytope, np.asarray(representation.bounds, dtype=np.float64))
+    except ValueError as error:
+        raise InvalidError(f"space.spec_constraints: {error}") from None
 
 
 def _check_finite(space: DesignSpace, representation: dict[str, Any]) -> None:

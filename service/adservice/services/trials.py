@@ -71,6 +71,7 @@ def _request(
         options=config.proposer.options,
         structure=config.search,
         box=config.box,
+        spec_polytope=config.polytope,
         seconds=budget.seconds if budget else None,
         memory_bytes=budget.memory_bytes if budget else None,
         objectives=objectives,
@@ -102,17 +103,37 @@ def _record(
         first = trial_repo.reserve_numbers(session, study_id=config.study_id, count=wanted)
         proposal = propose(first, wanted)
         candidates = config.canonical(proposal.candidates)
+        infos = [_in_own_directions(info, config) for info in proposal.info]
+        if config.polytope is not None:
+            candidates, infos = _inside_spec_constraints(config, candidates, infos)
         return claimed + trial_repo.insert_trials(
             session,
             study_id=config.study_id,
             first_number=first,
             vectors=candidates.tolist(),
             params=[config.params(vector) for vector in candidates],
-            infos=[_in_own_directions(info, config) for info in proposal.info],
+            infos=infos,
             worker_id=worker_id,
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
+
+
+def _inside_spec_constraints(
+    config: StudyConfig, candidates: np.ndarray, infos: list[dict[str, Any]]
+) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """Candidates that break a spec constraint moved to the nearest design that does not
+    (``adservice.feasibility``), their info saying so: whatever the proposer, every
+    proposal satisfies the constraints."""
+    from adservice.feasibility import into_polytope
+
+    assert config.polytope is not None
+    inside, moved = into_polytope(candidates, config.polytope, config.bounds)
+    infos = [
+        {**info, "spec_constraints": "projected"} if was_moved else info
+        for info, was_moved in zip(infos, moved, strict=True)
+    ]
+    return inside, infos
 
 
 def _in_own_directions(info: dict[str, Any], config: StudyConfig) -> dict[str, Any]:

@@ -1,0 +1,82 @@
+"""Tied instances: an instance that says ``same_as: b`` has b's specs and b's joint,
+searched once (a symmetric robot's left and right legs), optionally mirrored.
+
+A mirror is a reflection across the plane ``x = 0`` or ``y = 0`` of the frames (the
+links run along z, which both planes contain, so a mirrored limb has the same
+shape). Mirroring a revolute joint reflects its motion: the joint turns about
+``-M a`` (a rotation axis is a pseudo-vector) by the same angle, so the limits stay
+as they are and only the axis angles change (``mirrored_angle``). Ties chain
+(``c same_as b same_as a``) and their mirrors compose: two different mirrors make a
+half turn about z.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+Mirror = Literal["x", "y"]
+
+
+@dataclass(frozen=True)
+class Tie:
+    """Where a tied instance's specs come from: the untied ``source`` at the end of
+    its ``same_as`` chain, reflected across x = 0 (``flip_x``) and/or y = 0
+    (``flip_y``)."""
+
+    source: str
+    flip_x: bool = False
+    flip_y: bool = False
+
+
+def resolve_ties(
+    same_as: Mapping[str, str | None], mirror: Mapping[str, Mirror | None]
+) -> dict[str, Tie]:
+    """Every tied instance's Tie (untied instances are absent). ``same_as`` maps every
+    instance, in order, to the instance it names or None. A ValueError names an
+    unknown instance or a cycle."""
+    ties: dict[str, Tie] = {}
+    for name, target in same_as.items():
+        if target is None:
+            continue
+        chain = [name]
+        flip_x = flip_y = False
+        current: str | None = name
+        while current is not None and same_as.get(current) is not None:
+            plane = mirror.get(current)
+            flip_x ^= plane == "x"
+            flip_y ^= plane == "y"
+            following = same_as[current]
+            assert following is not None
+            if following not in same_as:
+                raise ValueError(
+                    f"instance {current!r}: same_as names unknown instance {following!r} "
+                    f"(instances: {', '.join(sorted(same_as))})"
+                )
+            if following in chain:
+                cycle = " -> ".join([*chain[chain.index(following) :], following])
+                raise ValueError(
+                    f"instances: same_as forms a cycle ({cycle}); one instance of a tie "
+                    "must hold the specs (leave same_as out there)"
+                )
+            chain.append(following)
+            current = following
+        ties[name] = Tie(source=chain[-1], flip_x=flip_x, flip_y=flip_y)
+    return ties
+
+
+def mirrored_angle(spec: str, value: float, tie: Tie) -> float:
+    """A tied joint's ``axis_theta`` or ``axis_phi`` from its source's (other specs
+    come over unchanged). With axis ``a = (sin t cos p, sin t sin p, cos t)``, a
+    mirror across y = 0 turns about ``(-ax, ay, -az)``: ``(pi - t, pi - p)``; across
+    x = 0 about ``(ax, -ay, -az)``: ``(pi - t, -p)``; both: ``(-ax, -ay, az)``:
+    ``(t, p + pi)``."""
+    if not (tie.flip_x or tie.flip_y) or spec not in ("axis_theta", "axis_phi"):
+        return value
+    if tie.flip_x and tie.flip_y:
+        return value if spec == "axis_theta" else value + math.pi
+    if spec == "axis_theta":
+        return math.pi - value
+    return math.pi - value if tie.flip_y else -value
