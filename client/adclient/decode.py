@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from adclient.catalogues import catalogue_totals, choice_slots, nearest
 from adclient.design import (
     JOINT_SPECS,
     PART_SPECS,
@@ -65,6 +66,10 @@ class SpecLayout:
     """Boolean mask of the slots searched on a log scale (``Bound.log``)."""
     ties: dict[str, Tie] = field(default_factory=dict)
     """The tied instances (``same_as``), whose free specs are their sources' slots."""
+    chooses: dict[str, str] = field(default_factory=dict)
+    """Which catalogue each choosing part (owner ``"b"``) or joint (``"b.joint"``) is
+    one of (``adclient.catalogues``)."""
+    catalogues: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
 
     @property
     def size(self) -> int:
@@ -75,10 +80,14 @@ class SpecLayout:
         return used_slots(self.names, structure, self.ties)
 
     def value(self, key: str, free: Mapping[str, float]) -> float:
-        """A spec's value in a design whose free specs are ``free``: its own slot's, a
-        fixed spec's, or a tied instance's source slot (a joint axis mirrored)."""
+        """A spec's value in a design whose free specs are ``free``: its own slot's, the
+        chosen component's entry (a catalogue sets it), a fixed spec's, or a tied
+        instance's source slot (a joint axis mirrored)."""
         if key in free:
             return float(free[key])
+        owner, entry = spec_owner(key)
+        if owner in self.chooses and entry in self.catalogue_of(owner)[self.first_component(owner)]:
+            return float(self.catalogue_of(owner)[self.choice(owner, free)][entry])
         if key in self.fixed:
             return self.fixed[key]
         instance, _, rest = key.partition(".")
@@ -87,6 +96,22 @@ class SpecLayout:
             raise KeyError(key)
         value = float(free[f"{tie.source}.{rest}"])
         return mirrored_angle(rest.removeprefix("joint."), value, tie)
+
+    def catalogue_of(self, owner: str) -> dict[str, dict[str, float]]:
+        return self.catalogues[self.chooses[owner]]
+
+    def first_component(self, owner: str) -> str:
+        return next(iter(self.catalogue_of(owner)))
+
+    def choice(self, owner: str, free: Mapping[str, float]) -> str:
+        """The component a choosing part or joint is: the one nearest its searched
+        entries' values (a tied instance's are its source's)."""
+        catalogue = self.catalogue_of(owner)
+        point = {
+            slot.key: self.value(f"{owner}.choice.{slot.key}", free)
+            for slot in choice_slots(catalogue)
+        }
+        return nearest(catalogue, point)
 
     def _scaled(self, values: np.ndarray) -> np.ndarray:
         """Values on each slot's own scale: their natural log where ``log``."""
@@ -128,6 +153,14 @@ class SpecLayout:
         return np.where(self.log, values, scaled)
 
 
+def spec_owner(key: str) -> tuple[str, str]:
+    """(owner, spec) of a spec key: ``("b", "length")``, ``("b.joint", "effort")``."""
+    instance, _, rest = key.partition(".")
+    if rest.startswith("joint."):
+        return f"{instance}.joint", rest.removeprefix("joint.")
+    return instance, rest
+
+
 def used_slots(
     names: Sequence[str], structure: Sequence[Edge], ties: Mapping[str, Tie] | None = None
 ) -> np.ndarray:
@@ -145,7 +178,13 @@ def used_slots(
 def spec_layout(space: DesignSpace) -> SpecLayout:
     slots = space.free_specs()
     fixed: dict[str, float] = {}
+    chooses: dict[str, str] = {}
     for instance in space.instances:
+        part_catalogue = space.chosen_catalogue(instance.name, "part")
+        if part_catalogue is not None:
+            chooses[instance.name] = part_catalogue
+        if space.joint.choose is not None:
+            chooses[f"{instance.name}.joint"] = space.joint.choose
         for spec in PART_SPECS:
             value = space.part_spec(instance.name, spec)
             if value is not None and not isinstance(value, Bound):
@@ -162,6 +201,8 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
         structures=[list(s) for s in space.tree_structures()],
         log=np.array([bound.log for _, bound in slots], dtype=bool),
         ties=space.ties(),
+        chooses=chooses,
+        catalogues={name: dict(c) for name, c in space.catalogues.items()},
     )
 
 
@@ -302,7 +343,10 @@ def build_design(
                 members.append(name)
     root = next(name for name in members if name not in children)
     order = [instance.name for instance in space.instances if instance.name in members]
-    links = [_link(space, name, spec) for name in order]
+    links = [
+        _link(space, name, spec, layout.choice(name, values) if name in layout.chooses else None)
+        for name in order
+    ]
     joints: list[Joint] = []
     taken: set[str] = set()
     for parent, child in edges:
@@ -325,21 +369,31 @@ def build_design(
                 upper=spec(f"{child}.joint.upper"),
                 effort=spec(f"{child}.joint.effort"),
                 velocity=spec(f"{child}.joint.velocity"),
+                choice=layout.choice(f"{child}.joint", values)
+                if f"{child}.joint" in layout.chooses
+                else None,
             )
         )
     return Design(structure_index=structure, root=root, links=links, joints=joints)
 
 
-def _link(space: DesignSpace, name: str, spec: Callable[[str], float]) -> Link:
+def _link(space: DesignSpace, name: str, spec: Callable[[str], float], choice: str | None) -> Link:
     shape = space.parts[space.instance(name).part].shape
     length, radius = spec(f"{name}.length"), spec(f"{name}.radius")
     if space.mass_spec(name) == "density":
         density = spec(f"{name}.density")
         mass = link_mass(shape, length, radius, density)
         return Link(
-            name=name, shape=shape, length=length, radius=radius, mass=mass, density=density
+            name=name,
+            shape=shape,
+            length=length,
+            radius=radius,
+            mass=mass,
+            density=density,
+            choice=choice,
         )
-    return Link(name=name, shape=shape, length=length, radius=radius, mass=spec(f"{name}.mass"))
+    mass = spec(f"{name}.mass")
+    return Link(name=name, shape=shape, length=length, radius=radius, mass=mass, choice=choice)
 
 
 def axis_from_angles(theta: float, phi: float) -> tuple[float, float, float]:
@@ -367,15 +421,33 @@ def design_params(design: Design) -> dict[str, Any]:
     for link in design.links:
         if link.shape != "cylinder":
             params[f"{link.name}.shape"] = link.shape
+        if link.choice is not None:
+            params[f"{link.name}.choice"] = link.choice
         for spec in PART_SPECS:
             value = getattr(link, spec)
             if value is not None:
                 params[f"{link.name}.{spec}"] = float(value)
     for joint in design.joints:
+        if joint.choice is not None:
+            params[f"{joint.child}.joint.choice"] = joint.choice
         for spec in JOINT_SPECS:
             params[f"{joint.child}.joint.{spec}"] = float(getattr(joint, spec))
         params[f"{joint.child}.joint.axis"] = [float(value) for value in joint.axis]
     return params
+
+
+def design_catalogue_totals(space: DesignSpace, design: Design) -> dict[str, float]:
+    """The entries of the components a design chose, summed per catalogue
+    (``motors.cost``): metrics its study can constrain or optimise."""
+    chosen: list[tuple[str, str]] = []
+    for link in design.links:
+        catalogue = space.chosen_catalogue(link.name, "part")
+        if catalogue is not None and link.choice is not None:
+            chosen.append((catalogue, link.choice))
+    for joint in design.joints:
+        if space.joint.choose is not None and joint.choice is not None:
+            chosen.append((space.joint.choose, joint.choice))
+    return catalogue_totals(chosen, space.catalogues)
 
 
 def design_values(layout: SpecLayout, design: Design) -> dict[str, float]:
@@ -385,6 +457,12 @@ def design_values(layout: SpecLayout, design: Design) -> dict[str, float]:
     values: dict[str, float] = {}
     for key in layout.names:
         instance, _, spec = key.partition(".")
+        if ".choice." in key:
+            owner, entry = key.split(".choice.")
+            holder = (joints if owner.endswith(".joint") else links).get(instance)
+            if holder is not None and holder.choice is not None:
+                values[key] = float(layout.catalogue_of(owner)[holder.choice][entry])
+            continue
         if spec.startswith("joint."):
             if instance in joints:
                 values[key] = float(getattr(joints[instance], spec.removeprefix("joint.")))
@@ -429,9 +507,9 @@ def encode(
         structure = int(design_or_specs.get("structure_index", 0))
         if not 0 <= structure < len(layout.structures):
             raise ValueError(f"structure_index {structure} out of range")
-        values = {}
+        values = _chosen_values(layout, structure, design_or_specs)
         for key, value in design_or_specs.items():
-            if key in layout.names:
+            if key in layout.names and ".choice." not in key:
                 values[key] = float(value)
     used = layout.used_slots(layout.structures[structure])
     physical = layout.denormalise(np.full(layout.size, PAD))
@@ -501,6 +579,30 @@ def _check_derived_masses(
             )
 
 
+def _chosen_values(
+    layout: SpecLayout, structure: int, given: Mapping[str, Any]
+) -> dict[str, float]:
+    """The choice slots of the components ``given`` names (``b.joint.choice: xm430``),
+    for the choosing parts and joints whose slots the structure uses."""
+    used = dict(zip(layout.names, layout.used_slots(layout.structures[structure]), strict=True))
+    values: dict[str, float] = {}
+    for key in layout.names:
+        if ".choice." not in key or not used[key]:
+            continue
+        owner, entry = key.split(".choice.")
+        catalogue = layout.catalogue_of(owner)
+        name = given.get(f"{owner}.choice")
+        if name is None:
+            raise ValueError(f"encode: spec {owner + '.choice'!r} is missing")
+        if name not in catalogue:
+            raise ValueError(
+                f"encode: {owner}.choice: {name!r} is no component of catalogue "
+                f"{layout.chooses[owner]!r} (components: {', '.join(catalogue)})"
+            )
+        values[key] = float(catalogue[name][entry])
+    return values
+
+
 def _check_tied_values(
     layout: SpecLayout, structure: int, values: Mapping[str, float], given: Mapping[str, Any]
 ) -> None:
@@ -511,7 +613,21 @@ def _check_tied_values(
     spec_names = {*PART_SPECS, *(f"joint.{name}" for name in JOINT_SPECS)}
     for key, value in given.items():
         instance, _, rest = key.partition(".")
-        if instance not in layout.ties or instance not in members or rest not in spec_names:
+        owner, entry = spec_owner(key)
+        if instance not in members:
+            continue
+        if rest in ("choice", "joint.choice") and owner in layout.chooses:
+            chosen = layout.choice(owner, values)
+            if value != chosen:
+                raise ValueError(
+                    f"encode: {key} = {value!r} is not the component this design has: {chosen!r}"
+                )
+            continue
+        derived = instance in layout.ties or (
+            owner in layout.chooses
+            and entry in layout.catalogue_of(owner)[layout.first_component(owner)]
+        )
+        if not derived or rest not in spec_names:
             continue
         try:
             expected = layout.value(key, values)
@@ -522,10 +638,19 @@ def _check_tied_values(
             or not isinstance(value, int | float)
             or not math.isclose(value, expected, rel_tol=1e-9, abs_tol=1e-12)
         ):
-            source = layout.ties[instance].source
+            if instance in layout.ties:
+                source = layout.ties[instance].source
+                why = (
+                    f"{instance!r} is tied to {source!r} (same_as), so its specs are those "
+                    f"of {source!r}"
+                )
+            else:
+                why = (
+                    f"the component {layout.choice(owner, values)!r} of catalogue "
+                    f"{layout.chooses[owner]!r} sets it"
+                )
             raise ValueError(
-                f"encode: spec {key!r} = {value!r} differs from {expected!r}: {instance!r} is "
-                f"tied to {source!r} (same_as), so its specs are those of {source!r}; leave "
+                f"encode: spec {key!r} = {value!r} differs from {expected!r}: {why}; leave "
                 f"{key!r} out or give that value"
             )
 

@@ -51,6 +51,7 @@ from pydantic import (
 )
 from typing_extensions import TypedDict
 
+from adclient.catalogues import check_catalogue, choice_slots
 from adclient.spec_constraints import SpecConstraint
 from adclient.ties import Mirror, Tie, mirrored_angle, resolve_ties
 
@@ -227,6 +228,9 @@ class PartType(_Strict):
     radius: SpecValue = 0.04
     mass: OptionalSpecValue = 1.0
     density: OptionalSpecValue = None
+    choose: str | None = None
+    """A catalogue (``DesignSpace.catalogues``) whose components this part is: their
+    entries named like part specs set those specs."""
 
     @model_validator(mode="before")
     @classmethod
@@ -246,8 +250,8 @@ class PartType(_Strict):
         """Only the mass spec the part gives is written: a part with ``mass`` has the
         JSON it had before ``density`` existed, so older servers and workers read it."""
         data = handler(self)
-        for name in MASS_SPECS:
-            if data.get(name, 0) is None:
+        for name in (*MASS_SPECS, "choose"):
+            if name in data and data[name] is None:
                 data.pop(name)
         return cast(PartJSON, data)
 
@@ -261,6 +265,17 @@ class JointType(_Strict):
     upper: SpecValue = 1.5707963267948966
     effort: SpecValue = 20.0
     velocity: SpecValue = 5.0
+    choose: str | None = None
+    """A catalogue (``DesignSpace.catalogues``) whose components every joint is: their
+    entries named like joint specs (``effort``, ``velocity``) set those specs."""
+
+    @model_serializer(mode="wrap")
+    def _choose_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """``choose`` is written only when set, so older servers read the JSON."""
+        data: dict[str, Any] = handler(self)
+        if data.get("choose", "") is None:
+            data.pop("choose")
+        return data
 
     @model_validator(mode="after")
     def _check(self) -> JointType:
@@ -374,6 +389,10 @@ class DesignSpace(_Strict):
         "vector (mixed), the preprint's fused MDS embedding (fused), or one-hot "
         "structure + spec vector (onehot)",
     )
+    catalogues: dict[str, dict[str, dict[str, float]]] = Field(
+        default_factory=dict,
+        description="Components a part or the joint may choose from: name -> component -> entries",
+    )
     spec_constraints: list[SpecConstraint] = Field(
         default_factory=list,
         max_length=64,
@@ -406,6 +425,7 @@ class DesignSpace(_Strict):
         if not self.parts:
             raise ValueError("parts: at least one part type is needed")
         self._tie_instances()
+        self._check_catalogues()
         for part_name, part in self.parts.items():
             if not _valid_name(part_name):
                 raise ValueError(f"parts: part type name {part_name!r} must match {NAME_PATTERN}")
@@ -510,6 +530,12 @@ class DesignSpace(_Strict):
                 if joint
                 else self.part_spec(instance, spec)
             )
+            if self.catalogue_sets(instance, spec):
+                raise ValueError(
+                    f"{where}.terms: {key!r} is set by the component chosen from a catalogue; "
+                    "constrain its metric instead (outcome constraints on "
+                    "'<catalogue>.<entry>')"
+                )
             if value is None:
                 raise ValueError(
                     f"{where}.terms: {key!r}: {instance!r}'s mass is given by "
@@ -528,6 +554,59 @@ class DesignSpace(_Strict):
                         f"{'is no child' if joint else 'is absent'} there); a constraint's "
                         "specs must be in every structure"
                     )
+
+    def _check_catalogues(self) -> None:
+        """Valid catalogues; every ``choose`` names one; the specs a component sets are
+        valid specs of what chooses it."""
+        for name, catalogue in self.catalogues.items():
+            check_catalogue(name, catalogue)
+        choosers = [(f"parts.{n}", part.choose, "part") for n, part in self.parts.items()]
+        choosers.append(("joint", self.joint.choose, "joint"))
+        for where, chosen, kind in choosers:
+            if chosen is None:
+                continue
+            if chosen not in self.catalogues:
+                known = ", ".join(sorted(self.catalogues)) or "none"
+                raise ValueError(
+                    f"{where}.choose: unknown catalogue {chosen!r} (catalogues: {known})"
+                )
+            specs = JOINT_SPECS if kind == "joint" else PART_SPECS
+            for component, entries in self.catalogues[chosen].items():
+                for key, value in entries.items():
+                    if key in specs:
+                        _check_spec(key, value, f"catalogues.{chosen}.{component}")
+                if kind == "joint" and entries.get("lower", -math.inf) > entries.get(
+                    "upper", math.inf
+                ):
+                    raise ValueError(
+                        f"catalogues.{chosen}.{component}: lower ({entries['lower']}) exceeds "
+                        f"upper ({entries['upper']})"
+                    )
+            if kind == "part":
+                part = self.parts[where.removeprefix("parts.")]
+                given = "mass" if part.mass is not None else "density"
+                other = "density" if given == "mass" else "mass"
+                if other in next(iter(self.catalogues[chosen].values())):
+                    raise ValueError(
+                        f"{where}.choose: catalogue {chosen!r} sets {other} but the part's "
+                        f"mass is given by {given}"
+                    )
+
+    def chosen_catalogue(self, instance_name: str, kind: Literal["part", "joint"]) -> str | None:
+        """The catalogue an instance's part (or its joint) is chosen from; None if none."""
+        if kind == "joint":
+            return self.joint.choose
+        return self.parts[self.instance(instance_name).part].choose
+
+    def catalogue_sets(self, instance_name: str, spec: str) -> bool:
+        """Whether a component chosen from a catalogue gives this spec (``length``,
+        ``joint.effort``), rather than the part or joint itself."""
+        kind: Literal["part", "joint"] = "joint" if spec.startswith("joint.") else "part"
+        chosen = self.chosen_catalogue(instance_name, kind)
+        if chosen is None:
+            return False
+        first = next(iter(self.catalogues[chosen].values()))
+        return spec.removeprefix("joint.") in first
 
     def tie(self, instance_name: str) -> Tie | None:
         """Where a tied instance's specs come from; None for an untied one."""
@@ -641,20 +720,42 @@ class DesignSpace(_Strict):
         for instance in self.instances:
             if instance.name not in members or instance.name in self._ties:
                 continue
+            slots += self._choice_slots(instance.name, "part")
             for spec in PART_SPECS:
+                if self.catalogue_sets(instance.name, spec):
+                    continue
                 value = self.part_spec(instance.name, spec)
                 if isinstance(value, Bound):
                     slots.append((f"{instance.name}.{spec}", value))
         for instance in self.instances:
             if instance.name not in children:
                 continue
+            if instance.name not in self._ties:
+                slots += self._choice_slots(instance.name, "joint")
             for spec in JOINT_SPECS:
                 if instance.name in self._ties and spec not in instance.joint_overrides:
+                    continue
+                if self.catalogue_sets(instance.name, f"joint.{spec}"):
                     continue
                 value = self.joint_spec(instance.name, spec)
                 if isinstance(value, Bound):
                     slots.append((f"{instance.name}.joint.{spec}", value))
         return slots
+
+    def _choice_slots(
+        self, instance_name: str, kind: Literal["part", "joint"]
+    ) -> list[tuple[str, Bound]]:
+        """The searched entries of the catalogue an instance's part or joint chooses
+        from (``adclient.catalogues``), named ``<instance>.choice.<entry>`` and
+        ``<instance>.joint.choice.<entry>``."""
+        chosen = self.chosen_catalogue(instance_name, kind)
+        if chosen is None:
+            return []
+        owner = instance_name if kind == "part" else f"{instance_name}.joint"
+        return [
+            (f"{owner}.choice.{slot.key}", Bound(low=slot.low, high=slot.high, log=slot.log))
+            for slot in choice_slots(self.catalogues[chosen])
+        ]
 
     def spec_slots(self) -> tuple[list[str], list[tuple[float, float]]]:
         """Free spec keys in spec-vector order, and their physical (low, high).
@@ -791,12 +892,15 @@ class Link(BaseModel):
     radius: float
     mass: float
     density: float | None = None
+    choice: str | None = None
+    """The catalogue component it is, when its part chooses one."""
 
     @model_serializer(mode="wrap")
     def _density_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         data: dict[str, Any] = handler(self)
-        if data.get("density", 0) is None:
-            data.pop("density")
+        for key in ("density", "choice"):
+            if key in data and data[key] is None:
+                data.pop(key)
         return data
 
 
@@ -812,6 +916,15 @@ class Joint(BaseModel):
     upper: float
     effort: float
     velocity: float
+    choice: str | None = None
+    """The catalogue component it is, when the joint chooses one."""
+
+    @model_serializer(mode="wrap")
+    def _choice_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        data: dict[str, Any] = handler(self)
+        if data.get("choice", "") is None:
+            data.pop("choice")
+        return data
 
 
 class Design(BaseModel):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import subprocess
@@ -9,6 +10,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from tests.servers import ServerProcess
 
@@ -78,3 +80,13 @@ def wait_for(condition: Callable[[], object], what: str, poll: float = 0.05) -> 
             return value
         time.sleep(poll)
     raise AssertionError(f"gave up waiting for {what}")
+
+
+def completed_trials(study: Any, count: int) -> list[Any]:
+    """Wait for a managed study (an ``adclient`` StudyHandle) to finish; its complete
+    trials, of which there must be ``count``, each with a finite value."""
+    final = study.wait(poll=0.2, timeout=PATIENCE)
+    assert final.n_complete == count, [trial.message for trial in study.trials]
+    complete = [trial for trial in study.trials if trial.state == "complete"]
+    assert all(math.isfinite(trial.value) for trial in complete)
+    return complete

@@ -94,12 +94,18 @@ def decode_job(job: Job) -> Design:
     return decode(job.space, representation, job.vector)
 
 
-def design_metrics(design: Design) -> dict[str, float]:
+def design_metrics(design: Design, space: DesignSpace | None = None) -> dict[str, float]:
     """What a design is, before any physics: ``mass`` (kg, the sum of its links' masses,
-    those PyBullet simulates) and ``link_length`` (m, the sum of its links' lengths)."""
+    those PyBullet simulates), ``link_length`` (m, the sum of its links' lengths) and,
+    when its space has catalogues, the chosen components' entries summed per catalogue
+    (``motors.cost``)."""
+    from adclient.decode import design_catalogue_totals
     from adclient.urdf import design_link_length, design_mass
 
-    return {"mass": design_mass(design), "link_length": design_link_length(design)}
+    metrics = {"mass": design_mass(design), "link_length": design_link_length(design)}
+    if space is not None and space.catalogues:
+        metrics.update(design_catalogue_totals(space, design))
+    return metrics
 
 
 def task_options(task: TaskConfig) -> TaskOptions:
@@ -232,7 +238,7 @@ def evaluate_job(
         "sim_steps": float(sim_steps),
         "sim_steps_per_s": float(sim_steps / max(timings["train"] + timings["evaluate"], 1e-9)),
         "time_total_s": total,
-        **design_metrics(design),
+        **design_metrics(design, job.space if isinstance(job.space, DesignSpace) else None),
     }
     if trained.warm_started:
         metrics.update(_transfer_metrics(job, learner))

@@ -1,0 +1,181 @@
+"""Catalogues (issue 28): a joint or part that chooses from a catalogue is one of its
+components, its specs the component's, related to the others by their entries; the
+choice round-trips through params; bad catalogues and choices are refused by name."""
+
+from __future__ import annotations
+
+import copy
+import re
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from pydantic import ValidationError
+
+from adclient.catalogues import choice_slots, nearest
+from adclient.decode import (
+    decode,
+    design_catalogue_totals,
+    design_params,
+    encode,
+    identity_representation,
+)
+from adclient.design import DesignSpace
+
+ROOT = Path(__file__).resolve().parents[2]
+ARM = yaml.safe_load((ROOT / "examples" / "catalogue-arm.yaml").read_text(encoding="utf-8"))
+SERVOS = ARM["space"]["catalogues"]["servos"]
+
+
+def _arm(**changes: Any) -> dict[str, Any]:
+    space = copy.deepcopy(ARM["space"])
+    space.update(changes)
+    return space
+
+
+def test_the_search_moves_through_the_entries_that_vary() -> None:
+    slots = {slot.key: slot for slot in choice_slots(SERVOS)}
+    assert set(slots) == {"effort", "velocity", "mass", "cost"}
+    assert slots["cost"].log and slots["effort"].log  # 24 to 1200, 0.6 to 25
+    assert not slots["velocity"].log  # 3.0 to 10.0
+    assert (slots["mass"].low, slots["mass"].high) == (0.018, 0.34)
+    space = DesignSpace.model_validate(ARM["space"])
+    names = [key for key, _ in space.free_specs()]
+    assert names[:3] == ["b.length", "c.length", "d.length"]
+    assert names[3:7] == [f"b.joint.choice.{k}" for k in ("effort", "velocity", "mass", "cost")]
+    assert not [n for n in names if n.endswith((".joint.effort", ".joint.velocity"))]
+
+
+def test_each_component_decodes_from_its_own_entries_and_similar_ones_are_near() -> None:
+    for name, entries in SERVOS.items():
+        assert nearest(SERVOS, entries) == name
+    nudged = {**SERVOS["xm430"], "cost": 250.0}
+    assert nearest(SERVOS, nudged) == "xm430"
+    # xm430 and xh430 differ only in price: the nearest other servo to each is the other
+    for a, b in (("xm430", "xh430"), ("xm540", "xh540")):
+        others = {k: v for k, v in SERVOS.items() if k != a}
+        assert nearest(others, SERVOS[a]) == b
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_designs_carry_their_components_specs_and_round_trip(seed: int) -> None:
+    space = DesignSpace.model_validate(ARM["space"])
+    representation = identity_representation(space)
+    rng = np.random.default_rng(seed)
+    chosen: Counter[str] = Counter()
+    for _ in range(200):
+        design = decode(space, representation, rng.random(len(representation.bounds[0])).tolist())
+        params = design_params(design)
+        for joint in "bcd":
+            name = params[f"{joint}.joint.choice"]
+            chosen[name] += 1
+            assert params[f"{joint}.joint.effort"] == SERVOS[name]["effort"]
+            assert params[f"{joint}.joint.velocity"] == SERVOS[name]["velocity"]
+        vector = encode(space, representation, params)
+        assert decode(space, representation, vector) == design
+        totals = design_catalogue_totals(space, design)
+        names = [params[f"{joint}.joint.choice"] for joint in "bcd"]
+        assert totals["servos.cost"] == pytest.approx(sum(SERVOS[n]["cost"] for n in names))
+        assert totals["servos.mass"] == pytest.approx(sum(SERVOS[n]["mass"] for n in names))
+    assert set(chosen) == set(SERVOS), chosen  # every servo is reachable
+
+
+def test_a_given_spec_must_be_the_components_and_the_choice_a_component() -> None:
+    space = DesignSpace.model_validate(ARM["space"])
+    representation = identity_representation(space)
+    design = decode(space, representation, [0.5] * len(representation.bounds[0]))
+    params = design_params(design)
+    name = params["b.joint.choice"]
+    with pytest.raises(ValueError, match=rf"'b.joint.effort' = 99.0 .* component '{name}'"):
+        encode(space, representation, {**params, "b.joint.effort": 99.0})
+    with pytest.raises(ValueError, match=r"'nope' is no component of catalogue 'servos'"):
+        encode(space, representation, {**params, "b.joint.choice": "nope"})
+    with pytest.raises(ValueError, match=r"'b.joint.choice' is missing"):
+        encode(space, representation, {k: v for k, v in params.items() if k != "b.joint.choice"})
+    other = next(n for n in SERVOS if n != name)
+    moved = {**params, "b.joint.choice": other}
+    del moved["b.joint.effort"], moved["b.joint.velocity"]
+    assert (
+        design_params(decode(space, representation, encode(space, representation, moved)))[
+            "b.joint.choice"
+        ]
+        == other
+    )
+
+
+def test_a_part_chooses_stock_tubes() -> None:
+    tubes = {
+        "t16": {"radius": 0.008, "density": 2700.0},
+        "t25": {"radius": 0.0125, "density": 2700.0},
+    }
+    space = DesignSpace.model_validate(
+        _arm(
+            catalogues={"tubes": tubes},
+            parts={
+                "base": ARM["space"]["parts"]["base"],
+                "link": {"length": {"low": 0.1, "high": 0.4}, "density": 1.0, "choose": "tubes"},
+            },
+            joint={k: v for k, v in ARM["space"]["joint"].items() if k != "choose"},
+        )
+    )
+    representation = identity_representation(space)
+    assert [key for key, _ in space.free_specs() if ".choice." in key] == [
+        "b.choice.radius",
+        "c.choice.radius",
+        "d.choice.radius",
+    ]
+    slot = {"b.choice.radius": 0.9, "c.choice.radius": 0.1, "d.choice.radius": 0.9}
+    vector = [slot.get(name, 0.3) for name in representation.spec_names]
+    design = decode(space, representation, vector)
+    links = {link.name: link for link in design.links}
+    assert (links["b"].choice, links["c"].choice) == ("t25", "t16")
+    assert links["b"].radius == 0.0125 and links["b"].density == 2700.0
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            {"joint": {"choose": "motors"}},
+            r"joint.choose: unknown catalogue 'motors' \(catalogues: servos\)",
+        ),
+        (
+            {"catalogues": {"servos": {}}},
+            r"catalogues.servos: a catalogue needs at least one component",
+        ),
+        (
+            {"catalogues": {"servos": {"a": {"effort": 1.0}, "b": {"effort": 2.0, "cost": 3.0}}}},
+            r"catalogues.servos.b: entries \['cost', 'effort'\] differ from a's \['effort'\]",
+        ),
+        (
+            {"catalogues": {"servos": {"a": {"effort": -1.0}}}},
+            r"catalogues.servos.a.effort: must be > 0",
+        ),
+        (
+            {"catalogues": {"servos": {"a": {"lower": 1.0, "upper": 0.5}}}},
+            r"catalogues.servos.a: lower \(1.0\) exceeds upper \(0.5\)",
+        ),
+        ({"catalogues": {"servos": {"a b": {"effort": 1.0}}}}, r"component name 'a b' must match"),
+        (
+            {"spec_constraints": [{"terms": {"b.joint.effort": 1.0}, "op": "<=", "bound": 5.0}]},
+            r"'b.joint.effort' is set by the component chosen from a catalogue",
+        ),
+    ],
+)
+def test_bad_catalogues_are_refused_by_name(change: dict[str, Any], message: str) -> None:
+    with pytest.raises(ValidationError) as caught:
+        DesignSpace.model_validate(_arm(**change))
+    assert re.search(message, str(caught.value)), str(caught.value)
+
+
+def test_a_space_without_catalogues_serialises_as_before() -> None:
+    plain = DesignSpace.model_validate(_arm(catalogues={}, joint={"axis_theta": 1.0}))
+    dumped = plain.model_dump(mode="json")
+    assert "choose" not in dumped["joint"]
+    assert all("choose" not in part for part in dumped["parts"].values())
+    representation = identity_representation(plain)
+    design = decode(plain, representation, [0.5] * len(representation.bounds[0]))
+    assert all("choice" not in joint for joint in design.model_dump(mode="json")["joints"])
