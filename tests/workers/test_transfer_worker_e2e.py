@@ -154,6 +154,12 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
                 f"{server.url}/api/v1/trials/{queued.id}/release", json={}, headers=SDK_HEADERS
             )
             assert released.status_code == 200 and released.json()["state"] == "queued"
+
+            def done_again() -> bool:
+                return client.get_trial(queued.id).state == "complete"
+
+            wait_for(done_again, "the released trial to be done again")
+            study.stop()  # the rest of the study is not this test's
             assert worker.wait(PATIENCE) == 0, worker.log()
         finally:
             worker.stop()
