@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from adclient.catalogues import catalogue_totals, choice_slots, nearest
+from adclient.catalogues import catalogue_totals, choice_slots, coordinate, nearest
 from adclient.design import (
     JOINT_SPECS,
     PART_SPECS,
@@ -461,7 +461,7 @@ def design_values(layout: SpecLayout, design: Design) -> dict[str, float]:
             owner, entry = key.split(".choice.")
             holder = (joints if owner.endswith(".joint") else links).get(instance)
             if holder is not None and holder.choice is not None:
-                values[key] = float(layout.catalogue_of(owner)[holder.choice][entry])
+                values[key] = coordinate(layout.catalogue_of(owner), holder.choice, entry)
             continue
         if spec.startswith("joint."):
             if instance in joints:
@@ -599,7 +599,7 @@ def _chosen_values(
                 f"encode: {owner}.choice: {name!r} is no component of catalogue "
                 f"{layout.chooses[owner]!r} (components: {', '.join(catalogue)})"
             )
-        values[key] = float(catalogue[name][entry])
+        values[key] = coordinate(catalogue, name, entry)
     return values
 
 

@@ -36,8 +36,10 @@ from scipy.spatial.distance import pdist, squareform
 from scipy.stats import qmc
 from threadpoolctl import threadpool_limits
 
+from adclient.catalogues import coordinate
 from adclient.decode import (
     PAD,
+    SpecLayout,
     identity_representation,
     mixed_bounds,
     onehot_representation,
@@ -46,7 +48,7 @@ from adclient.decode import (
 from adclient.design import Bound, DesignSpace, Representation
 from adclient.similarity import similarity_matrix
 from adservice.fusion import fuse
-from adservice.proposers.base import AxisColumns, SearchStructure
+from adservice.proposers.base import AxisColumns, ChoiceColumns, SearchStructure
 
 MAX_REFERENCES = 512
 """Reference designs are capped near this count (at least 2 per structure)."""
@@ -321,4 +323,26 @@ def search_structure(space: DesignSpace, representation: Representation) -> Sear
         axes=tuple(axes),
         pad=PAD,
         spec_log=layout.log if layout.log.any() else None,
+        choices=choice_columns(layout),
     )
+
+
+def choice_columns(layout: SpecLayout) -> tuple[ChoiceColumns, ...]:
+    """Each choosing part's or joint's searched entries (its own slots, not a tied
+    instance's) and where each component lies in them."""
+    column = {name: k for k, name in enumerate(layout.names)}
+    found = []
+    for owner in layout.chooses:
+        keys = [key for key in layout.names if key.startswith(f"{owner}.choice.")]
+        if not keys:
+            continue
+        columns = [column[key] for key in keys]
+        entries = [key.removeprefix(f"{owner}.choice.") for key in keys]
+        catalogue = layout.catalogue_of(owner)
+        rows = []
+        for component in catalogue:
+            row = layout.denormalise(np.full(layout.size, 0.5))
+            row[columns] = [coordinate(catalogue, component, entry) for entry in entries]
+            rows.append(layout.normalise(row)[columns])
+        found.append(ChoiceColumns(columns=tuple(columns), points=np.array(rows)))
+    return tuple(found)

@@ -15,7 +15,7 @@ import pytest
 import yaml
 from pydantic import ValidationError
 
-from adclient.catalogues import choice_slots, nearest
+from adclient.catalogues import choice_slots, coordinate, coordinates, nearest
 from adclient.decode import (
     decode,
     design_catalogue_totals,
@@ -36,28 +36,44 @@ def _arm(**changes: Any) -> dict[str, Any]:
     return space
 
 
-def test_the_search_moves_through_the_entries_that_vary() -> None:
-    slots = {slot.key: slot for slot in choice_slots(SERVOS)}
-    assert set(slots) == {"effort", "velocity", "mass", "cost"}
-    assert slots["cost"].log and slots["effort"].log  # 24 to 1200, 0.6 to 25
-    assert not slots["velocity"].log  # 3.0 to 10.0
-    assert (slots["mass"].low, slots["mass"].high) == (0.018, 0.34)
+def test_the_search_moves_through_an_embedding_of_the_entries() -> None:
+    """The servos' effort, mass and price rise together (velocity falls): one principal
+    component holds over 90% of their spread, so each joint searches one coordinate,
+    along which the servos lie from the strongest to the weakest."""
+    (slot,) = choice_slots(SERVOS)
+    places = {name: place[0] for name, place in coordinates(SERVOS).items()}
+    assert (slot.low, slot.high) == (min(places.values()), max(places.values()))
+    by_place = sorted(SERVOS, key=places.__getitem__)
+    assert {by_place[0], by_place[-1]} == {"pm42", "xl330"}  # strongest, weakest at the ends
     space = DesignSpace.model_validate(ARM["space"])
     names = [key for key, _ in space.free_specs()]
-    assert names[:3] == ["b.length", "c.length", "d.length"]
-    assert names[3:7] == [f"b.joint.choice.{k}" for k in ("effort", "velocity", "mass", "cost")]
-    assert not [n for n in names if n.endswith((".joint.effort", ".joint.velocity"))]
+    assert names == ["b.length", "c.length", "d.length"] + [f"{j}.joint.choice.0" for j in "bcd"]
 
 
-def test_each_component_decodes_from_its_own_entries_and_similar_ones_are_near() -> None:
-    for name, entries in SERVOS.items():
-        assert nearest(SERVOS, entries) == name
-    nudged = {**SERVOS["xm430"], "cost": 250.0}
-    assert nearest(SERVOS, nudged) == "xm430"
-    # xm430 and xh430 differ only in price: the nearest other servo to each is the other
+def test_entries_that_do_not_go_together_keep_more_dimensions() -> None:
+    """Fast-and-weak against slow-and-strong, and price unrelated to both: two or
+    three coordinates, and every motor its own nearest."""
+    motors = {
+        "a": {"effort": 1.0, "velocity": 9.0, "cost": 300.0},
+        "b": {"effort": 9.0, "velocity": 1.0, "cost": 300.0},
+        "c": {"effort": 1.0, "velocity": 1.0, "cost": 10.0},
+        "d": {"effort": 9.0, "velocity": 9.0, "cost": 10.0},
+    }
+    assert len(choice_slots(motors)) >= 2
+    for name in motors:
+        point = {slot.key: coordinate(motors, name, slot.key) for slot in choice_slots(motors)}
+        assert nearest(motors, point) == name
+
+
+def test_each_component_decodes_from_its_place_and_similar_ones_are_near() -> None:
+    places = coordinates(SERVOS)
+    for name, place in places.items():
+        assert nearest(SERVOS, {str(d): v for d, v in enumerate(place)}) == name
+    # servos that differ only in price lie next to each other
     for a, b in (("xm430", "xh430"), ("xm540", "xh540")):
-        others = {k: v for k, v in SERVOS.items() if k != a}
-        assert nearest(others, SERVOS[a]) == b
+        others = {k: v for k, v in places.items() if k != a}
+        closest = min(others, key=lambda k: abs(others[k][0] - places[a][0]))
+        assert closest == b
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -123,11 +139,11 @@ def test_a_part_chooses_stock_tubes() -> None:
     )
     representation = identity_representation(space)
     assert [key for key, _ in space.free_specs() if ".choice." in key] == [
-        "b.choice.radius",
-        "c.choice.radius",
-        "d.choice.radius",
+        "b.choice.0",
+        "c.choice.0",
+        "d.choice.0",
     ]
-    slot = {"b.choice.radius": 0.9, "c.choice.radius": 0.1, "d.choice.radius": 0.9}
+    slot = {"b.choice.0": 0.9, "c.choice.0": 0.1, "d.choice.0": 0.9}
     vector = [slot.get(name, 0.3) for name in representation.spec_names]
     design = decode(space, representation, vector)
     links = {link.name: link for link in design.links}

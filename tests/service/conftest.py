@@ -82,3 +82,16 @@ def browser(chromium_executable: str, tmp_path: Path) -> Iterator[Chromium]:
     chromium = Chromium(chromium_executable, profile)
     yield chromium
     chromium.close()
+
+
+@pytest.fixture(scope="module")
+def module_http(tmp_path_factory: pytest.TempPathFactory) -> Iterator[httpx.Client]:
+    """A real adserver on a SQLite file of its own, shared by one module's tests (each
+    looks at the studies it made), reached over HTTP."""
+    work = tmp_path_factory.mktemp("module-server")
+    server = ServerProcess(database_url=f"sqlite:///{work / 'studies.db'}", workdir=work).start()
+    try:
+        with httpx.Client(base_url=server.url, timeout=300) as client:
+            yield client
+    finally:
+        server.stop()

@@ -7,15 +7,12 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
 from adservice.proposers import available
-from tests.servers import ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("spec-constraints")]
 
@@ -93,14 +90,8 @@ def broken(space: dict[str, Any], params: dict[str, Any]) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def http(tmp_path_factory: pytest.TempPathFactory) -> Iterator[httpx.Client]:
-    work: Path = tmp_path_factory.mktemp("spec-constraints")
-    server = ServerProcess(database_url=f"sqlite:///{work / 'studies.db'}", workdir=work).start()
-    try:
-        with httpx.Client(base_url=server.url, timeout=300) as client:
-            yield client
-    finally:
-        server.stop()
+def http(module_http: httpx.Client) -> httpx.Client:
+    return module_http
 
 
 def _create(http: httpx.Client, name: str, space: dict[str, Any], proposer: dict[str, Any]):

@@ -52,7 +52,7 @@ from scipy.stats import qmc
 
 if TYPE_CHECKING:
     from adclient.boxspace import BoxEncoding
-    from adservice.proposers.base import SpecRegion
+    from adservice.proposers.base import ChoiceColumns, SpecRegion
 
 # Set once, not per call: catch_warnings swaps the process's filter list, which is not
 # safe while other threads propose.
@@ -147,6 +147,11 @@ class MixedDomain:
     used: np.ndarray
     pad: float
     discrete: DiscreteColumns | None = None
+    choices: tuple[ChoiceColumns, ...] = ()
+    """Catalogue choices: their columns snap to the nearest component."""
+    spec_width: np.ndarray | None = None
+    """Each slot's physical width, so a choice's nearest component is measured in its
+    catalogue's own coordinates, as decoding measures it."""
 
     @property
     def n_structures(self) -> int:
@@ -164,7 +169,18 @@ class MixedDomain:
         specs = np.where(self.used[index], Z[:, 1:], self.pad)
         if self.discrete is not None:
             specs = self.discrete.snap(specs)
+        for choice in self.choices:
+            specs = self._snap_choice(specs, choice)
         return np.column_stack([Z[:, 0], specs])
+
+    def _snap_choice(self, specs: np.ndarray, choice: ChoiceColumns) -> np.ndarray:
+        columns = list(choice.columns)
+        scale = np.ones(len(columns)) if self.spec_width is None else self.spec_width[columns]
+        gaps = (specs[:, None, columns] - choice.points[None, :, :]) * scale
+        nearest = np.argmin((gaps**2).sum(axis=2), axis=1)
+        specs = specs.copy()
+        specs[:, columns] = choice.points[nearest]
+        return specs
 
 
 Acquisition = Callable[[torch.Tensor], torch.Tensor]
@@ -281,6 +297,8 @@ def _local(
         found = best_free
     points = starts.copy()
     points[:, 1:][used] = np.clip(found, 0.0, 1.0)
+    if domain.choices:
+        points = domain.canonical(points)
     if region is not None:
         points = region.inside(points)
     return points, _evaluate(acqf, points, tkw)

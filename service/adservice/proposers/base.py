@@ -50,6 +50,17 @@ class AxisColumns:
 
 
 @dataclass(frozen=True)
+class ChoiceColumns:
+    """A part's or joint's choice from a catalogue (``adclient.catalogues``): the
+    spec-vector ``columns`` of its searched entries, and ``points`` (components x
+    columns), each component's normalised entries, where a vector that picks it is
+    put (``StudyConfig.canonical``)."""
+
+    columns: tuple[int, ...]
+    points: FloatArray
+
+
+@dataclass(frozen=True)
 class SearchStructure:
     """What a design vector means, for proposers that model it (qei).
 
@@ -72,6 +83,7 @@ class SearchStructure:
     axes: tuple[AxisColumns, ...] = ()
     pad: float = 0.5
     spec_log: NDArray[np.bool_] | None = None
+    choices: tuple[ChoiceColumns, ...] = ()
 
     def is_log(self, column: int) -> bool:
         return self.spec_log is not None and bool(self.spec_log[column])

@@ -93,6 +93,8 @@ class Greedy:
             discrete=DiscreteColumns(request.box, bounds[0], bounds[1] - bounds[0])
             if request.box is not None
             else None,
+            choices=search.choices if search is not None else (),
+            spec_width=search.spec_high - search.spec_low if search is not None else None,
         )
         pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
         return cls(

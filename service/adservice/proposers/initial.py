@@ -1,5 +1,6 @@
 """The initial design of ``qei`` (and its multi-objective form): seeded scrambled Sobol
-points that cover a typed box's categorical choices and a design space's structures.
+points that cover a typed box's categorical choices, a design space's structures and
+the components of its catalogues.
 
 A GP cannot rank a choice or a tree it never saw: with the one-hot kernel it expects
 an unseen choice to be average, and a design study started on two trees of eight kept
@@ -37,6 +38,8 @@ def initial_count(request: ProposalRequest) -> int:
         most = max(request.box.categorical.values())
     if request.structure is not None:
         most = max(most, request.structure.n_structures)
+        for choice in request.structure.choices:
+            most = max(most, len(choice.points))
     return max(request.n_initial, min(most, COVERED_CHOICES))
 
 
@@ -70,6 +73,14 @@ def covering_choices(points: np.ndarray, request: ProposalRequest) -> np.ndarray
         points = points.copy()
         order = structure_order(search, request.seed)
         points[:, 0] = order[numbers % len(order)]
+    if search is not None and search.choices:
+        points = points.copy()
+        offset = 1 if search.n_structures > 1 else 0
+        for number, choice in enumerate(search.choices):
+            columns = [offset + column for column in choice.columns]
+            stream = np.random.default_rng([request.seed, 28, number])
+            dealt = stream.permutation(len(choice.points))
+            points[:, columns] = choice.points[dealt[numbers % len(dealt)]]
     box = request.box
     if box is None:
         return points

@@ -121,10 +121,29 @@ class StudyConfig:
         return int(self.bounds.shape[1])
 
     def canonical(self, candidates: np.ndarray) -> np.ndarray:
-        """Proposed vectors as stored: in the box, typed params snapped to their values."""
+        """Proposed vectors as stored: in the box, typed params snapped to their values,
+        a catalogue choice's coordinates those of the component it picks (so the model
+        sees each component at one point, as it sees a categorical's choices)."""
         if self.box is not None:
             return self.box.snap(candidates)
-        return np.clip(candidates, self.bounds[0], self.bounds[1])
+        clipped = np.clip(candidates, self.bounds[0], self.bounds[1])
+        if self.design_space is None or not self.design_space.catalogues:
+            return clipped
+        assert self.representation is not None
+        if self.representation.kind == "fused":  # encode is approximate there
+            return clipped
+        from adclient.decode import decode, encode
+
+        return np.array(
+            [
+                encode(
+                    self.design_space,
+                    self.representation,
+                    decode(self.design_space, self.representation, row.tolist()),
+                )
+                for row in clipped
+            ]
+        )
 
     def params(self, vector: np.ndarray) -> dict[str, Any]:
         """What a person reads: box params by name in their types, or the decoded design."""
