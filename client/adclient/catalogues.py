@@ -19,6 +19,7 @@ A design's components' other entries add up per catalogue as metrics
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -101,7 +102,17 @@ def _normalised(catalogue: Catalogue) -> np.ndarray:
 
 def coordinates(catalogue: Catalogue) -> dict[str, tuple[float, ...]]:
     """Each component's place in the catalogue's embedding (see the module docstring);
-    the axes' signs fixed so the largest loading is positive, so every process agrees."""
+    the axes' signs fixed so the largest loading is positive, so every process agrees.
+    Computed once per catalogue: decoding a design asks for it per spec it sets."""
+    frozen = tuple((name, tuple(entries.items())) for name, entries in catalogue.items())
+    return dict(_embedding(frozen))
+
+
+@functools.lru_cache(maxsize=256)
+def _embedding(
+    frozen: tuple[tuple[str, tuple[tuple[str, float], ...]], ...],
+) -> tuple[tuple[str, tuple[float, ...]], ...]:
+    catalogue = {name: dict(entries) for name, entries in frozen}
     matrix = _normalised(catalogue)
     centred = matrix - matrix.mean(axis=0) if matrix.size else matrix
     dims = 0
@@ -113,9 +124,8 @@ def coordinates(catalogue: Catalogue) -> dict[str, tuple[float, ...]]:
         axes = axes[:dims]
         signs = np.sign(axes[np.arange(dims), np.argmax(np.abs(axes), axis=1)])
         embedded = centred @ (axes * signs[:, None]).T
-    return {
-        name: tuple(float(v) for v in row) for name, row in zip(catalogue, embedded, strict=True)
-    }
+    rows = zip(catalogue, embedded, strict=True)
+    return tuple((name, tuple(float(v) for v in row)) for name, row in rows)
 
 
 def choice_slots(catalogue: Catalogue) -> list[ChoiceSlot]:

@@ -526,7 +526,7 @@ def encode(
         physical[k] = min(max(value, low), high)
     if not isinstance(design_or_specs, Design):
         _check_derived_masses(space, layout, structure, values, design_or_specs)
-        _check_tied_values(layout, structure, values, design_or_specs)
+        _check_derived_values(layout, structure, values, design_or_specs)
     x = np.where(used, layout.normalise(physical), PAD)
     if representation.kind == "identity":
         return x.tolist()
@@ -603,12 +603,13 @@ def _chosen_values(
     return values
 
 
-def _check_tied_values(
+def _check_derived_values(
     layout: SpecLayout, structure: int, values: Mapping[str, float], given: Mapping[str, Any]
 ) -> None:
     """A spec given for a tied instance must be its source's (a mirrored axis angle
-    mirrored, to 1e-9): the params the server showed are; another value is a design
-    the space cannot hold (ignoring it would store another robot)."""
+    mirrored), one a catalogue sets its component's, to 1e-9, and a choice the one the
+    design has: the params the server showed are; another value is a design the space
+    cannot hold (ignoring it would store another robot)."""
     members = {name for edge in layout.structures[structure] for name in edge}
     spec_names = {*PART_SPECS, *(f"joint.{name}" for name in JOINT_SPECS)}
     for key, value in given.items():

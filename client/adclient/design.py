@@ -35,7 +35,7 @@ import heapq
 import itertools
 import math
 import re
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, MutableMapping
 from typing import Annotated, Any, Literal, NotRequired, cast
 
 from pydantic import (
@@ -77,6 +77,14 @@ JOINT_SPECS: tuple[str, ...] = (
 """The searchable specs of a joint, in spec-vector order."""
 
 _POSITIVE_SPECS = frozenset({"length", "radius", "mass", "density", "effort", "velocity"})
+
+
+def _drop_unset(data: MutableMapping[str, Any], *keys: str) -> None:
+    """Leave out of a serialised model the optional fields it does not set, so its JSON is
+    what it was before they existed and older servers and workers read it."""
+    for key in keys:
+        if key in data and data[key] is None:
+            del data[key]
 
 
 class _Strict(BaseModel):
@@ -250,9 +258,7 @@ class PartType(_Strict):
         """Only the mass spec the part gives is written: a part with ``mass`` has the
         JSON it had before ``density`` existed, so older servers and workers read it."""
         data = handler(self)
-        for name in (*MASS_SPECS, "choose"):
-            if name in data and data[name] is None:
-                data.pop(name)
+        _drop_unset(data, *MASS_SPECS, "choose")
         return cast(PartJSON, data)
 
 
@@ -273,8 +279,7 @@ class JointType(_Strict):
     def _choose_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """``choose`` is written only when set, so older servers read the JSON."""
         data: dict[str, Any] = handler(self)
-        if data.get("choose", "") is None:
-            data.pop("choose")
+        _drop_unset(data, "choose")
         return data
 
     @model_validator(mode="after")
@@ -305,9 +310,7 @@ class PartInstance(_Strict):
         """``same_as`` and ``mirror`` are written only when set: an untied instance's
         JSON is what it was before ties, so older servers and workers read it."""
         data: dict[str, Any] = handler(self)
-        for key in ("same_as", "mirror"):
-            if key in data and data[key] is None:
-                data.pop(key)
+        _drop_unset(data, "same_as", "mirror")
         return data
 
     @model_validator(mode="after")
@@ -898,9 +901,7 @@ class Link(BaseModel):
     @model_serializer(mode="wrap")
     def _density_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         data: dict[str, Any] = handler(self)
-        for key in ("density", "choice"):
-            if key in data and data[key] is None:
-                data.pop(key)
+        _drop_unset(data, "density", "choice")
         return data
 
 
@@ -922,8 +923,7 @@ class Joint(BaseModel):
     @model_serializer(mode="wrap")
     def _choice_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         data: dict[str, Any] = handler(self)
-        if data.get("choice", "") is None:
-            data.pop("choice")
+        _drop_unset(data, "choice")
         return data
 
 
