@@ -35,6 +35,7 @@ import heapq
 import itertools
 import math
 import re
+import sys
 from collections.abc import Iterable, Iterator, Mapping, MutableMapping
 from typing import Annotated, Any, Literal, NotRequired, cast
 
@@ -56,6 +57,11 @@ from adclient.spec_constraints import SpecConstraint
 from adclient.ties import Mirror, Tie, mirrored_angle, resolve_ties
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]{0,63}$"
+
+SUBNORMAL_LOW = (
+    f"a log scale's low must be at least {sys.float_info.min} (the smallest normal float: "
+    "below it exp(ln low + x span) keeps too few bits to give its slot back)"
+)
 
 PART_SPECS: tuple[str, ...] = ("length", "radius", "mass", "density")
 """The searchable specs of a part, in spec-vector order; a link uses one of ``mass``
@@ -112,6 +118,8 @@ class Bound(_Strict):
             raise ValueError(f"bound low ({self.low}) must be < high ({self.high})")
         if self.log and not self.low > 0:
             raise ValueError(f"log: a log scale needs low > 0, got {self.low}")
+        if self.log and self.low < sys.float_info.min:
+            raise ValueError(f"log: {SUBNORMAL_LOW}, got {self.low}")
         return self
 
     @model_serializer(mode="wrap")

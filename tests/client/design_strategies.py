@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any
 
 from hypothesis import strategies as st
@@ -66,7 +67,7 @@ def spec_values(draw: st.DrawFn, spec: str, *, free: bool | None = None) -> Any:
     if abs(a - b) < 1e-3 * (high - low):
         a, b = low, high
     bound: dict[str, Any] = {"low": min(a, b), "high": max(a, b)}
-    if bound["low"] > 0 and draw(st.booleans()):
+    if bound["low"] >= sys.float_info.min and draw(st.booleans()):
         bound["log"] = True
     return bound
 

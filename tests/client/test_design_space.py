@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
+from adclient.decode import decode, encode, identity_representation, spec_layout
 from adclient.design import DesignSpace
 from adclient.schemas import StudyCreate
 from adclient.similarity import structure_similarity, tree_edit_distance
@@ -204,6 +206,25 @@ def test_a_log_spec_needs_low_above_zero(low: float) -> None:
     # the same spec without log is fine, and log: false is the default
     space_with(joint={"axis_theta": {"low": low, "high": 1.0, "log": False}})
     DesignSpace.model_validate(space_with(joint={"axis_theta": {"low": low, "high": 1.0}}))
+
+
+def test_a_log_spec_needs_a_normal_low() -> None:
+    """A subnormal low (5e-324) keeps too few bits for a slot to survive decode and
+    encode (a slot of 0.015625 came back 5.2e-9 off); the smallest normal float works."""
+    message = error_of(space_with(joint={"axis_theta": {"low": 5e-324, "high": 1.0, "log": True}}))
+    assert "joint.axis_theta" in message
+    assert f"log: a log scale's low must be at least {sys.float_info.min}" in message
+    assert "got 5e-324" in message
+    body = space_with(joint={"axis_theta": {"low": sys.float_info.min, "high": 1.0, "log": True}})
+    space = DesignSpace.model_validate(body)
+    representation = identity_representation(space)
+    layout = spec_layout(space)
+    slot = layout.names.index("b.joint.axis_theta")
+    for x in (0.0, 0.015625, 0.3, 0.999, 1.0):
+        vector = [0.5] * layout.size
+        vector[slot] = x
+        design = decode(space, representation, vector)
+        assert encode(space, representation, design)[slot] == pytest.approx(x, abs=1e-12)
 
 
 def test_a_log_spec_is_checked_like_any_other() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -12,7 +13,7 @@ from pydantic import (
     model_validator,
 )
 
-from adclient.design import DesignSpace
+from adclient.design import SUBNORMAL_LOW, DesignSpace
 from adclient.schemas.common import NAME_PATTERN, Strict, finite, plain_text
 
 Choice = Annotated[str | bool | int | float, Field(description="a choice")]
@@ -58,6 +59,8 @@ class BoxParam(Strict):
             raise ValueError(f"{where}: low ({self.low}) must be < high ({self.high})")
         if self.log and self.low <= 0:
             raise ValueError(f"{where}: a log scale needs low > 0, got {self.low}")
+        if self.log and self.low < sys.float_info.min:
+            raise ValueError(f"{where}: {SUBNORMAL_LOW}, got {self.low}")
         if self.type == "int":
             for bound in ("low", "high", "step"):
                 value = getattr(self, bound)
