@@ -93,7 +93,7 @@ def render_png(job: dict[str, Any], urdf: str, workdir: Path) -> bytes:
 
     from adclient.plugins import catalogue
     from adclient.schemas import Job
-    from adworker.evaluate import decode_job
+    from adworker.job_robots import decode_job
 
     path = workdir / "render.urdf"
     path.write_text(urdf)

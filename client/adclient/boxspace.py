@@ -46,8 +46,11 @@ class BoxEncoding:
 
     @classmethod
     def of(cls, space: dict[str, Any]) -> BoxEncoding:
-        """From a box space as JSON, as stored (old float-only spaces included)."""
-        return cls(tuple(BoxSpace.model_validate(space).params))
+        """From a box or template space as JSON, as stored (old float-only spaces
+        included): a template's params are searched as a box's."""
+        return cls(
+            tuple(BoxSpace.model_validate({"type": "box", "params": space["params"]}).params)
+        )
 
     @property
     def names(self) -> list[str]:

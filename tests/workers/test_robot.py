@@ -9,6 +9,7 @@ import pytest
 
 from adclient.design import Link
 from adworker import designs
+from adworker.tasks.model import model_of_design
 from adworker.tasks.robot import Robot, unit_axis
 from adworker.tasks.simulator import CONTACT_DISTANCE, CONTACT_LINK_A, JointInfo, Simulator
 from tests.workers.robots import write_urdf
@@ -31,7 +32,7 @@ def sim():
 def _robot(sim: Simulator, design, path) -> Robot:
     return Robot(
         sim,
-        design,
+        model_of_design(design),
         write_urdf(design, path),
         fixed_base=False,
         reads_contacts=True,
@@ -83,10 +84,10 @@ def test_joint_info_names_every_position_pybullet_answers(sim, tmp_path) -> None
 
 def test_a_urdf_of_another_design_is_refused(sim, tmp_path) -> None:
     write_urdf(designs.arch_chain(), tmp_path / "arch.urdf")
-    with pytest.raises(ValueError, match="not the design's"):
+    with pytest.raises(ValueError, match="not the model's"):
         Robot(
             sim,
-            STAR,
+            model_of_design(STAR),
             tmp_path / "arch.urdf",
             fixed_base=False,
             reads_contacts=True,

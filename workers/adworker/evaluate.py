@@ -34,6 +34,7 @@ from adclient.design import Design, DesignSpace
 from adclient.plugins import PluginError, TaskOptions, catalogue
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Job, TaskConfig
+from adworker.job_robots import job_robot
 from adworker.learners import (
     EpisodeResult,
     Learner,
@@ -68,7 +69,8 @@ class Evaluation:
 
     value: float
     metrics: dict[str, float]
-    design: Design
+    design: Design | None
+    """None for a template study's robot (its URDF is all there is)."""
     urdf_path: Path
     artifacts: list[Artifact] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
@@ -82,16 +84,12 @@ def evaluation_seeds(task: TaskConfig) -> list[int]:
     return [(task.seed + 1) * EVAL_SEED_STRIDE + i for i in range(task.eval_episodes)]
 
 
-def decode_job(job: Job) -> Design:
-    from adclient.decode import decode, identity_representation
+def template_metrics(urdf: str) -> dict[str, float]:
+    """What a template's robot is before any physics: ``mass`` (kg, the sum of its
+    links' inertial masses)."""
+    from adclient.urdf_model import read_urdf
 
-    if not isinstance(job.space, DesignSpace):
-        raise JobError(
-            f"task {job.task.name!r} needs a design space (type: design); "
-            f"this study's space is of type {job.space.type!r}"
-        )
-    representation = job.representation or identity_representation(job.space)
-    return decode(job.space, representation, job.vector)
+    return {"mass": read_urdf(urdf).mass}
 
 
 def design_metrics(design: Design, space: DesignSpace | None = None) -> dict[str, float]:
@@ -147,8 +145,6 @@ def evaluate_job(
     With ``report`` and a study pruner, the learner reports its policy's score every
     ``pruner.report_every`` steps (``report`` raises ``Pruned`` to stop it). A promoted
     job (``job.resume``) trains on from the checkpoint file of that name in ``workdir``."""
-    from adclient.urdf import design_to_urdf
-
     check = check or (lambda: None)
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
@@ -172,10 +168,9 @@ def evaluate_job(
         learner.warm_start = WarmStart(checkpoint, task.warm_steps(learner.default_steps))
 
     t = time.perf_counter()
-    design = decode_job(job)
+    design, urdf_text = job_robot(job)
     t = lap("decode", t)
     urdf_path = workdir / "robot.urdf"
-    urdf_text = design_to_urdf(design, robot_name="robot")
     urdf_path.write_text(urdf_text)
     t = lap("urdf", t)
     env = make_env(design=design, urdf_path=urdf_path, options=options)
@@ -238,7 +233,11 @@ def evaluate_job(
         "sim_steps": float(sim_steps),
         "sim_steps_per_s": float(sim_steps / max(timings["train"] + timings["evaluate"], 1e-9)),
         "time_total_s": total,
-        **design_metrics(design, job.space if isinstance(job.space, DesignSpace) else None),
+        **(
+            template_metrics(urdf_text)
+            if design is None
+            else design_metrics(design, job.space if isinstance(job.space, DesignSpace) else None)
+        ),
     }
     if trained.warm_started:
         metrics.update(_transfer_metrics(job, learner))

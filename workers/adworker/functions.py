@@ -22,7 +22,7 @@ from typing import Any
 
 from adclient.design import Design, DesignSpace
 from adclient.plugins import load_object
-from adclient.schemas import NAME_PATTERN, Job, TaskConfig
+from adclient.schemas import NAME_PATTERN, Job, TaskConfig, TemplateSpace
 from adworker.runner import Artifact, Outcome, Report, no_report
 
 CONTENT_TYPES = {
@@ -53,7 +53,8 @@ class FunctionJob:
     """Every file written here is uploaded as an artifact of the trial (its name)."""
     design: Design | None = None
     urdf_path: Path | None = None
-    """The design's URDF, written by the worker (design spaces only)."""
+    """The robot's URDF, written by the worker: a design space's design, or a template
+    expanded at the params (``design`` then None)."""
     reports: list[tuple[int, float]] = field(default_factory=list)
     _check: Callable[[], None] = field(default=lambda: None, repr=False)
     _report: Report = field(default=no_report, repr=False)
@@ -102,9 +103,6 @@ class FunctionRunner:
     def __call__(
         self, job: Job, workdir: Path, check: Callable[[], None], report: Report = no_report
     ) -> Outcome:
-        from adclient.decode import decode, identity_representation
-        from adclient.urdf import design_to_urdf
-
         started = time.perf_counter()
         artifact_dir = workdir / "artifacts"
         artifact_dir.mkdir(parents=True, exist_ok=True)
@@ -119,11 +117,12 @@ class FunctionRunner:
             _check=check,
             _report=report,
         )
-        if isinstance(job.space, DesignSpace):
-            representation = job.representation or identity_representation(job.space)
-            call.design = decode(job.space, representation, job.vector)
+        if isinstance(job.space, DesignSpace | TemplateSpace):
+            from adworker.job_robots import job_robot
+
+            call.design, urdf = job_robot(job)
             call.urdf_path = artifact_dir / "robot.urdf"
-            call.urdf_path.write_text(design_to_urdf(call.design, robot_name="robot"))
+            call.urdf_path.write_text(urdf)
         value, metrics = _score(self.function(call))
         metrics["time_total_s"] = time.perf_counter() - started
         if call.reports and not (artifact_dir / "curve.json").exists():

@@ -97,7 +97,25 @@ def _read_study_file(path: Path) -> dict[str, Any]:
         fail(f"cannot parse {path}: {first_line}")
     if not isinstance(data, dict):
         fail(f"{path} must hold a mapping with a study body (name, space, ...)")
+    _read_template_file(data, path)
     return data
+
+
+def _read_template_file(data: dict[str, Any], path: Path) -> None:
+    """A template space's ``template`` given as a file path (no markup in it) is that
+    file's text, the path relative to the study file."""
+    space = data.get("space")
+    if not isinstance(space, dict) or space.get("type") != "template":
+        return
+    template = space.get("template")
+    if not isinstance(template, str) or "<" in template:
+        return
+    file = path.parent / template
+    try:
+        space["template"] = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
+        fail(f"space.template: cannot read {file}: {reason or exc}")
 
 
 @app.command()

@@ -55,7 +55,15 @@ from adclient.schemas.config import (
     option_problems,
 )
 from adclient.schemas.errors import ErrorBody
-from adclient.schemas.space import MAX_CHOICES, MAX_STEPS, BoxParam, BoxSpace, Choice, Space
+from adclient.schemas.space import (
+    MAX_CHOICES,
+    MAX_STEPS,
+    BoxParam,
+    BoxSpace,
+    Choice,
+    Space,
+    TemplateSpace,
+)
 from adclient.schemas.studies import ObjectiveName, Study, StudyCreate, StudyUpdate
 from adclient.schemas.trials import (
     MAX_TRIALS_ADDED,
@@ -138,6 +146,7 @@ __all__ = [
     "TaskConfig",
     "TaskInfo",
     "TellRequest",
+    "TemplateSpace",
     "TransferSource",
     "Trial",
     "TrialAdd",

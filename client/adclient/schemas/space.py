@@ -16,6 +16,8 @@ from pydantic import (
 from adclient.design import SUBNORMAL_LOW, DesignSpace
 from adclient.schemas.common import NAME_PATTERN, Strict, finite, plain_text
 
+MAX_TEMPLATE_CHARS = 1_000_000
+
 Choice = Annotated[str | bool | int | float, Field(description="a choice")]
 """A categorical param's choice: text, a boolean or a number, kept exactly as given."""
 _NUMERIC_FIELDS = ("low", "high", "log", "step")
@@ -146,4 +148,26 @@ class BoxSpace(Strict):
         return params
 
 
-Space = Annotated[BoxSpace | DesignSpace, Field(discriminator="type")]
+class TemplateSpace(BoxSpace):
+    """Your own robot: a URDF or xacro text (``adclient.templates``) whose args or
+    properties are the params, searched as a box's are. A box space in every way but
+    the robot: a worker expands the template at a trial's params and builds that."""
+
+    type: Literal["template"]  # type: ignore[assignment]
+    template: str = Field(
+        min_length=1,
+        max_length=MAX_TEMPLATE_CHARS,
+        description="the URDF or xacro text (the CLI reads a file path given here)",
+    )
+
+    @model_validator(mode="after")
+    def _stands_alone(self) -> TemplateSpace:
+        from adclient.templates import template_problems
+
+        problems = template_problems(self.template, [param.name for param in self.params])
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
+
+Space = Annotated[BoxSpace | DesignSpace | TemplateSpace, Field(discriminator="type")]

@@ -36,7 +36,7 @@ from adclient.schemas.common import (
     plain_text,
 )
 from adclient.schemas.config import NewProposerConfig, NewTaskConfig, ProposerConfig, TaskConfig
-from adclient.schemas.space import BoxSpace, Space
+from adclient.schemas.space import BoxSpace, Space, TemplateSpace
 
 ObjectiveName = Annotated[str, Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)]
 
@@ -182,10 +182,13 @@ class StudyCreate(Strict):
             raise ValueError("max_trials is required for a study with a task (a managed study)")
         if self.task.external:
             return self
+        if isinstance(self.space, TemplateSpace):
+            return self  # its links are known once expanded: the server checks them
         if not isinstance(self.space, DesignSpace):
             raise ValueError(
                 f"task {self.task.name!r} builds a robot: it needs a design space "
-                f"(space.type: design), not {self.space.type!r}"
+                f"(space.type: design) or a template (space.type: template), "
+                f"not {self.space.type!r}"
             )
         for option, link in self.task.links_looked_up():
             missing = [

@@ -9,7 +9,7 @@ import numpy as np
 
 from adclient.design import DesignSpace, Representation
 from adclient.polytope import spec_polytope
-from adclient.schemas import StudyCreate
+from adclient.schemas import StudyCreate, TemplateSpace
 from adservice.artifacts import ArtifactStore
 from adservice.db import Database
 from adservice.errors import InvalidError
@@ -41,6 +41,8 @@ def create_study(
         _check_spec_constraints(body.space, built)
         dim = len(representation["bounds"][0])
     else:
+        if isinstance(body.space, TemplateSpace):
+            _check_template(body)
         dim = len(body.space.params)
     if budget is not None and budget.memory_bytes is not None:
         check_options_memory(
@@ -50,6 +52,19 @@ def create_study(
         return study_repo.create_study(
             session, body=body, representation=representation, owner=owner
         )
+
+
+def _check_template(body: StudyCreate) -> None:
+    """The template expands to a robot a worker can build, having the links its task
+    looks up (in a child process: ``adclient.templates``)."""
+    from adclient.templates import TemplateError, check_template
+
+    assert isinstance(body.space, TemplateSpace)
+    links = body.task.links_looked_up() if body.task is not None else []
+    try:
+        check_template(body.space.template, body.space.params, links)
+    except TemplateError as error:
+        raise InvalidError(f"space.template: {error}") from None
 
 
 def _check_proposer_outcomes(body: StudyCreate) -> None:

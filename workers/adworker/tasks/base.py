@@ -33,6 +33,8 @@ import numpy as np
 
 from adclient.design import Design
 from adclient.plugins import SimulatorOptions
+from adclient.urdf_model import read_urdf
+from adworker.tasks.model import RobotModel, model_of_design, model_of_urdf
 from adworker.tasks.robot import MotorMeter, Robot
 from adworker.tasks.simulator import Simulator
 from adworker.tasks.snapshot import Snapshot
@@ -86,13 +88,14 @@ class Task(Generic[OptionsT]):
     def make_env(
         cls,
         *,
-        design: Design,
+        design: Design | None,
         urdf_path: str | Path,
         options: OptionsT,
         render_mode: str | None = None,
     ) -> RobotEnv:
-        """This task's environment for one design (its URDF written at ``urdf_path``): the
-        factory a task declaration names."""
+        """This task's environment for one design (its URDF written at ``urdf_path``), or
+        for a template's robot (``design`` None: the URDF is all there is): the factory
+        a task declaration names."""
         return RobotEnv(
             cls, design=design, urdf_path=urdf_path, options=options, render_mode=render_mode
         )
@@ -123,6 +126,13 @@ class Task(Generic[OptionsT]):
         return episode_score(metric)
 
 
+def robot_model(design: Design | None, urdf_path: str | Path) -> RobotModel:
+    """A design's model, or, without one, the model of the URDF at ``urdf_path``."""
+    if design is not None:
+        return model_of_design(design)
+    return model_of_urdf(read_urdf(Path(urdf_path).read_text()))
+
+
 class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     """One design doing one task in its own simulator; see the module docstring.
 
@@ -139,7 +149,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self,
         task: type[Task[OptionsT]],
         *,
-        design: Design,
+        design: Design | None,
         urdf_path: str | Path,
         options: OptionsT,
         render_mode: str | None = None,
@@ -155,7 +165,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         try:
             self.robot = Robot(
                 self.sim,
-                design,
+                robot_model(design, urdf_path),
                 urdf_path,
                 fixed_base=task.fixed_base,
                 reads_contacts=task.reads_contacts,

@@ -1,14 +1,17 @@
-"""The robot: a typed Design put into a simulator, driven by joint position targets.
+"""The robot: a typed Design, or a URDF of the user's own, put into a simulator and
+driven by joint position targets.
 
-Links, shapes, joints and limits come from the :class:`~adclient.design.Design` (the
-geometry conventions of ``adclient.design``); the URDF written from that design is only
-handed to the engine to build the body, never parsed here. What the engine decides is
-asked of the engine: each link's index and its inertial frame (the frame it reports
-poses in). The two are checked against each other, so a URDF that is not this design's
-fails at build time instead of scoring the wrong robot.
+Links, shapes, joints and limits come from a :class:`~adworker.tasks.model.RobotModel`:
+a design's (the geometry conventions of ``adclient.design``; its URDF is only handed to
+the engine to build the body) or a template's URDF read by ``adclient.urdf_model``.
+What the engine decides is asked of the engine: each link's index and its inertial
+frame (the frame it reports poses in), and a URDF's masses. The two are checked
+against each other, so a URDF that is not the model's fails at build time instead of
+scoring the wrong robot.
 
-Every revolute joint is driven by position control: the action, in [-1, 1] per joint,
-maps linearly onto the joint's [lower, upper] range as its target. The engine's motor
+Every driven joint (revolute, continuous, prismatic; fixed joints only hold links) is
+driven by position control: the action, in [-1, 1] per joint, maps linearly onto the
+joint's [lower, upper] range as its target (a continuous joint's: -pi to pi). The engine's motor
 then applies whatever torque, up to the joint's effort, brings the joint to its target
 (capped at its velocity); a :class:`MotorMeter` reads that applied torque after every
 physics step.
@@ -23,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
-from adclient.design import Design, Link
+from adworker.tasks.model import LinkShape, RobotModel
 from adworker.tasks.simulator import (
     BODY_BASE_NAME,
     CONTACT_DISTANCE,
@@ -114,18 +117,6 @@ class MotorMeter:
         return math.fsum(self.episode_energy) / len(self.episode_energy)
 
 
-def link_shape(link: Link) -> tuple[np.ndarray, np.ndarray, float]:
-    """(points, centre, radius) of a link's shape in its link frame (adclient.design:
-    the shape spans z in [0, length]; a box is 2 radius wide)."""
-    centre = np.array([0.0, 0.0, link.length / 2])
-    if link.shape == "box":
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-        half = np.array([link.radius, link.radius, link.length / 2])
-        return centre + signs * half, centre, 0.0
-    ends = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, link.length]])
-    return ends, centre, link.radius
-
-
 def _to_inertial(
     points: np.ndarray, position: tuple[float, ...], orientation: tuple[float, ...]
 ) -> np.ndarray:
@@ -140,13 +131,22 @@ def unit_axis(axis: tuple[float, float, float]) -> tuple[float, float, float]:
     return (axis[0] / norm, axis[1] / norm, axis[2] / norm)
 
 
+_ENGINE_KIND = {
+    "revolute": pybullet.JOINT_REVOLUTE,
+    "continuous": pybullet.JOINT_REVOLUTE,
+    "prismatic": pybullet.JOINT_PRISMATIC,
+    "fixed": pybullet.JOINT_FIXED,
+}
+
+
 class Robot:
-    """A Design in a Simulator: its joints, link shapes, state reads and motor commands."""
+    """A robot model in a Simulator: its joints, link shapes, state reads and motor
+    commands."""
 
     def __init__(
         self,
         sim: Simulator,
-        design: Design,
+        model: RobotModel,
         urdf_path: str | Path,
         *,
         fixed_base: bool,
@@ -155,30 +155,30 @@ class Robot:
         spinning_friction: float,
     ) -> None:
         self.sim = sim
-        self.design = design
+        self.model = model
         self.fixed_base = fixed_base
         self.reads_contacts = reads_contacts
         self.body = sim.load_urdf(str(urdf_path), fixed_base=fixed_base)
         engine_index = self._engine_indices(Path(urdf_path).name)
-        links = {link.name: link for link in design.links}
         # The root first, then the engine's order (depth first through the tree).
         order = sorted(engine_index, key=engine_index.__getitem__)
-        self.geometry = [self._geometry(links[name], engine_index[name]) for name in order]
+        self.geometry = [self._geometry(name, engine_index[name]) for name in order]
         self.link_names = order
         self.joints = [
             JointSpec(
                 index=engine_index[joint.child],
                 name=joint.name,
                 child=joint.child,
-                lower=joint.lower if joint.lower < joint.upper else -math.pi,
-                upper=joint.upper if joint.lower < joint.upper else math.pi,
+                lower=joint.lower,
+                upper=joint.upper,
                 effort=joint.effort,
                 velocity=joint.velocity,
             )
-            for joint in sorted(design.joints, key=lambda joint: engine_index[joint.child])
+            for joint in sorted(model.joints, key=lambda joint: engine_index[joint.child])
+            if joint.driven
         ]
         if not self.joints:
-            raise ValueError(f"{Path(urdf_path).name}: the robot has no revolute joint")
+            raise ValueError(f"{Path(urdf_path).name}: the robot has no joint to drive")
         cid = sim.client
         # Rolling friction: a rubber-coated link touches the ground over a patch, not at
         # a point, and the patch resists tipping about the contact. Without it an arch
@@ -226,42 +226,45 @@ class Robot:
     # ----------------------------------------------------------------- building
 
     def _engine_indices(self, what: str) -> dict[str, int]:
-        """Each design link's engine index (the root: -1), checking that the body the
-        engine built is this design's tree."""
-        sim, design = self.sim, self.design
+        """Each model link's engine index (the root: -1), checking that the body the
+        engine built is this model's tree."""
+        sim, model = self.sim, self.model
         base = pybullet.getBodyInfo(self.body, physicsClientId=sim.client)[BODY_BASE_NAME]
-        if base.decode() != design.root:
-            raise ValueError(f"{what}: the URDF's root is {base.decode()!r}, not the design's")
-        parent_of = {joint.child: (joint.name, joint.parent) for joint in design.joints}
-        name_of = {-1: design.root}
+        if base.decode() != model.root:
+            raise ValueError(f"{what}: the URDF's root is {base.decode()!r}, not the model's")
+        parent_of = {joint.child: (joint.name, joint.parent) for joint in model.joints}
+        kind_of = {joint.name: joint.kind for joint in model.joints}
+        name_of = {-1: model.root}
         for j in range(pybullet.getNumJoints(self.body, physicsClientId=sim.client)):
             info = sim.joint_info(self.body, j)
             child, name = info.link_name.decode(), info.name.decode()
             if parent_of.get(child) != (name, name_of.get(info.parent_index)):
-                raise ValueError(f"{what}: joint {name!r} is not the design's")
-            if info.type != pybullet.JOINT_REVOLUTE:
-                raise ValueError(f"{what}: joint {name!r} is not revolute")
+                raise ValueError(f"{what}: joint {name!r} is not the model's")
+            if info.type != _ENGINE_KIND[kind_of[name]]:
+                raise ValueError(f"{what}: joint {name!r} is not {kind_of[name]}")
             name_of[j] = child
-        if len(name_of) != len(design.links):
+        if len(name_of) != len(model.shapes):
             raise ValueError(
-                f"{what}: the URDF has {len(name_of)} links, the design {len(design.links)}"
+                f"{what}: the URDF has {len(name_of)} links, the model {len(model.shapes)}"
             )
         return {name: j for j, name in name_of.items()}
 
-    def _geometry(self, link: Link, index: int) -> LinkGeometry:
-        points, centre, radius = link_shape(link)
+    def _geometry(self, name: str, index: int) -> LinkGeometry:
+        shape: LinkShape = self.model.shapes[name]
         dynamics = self.sim.dynamics_info(self.body, index)
         frame = (dynamics.inertial_position, dynamics.inertial_orientation)
+        masses = self.model.masses
         return LinkGeometry(
-            name=link.name,
+            name=name,
             index=index,
-            kind=link.shape,
-            centre=_to_inertial(centre[None, :], *frame)[0],
-            points=_to_inertial(points, *frame),
-            radius=radius,
-            length=link.length,
-            mass=link.mass,
-            axis=_to_inertial(np.array([[0.0, 0.0, 1.0]]), (0.0, 0.0, 0.0), frame[1])[0],
+            kind=shape.kind,
+            centre=_to_inertial(shape.centre[None, :], *frame)[0],
+            points=_to_inertial(shape.points, *frame),
+            radius=shape.radius,
+            length=shape.length,
+            mass=masses[name] if masses is not None else dynamics.mass,
+            axis=_to_inertial(shape.axis[None, :], (0.0, 0.0, 0.0), frame[1])[0],
+            ball=shape.ball,
         )
 
     def _place(self) -> None:
@@ -273,13 +276,22 @@ class Robot:
         off the ground (as anyone setting the robot down would place it). What the
         design then decides is how the other axes sit relative to that one: parallel
         ones fold the chain in a vertical plane, others twist it out of that plane.
-        A fixed-base robot stays where its URDF puts it: root frame at the origin.
+        A fixed-base robot stays where its URDF puts it: root frame at the origin. A free
+        robot of the user's own URDF is set down as built, its lowest point touching.
         """
         if self.fixed_base:
             return
         cid = self.sim.client
+        if not self.model.lay_down:
+            orientation = (0.0, 0.0, 0.0, 1.0)
+            pybullet.resetBasePositionAndOrientation(self.body, [0, 0, 1.0], orientation, cid)
+            bottom = min(self.read().bottom)
+            pybullet.resetBasePositionAndOrientation(
+                self.body, [0, 0, 1.0 - bottom + 1e-4], orientation, cid
+            )
+            return
         roll = 0.0
-        first = next(joint for joint in self.design.joints if joint.parent == self.design.root)
+        first = next(joint for joint in self.model.joints if joint.parent == self.model.root)
         ux, uy, _ = unit_axis(first.axis)
         if math.hypot(ux, uy) > 1e-6:
             # Root +x, +y, +z land on world -z, +y, +x; rolling by atan2(ux, uy) about

@@ -22,8 +22,9 @@ from adworker.tasks.simulator import POSE_ORIENTATION, POSE_POSITION
 class LinkGeometry:
     """One link's collision shape, as points in the link's *inertial* frame.
 
-    A cylinder is its axis segment ``p0 -> p1`` plus ``radius``; a box is its eight
-    corners (``radius`` 0). ``centre`` is the shape's centre.
+    A cylinder is its axis segment ``p0 -> p1`` plus ``radius`` (its rim about
+    ``axis``); a box is its eight corners (``radius`` 0); a sphere or capsule is its
+    centre or axis segment plus ``ball`` (all round). ``centre`` is the shape's centre.
     """
 
     name: str
@@ -36,7 +37,9 @@ class LinkGeometry:
     length: float
     mass: float
     axis: np.ndarray
-    """The link frame's +z (the long axis) in the inertial frame."""
+    """The link's long axis in the inertial frame: a design link's frame +z, a URDF
+    cylinder's or capsule's own axis, a box's longest side."""
+    ball: float = 0.0
 
     @property
     def axis_tuple(self) -> tuple[float, float, float]:
@@ -49,6 +52,7 @@ class LinkGeometry:
             *(float(v) for v in self.axis),
             [tuple(float(v) for v in point) for point in self.points],
             self.radius,
+            self.ball,
         )
 
 
@@ -126,7 +130,8 @@ class Snapshot:
         for (pz, r0, r1, r2), c, up in zip(self._rows, self._constants, self.axis_z, strict=True):
             heights = [pz + r0 * px + r1 * py + r2 * pz_ for px, py, pz_ in c[6]]
             # A cylinder's rim reaches radius * sin(tilt) above/below its end centres.
-            rim = c[7] * math.sqrt(max(0.0, 1.0 - up * up))
+            # A sphere's or capsule's ball reaches its radius every way.
+            rim = c[7] * math.sqrt(max(0.0, 1.0 - up * up)) + c[8]
             top.append(max(heights) + rim)
             bottom.append(min(heights) - rim)
         return top, bottom

@@ -1,0 +1,276 @@
+"""Your own robot as a template: a URDF or xacro text whose numbers are searched.
+
+A template space's params are the template's xacro arguments (``$(arg name)``, with or
+without a ``<xacro:arg>`` declaring them) or properties (``${name}`` in any attribute,
+whether or not the file declares ``<xacro:property name="name">``): :func:`expand`
+hands each param's value to all three, so a declared property's value is replaced and
+an undeclared one is defined before the first element. The result is a plain URDF.
+
+xacro evaluates ``${...}`` as Python, so a template is expanded in a child process of
+its own (:func:`expand_isolated`), limited in memory and time and without the parent's
+environment: a server checking a stranger's template, or a worker building it, cannot
+be made to hang, exhaust memory or read a setting. A template must also stand alone:
+``xacro:include``, ``$(find)``, ``$(env)``, ``$(optenv)``, ``$(dirname)`` and
+``xacro.load_yaml`` read files or the environment and are refused by name.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+import threading
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+XACRO_NS = "http://www.ros.org/wiki/xacro"
+
+EXPAND_SECONDS = 20
+"""Wall-clock limit of one isolated expansion (a batch of points)."""
+EXPAND_MEMORY = 1 << 30
+"""Address-space limit of the expanding process (bytes)."""
+MAX_URDF_BYTES = 8 << 20
+"""The largest expanded URDF accepted."""
+
+_FORBIDDEN = (
+    (
+        re.compile(r"<\s*[\w.-]+:include\b"),
+        "xacro:include (a template stands alone: inline the file)",
+    ),
+    (re.compile(r"\$\(\s*find\b"), "$(find ...) (a template stands alone: no packages)"),
+    (re.compile(r"\$\(\s*(?:env|optenv)\b"), "$(env ...) and $(optenv ...) (no environment)"),
+    (re.compile(r"\$\(\s*dirname\b"), "$(dirname) (a template has no file)"),
+    (re.compile(r"\b(?:load_yaml|abs_filename)\b"), "xacro.load_yaml and abs_filename (no files)"),
+)
+_COMMENT = re.compile(r"<!--.*?-->", re.DOTALL)
+_EXPRESSION = re.compile(r"\$\{([^}]*)\}|\$\(\s*eval\s+([^)]*)\)")
+_IDENTIFIER = re.compile(r"[A-Za-z_]\w*")
+
+_XACRO_LOCK = threading.Lock()
+"""xacro keeps its arguments and file stack in module globals: one expansion at a time."""
+
+
+class TemplateError(ValueError):
+    """A template that does not expand, or expands to no robot the worker can build."""
+
+
+def template_problems(template: str, names: Iterable[str]) -> list[str]:
+    """What can be told of a template from its text alone: constructs that would read
+    files or the environment, and params it never uses."""
+    text = _COMMENT.sub("", template)
+    problems = [
+        f"template: {what} is not allowed" for pattern, what in _FORBIDDEN if pattern.search(text)
+    ]
+    used = set()
+    for match in _EXPRESSION.finditer(text):
+        used.update(_IDENTIFIER.findall(match.group(1) or match.group(2) or ""))
+    for name in names:
+        arg = re.search(rf"\$\(\s*arg\s+{re.escape(name)}\s*\)", text)
+        declared = re.search(
+            rf"<\s*[\w.-]+:(?:arg|property)\s[^>]*name\s*=\s*[\"']{re.escape(name)}[\"']", text
+        )
+        if not (arg or declared or name in used):
+            problems.append(
+                f"params: {name!r} is not used by the template (give it as $(arg {name}) or "
+                f'${{{name}}}, or declare <xacro:arg name="{name}"> or '
+                f'<xacro:property name="{name}">)'
+            )
+    return problems
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def expand(template: str, values: Mapping[str, Any]) -> str:
+    """The URDF of the template at these param values (in this process: see
+    :func:`expand_isolated` for a template you did not write); TemplateError naming
+    the line where one can be told."""
+    import xml.parsers.expat
+
+    import xacro
+
+    with _XACRO_LOCK:
+        try:
+            doc = xacro.parse(template)
+        except xml.parsers.expat.ExpatError as error:
+            raise TemplateError(
+                f"template: line {error.lineno}, column {error.offset}: "
+                f"{xml.parsers.expat.ErrorString(error.code)}"
+            ) from None
+        root = doc.documentElement
+        prefix = next(
+            (
+                name.removeprefix("xmlns:")
+                for name, uri in root.attributes.items()
+                if name.startswith("xmlns:") and uri == XACRO_NS
+            ),
+            None,
+        )
+        if prefix is None:
+            prefix = "xacro"
+            root.setAttribute("xmlns:xacro", XACRO_NS)
+        declared = {
+            element.getAttribute("name"): element
+            for element in root.childNodes
+            if element.nodeType == element.ELEMENT_NODE and element.tagName == f"{prefix}:property"
+        }
+        mappings = {name: _text(value) for name, value in values.items()}
+        for name, text in mappings.items():
+            element = declared.get(name)
+            if element is None:
+                element = doc.createElement(f"{prefix}:property")
+                element.setAttribute("name", name)
+                root.insertBefore(element, root.firstChild)
+            for attribute in ("default", "value"):
+                if element.hasAttribute(attribute):
+                    element.removeAttribute(attribute)
+            element.setAttribute("value", text)
+        try:
+            xacro.process_doc(doc, mappings=mappings, verbosity=0)
+        except Exception as error:  # xacro raises its own and Python's (NameError...)
+            raise TemplateError(_located(template, error)) from None
+        finally:
+            xacro.init_stacks(None)
+        return str(doc.toprettyxml(indent="  "))
+
+
+def _located(template: str, error: Exception) -> str:
+    """xacro's message, with the template line of the expression it names."""
+    cause = getattr(error, "exc", None) or error  # xacro wraps Python's errors
+    message = " ".join(str(error).split())
+    if not isinstance(cause, xacro_exception()):
+        message = f"{type(cause).__name__}: {message}" if message else type(cause).__name__
+    quoted = re.search(r"when evaluating expression '(.*?)'", message)
+    if quoted:
+        for number, line in enumerate(template.splitlines(), start=1):
+            if quoted.group(1) in line:
+                return f"template: line {number}: {message}"
+    return f"template: {message}"
+
+
+def xacro_exception() -> type[Exception]:
+    import xacro
+
+    return xacro.XacroException
+
+
+def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[str]:
+    """:func:`expand` at each point, in a child process limited to ``EXPAND_MEMORY``
+    and ``EXPAND_SECONDS`` that inherits no environment but the import path."""
+    request = json.dumps({"template": template, "points": [dict(p) for p in points]})
+    env = {"PATH": os.defpath}
+    if os.environ.get("PYTHONPATH"):
+        env["PYTHONPATH"] = os.environ["PYTHONPATH"]
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "adclient.templates"],
+            input=request.encode(),
+            capture_output=True,
+            timeout=EXPAND_SECONDS,
+            env=env,
+            preexec_fn=_limits,
+            check=False,
+        )
+    except subprocess.TimeoutExpired:
+        raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS} s") from None
+    try:
+        answer = json.loads(done.stdout)
+    except ValueError:
+        raise TemplateError(
+            f"template: expanding it failed (exit {done.returncode}"
+            + (", out of memory" if done.returncode != 0 else "")
+            + ")"
+        ) from None
+    if "error" in answer:
+        raise TemplateError(answer["error"])
+    return list(answer["urdfs"])
+
+
+def _limits() -> None:
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (EXPAND_MEMORY, EXPAND_MEMORY))
+    resource.setrlimit(resource.RLIMIT_CPU, (EXPAND_SECONDS, EXPAND_SECONDS))
+
+
+def check_points(params: Sequence[Any]) -> list[tuple[str, dict[str, Any]]]:
+    """Where a template space is checked: every param at its low, at its middle and at
+    its high end (a categorical's first, middle and last choice)."""
+    points: list[tuple[str, dict[str, Any]]] = []
+    for where in ("low", "middle", "high"):
+        point: dict[str, Any] = {}
+        for param in params:
+            if param.type == "categorical":
+                choices = list(param.choices)
+                point[param.name] = choices[
+                    {"low": 0, "middle": len(choices) // 2, "high": -1}[where]
+                ]
+                continue
+            low, high = float(param.low), float(param.high)
+            if where == "middle":
+                value = math.sqrt(low * high) if param.log else (low + high) / 2
+                if param.type == "int" or param.step is not None:
+                    step = param.step or 1
+                    value = low + round((value - low) / step) * step
+            else:
+                value = low if where == "low" else high
+            point[param.name] = int(value) if param.type == "int" else float(value)
+        points.append((f"the params' {where}" + (" values" if where == "middle" else "s"), point))
+    return points
+
+
+def check_template(
+    template: str, params: Sequence[Any], links: Iterable[tuple[str, str]] = ()
+) -> None:
+    """The template expands, at each of :func:`check_points`, to a robot the worker
+    can build (:func:`adclient.urdf_model.read_urdf`) having the links a task looks up
+    (``(option, link)`` pairs); TemplateError naming the point and the problem."""
+    from adclient.urdf_model import URDFModelError, read_urdf
+
+    problems = template_problems(template, [param.name for param in params])
+    if problems:
+        raise TemplateError("; ".join(problems))
+    points = check_points(params)
+    urdfs = expand_isolated(template, [point for _, point in points])
+    for (where, _), urdf in zip(points, urdfs, strict=True):
+        try:
+            model = read_urdf(urdf, lines_from=template)
+        except URDFModelError as error:
+            raise TemplateError(f"template, expanded at {where}: {error}") from None
+        for option, link in links:
+            if link not in model.links:
+                raise TemplateError(
+                    f"task.options.{option}: the template's robot has no link {link!r} "
+                    f"(its links: {', '.join(model.links)})"
+                )
+
+
+def _main() -> None:
+    """``python -m adclient.templates``: JSON {template, points} on stdin, JSON
+    {urdfs} or {error} on stdout (see :func:`expand_isolated`)."""
+    request = json.loads(sys.stdin.buffer.read())
+    try:
+        urdfs = [expand(request["template"], point) for point in request["points"]]
+        too_big = [len(urdf) for urdf in urdfs if len(urdf) > MAX_URDF_BYTES]
+        if too_big:
+            raise TemplateError(
+                f"template: it expands to {too_big[0]} bytes, over {MAX_URDF_BYTES}"
+            )
+        answer: dict[str, Any] = {"urdfs": urdfs}
+    except TemplateError as error:
+        answer = {"error": str(error)}
+    except MemoryError:
+        answer = {"error": f"template: expanding it needs over {EXPAND_MEMORY} bytes"}
+    sys.stdout.write(json.dumps(answer))
+
+
+if __name__ == "__main__":
+    _main()
