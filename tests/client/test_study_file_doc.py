@@ -23,8 +23,10 @@ from adclient.schemas import (
     NewTaskConfig,
     ProposerConfig,
     StudyCreate,
+    TemplateSpace,
 )
 from adclient.spec_constraints import SpecConstraint
+from adclient.templates import check_template
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = (ROOT / "docs" / "study-file.md").read_text(encoding="utf-8")
@@ -33,6 +35,7 @@ TABLES: dict[str, type[BaseModel]] = {
     "StudyCreate": StudyCreate,
     "BoxSpace": BoxSpace,
     "BoxParam": BoxParam,
+    "TemplateSpace": TemplateSpace,
     "DesignSpace": DesignSpace,
     "PartType": PartType,
     "JointType": JointType,
@@ -101,7 +104,9 @@ def test_every_yaml_example_is_a_valid_study() -> None:
     for block in blocks:
         study = StudyCreate.model_validate(yaml.safe_load(block))
         kinds.add(study.space.type)
-    assert kinds == {"box", "design"}
+        if isinstance(study.space, TemplateSpace):  # and it expands to a robot
+            check_template(study.space.template, study.space.params)
+    assert kinds == {"box", "design", "template"}
 
 
 @pytest.mark.parametrize("model_name", sorted(TABLES))

@@ -121,7 +121,10 @@ export class StudyHeader {
     this.$('name').textContent = s.name;
     this.$('state').innerHTML = badge(s.state);
     const task = s.task ? ` · task ${esc(s.task.name)} (${esc(s.task.learner)})` : ' · ask/tell';
-    const space = s.space.type === 'box' ? `${s.space.params.length} params` : 'robot design space';
+    const space = {
+      box: `${s.space.params?.length} params`,
+      template: `robot template, ${s.space.params?.length} params`,
+    }[s.space.type] ?? 'robot design space';
     this.$('meta').innerHTML =
       `${aims(s)} · proposer ${esc(s.proposer.name)}` +
       `${task} · ${space}${s.created_by ? ` · by ${esc(s.created_by)}` : ''}` +

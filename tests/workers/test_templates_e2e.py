@@ -1,0 +1,121 @@
+"""Templates end to end (issue 28): ``adclient submit --wait`` of the template-arm
+example against a real adserver with a real adworker. Each trial's robot is the user's
+xacro expanded at its params: the worker simulates it (its mass metric is the expanded
+URDF's), ``/trials/{id}/urdf`` and the worker's robot.urdf artifact are that URDF, and a
+template that does not expand, reads a file or lacks a task's link is a 422 naming it
+that stores nothing."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import xml.etree.ElementTree as ElementTree
+from pathlib import Path
+
+import httpx
+import pytest
+import yaml
+
+from adclient import Client
+from adclient.urdf_model import read_urdf
+from tests.servers import ServerProcess
+from tests.workers.processes import PATIENCE
+
+pytestmark = [pytest.mark.slow, pytest.mark.e2e]
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+ADCLIENT = Path(sys.executable).with_name("adclient")
+TRIALS = 3
+
+
+def adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProcess[str]:
+    environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
+    environment.pop("AD_TOKEN", None)
+    return subprocess.run(
+        [str(ADCLIENT), *args],
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=PATIENCE,
+        check=False,
+    )
+
+
+def small_copy(tmp_path: Path) -> Path:
+    """The example with a small budget, its template path still relative to it."""
+    body = yaml.safe_load((EXAMPLES / "template-arm.yaml").read_text(encoding="utf-8"))
+    assert body["space"]["template"] == "templates/arm.urdf.xacro"
+    body["max_trials"] = TRIALS
+    body["task"].update(train_steps=64, eval_episodes=1)
+    (tmp_path / "templates").mkdir()
+    (tmp_path / "templates" / "arm.urdf.xacro").write_bytes(
+        (EXAMPLES / "templates" / "arm.urdf.xacro").read_bytes()
+    )
+    path = tmp_path / "template-arm.yaml"
+    path.write_text(yaml.safe_dump(body), encoding="utf-8")
+    return path
+
+
+def test_the_template_arm_runs_from_its_study_file(server, workers, tmp_path):
+    workers(server, "template")
+    done = adclient(server, "submit", "--wait", "--poll", "0.2", str(small_copy(tmp_path)))
+    assert done.returncode == 0, done.stderr
+    (study,) = httpx.get(f"{server.url}/api/v1/studies").json()
+    with Client(server.url) as client:
+        trials = client.get_study(study["id"]).trials
+        assert [trial.state for trial in trials] == ["complete"] * TRIALS
+        for trial in trials:
+            urdf = httpx.get(f"{server.url}/api/v1/trials/{trial.id}/urdf").text
+            lengths = {
+                link.get("name"): float(cylinder.get("length", "nan"))
+                for link in ElementTree.fromstring(urdf).iter("link")
+                for cylinder in link.iter("cylinder")
+            }
+            assert lengths == {
+                "upper_arm": trial.params["upper_length"],
+                "forearm": trial.params["fore_length"],
+            }
+            assert trial.metrics["mass"] == pytest.approx(read_urdf(urdf).mass, rel=1e-12)
+            built = httpx.get(f"{server.url}/api/v1/trials/{trial.id}/artifacts/robot.urdf")
+            assert built.status_code == 200 and built.text == urdf
+        # the robots differ as their params do: three designs, three masses
+        assert len({trial.metrics["mass"] for trial in trials}) == TRIALS
+
+
+def test_a_bad_template_is_a_422_that_stores_nothing(server, tmp_path):
+    template = (EXAMPLES / "templates" / "arm.urdf.xacro").read_text()
+    body = yaml.safe_load((EXAMPLES / "template-arm.yaml").read_text(encoding="utf-8"))
+    cases = [
+        (
+            template.replace('length="${fore}"', 'length="${forarm}"'),
+            {},
+            "NameError: name 'forarm'",
+        ),
+        (template.replace('type="fixed"', 'type="floating"'), {}, "joint 'wrist' (line"),
+        (
+            template.replace(
+                '<link name="foot">', '<xacro:include filename="/etc/passwd"/><link name="foot">'
+            ),
+            {},
+            "xacro:include",
+        ),
+        (template, {"name": "stand-up", "learner": "fast"}, "task.options.lifted_link"),
+    ]
+    with httpx.Client(base_url=server.url, timeout=60) as http:
+        for text, task, named in cases:
+            sent = {**body, "space": {**body["space"], "template": text}}
+            if task:
+                sent["task"] = task
+            refused = http.post("/api/v1/studies", json=sent)
+            assert refused.status_code == 422, refused.text
+            assert named in refused.json()["detail"]
+        assert http.get("/api/v1/studies").json() == []
+    # the CLI reads the file and names one it cannot read
+    missing = tmp_path / "study.yaml"
+    missing.write_text(
+        yaml.safe_dump({**body, "space": {**body["space"], "template": "nope.xacro"}})
+    )
+    failed = adclient(server, "submit", str(missing))
+    assert failed.returncode == 1
+    assert "space.template: cannot read" in failed.stderr and "nope.xacro" in failed.stderr
