@@ -183,8 +183,9 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
         part_catalogue = space.chosen_catalogue(instance.name, "part")
         if part_catalogue is not None:
             chooses[instance.name] = part_catalogue
-        if space.joint.choose is not None:
-            chooses[f"{instance.name}.joint"] = space.joint.choose
+        joint_catalogue = space.chosen_catalogue(instance.name, "joint")
+        if joint_catalogue is not None:
+            chooses[f"{instance.name}.joint"] = joint_catalogue
         for spec in PART_SPECS:
             value = space.part_spec(instance.name, spec)
             if value is not None and not isinstance(value, Bound):
@@ -372,6 +373,7 @@ def build_design(
                 choice=layout.choice(f"{child}.joint", values)
                 if f"{child}.joint" in layout.chooses
                 else None,
+                kind=space.joint_kind(child),
             )
         )
     return Design(structure_index=structure, root=root, links=links, joints=joints)

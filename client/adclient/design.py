@@ -82,6 +82,22 @@ JOINT_SPECS: tuple[str, ...] = (
 )
 """The searchable specs of a joint, in spec-vector order."""
 
+JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
+"""revolute: about its axis within [lower, upper] (radians); continuous: about its
+axis all round (lower and upper unused); prismatic: along its axis within [lower,
+upper] (metres); fixed: holds its child, driven by nothing (only ``position`` used)."""
+
+UNUSED_JOINT_SPECS: dict[str, tuple[str, ...]] = {
+    "continuous": ("lower", "upper"),
+    "fixed": ("axis_theta", "axis_phi", "lower", "upper", "effort", "velocity"),
+}
+"""The joint specs a kind of joint has no use for: never searched, and set to a
+placeholder (``DesignSpace.joint_spec``)."""
+
+_PLACEHOLDERS = {"lower": -math.pi, "upper": math.pi, "axis_theta": 0.0, "axis_phi": 0.0}
+
+Shape = Literal["cylinder", "box", "capsule"]
+
 _POSITIVE_SPECS = frozenset({"length", "radius", "mass", "density", "effort", "velocity"})
 
 
@@ -169,9 +185,11 @@ OptionalSpecValue = Annotated[float | Bound | None, BeforeValidator(_optional_sp
 
 def link_volume(shape: str, length: float, radius: float) -> float:
     """A link's volume (m^3): a solid cylinder's ``pi radius^2 length``, a box's
-    ``(2 radius)^2 length``."""
+    ``(2 radius)^2 length``, a capsule's cylinder and its two half-balls."""
     if shape == "box":
         return 4.0 * radius * radius * length
+    if shape == "capsule":
+        return math.pi * radius * radius * (length + 4.0 * radius / 3.0)
     return math.pi * radius * radius * length
 
 
@@ -225,7 +243,7 @@ class PartJSON(TypedDict):
     """A part as written, which the API's description shows (a Bound as written is an
     object, as ``Bound``'s own serialiser says)."""
 
-    shape: Literal["cylinder", "box"]
+    shape: Shape
     length: float | dict[str, Any]
     radius: float | dict[str, Any]
     mass: NotRequired[float | dict[str, Any]]
@@ -239,7 +257,7 @@ class PartType(_Strict):
     gives one of the two: ``density`` alone leaves ``mass`` out (``None``), both is an
     error (``DesignSpace`` names the part), neither is the default ``mass: 1.0``."""
 
-    shape: Literal["cylinder", "box"] = "cylinder"
+    shape: Shape = "cylinder"
     length: SpecValue = 0.4
     radius: SpecValue = 0.04
     mass: OptionalSpecValue = 1.0
@@ -271,7 +289,7 @@ class PartType(_Strict):
 
 
 class JointType(_Strict):
-    type: Literal["revolute"] = "revolute"
+    type: JointKind = "revolute"
     axis_theta: SpecValue = Bound(low=0.0, high=3.141592653589793)
     axis_phi: SpecValue = Bound(low=0.0, high=3.141592653589793)
     position: SpecValue = 1.0
@@ -312,13 +330,16 @@ class PartInstance(_Strict):
     mirror: Mirror | None = None
     overrides: dict[str, SpecValue] = Field(default_factory=dict)
     joint_overrides: dict[str, SpecValue] = Field(default_factory=dict)
+    joint_type: JointKind | None = None
+    """The kind of its joint to its parent, when not the shared joint's ``type``."""
 
     @model_serializer(mode="wrap")
     def _tie_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """``same_as`` and ``mirror`` are written only when set: an untied instance's
-        JSON is what it was before ties, so older servers and workers read it."""
+        """``same_as``, ``mirror`` and ``joint_type`` are written only when set: an
+        instance's JSON is what it was before them, so older servers and workers read
+        it."""
         data: dict[str, Any] = handler(self)
-        _drop_unset(data, "same_as", "mirror")
+        _drop_unset(data, "same_as", "mirror", "joint_type")
         return data
 
     @model_validator(mode="after")
@@ -329,6 +350,11 @@ class PartInstance(_Strict):
                 "it mirrors)"
             )
         own = sorted(set(self.joint_overrides) - {"position"})
+        if self.same_as is not None and self.joint_type is not None:
+            raise ValueError(
+                f"instance {self.name!r}: same_as {self.same_as!r} takes that instance's "
+                f"joint, its kind included: leave joint_type out"
+            )
         if self.same_as is not None and (self.overrides or own):
             names = [*self.overrides, *own]
             raise ValueError(
@@ -353,7 +379,7 @@ class PartInstance(_Strict):
 
 
 Edge = tuple[str, str]
-"""(parent instance, child instance): one revolute joint."""
+"""(parent instance, child instance): one joint (revolute unless its kind says)."""
 
 
 class DesignSpace(_Strict):
@@ -605,8 +631,8 @@ class DesignSpace(_Strict):
 
     def chosen_catalogue(self, instance_name: str, kind: Literal["part", "joint"]) -> str | None:
         """The catalogue an instance's part (or its joint) is chosen from; None if none."""
-        if kind == "joint":
-            return self.joint.choose
+        if kind == "joint":  # a fixed joint has no motor to choose
+            return None if self.joint_kind(instance_name) == "fixed" else self.joint.choose
         return self.parts[self.instance(instance_name).part].choose
 
     def catalogue_sets(self, instance_name: str, spec: str) -> bool:
@@ -689,13 +715,31 @@ class DesignSpace(_Strict):
         value: float | Bound | None = getattr(self.parts[instance.part], spec)
         return value
 
+    def joint_kind(self, instance_name: str) -> JointKind:
+        """The kind of the joint from an instance to its parent (a tied one's source's)."""
+        tie = self.tie(instance_name)
+        if tie is not None:
+            return self.joint_kind(tie.source)
+        return self.instance(instance_name).joint_type or self.joint.type
+
     def joint_spec(self, instance_name: str, spec: str) -> float | Bound:
         """The spec of the joint from an instance to its parent; a tied instance's is
-        its source's, a fixed axis angle mirrored (a searched one is the source's slot)."""
+        its source's, a fixed axis angle mirrored (a searched one is the source's slot).
+        A spec its kind has no use for (``UNUSED_JOINT_SPECS``) is a placeholder: a
+        continuous joint's limits -pi and pi, a fixed joint's axis along its parent
+        (theta 0) and its motor's numbers their given value or lower bound."""
+        if spec in UNUSED_JOINT_SPECS.get(self.joint_kind(instance_name), ()):
+            if spec in _PLACEHOLDERS:
+                return _PLACEHOLDERS[spec]
+            given = self._joint_spec(instance_name, spec)
+            return given.low if isinstance(given, Bound) else given
+        return self._joint_spec(instance_name, spec)
+
+    def _joint_spec(self, instance_name: str, spec: str) -> float | Bound:
         tie = self.tie(instance_name)
         own = self.instance(instance_name).joint_overrides
         if tie is not None and spec not in own:
-            value = self.joint_spec(tie.source, spec)
+            value = self._joint_spec(tie.source, spec)
             return value if isinstance(value, Bound) else mirrored_angle(spec, value, tie)
         instance = self.instance(instance_name)
         if spec in instance.joint_overrides:
@@ -898,7 +942,7 @@ class Link(BaseModel):
     (``link_mass``); the URDF writer and the simulator use ``mass``."""
 
     name: str
-    shape: Literal["cylinder", "box"]
+    shape: Shape
     length: float
     radius: float
     mass: float
@@ -927,11 +971,16 @@ class Joint(BaseModel):
     velocity: float
     choice: str | None = None
     """The catalogue component it is, when the joint chooses one."""
+    kind: JointKind = "revolute"
 
     @model_serializer(mode="wrap")
     def _choice_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """``choice`` only when set, ``kind`` only when not revolute: a design's JSON is
+        what it was before them."""
         data: dict[str, Any] = handler(self)
         _drop_unset(data, "choice")
+        if data.get("kind") == "revolute":
+            del data["kind"]
         return data
 
 

@@ -55,7 +55,8 @@ def _numbers(values: tuple[float, ...] | list[float], what: str) -> str:
 
 
 def link_inertia(link: Link) -> tuple[float, float, float]:
-    """(ixx, iyy, izz) about the centre of mass, z along the link."""
+    """(ixx, iyy, izz) about the centre of mass, z along the link (a capsule's: a
+    cylinder's of its whole mass and length, a slight understatement)."""
     m, r, h = link.mass, link.radius, link.length
     if link.shape == "box":
         side = 2 * r
@@ -83,9 +84,20 @@ def design_link_length(design: Design) -> float:
     return math.fsum(float(link.length) for link in design.links)
 
 
-def _geometry(parent: ET.Element, link: Link) -> None:
+def _geometry(parent: ET.Element, link: Link, *, visual: bool = False) -> None:
+    """The link's shape in ``parent`` (a visual or collision element, its origin at the
+    shape's centre). A capsule is PyBullet's ``<capsule>``; seen, it is a cylinder and
+    two balls, which every URDF viewer draws (``<capsule>`` is no URDF standard)."""
     geometry = ET.SubElement(parent, "geometry")
-    if link.shape == "box":
+    what = f"link {link.name!r}"
+    if link.shape == "capsule" and not visual:
+        ET.SubElement(
+            geometry,
+            "capsule",
+            radius=_number(link.radius, f"{what} radius", positive=True),
+            length=_number(link.length, f"{what} length", positive=True),
+        )
+    elif link.shape == "box":
         side = 2 * link.radius
         size = (side, side, link.length)
         ET.SubElement(geometry, "box", size=_numbers(size, f"link {link.name!r} size"))
@@ -158,9 +170,17 @@ def design_to_urdf(design: Design, robot_name: str = "robot") -> str:
         )
         visual = ET.SubElement(element, "visual")
         ET.SubElement(visual, "origin", xyz=centre, rpy="0 0 0")
-        _geometry(visual, link)
+        _geometry(visual, link, visual=True)
         material = ET.SubElement(visual, "material", name=f"{link.name}_colour")
         ET.SubElement(material, "color", rgba=_COLOURS[index % len(_COLOURS)])
+        if link.shape == "capsule":  # its two ends, seen
+            for end in (0.0, link.length):
+                ball = ET.SubElement(element, "visual")
+                ET.SubElement(ball, "origin", xyz=_numbers((0.0, 0.0, end), what), rpy="0 0 0")
+                sphere = ET.SubElement(ET.SubElement(ball, "geometry"), "sphere")
+                sphere.set("radius", _number(link.radius, f"{what} radius", positive=True))
+                colour = ET.SubElement(ball, "material", name=f"{link.name}_colour")
+                ET.SubElement(colour, "color", rgba=_COLOURS[index % len(_COLOURS)])
         collision = ET.SubElement(element, "collision")
         ET.SubElement(collision, "origin", xyz=centre, rpy="0 0 0")
         _geometry(collision, link)
@@ -174,22 +194,22 @@ def design_to_urdf(design: Design, robot_name: str = "robot") -> str:
             raise URDFError(f"{what} position {joint.position} must lie in [0, 1]")
         if not joint.lower <= joint.upper:
             raise URDFError(f"{what} lower limit {joint.lower} exceeds upper {joint.upper}")
-        element = ET.SubElement(robot, "joint", name=joint.name, type="revolute")
+        element = ET.SubElement(robot, "joint", name=joint.name, type=joint.kind)
         ET.SubElement(element, "parent", link=joint.parent)
         ET.SubElement(element, "child", link=joint.child)
         offset = joint.position * lengths[joint.parent]
         ET.SubElement(
             element, "origin", xyz=_numbers((0.0, 0.0, offset), f"{what} origin"), rpy="0 0 0"
         )
+        if joint.kind == "fixed":
+            continue
         axis = tuple(float(component) / norm for component in joint.axis)
         ET.SubElement(element, "axis", xyz=_numbers(axis, f"{what} axis"))
-        ET.SubElement(
-            element,
-            "limit",
-            lower=_number(joint.lower, f"{what} lower"),
-            upper=_number(joint.upper, f"{what} upper"),
-            effort=_number(joint.effort, f"{what} effort", positive=True),
-            velocity=_number(joint.velocity, f"{what} velocity", positive=True),
-        )
+        limit = ET.SubElement(element, "limit")
+        if joint.kind != "continuous":  # metres for a prismatic joint
+            limit.set("lower", _number(joint.lower, f"{what} lower"))
+            limit.set("upper", _number(joint.upper, f"{what} upper"))
+        limit.set("effort", _number(joint.effort, f"{what} effort", positive=True))
+        limit.set("velocity", _number(joint.velocity, f"{what} velocity", positive=True))
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"

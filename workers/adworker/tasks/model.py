@@ -67,17 +67,21 @@ class RobotModel:
 
 
 def design_link_shape(shape: str, length: float, radius: float) -> LinkShape:
-    """A design link's shape (``adclient.design``: z in [0, length]; a box 2 radius wide)."""
+    """A design link's shape (``adclient.design``: z in [0, length]; a box 2 radius
+    wide; a capsule's balls reach radius past each end)."""
     centre = np.array([0.0, 0.0, length / 2])
     if shape == "box":
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
         half = np.array([radius, radius, length / 2])
         return LinkShape("box", centre + signs * half, centre, 0.0, 0.0, _Z, length)
     ends = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, length]])
+    if shape == "capsule":
+        return LinkShape("capsule", ends, centre, 0.0, radius, _Z, length)
     return LinkShape("cylinder", ends, centre, radius, 0.0, _Z, length)
 
 
 def model_of_design(design: Design) -> RobotModel:
+    """A design's robot: its joints of their kinds, a free one laid on its side."""
     return RobotModel(
         root=design.root,
         shapes={
@@ -87,11 +91,11 @@ def model_of_design(design: Design) -> RobotModel:
         joints=tuple(
             JointModel(
                 name=joint.name,
-                kind="revolute",
+                kind=joint.kind,
                 parent=joint.parent,
                 child=joint.child,
                 axis=joint.axis,
-                # an empty range (lower = upper) leaves the joint free all round
+                # an empty range (lower = upper) leaves a revolute joint free all round
                 lower=joint.lower if joint.lower < joint.upper else -math.pi,
                 upper=joint.upper if joint.lower < joint.upper else math.pi,
                 effort=joint.effort,
