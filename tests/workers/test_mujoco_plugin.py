@@ -68,7 +68,23 @@ def a_tree() -> Design:
     return design
 
 
-@pytest.mark.parametrize("design", [a_tree(), designs.crossed_chain(), designs.arch_chain()])
+def a_tree_of_kinds() -> Design:
+    """a_tree with a sliding, an all-round and a welded joint (issue 28)."""
+    design = a_tree()
+    kinds = [
+        {"kind": "prismatic", "lower": 0.0, "upper": 0.3},
+        {"kind": "continuous", "lower": -math.pi, "upper": math.pi},
+        {"kind": "fixed"},
+    ]
+    design.joints = [
+        joint.model_copy(update=kind) for joint, kind in zip(design.joints, kinds, strict=True)
+    ]
+    return design
+
+
+@pytest.mark.parametrize(
+    "design", [a_tree(), a_tree_of_kinds(), designs.crossed_chain(), designs.arch_chain()]
+)
 def test_the_mujoco_model_is_the_design(
     plugin: tuple[ModuleType, ModuleType], design: Design, tmp_path: Path
 ) -> None:
@@ -89,9 +105,12 @@ def test_the_mujoco_model_is_the_design(
             for j in range(pybullet.getNumJoints(body, physicsClientId=client))
         }
         rng = np.random.default_rng(0)
+        driven = [joint for joint in design.joints if joint.kind != "fixed"]
         for _ in range(5):
-            for joint in design.joints:
-                angle = float(rng.uniform(-math.pi, math.pi))
+            for joint in driven:  # an angle, or a slide's metres
+                angle = float(
+                    rng.uniform(-math.pi, math.pi) / (10 if joint.kind == "prismatic" else 1)
+                )
                 data.qpos[model.joint(joint.name).qposadr[0]] = angle
                 pybullet.resetJointState(body, index[joint.name], angle, physicsClientId=client)
             mujoco.mj_kinematics(model, data)
@@ -112,14 +131,21 @@ def test_the_mujoco_model_is_the_design(
         assert frame.mass[0] == pytest.approx(link.mass)
         assert frame.ipos == pytest.approx([0, 0, link.length / 2])
         assert sorted(frame.inertia) == pytest.approx(sorted(link_inertia(link)), rel=1e-6)
-    for joint in design.joints:
+    assert model.njnt == len(driven)  # a fixed joint welds its child on
+    for joint in driven:
         hinge = model.joint(joint.name)
+        kind = (
+            mujoco.mjtJoint.mjJNT_SLIDE
+            if joint.kind == "prismatic"
+            else mujoco.mjtJoint.mjJNT_HINGE
+        )
+        assert hinge.type[0] == kind
         assert hinge.axis == pytest.approx(np.array(joint.axis) / np.linalg.norm(joint.axis))
-        limited = joint.lower < joint.upper
+        limited = joint.lower < joint.upper and joint.kind != "continuous"
         assert bool(hinge.limited[0]) == limited
         if limited:
             assert hinge.range == pytest.approx([joint.lower, joint.upper])
-        servo = model.actuator(design.joints.index(joint))
+        servo = model.actuator(driven.index(joint))
         assert servo.forcerange == pytest.approx([-joint.effort, joint.effort])
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from adclient.design import Design
 from adplugin_mujoco import MujocoReachOptions
-from adplugin_mujoco.mjcf import design_to_mjcf, joint_range
+from adplugin_mujoco.mjcf import design_to_mjcf, driven_joints, joint_range
 
 # Render off screen through EGL (no display needed), unless MUJOCO_GL says otherwise;
 # MuJoCo reads it when first imported.
@@ -68,12 +68,13 @@ class MujocoReach(gym.Env[np.ndarray, np.ndarray]):
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
         self.tip = self.data.site(f"{options.tip_link}_end")
-        names = [joint.name for joint in design.joints]
+        driven = driven_joints(design)
+        names = [joint.name for joint in driven]
         self.qpos = np.array([self.model.joint(name).qposadr[0] for name in names])
         self.qvel = np.array([self.model.joint(name).dofadr[0] for name in names])
-        lower, upper = np.array([joint_range(joint) for joint in design.joints]).T
+        lower, upper = np.array([joint_range(joint) for joint in driven]).T
         self.mid, self.half = (upper + lower) / 2, (upper - lower) / 2
-        self.speed = np.array([joint.velocity for joint in design.joints])
+        self.speed = np.array([joint.velocity for joint in driven])
 
         self.joint_count = len(names)
         self.episode_steps = options.episode_steps or EPISODE_STEPS

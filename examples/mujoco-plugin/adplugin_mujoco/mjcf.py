@@ -1,14 +1,16 @@
 """A typed Design as a MuJoCo model (MJCF), following the conventions of adclient.design.
 
 Each link is a body whose frame sits at the joint to its parent; its shape spans z in
-[0, length] (a cylinder of the link's radius, or a box 2 radius wide) and its mass is
-spread uniformly over the shape, as in the URDF the worker writes. A child body sits at
-``position * parent.length`` on its parent's z axis, unrotated, joined by a hinge about
-the joint's axis within [lower, upper]. The root has no joint: it is welded to the world
-at the origin, standing up. Each joint has a position servo whose force is capped at the
-joint's effort (its velocity spec is not modelled). Links touch the floor but not each
-other, as in adworker's PyBullet simulator. A site ``<link>_end`` marks each link's far
-end, and an optional ``target`` site (no collision) marks a point for the picture.
+[0, length] (a cylinder of the link's radius, a box 2 radius wide, or a capsule) and its
+mass is spread uniformly over the shape, as in the URDF the worker writes. A child body
+sits at ``position * parent.length`` on its parent's z axis, unrotated, joined by a hinge
+about the joint's axis within [lower, upper] (a continuous joint's all round), a slide
+along it for a prismatic joint, or welded on for a fixed one. The root has no joint: it
+is welded to the world at the origin, standing up. Each driven joint has a position servo
+whose force is capped at the joint's effort (its velocity spec is not modelled). Links
+touch the floor but not each other, as in adworker's PyBullet simulator. A site
+``<link>_end`` marks each link's far end, and an optional ``target`` site (no collision)
+marks a point for the picture.
 """
 
 from __future__ import annotations
@@ -30,9 +32,14 @@ def numbers(*values: float) -> str:
     return " ".join(repr(float(value)) for value in values)
 
 
+def driven_joints(design: Design) -> list[Joint]:
+    """The joints an action drives: all but the fixed ones."""
+    return [joint for joint in design.joints if joint.kind != "fixed"]
+
+
 def joint_range(joint: Joint) -> tuple[float, float]:
     """The joint's [lower, upper]; a joint without a proper range turns all the way round."""
-    if joint.lower < joint.upper:
+    if joint.lower < joint.upper and joint.kind != "continuous":
         return joint.lower, joint.upper
     return -math.pi, math.pi
 
@@ -40,7 +47,7 @@ def joint_range(joint: Joint) -> tuple[float, float]:
 def design_to_mjcf(
     design: Design, *, time_step: float = 0.005, target: Sequence[float] | None = None
 ) -> str:
-    """The MJCF document of a design; actuator i drives ``design.joints[i]``."""
+    """The MJCF document of a design; actuator i drives ``driven_joints(design)[i]``."""
     root = ET.Element("mujoco", model="robot")
     ET.SubElement(root, "compiler", angle="radian", autolimits="true")
     ET.SubElement(root, "option", timestep=repr(time_step), integrator="implicitfast")
@@ -61,15 +68,15 @@ def design_to_mjcf(
 
     def add(parent: ET.Element, link: Link, height: float, joint: Joint | None) -> None:
         body = ET.SubElement(parent, "body", name=link.name, pos=numbers(0, 0, height))
-        if joint is not None:
+        if joint is not None and joint.kind != "fixed":  # a fixed child is welded on
             norm = math.sqrt(sum(component**2 for component in joint.axis))
             hinge = {
                 "name": joint.name,
-                "type": "hinge",
+                "type": "slide" if joint.kind == "prismatic" else "hinge",
                 "axis": numbers(*(component / norm for component in joint.axis)),
                 "damping": repr(JOINT_DAMPING),
             }
-            if joint.lower < joint.upper:
+            if joint.lower < joint.upper and joint.kind != "continuous":
                 hinge["range"] = numbers(joint.lower, joint.upper)
             ET.SubElement(body, "joint", hinge)
         colour = COLOURS[design.links.index(link) % len(COLOURS)]
@@ -78,16 +85,17 @@ def design_to_mjcf(
             size = numbers(link.radius, link.radius, link.length / 2)
             centre = numbers(0, 0, link.length / 2)
             ET.SubElement(body, "geom", shape, type="box", pos=centre, size=size)
-        else:
+        else:  # a capsule is MuJoCo's own: the cylinder with its end balls
             ends = numbers(0, 0, 0, 0, 0, link.length)
-            ET.SubElement(body, "geom", shape, type="cylinder", fromto=ends, size=repr(link.radius))
+            kind = "capsule" if link.shape == "capsule" else "cylinder"
+            ET.SubElement(body, "geom", shape, type=kind, fromto=ends, size=repr(link.radius))
         ET.SubElement(body, "site", name=f"{link.name}_end", pos=numbers(0, 0, link.length))
         for child in children.get(link.name, []):
             add(body, links[child.child], child.position * link.length, child)
 
     add(world, links[design.root], 0.0, None)
     actuators = ET.SubElement(root, "actuator")
-    for joint in design.joints:
+    for joint in driven_joints(design):
         ET.SubElement(
             actuators,
             "position",
