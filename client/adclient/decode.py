@@ -414,7 +414,8 @@ def design_params(design: Design) -> dict[str, Any]:
     these are a trial's ``params``, which the dashboard charts on linear axes as it does
     a box's log params, exports write and ``encode`` reads back. Every link shows its
     ``mass``; a link whose mass comes from ``density`` shows that too, after it (its
-    ``mass`` is then derived: ``encode`` checks it, it does not read it)."""
+    ``mass`` is then derived: ``encode`` checks it, it does not read it). A link not a
+    cylinder shows its ``shape``, a joint not revolute its ``kind``."""
     params: dict[str, Any] = {
         "structure": ",".join(f"{parent}-{child}" for parent, child in design.edges()),
         "structure_index": design.structure_index,
@@ -430,6 +431,8 @@ def design_params(design: Design) -> dict[str, Any]:
             if value is not None:
                 params[f"{link.name}.{spec}"] = float(value)
     for joint in design.joints:
+        if joint.kind != "revolute":
+            params[f"{joint.child}.joint.kind"] = joint.kind
         if joint.choice is not None:
             params[f"{joint.child}.joint.choice"] = joint.choice
         for spec in JOINT_SPECS:

@@ -63,6 +63,13 @@ def test_each_kind_searches_only_the_specs_it_uses() -> None:
     assert joints["b"].choice in ("small", "big")
     # the params (placeholders included) encode to a vector of the same design
     params = design_params(design)
+    assert [params.get(f"{c}.joint.kind") for c in "bcde"] == [
+        None,
+        "continuous",
+        "prismatic",
+        "fixed",
+    ]
+    assert params["e.joint.axis_theta"] == 0.0 and params["c.joint.lower"] == -math.pi
     assert (
         design_params(decode(kinds, representation, encode(kinds, representation, params)))
         == params
