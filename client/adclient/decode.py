@@ -26,6 +26,7 @@ import numpy as np
 from adclient.catalogues import catalogue_totals, choice_slots, coordinate, nearest
 from adclient.design import (
     JOINT_SPECS,
+    OFFSET_SPECS,
     PART_SPECS,
     Bound,
     Design,
@@ -374,6 +375,11 @@ def build_design(
                 if f"{child}.joint" in layout.chooses
                 else None,
                 kind=space.joint_kind(child),
+                **(
+                    {name: spec(f"{child}.joint.{name}") for name in OFFSET_SPECS}
+                    if space.uses_offsets()
+                    else {}
+                ),
             )
         )
     return Design(structure_index=structure, root=root, links=links, joints=joints)
@@ -436,7 +442,9 @@ def design_params(design: Design) -> dict[str, Any]:
         if joint.choice is not None:
             params[f"{joint.child}.joint.choice"] = joint.choice
         for spec in JOINT_SPECS:
-            params[f"{joint.child}.joint.{spec}"] = float(getattr(joint, spec))
+            value = getattr(joint, spec)
+            if value is not None:  # offsets: only where the space turns a joint
+                params[f"{joint.child}.joint.{spec}"] = float(value)
         params[f"{joint.child}.joint.axis"] = [float(value) for value in joint.axis]
     return params
 

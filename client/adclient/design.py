@@ -9,11 +9,15 @@ a tree plus concrete specs, ready to be written as URDF.
 Geometry conventions (shared by decoding, the URDF writer and the worker tasks):
 - Every link frame sits at the joint to its parent. A cylinder link extends along
   the frame's +z axis from 0 to ``length``. A box link is ``2 radius`` by
-  ``2 radius`` in x and y and ``length`` along z, over the same span.
+  ``2 radius`` in x and y and ``length`` along z, over the same span. A capsule
+  link is the cylinder with a ball of ``radius`` on each end.
 - A child's joint sits on its parent's axis at ``position * parent.length``
   (``position`` = 1.0: at the parent's far end); at joint angle 0 the child's frame
-  is aligned with its parent's, so a chain at rest is straight along +z.
-- A revolute joint's axis, in that frame, is
+  is its parent's turned by the joint's offset (``offset_roll``, ``offset_pitch``,
+  ``offset_yaw``: URDF's rpy, 0 by default), so a chain of unturned joints at rest is
+  straight along +z.
+- A joint is revolute, continuous, prismatic or fixed (``JointKind``).
+- A joint's axis, in the child's frame, is
   ``(sin(theta) cos(phi), sin(theta) sin(phi), cos(theta))``: theta = 0 runs along
   the links, theta = pi/2 is perpendicular to them.
 - A link's mass is its ``mass`` spec, or, when its part gives ``density`` (kg/m^3)
@@ -79,8 +83,16 @@ JOINT_SPECS: tuple[str, ...] = (
     "upper",
     "effort",
     "velocity",
+    "offset_roll",
+    "offset_pitch",
+    "offset_yaw",
 )
 """The searchable specs of a joint, in spec-vector order."""
+
+OFFSET_SPECS: tuple[str, str, str] = ("offset_roll", "offset_pitch", "offset_yaw")
+"""How a joint's frame is turned on its parent (radians, URDF's rpy: roll about x, then
+pitch about y, then yaw about z, each about the parent's axes); 0 by default, and a
+space that never turns one shows none of them (``DesignSpace.uses_offsets``)."""
 
 JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
 """revolute: about its axis within [lower, upper] (radians); continuous: about its
@@ -297,15 +309,22 @@ class JointType(_Strict):
     upper: SpecValue = 1.5707963267948966
     effort: SpecValue = 20.0
     velocity: SpecValue = 5.0
+    offset_roll: SpecValue = 0.0
+    offset_pitch: SpecValue = 0.0
+    offset_yaw: SpecValue = 0.0
     choose: str | None = None
     """A catalogue (``DesignSpace.catalogues``) whose components every joint is: their
     entries named like joint specs (``effort``, ``velocity``) set those specs."""
 
     @model_serializer(mode="wrap")
     def _choose_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """``choose`` is written only when set, so older servers read the JSON."""
+        """``choose`` is written only when set and an offset only when not 0, so older
+        servers read the JSON."""
         data: dict[str, Any] = handler(self)
         _drop_unset(data, "choose")
+        for spec in OFFSET_SPECS:
+            if data.get(spec) == 0.0:
+                del data[spec]
         return data
 
     @model_validator(mode="after")
@@ -715,6 +734,15 @@ class DesignSpace(_Strict):
         value: float | Bound | None = getattr(self.parts[instance.part], spec)
         return value
 
+    def uses_offsets(self) -> bool:
+        """Whether any joint of the space is turned on its parent (an offset not 0, or
+        searched): its designs then show every joint's offsets."""
+        return any(
+            self._joint_spec(instance.name, spec) != 0.0
+            for instance in self.instances
+            for spec in OFFSET_SPECS
+        )
+
     def joint_kind(self, instance_name: str) -> JointKind:
         """The kind of the joint from an instance to its parent (a tied one's source's)."""
         tie = self.tie(instance_name)
@@ -972,13 +1000,23 @@ class Joint(BaseModel):
     choice: str | None = None
     """The catalogue component it is, when the joint chooses one."""
     kind: JointKind = "revolute"
+    offset_roll: float | None = None
+    offset_pitch: float | None = None
+    offset_yaw: float | None = None
+    """How its frame is turned on its parent (``OFFSET_SPECS``); None: its space turns
+    no joint."""
+
+    @property
+    def offset(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw), 0 where not set."""
+        return (self.offset_roll or 0.0, self.offset_pitch or 0.0, self.offset_yaw or 0.0)
 
     @model_serializer(mode="wrap")
     def _choice_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """``choice`` only when set, ``kind`` only when not revolute: a design's JSON is
         what it was before them."""
         data: dict[str, Any] = handler(self)
-        _drop_unset(data, "choice")
+        _drop_unset(data, "choice", *OFFSET_SPECS)
         if data.get("kind") == "revolute":
             del data["kind"]
         return data

@@ -68,12 +68,23 @@ def resolve_ties(
 
 
 def mirrored_angle(spec: str, value: float, tie: Tie) -> float:
-    """A tied joint's ``axis_theta`` or ``axis_phi`` from its source's (other specs
-    come over unchanged). With axis ``a = (sin t cos p, sin t sin p, cos t)``, a
+    """A tied joint's ``axis_theta``, ``axis_phi`` or offset from its source's (other
+    specs come over unchanged). With axis ``a = (sin t cos p, sin t sin p, cos t)``, a
     mirror across y = 0 turns about ``(-ax, ay, -az)``: ``(pi - t, pi - p)``; across
     x = 0 about ``(ax, -ay, -az)``: ``(pi - t, -p)``; both: ``(-ax, -ay, az)``:
-    ``(t, p + pi)``."""
-    if not (tie.flip_x or tie.flip_y) or spec not in ("axis_theta", "axis_phi"):
+    ``(t, p + pi)``. A joint's offset rotation R becomes M R M (M the mirror): across
+    y = 0 its roll and yaw change sign, across x = 0 its pitch and yaw, across both its
+    roll and pitch."""
+    if not (tie.flip_x or tie.flip_y):
+        return value
+    if spec.startswith("offset_"):  # M R M: each turn about a flipped plane's normal
+        flipped = {
+            "offset_roll": tie.flip_y,
+            "offset_pitch": tie.flip_x,
+            "offset_yaw": tie.flip_x != tie.flip_y,
+        }
+        return -value if flipped[spec] else value
+    if spec not in ("axis_theta", "axis_phi"):
         return value
     if tie.flip_x and tie.flip_y:
         return value if spec == "axis_theta" else value + math.pi

@@ -2,7 +2,8 @@
 
 Follows the geometry conventions of ``adclient.design``: each link frame sits at the
 joint to its parent, the link's shape spans z in [0, length], a child's joint sits
-at ``position * parent.length`` on the parent's z axis with an identity rotation.
+at ``position * parent.length`` on the parent's z axis, turned by its offset (rpy;
+an identity rotation without one).
 Inertias are those of a solid, uniform cylinder or box of the link's mass, about its
 centre; the inertial frame sits at the shape's centre, unrotated. The mass written is
 ``Link.mass``: the link's ``mass`` spec, or its ``density`` times its volume when its
@@ -199,7 +200,10 @@ def design_to_urdf(design: Design, robot_name: str = "robot") -> str:
         ET.SubElement(element, "child", link=joint.child)
         offset = joint.position * lengths[joint.parent]
         ET.SubElement(
-            element, "origin", xyz=_numbers((0.0, 0.0, offset), f"{what} origin"), rpy="0 0 0"
+            element,
+            "origin",
+            xyz=_numbers((0.0, 0.0, offset), f"{what} origin"),
+            rpy=_numbers(joint.offset, f"{what} offset") if any(joint.offset) else "0 0 0",
         )
         if joint.kind == "fixed":
             continue

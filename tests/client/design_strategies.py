@@ -24,6 +24,9 @@ SPEC_RANGES: dict[str, tuple[float, float]] = {
     "upper": (0.1, 3.0),
     "effort": (1.0, 50.0),
     "velocity": (0.5, 10.0),
+    "offset_roll": (-math.pi, math.pi),
+    "offset_pitch": (-math.pi, math.pi),
+    "offset_yaw": (-math.pi, math.pi),
 }
 
 

@@ -126,3 +126,46 @@ def test_kinds_are_checked_by_name() -> None:
         space(b={"joint_type": "fixed"}, c={"same_as": "b", "joint_type": "revolute"})
     tied = space(b={"joint_type": "prismatic"}, c={"same_as": "b"})
     assert tied.joint_kind("c") == "prismatic"  # a tied joint is its source's kind
+
+
+def test_offsets_turn_joints_and_show_only_where_a_space_uses_them() -> None:
+    body = {
+        "type": "design",
+        "parts": {"leg": {"length": {"low": 0.1, "high": 0.3}, "radius": 0.03}},
+        "joint": {"axis_theta": 1.5707963267948966, "axis_phi": 0.0},
+        "instances": [
+            {"name": "a", "part": "leg"},
+            {
+                "name": "l",
+                "part": "leg",
+                "joint_overrides": {"offset_roll": {"low": 1.0, "high": 2.0}, "offset_yaw": 0.3},
+            },
+            {"name": "r", "same_as": "l", "mirror": "y"},
+            {"name": "x", "same_as": "l", "mirror": "x"},
+        ],
+        "structures": [[["a", "l"], ["a", "r"], ["a", "x"]]],
+    }
+    turned = DesignSpace.model_validate(body)
+    layout = spec_layout(turned)
+    assert "l.joint.offset_roll" in layout.names and "r.joint.offset_roll" not in layout.names
+    representation = identity_representation(turned)
+    design = decode(turned, representation, [0.5] * layout.size)
+    offsets = {joint.child: joint.offset for joint in design.joints}
+    assert offsets == {"l": (1.5, 0.0, 0.3), "r": (-1.5, 0.0, -0.3), "x": (1.5, -0.0, -0.3)}
+    params = design_params(design)
+    assert params["l.joint.offset_roll"] == 1.5 and params["r.joint.offset_yaw"] == -0.3
+    assert (
+        design_params(decode(turned, representation, encode(turned, representation, params)))
+        == params
+    )
+    origins = {
+        joint.find("child").get("link"): joint.find("origin").get("rpy")  # type: ignore[union-attr]
+        for joint in ElementTree.fromstring(design_to_urdf(design)).iter("joint")
+    }
+    assert origins == {"l": "1.5 0.0 0.3", "r": "-1.5 0.0 -0.3", "x": "1.5 -0.0 -0.3"}
+    # a space that turns no joint: no offsets in its designs, its JSON or its params
+    plain = space(b={})
+    design = decode(plain, identity_representation(plain), [0.5] * spec_layout(plain).size)
+    assert not any("offset" in key for key in design_params(design))
+    assert "offset_roll" not in design.model_dump(mode="json")["joints"][0]
+    assert "offset_roll" not in plain.model_dump(mode="json")["joint"]

@@ -76,3 +76,31 @@ def test_prismatic_continuous_and_fixed_joints_of_a_design(tmp_path) -> None:
         assert end.axis(d) == pytest.approx(end.axis(robot.link_position("c")), abs=1e-6)
     finally:
         env.close()
+
+
+def test_an_offset_turns_the_child_at_rest(tmp_path) -> None:
+    """A quarter roll on the joint: at rest the child's long axis leaves the post
+    sideways (world y), not upwards."""
+    body = {
+        **SPACE,
+        "instances": [
+            {"name": "a", "part": "post"},
+            {"name": "b", "part": "rod", "joint_overrides": {"offset_roll": -math.pi / 2}},
+        ],
+        "structures": [[["a", "b"]]],
+    }
+    space = DesignSpace.model_validate(body)
+    design = decode(space, identity_representation(space), [0.0])
+    path = tmp_path / "robot.urdf"
+    path.write_text(design_to_urdf(design))
+    env = DiagonalGesture.make_env(
+        design=design, urdf_path=path, options=DiagonalGestureOptions(init_noise=0.0)
+    )
+    try:
+        env.reset(seed=0)
+        snapshot = env.snapshot()
+        b = env.robot.link_position("b")
+        assert snapshot.axis(b) == pytest.approx((0.0, 1.0, 0.0), abs=1e-6)
+        assert snapshot.axis(env.robot.link_position("a")) == pytest.approx((0.0, 0.0, 1.0))
+    finally:
+        env.close()

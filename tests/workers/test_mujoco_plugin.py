@@ -69,12 +69,13 @@ def a_tree() -> Design:
 
 
 def a_tree_of_kinds() -> Design:
-    """a_tree with a sliding, an all-round and a welded joint (issue 28)."""
+    """a_tree with a sliding, an all-round and a welded joint, each turned on its parent
+    (issue 28)."""
     design = a_tree()
     kinds = [
-        {"kind": "prismatic", "lower": 0.0, "upper": 0.3},
-        {"kind": "continuous", "lower": -math.pi, "upper": math.pi},
-        {"kind": "fixed"},
+        {"kind": "prismatic", "lower": 0.0, "upper": 0.3, "offset_roll": 0.4, "offset_yaw": 0.7},
+        {"kind": "continuous", "lower": -math.pi, "upper": math.pi, "offset_pitch": -0.9},
+        {"kind": "fixed", "offset_roll": 1.1, "offset_pitch": 0.2, "offset_yaw": -0.5},
     ]
     design.joints = [
         joint.model_copy(update=kind) for joint, kind in zip(design.joints, kinds, strict=True)

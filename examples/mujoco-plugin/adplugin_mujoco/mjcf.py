@@ -49,7 +49,7 @@ def design_to_mjcf(
 ) -> str:
     """The MJCF document of a design; actuator i drives ``driven_joints(design)[i]``."""
     root = ET.Element("mujoco", model="robot")
-    ET.SubElement(root, "compiler", angle="radian", autolimits="true")
+    ET.SubElement(root, "compiler", angle="radian", autolimits="true", eulerseq="XYZ")
     ET.SubElement(root, "option", timestep=repr(time_step), integrator="implicitfast")
     world = ET.SubElement(root, "worldbody")
     ET.SubElement(world, "light", pos="0 0 3", dir="0 0 -1", directional="true")
@@ -68,6 +68,8 @@ def design_to_mjcf(
 
     def add(parent: ET.Element, link: Link, height: float, joint: Joint | None) -> None:
         body = ET.SubElement(parent, "body", name=link.name, pos=numbers(0, 0, height))
+        if joint is not None and any(joint.offset):  # URDF's rpy: X, then Y, then Z, fixed
+            body.set("euler", numbers(*joint.offset))
         if joint is not None and joint.kind != "fixed":  # a fixed child is welded on
             norm = math.sqrt(sum(component**2 for component in joint.axis))
             hinge = {

@@ -45,6 +45,8 @@ class JointModel:
     parent: str
     child: str
     axis: tuple[float, float, float]
+    """A design's: in its parent's frame at rest (its offset applied); a URDF's: in its
+    joint frame, as the file gives it (only a design is laid down by its first axis)."""
     lower: float
     upper: float
     effort: float
@@ -94,7 +96,7 @@ def model_of_design(design: Design) -> RobotModel:
                 kind=joint.kind,
                 parent=joint.parent,
                 child=joint.child,
-                axis=joint.axis,
+                axis=_turned(joint.offset, joint.axis),
                 # an empty range (lower = upper) leaves a revolute joint free all round
                 lower=joint.lower if joint.lower < joint.upper else -math.pi,
                 upper=joint.upper if joint.lower < joint.upper else math.pi,
@@ -129,6 +131,15 @@ def model_of_urdf(model: UrdfModel) -> RobotModel:
         masses=None,
         lay_down=False,
     )
+
+
+def _turned(
+    rpy: tuple[float, float, float], axis: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    if not any(rpy):
+        return axis
+    x, y, z = _rotation(rpy) @ np.array(axis)
+    return (float(x), float(y), float(z))
 
 
 def _rotation(rpy: tuple[float, float, float]) -> np.ndarray:
