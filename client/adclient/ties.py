@@ -83,7 +83,7 @@ def mirrored_angle(spec: str, value: float, tie: Tie) -> float:
             "offset_pitch": tie.flip_x,
             "offset_yaw": tie.flip_x != tie.flip_y,
         }
-        return -value if flipped[spec] else value
+        return 0.0 - value if flipped[spec] else value  # no -0.0 in params
     if spec not in ("axis_theta", "axis_phi"):
         return value
     if tie.flip_x and tie.flip_y:

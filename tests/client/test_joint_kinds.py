@@ -151,7 +151,7 @@ def test_offsets_turn_joints_and_show_only_where_a_space_uses_them() -> None:
     representation = identity_representation(turned)
     design = decode(turned, representation, [0.5] * layout.size)
     offsets = {joint.child: joint.offset for joint in design.joints}
-    assert offsets == {"l": (1.5, 0.0, 0.3), "r": (-1.5, 0.0, -0.3), "x": (1.5, -0.0, -0.3)}
+    assert offsets == {"l": (1.5, 0.0, 0.3), "r": (-1.5, 0.0, -0.3), "x": (1.5, 0.0, -0.3)}
     params = design_params(design)
     assert params["l.joint.offset_roll"] == 1.5 and params["r.joint.offset_yaw"] == -0.3
     assert (
@@ -162,7 +162,7 @@ def test_offsets_turn_joints_and_show_only_where_a_space_uses_them() -> None:
         joint.find("child").get("link"): joint.find("origin").get("rpy")  # type: ignore[union-attr]
         for joint in ElementTree.fromstring(design_to_urdf(design)).iter("joint")
     }
-    assert origins == {"l": "1.5 0.0 0.3", "r": "-1.5 0.0 -0.3", "x": "1.5 -0.0 -0.3"}
+    assert origins == {"l": "1.5 0.0 0.3", "r": "-1.5 0.0 -0.3", "x": "1.5 0.0 -0.3"}
     # a space that turns no joint: no offsets in its designs, its JSON or its params
     plain = space(b={})
     design = decode(plain, identity_representation(plain), [0.5] * spec_layout(plain).size)

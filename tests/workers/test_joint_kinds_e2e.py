@@ -1,0 +1,80 @@
+"""Joint kinds, offsets and capsules end to end (issue 28): a real adserver and a real
+adworker run a study whose robot has a continuous wheel, a prismatic lift, a fixed mast
+turned on its parent and capsule links; each trial's params show the kinds, its URDF
+has them, and its mass metric counts the capsules' balls."""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ElementTree
+
+import httpx
+import pytest
+
+from adclient import Client
+from adclient.design import link_volume
+from tests.workers.processes import completed_trials
+
+pytestmark = pytest.mark.e2e
+
+STUDY = {
+    "name": "joint-kinds",
+    "space": {
+        "type": "design",
+        "parts": {
+            "chassis": {"shape": "box", "length": 0.3, "radius": 0.1, "mass": 2.0},
+            "rod": {
+                "shape": "capsule",
+                "length": {"low": 0.1, "high": 0.4},
+                "radius": 0.03,
+                "density": 800.0,
+            },
+        },
+        "joint": {"effort": 5.0, "velocity": 3.0},
+        "instances": [
+            {"name": "body", "part": "chassis"},
+            {"name": "wheel", "part": "rod", "joint_type": "continuous"},
+            {
+                "name": "lift",
+                "part": "rod",
+                "joint_type": "prismatic",
+                "joint_overrides": {"lower": 0.0, "upper": 0.2},
+            },
+            {
+                "name": "mast",
+                "part": "rod",
+                "joint_type": "fixed",
+                "joint_overrides": {"offset_roll": 0.5},
+            },
+        ],
+        "structures": [[["body", "wheel"], ["body", "lift"], ["lift", "mast"]]],
+    },
+    "proposer": {"name": "random", "seed": 5},
+    "task": {"name": "lift-highest", "learner": "fast", "train_steps": 64, "eval_episodes": 1},
+    "max_trials": 2,
+}
+
+
+def test_a_study_of_joint_kinds_runs_on_a_real_worker(server, workers):
+    with Client(server.url) as client:
+        study = client.create_study(STUDY)
+        workers(server, "kinds")
+        for trial in completed_trials(study, 2):
+            params = trial.params
+            assert [params.get(f"{name}.joint.kind") for name in ("wheel", "lift", "mast")] == [
+                "continuous",
+                "prismatic",
+                "fixed",
+            ]
+            assert params["mast.joint.offset_roll"] == 0.5
+            urdf = ElementTree.fromstring(
+                httpx.get(f"{server.url}/api/v1/trials/{trial.id}/urdf").text
+            )
+            kinds = {j.find("child").get("link"): j.get("type") for j in urdf.iter("joint")}  # type: ignore[union-attr]
+            assert kinds == {"wheel": "continuous", "lift": "prismatic", "mast": "fixed"}
+            rods = sum(
+                800.0 * link_volume("capsule", params[f"{name}.length"], 0.03)
+                for name in ("wheel", "lift", "mast")
+            )
+            assert trial.metrics["mass"] == pytest.approx(2.0 + rods, rel=1e-9)
+            assert math.isfinite(trial.value)
