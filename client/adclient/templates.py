@@ -20,7 +20,6 @@ import json
 import math
 import os
 import re
-import subprocess
 import sys
 import threading
 from collections.abc import Iterable, Mapping, Sequence
@@ -165,18 +164,20 @@ def xacro_exception() -> type[Exception]:
 def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[str]:
     """:func:`expand` at each point, in a child process limited to ``EXPAND_MEMORY``
     and ``EXPAND_SECONDS`` that inherits no environment but the import path."""
+    import subprocess  # here: the child, this file run as a script, needs none of it
+
     request = json.dumps({"template": template, "points": [dict(p) for p in points]})
-    env = {"PATH": os.defpath}
-    if os.environ.get("PYTHONPATH"):
-        env["PYTHONPATH"] = os.environ["PYTHONPATH"]
+    env = {"PATH": os.defpath, "PYTHONPATH": _child_path()}
     try:
         done = subprocess.run(
-            [sys.executable, "-m", "adclient.templates"],
+            # this file as a script, without site (-S) or its own folder (-P) on the
+            # path: the child imports xacro, PyYAML and the standard library, not the
+            # SDK (it starts in half the time)
+            [sys.executable, "-S", "-P", __file__, str(EXPAND_MEMORY), str(EXPAND_SECONDS)],
             input=request.encode(),
             capture_output=True,
             timeout=EXPAND_SECONDS,
             env=env,
-            preexec_fn=_limits,
             check=False,
         )
     except subprocess.TimeoutExpired:
@@ -184,21 +185,37 @@ def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[
     try:
         answer = json.loads(done.stdout)
     except ValueError:
+        last = (done.stderr.decode(errors="replace").strip().splitlines() or [""])[-1]
         raise TemplateError(
-            f"template: expanding it failed (exit {done.returncode}"
-            + (", out of memory" if done.returncode != 0 else "")
-            + ")"
+            f"template: expanding it failed (exit {done.returncode}) {last[:200]}".strip()
         ) from None
     if "error" in answer:
         raise TemplateError(answer["error"])
     return list(answer["urdfs"])
 
 
-def _limits() -> None:
+def _child_path() -> str:
+    """Where the child finds xacro and PyYAML (without ``site``, nothing else is on its
+    path): their folders, then this process's PYTHONPATH."""
+    import importlib.util
+
+    folders = []
+    for name in ("xacro", "yaml"):
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:
+            raise TemplateError(f"template: {name} is not installed here")
+        folders.append(os.path.dirname(os.path.dirname(spec.origin)))
+    folders += [folder for folder in os.environ.get("PYTHONPATH", "").split(os.pathsep) if folder]
+    return os.pathsep.join(dict.fromkeys(folders))
+
+
+def _limit(memory: int, seconds: int) -> None:
+    """The child limits itself before it reads the template (a ``preexec_fn`` would do
+    it before exec, but is unsafe in a threaded server)."""
     import resource
 
-    resource.setrlimit(resource.RLIMIT_AS, (EXPAND_MEMORY, EXPAND_MEMORY))
-    resource.setrlimit(resource.RLIMIT_CPU, (EXPAND_SECONDS, EXPAND_SECONDS))
+    resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+    resource.setrlimit(resource.RLIMIT_CPU, (seconds, seconds))
 
 
 def check_points(params: Sequence[Any]) -> list[tuple[str, dict[str, Any]]]:
@@ -254,8 +271,11 @@ def check_template(
 
 
 def _main() -> None:
-    """``python -m adclient.templates``: JSON {template, points} on stdin, JSON
-    {urdfs} or {error} on stdout (see :func:`expand_isolated`)."""
+    """``python -P templates.py MEMORY SECONDS``: JSON {template, points} on stdin, JSON
+    {urdfs} or {error} on stdout (see :func:`expand_isolated`); argv: the memory (bytes)
+    and CPU seconds it may use."""
+    memory, seconds = (int(value) for value in sys.argv[1:3])
+    _limit(memory, seconds)
     request = json.loads(sys.stdin.buffer.read())
     try:
         urdfs = [expand(request["template"], point) for point in request["points"]]
@@ -268,7 +288,7 @@ def _main() -> None:
     except TemplateError as error:
         answer = {"error": str(error)}
     except MemoryError:
-        answer = {"error": f"template: expanding it needs over {EXPAND_MEMORY} bytes"}
+        answer = {"error": f"template: expanding it needs over {memory} bytes"}
     sys.stdout.write(json.dumps(answer))
 
 

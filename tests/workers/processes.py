@@ -15,6 +15,7 @@ from typing import Any
 from tests.servers import ServerProcess
 
 ADWORKER = Path(sys.executable).with_name("adworker")
+ADCLIENT = Path(sys.executable).with_name("adclient")
 PATIENCE = 300.0
 """A bound on waits so a broken build fails instead of hanging; not a speed check."""
 
@@ -90,3 +91,17 @@ def completed_trials(study: Any, count: int) -> list[Any]:
     complete = [trial for trial in study.trials if trial.state == "complete"]
     assert all(math.isfinite(trial.value) for trial in complete)
     return complete
+
+
+def run_adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProcess[str]:
+    """The ``adclient`` CLI as a user runs it against ``server``: plain text, wide."""
+    environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
+    environment.pop("AD_TOKEN", None)
+    return subprocess.run(
+        [str(ADCLIENT), *args],
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=PATIENCE,
+        check=False,
+    )

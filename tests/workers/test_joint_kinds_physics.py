@@ -6,6 +6,7 @@ ends reach its radius past the link."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from adclient.builtin_tasks import DiagonalGestureOptions
 from adclient.decode import decode, identity_representation, spec_layout
 from adclient.design import DesignSpace
 from adclient.urdf import design_to_urdf
+from adworker.tasks.base import RobotEnv
 from adworker.tasks.diagonal_gesture import DiagonalGesture
 
 SPACE = {
@@ -43,15 +45,20 @@ SPACE = {
 }
 
 
-def test_prismatic_continuous_and_fixed_joints_of_a_design(tmp_path) -> None:
-    space = DesignSpace.model_validate(SPACE)
-    assert spec_layout(space).names == ["a.mass"]  # a fixed joint, a continuous one: no limits
+def _env(space: DesignSpace, tmp_path: Path) -> RobotEnv:
+    """diagonal-gesture's environment (a fixed base) for the space's design at [0]."""
     design = decode(space, identity_representation(space), [0.0])
     path = tmp_path / "robot.urdf"
     path.write_text(design_to_urdf(design))
-    env = DiagonalGesture.make_env(
+    return DiagonalGesture.make_env(
         design=design, urdf_path=path, options=DiagonalGestureOptions(init_noise=0.0)
     )
+
+
+def test_prismatic_continuous_and_fixed_joints_of_a_design(tmp_path) -> None:
+    space = DesignSpace.model_validate(SPACE)
+    assert spec_layout(space).names == ["a.mass"]  # a fixed joint, a continuous one: no limits
+    env = _env(space, tmp_path)
     try:
         robot = env.robot
         assert [(j.name, j.lower, j.upper) for j in robot.joints] == [
@@ -90,12 +97,7 @@ def test_an_offset_turns_the_child_at_rest(tmp_path) -> None:
         "structures": [[["a", "b"]]],
     }
     space = DesignSpace.model_validate(body)
-    design = decode(space, identity_representation(space), [0.0])
-    path = tmp_path / "robot.urdf"
-    path.write_text(design_to_urdf(design))
-    env = DiagonalGesture.make_env(
-        design=design, urdf_path=path, options=DiagonalGestureOptions(init_noise=0.0)
-    )
+    env = _env(space, tmp_path)
     try:
         env.reset(seed=0)
         snapshot = env.snapshot()

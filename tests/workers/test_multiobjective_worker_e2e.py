@@ -12,9 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import httpx
@@ -27,27 +24,13 @@ from adclient.design import DesignSpace
 from adclient.schemas import Trial
 from adclient.urdf import design_mass
 from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess
+from tests.workers.processes import WorkerProcess, run_adclient
 
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "score-vs-mass.yaml"
-ADCLIENT = Path(sys.executable).with_name("adclient")
 TRIALS = 6
 TRAIN_STEPS = 256
-
-
-def adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProcess[str]:
-    environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
-    environment.pop("AD_TOKEN", None)
-    return subprocess.run(
-        [str(ADCLIENT), *args],
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=PATIENCE,
-        check=False,
-    )
 
 
 def small_copy(tmp_path: Path) -> tuple[Path, dict]:
@@ -76,7 +59,7 @@ def test_score_vs_mass_example_runs_with_submit_wait_and_has_a_pareto_front(
     path, body = small_copy(tmp_path)
     worker = WorkerProcess(server, tmp_path, "mo")
     try:
-        submitted = adclient(server, "submit", str(path), "--wait", "--poll", "0.2")
+        submitted = run_adclient(server, "submit", str(path), "--wait", "--poll", "0.2")
         assert submitted.returncode == 0, submitted.stdout + submitted.stderr + worker.log()
     finally:
         worker.stop()
@@ -141,10 +124,10 @@ def test_score_vs_mass_example_runs_with_submit_wait_and_has_a_pareto_front(
         assert refused.status_code == 422 and "'b.mass'" in refused.json()["detail"]
         assert "is not this link's mass" in refused.json()["detail"]
 
-    shown = adclient(server, "pareto", str(study_id))
+    shown = run_adclient(server, "pareto", str(study_id))
     assert shown.returncode == 0, shown.stderr
     assert f"{len(front)} trials on the Pareto front of score (max), mass (min)" in shown.stdout
-    as_json = adclient(server, "pareto", str(study_id), "--json")
+    as_json = run_adclient(server, "pareto", str(study_id), "--json")
     assert as_json.returncode == 0, as_json.stderr
     printed = [Trial.model_validate(item) for item in json.loads(as_json.stdout)]
     assert [trial.id for trial in printed] == [trial.id for trial in front]

@@ -7,9 +7,6 @@ that stores nothing."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
@@ -19,27 +16,12 @@ import yaml
 
 from adclient import Client
 from adclient.urdf_model import read_urdf
-from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE
+from tests.workers.processes import run_adclient
 
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-ADCLIENT = Path(sys.executable).with_name("adclient")
 TRIALS = 3
-
-
-def adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProcess[str]:
-    environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
-    environment.pop("AD_TOKEN", None)
-    return subprocess.run(
-        [str(ADCLIENT), *args],
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=PATIENCE,
-        check=False,
-    )
 
 
 def small_copy(tmp_path: Path) -> Path:
@@ -59,7 +41,7 @@ def small_copy(tmp_path: Path) -> Path:
 
 def test_the_template_arm_runs_from_its_study_file(server, workers, tmp_path):
     workers(server, "template")
-    done = adclient(server, "submit", "--wait", "--poll", "0.2", str(small_copy(tmp_path)))
+    done = run_adclient(server, "submit", "--wait", "--poll", "0.2", str(small_copy(tmp_path)))
     assert done.returncode == 0, done.stderr
     (study,) = httpx.get(f"{server.url}/api/v1/studies").json()
     with Client(server.url) as client:
@@ -116,6 +98,6 @@ def test_a_bad_template_is_a_422_that_stores_nothing(server, tmp_path):
     missing.write_text(
         yaml.safe_dump({**body, "space": {**body["space"], "template": "nope.xacro"}})
     )
-    failed = adclient(server, "submit", str(missing))
+    failed = run_adclient(server, "submit", str(missing))
     assert failed.returncode == 1
     assert "space.template: cannot read" in failed.stderr and "nope.xacro" in failed.stderr

@@ -11,7 +11,7 @@ a sphere's or capsule's all round.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from itertools import product
 
 import numpy as np
@@ -114,20 +114,7 @@ def model_of_urdf(model: UrdfModel) -> RobotModel:
     return RobotModel(
         root=model.root,
         shapes={name: _urdf_link_shape(link.shapes) for name, link in model.links.items()},
-        joints=tuple(
-            JointModel(
-                name=joint.name,
-                kind=joint.kind,
-                parent=joint.parent,
-                child=joint.child,
-                axis=joint.axis,
-                lower=joint.lower,
-                upper=joint.upper,
-                effort=joint.effort,
-                velocity=joint.velocity,
-            )
-            for joint in model.joints
-        ),
+        joints=tuple(JointModel(**asdict(joint)) for joint in model.joints),  # alike
         masses=None,
         lay_down=False,
     )
