@@ -199,7 +199,9 @@ def main() -> int:
                 ],
                 VAR / f"worker-{k}.log",
             )
-        say(f"submitting {args.study.relative_to(ROOT)}; watch it live at {url}/")
+        study = args.study.resolve()
+        shown = study.relative_to(ROOT) if study.is_relative_to(ROOT) else study
+        say(f"submitting {shown}; watch it live at {url}/")
         submitted = subprocess.run(
             [str(BIN / "adclient"), "--server", url, "submit", str(args.study), "--wait"],
             cwd=ROOT,
