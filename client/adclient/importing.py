@@ -184,9 +184,11 @@ def _about_the_run(column: str) -> bool:
 
 
 def _box_types(space: dict[str, Any] | None) -> dict[str, Any]:
-    if space is None or space.get("type") != "box":
+    """A box's or a template's params by name (a CSV's cells are read in their types)."""
+    if space is None or space.get("type") not in ("box", "template"):
         return {}
-    return {param.name: param for param in BoxSpace.model_validate(space).params}
+    box = BoxSpace.model_validate({"type": "box", "params": space["params"]})
+    return {param.name: param for param in box.params}
 
 
 def _number(cell: str, where: str) -> float:

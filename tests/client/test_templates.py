@@ -20,6 +20,7 @@ from adclient.templates import (
     expand_isolated,
     template_problems,
 )
+from adclient.importing import read_import
 from adclient.urdf_model import URDFModelError, read_urdf
 
 ARM = (
@@ -220,3 +221,22 @@ def test_the_expanding_process_sees_no_environment(monkeypatch) -> None:
         [{}],
     )
     assert "leaked" not in urdf and 'name="none"' in urdf
+
+
+def test_a_csv_is_read_in_a_template_s_param_types() -> None:
+    """Trials imported into a template study: a categorical cell stays its choice, an
+    int cell an int (as a box study reads them)."""
+    space = TemplateSpace(
+        type="template",
+        template=ROBOT.replace('length="${b_length}"', 'length="${b_length * n}"').replace(
+            '<robot name="r">', '<robot name="r_${finish}">'
+        ),
+        params=[
+            BoxParam(name="b_length", low=0.1, high=1.0),
+            BoxParam(name="n", type="int", low=1, high=3),
+            BoxParam(name="finish", type="categorical", choices=["matte", "gloss"]),
+        ],
+    ).model_dump(mode="json")
+    plan = read_import("b_length,n,finish,value\n0.5,2,gloss,1.5\n", format="csv", space=space)
+    (trial,) = plan.trials
+    assert trial.params == {"b_length": 0.5, "n": 2, "finish": "gloss"}
