@@ -12,6 +12,7 @@ import pytest
 from pydantic import ValidationError
 
 from adclient import templates
+from adclient.importing import read_import
 from adclient.schemas import BoxParam, TemplateSpace
 from adclient.templates import (
     TemplateError,
@@ -20,7 +21,6 @@ from adclient.templates import (
     expand_isolated,
     template_problems,
 )
-from adclient.importing import read_import
 from adclient.urdf_model import URDFModelError, read_urdf
 
 ARM = (
