@@ -43,6 +43,7 @@ STAND_UP = TaskSpec(
     description="A free three-link chain a-b-c lying on the ground lifts its middle link: "
     "the height of b's centre while a and c both touch the ground, else 0.",
     factory="adworker.tasks.stand_up:StandUp.make_env",
+    templates=True,
 )
 DIAGONAL_GESTURE = TaskSpec(
     name="diagonal-gesture",
@@ -50,6 +51,7 @@ DIAGONAL_GESTURE = TaskSpec(
     description="An arm on a base link fixed upright points its distal link along "
     "(1, 1, 1): the cosine between the two directions.",
     factory="adworker.tasks.diagonal_gesture:DiagonalGesture.make_env",
+    templates=True,
 )
 LIFT_HIGHEST = TaskSpec(
     name="lift-highest",
@@ -57,6 +59,7 @@ LIFT_HIGHEST = TaskSpec(
     description="A free robot of any tree raises its highest point: the height of the "
     "top of its body.",
     factory="adworker.tasks.lift_highest:LiftHighest.make_env",
+    templates=True,
 )
 
 
@@ -83,4 +86,5 @@ WALK_FORWARD = TaskSpec(
     description="A free robot lying on the ground travels along +x: the distance its "
     "centre of mass has moved at the end of the episode (m).",
     factory="adworker.tasks.walk_forward:WalkForward.make_env",
+    templates=True,
 )

@@ -28,6 +28,7 @@ from adclient.design import (
     JOINT_SPECS,
     OFFSET_SPECS,
     PART_SPECS,
+    UNUSED_JOINT_SPECS,
     Bound,
     Design,
     DesignSpace,
@@ -68,6 +69,9 @@ class SpecLayout:
     ties: dict[str, Tie] = field(default_factory=dict)
     """The tied instances (``same_as``), whose free specs are their sources' slots."""
     chooses: dict[str, str] = field(default_factory=dict)
+    placeholders: frozenset[str] = frozenset()
+    """Joint specs their joint's kind has no use for (``UNUSED_JOINT_SPECS``): fixed
+    placeholders, whatever a chosen component says."""
     """Which catalogue each choosing part (owner ``"b"``) or joint (``"b.joint"``) is
     one of (``adclient.catalogues``)."""
     catalogues: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
@@ -87,6 +91,8 @@ class SpecLayout:
         if key in free:
             return float(free[key])
         owner, entry = spec_owner(key)
+        if key in self.placeholders:  # its joint's kind has no use for it
+            return self.fixed[key]
         if owner in self.chooses and entry in self.catalogue_of(owner)[self.first_component(owner)]:
             return float(self.catalogue_of(owner)[self.choice(owner, free)][entry])
         if key in self.fixed:
@@ -180,7 +186,12 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
     slots = space.free_specs()
     fixed: dict[str, float] = {}
     chooses: dict[str, str] = {}
+    placeholders: set[str] = set()
     for instance in space.instances:
+        placeholders.update(
+            f"{instance.name}.joint.{spec}"
+            for spec in UNUSED_JOINT_SPECS.get(space.joint_kind(instance.name), ())
+        )
         part_catalogue = space.chosen_catalogue(instance.name, "part")
         if part_catalogue is not None:
             chooses[instance.name] = part_catalogue
@@ -205,6 +216,7 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
         ties=space.ties(),
         chooses=chooses,
         catalogues={name: dict(c) for name, c in space.catalogues.items()},
+        placeholders=frozenset(placeholders),
     )
 
 
@@ -351,6 +363,7 @@ def build_design(
     ]
     joints: list[Joint] = []
     taken: set[str] = set()
+    turned = space.uses_offsets()
     for parent, child in edges:
         name = f"{parent}_{child}"
         while name in taken:
@@ -376,9 +389,7 @@ def build_design(
                 else None,
                 kind=space.joint_kind(child),
                 **(
-                    {name: spec(f"{child}.joint.{name}") for name in OFFSET_SPECS}
-                    if space.uses_offsets()
-                    else {}
+                    {name: spec(f"{child}.joint.{name}") for name in OFFSET_SPECS} if turned else {}
                 ),
             )
         )

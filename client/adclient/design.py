@@ -59,6 +59,7 @@ from typing_extensions import TypedDict
 from adclient.catalogues import check_catalogue, choice_slots
 from adclient.spec_constraints import SpecConstraint
 from adclient.ties import Mirror, Tie, mirrored_angle, resolve_ties
+from adclient.urdf_model import JointKind
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]{0,63}$"
 
@@ -94,10 +95,10 @@ OFFSET_SPECS: tuple[str, str, str] = ("offset_roll", "offset_pitch", "offset_yaw
 pitch about y, then yaw about z, each about the parent's axes); 0 by default, and a
 space that never turns one shows none of them (``DesignSpace.uses_offsets``)."""
 
-JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
-"""revolute: about its axis within [lower, upper] (radians); continuous: about its
-axis all round (lower and upper unused); prismatic: along its axis within [lower,
-upper] (metres); fixed: holds its child, driven by nothing (only ``position`` used)."""
+# JointKind (adclient.urdf_model): revolute, about its axis within [lower, upper]
+# (radians); continuous, about its axis all round (lower and upper unused); prismatic,
+# along its axis within [lower, upper] (metres); fixed, holding its child, driven by
+# nothing (only ``position`` used).
 
 UNUSED_JOINT_SPECS: dict[str, tuple[str, ...]] = {
     "continuous": ("lower", "upper"),
@@ -317,7 +318,7 @@ class JointType(_Strict):
     entries named like joint specs (``effort``, ``velocity``) set those specs."""
 
     @model_serializer(mode="wrap")
-    def _choose_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    def _set_fields_only(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """``choose`` is written only when set and an offset only when not 0, so older
         servers read the JSON."""
         data: dict[str, Any] = handler(self)
@@ -513,6 +514,13 @@ class DesignSpace(_Strict):
                 self.joint_spec(instance.name, "upper"),
                 f"instances[{index}] ({instance.name!r})",
             )
+            kind = self.joint_kind(instance.name)
+            unused = sorted(set(instance.joint_overrides) & set(UNUSED_JOINT_SPECS.get(kind, ())))
+            if unused:
+                raise ValueError(
+                    f"instances[{index}] ({instance.name!r}): its joint is {kind}, which has "
+                    f"no use for {', '.join(unused)}: leave them out of joint_overrides"
+                )
         if self.structures == "all":
             n = len(self.instances)
             if n < 2:
@@ -658,6 +666,9 @@ class DesignSpace(_Strict):
         """Whether a component chosen from a catalogue gives this spec (``length``,
         ``joint.effort``), rather than the part or joint itself."""
         kind: Literal["part", "joint"] = "joint" if spec.startswith("joint.") else "part"
+        unused = UNUSED_JOINT_SPECS.get(self.joint_kind(instance_name), ())
+        if spec.removeprefix("joint.") in unused:
+            return False  # its kind has no use for it: a placeholder, whatever the component
         chosen = self.chosen_catalogue(instance_name, kind)
         if chosen is None:
             return False
@@ -1012,7 +1023,7 @@ class Joint(BaseModel):
         return (self.offset_roll or 0.0, self.offset_pitch or 0.0, self.offset_yaw or 0.0)
 
     @model_serializer(mode="wrap")
-    def _choice_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    def _set_fields_only(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """``choice`` only when set, ``kind`` only when not revolute: a design's JSON is
         what it was before them."""
         data: dict[str, Any] = handler(self)

@@ -114,6 +114,9 @@ class TaskSpec:
     options: type[TaskOptions]
     description: str
     factory: Factory = field(repr=False)
+    templates: bool = False
+    """It builds its robot from the URDF alone (``design=None``), so template studies
+    may use it; a task that needs the decoded design leaves it False."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.options, type) and issubclass(self.options, TaskOptions)):

@@ -10,8 +10,10 @@ xacro evaluates ``${...}`` as Python, so a template is expanded in a child proce
 its own (:func:`expand_isolated`), limited in memory and time and without the parent's
 environment: a server checking a stranger's template, or a worker building it, cannot
 be made to hang, exhaust memory or read a setting. A template must also stand alone:
-``xacro:include``, ``$(find)``, ``$(env)``, ``$(optenv)``, ``$(dirname)`` and
-``xacro.load_yaml`` read files or the environment and are refused by name.
+its xacro is hardened (:func:`_harden_xacro`) so that ``$(arg name)`` is its only
+substitution, ``xacro:include`` and ``xacro.load_yaml`` do not exist and Python's
+introspection is gone, however the text spells them; :func:`template_problems` names
+the plain spellings before anything runs.
 """
 
 from __future__ import annotations
@@ -20,9 +22,10 @@ import json
 import math
 import os
 import re
+import signal
 import sys
 import threading
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 XACRO_NS = "http://www.ros.org/wiki/xacro"
@@ -43,10 +46,12 @@ _FORBIDDEN = (
     (re.compile(r"\$\(\s*(?:env|optenv)\b"), "$(env ...) and $(optenv ...) (no environment)"),
     (re.compile(r"\$\(\s*dirname\b"), "$(dirname) (a template has no file)"),
     (re.compile(r"\b(?:load_yaml|abs_filename)\b"), "xacro.load_yaml and abs_filename (no files)"),
+    (re.compile(r"\$\(\s*(?:eval|cwd)\b"), "$(eval ...) and $(cwd) (use ${...})"),
 )
-_COMMENT = re.compile(r"<!--.*?-->", re.DOTALL)
-_EXPRESSION = re.compile(r"\$\{([^}]*)\}|\$\(\s*eval\s+([^)]*)\)")
 _IDENTIFIER = re.compile(r"[A-Za-z_]\w*")
+_DECLARATION = re.compile(
+    r"^<\s*[\w.-]+:(?:arg|property)\s.*?\bname\s*=\s*[\"']([^\"']*)[\"']", re.S
+)
 
 _XACRO_LOCK = threading.Lock()
 """xacro keeps its arguments and file stack in module globals: one expansion at a time."""
@@ -58,26 +63,53 @@ class TemplateError(ValueError):
 
 def template_problems(template: str, names: Iterable[str]) -> list[str]:
     """What can be told of a template from its text alone: constructs that would read
-    files or the environment, and params it never uses."""
-    text = _COMMENT.sub("", template)
+    files or the environment, and params it never uses. One pass over the text (no
+    pattern that rescans it), so a megabyte of unclosed ``<!--`` or ``${`` costs no more
+    than a megabyte of anything else. The child that expands the template refuses the
+    same constructs however they are spelt (:func:`_harden_xacro`)."""
+    text = "".join(_pieces(template, "<!--", "-->", keep_outside=True))
     problems = [
         f"template: {what} is not allowed" for pattern, what in _FORBIDDEN if pattern.search(text)
     ]
-    used = set()
-    for match in _EXPRESSION.finditer(text):
-        used.update(_IDENTIFIER.findall(match.group(1) or match.group(2) or ""))
+    used: set[str] = set()
+    for expression in _pieces(text, "${", "}", keep_outside=False):
+        used.update(_IDENTIFIER.findall(expression))
+    for call in _pieces(text, "$(", ")", keep_outside=False):
+        words = call.split()
+        if len(words) == 2 and words[0] == "arg":
+            used.add(words[1])
+    for tag in _pieces(text, "<", ">", keep_outside=False):
+        declared = _DECLARATION.match("<" + tag)
+        if declared:
+            used.add(declared.group(1))
     for name in names:
-        arg = re.search(rf"\$\(\s*arg\s+{re.escape(name)}\s*\)", text)
-        declared = re.search(
-            rf"<\s*[\w.-]+:(?:arg|property)\s[^>]*name\s*=\s*[\"']{re.escape(name)}[\"']", text
-        )
-        if not (arg or declared or name in used):
+        if name not in used:
             problems.append(
                 f"params: {name!r} is not used by the template (give it as $(arg {name}) or "
                 f'${{{name}}}, or declare <xacro:arg name="{name}"> or '
                 f'<xacro:property name="{name}">)'
             )
     return problems
+
+
+def _pieces(text: str, opening: str, closing: str, *, keep_outside: bool) -> Iterator[str]:
+    """The text between each ``opening`` and the next ``closing`` (or, with
+    ``keep_outside``, the text outside them), in one pass; an unclosed opening ends it."""
+    at = 0
+    while True:
+        start = text.find(opening, at)
+        if start < 0:
+            if keep_outside:
+                yield text[at:]
+            return
+        end = text.find(closing, start + len(opening))
+        if keep_outside:
+            yield text[at:start]
+        if end < 0:
+            return
+        if not keep_outside:
+            yield text[start + len(opening) : end]
+        at = end + len(closing)
 
 
 def _text(value: Any) -> str:
@@ -97,6 +129,7 @@ def expand(template: str, values: Mapping[str, Any]) -> str:
     import xacro
 
     with _XACRO_LOCK:
+        _harden_xacro()
         try:
             doc = xacro.parse(template)
         except xml.parsers.expat.ExpatError as error:
@@ -105,27 +138,18 @@ def expand(template: str, values: Mapping[str, Any]) -> str:
                 f"{xml.parsers.expat.ErrorString(error.code)}"
             ) from None
         root = doc.documentElement
-        prefix = next(
-            (
-                name.removeprefix("xmlns:")
-                for name, uri in root.attributes.items()
-                if name.startswith("xmlns:") and uri == XACRO_NS
-            ),
-            None,
-        )
-        if prefix is None:
-            prefix = "xacro"
+        if root.getAttribute("xmlns:xacro") != XACRO_NS:  # xacro reads only this prefix
             root.setAttribute("xmlns:xacro", XACRO_NS)
         declared = {
             element.getAttribute("name"): element
             for element in root.childNodes
-            if element.nodeType == element.ELEMENT_NODE and element.tagName == f"{prefix}:property"
+            if element.nodeType == element.ELEMENT_NODE and element.tagName == "xacro:property"
         }
         mappings = {name: _text(value) for name, value in values.items()}
         for name, text in mappings.items():
             element = declared.get(name)
             if element is None:
-                element = doc.createElement(f"{prefix}:property")
+                element = doc.createElement("xacro:property")
                 element.setAttribute("name", name)
                 root.insertBefore(element, root.firstChild)
             for attribute in ("default", "value"):
@@ -141,11 +165,51 @@ def expand(template: str, values: Mapping[str, Any]) -> str:
         return str(doc.toprettyxml(indent="  "))
 
 
+_UNSAFE_SYMBOLS = frozenset(
+    {"load_yaml", "abs_filename", "dotify", "type", "vars", "isinstance", "issubclass", "hash"}
+)
+"""xacro's ``${...}`` symbols a template may not have: the ones that read files, and
+Python's introspection (a way round the double-underscore rule)."""
+
+
+def _harden_xacro() -> None:
+    """xacro, as a template may use it: ``$(arg name)`` its only substitution (no
+    ``eval``, ``env``, ``optenv``, ``find``, ``dirname``, ``cwd``, however the text spells
+    them: a ``${...}`` inside ``$(...)`` is evaluated first), no ``xacro:include`` (also
+    one made by ``xacro:element``), no symbol of ``_UNSAFE_SYMBOLS``. Idempotent."""
+    import xacro
+    from xacro import substitution_args
+
+    def only_args(text: str) -> str:
+        for call in substitution_args._collect_args(text):
+            word = call.split()[0] if call.split() else ""
+            if word != "arg":
+                raise xacro.XacroException(f"$({word} ...) is not allowed in a template")
+        resolved: str = substitution_args._resolve_args(
+            text, xacro.substitution_args_context, {"arg": substitution_args._arg}
+        )
+        return resolved
+
+    def no_include(*_: Any) -> None:
+        raise xacro.XacroException("xacro:include is not allowed: a template stands alone")
+
+    xacro.eval_extension = only_args
+    xacro.process_include = no_include
+    for table in (
+        xacro._global_symbols,
+        *[value for value in xacro._global_symbols.values() if isinstance(value, dict)],
+    ):
+        for name in _UNSAFE_SYMBOLS & set(table):
+            del table[name]
+
+
 def _located(template: str, error: Exception) -> str:
     """xacro's message, with the template line of the expression it names."""
     cause = getattr(error, "exc", None) or error  # xacro wraps Python's errors
     message = " ".join(str(error).split())
-    if not isinstance(cause, xacro_exception()):
+    import xacro
+
+    if not isinstance(cause, xacro.XacroException):
         message = f"{type(cause).__name__}: {message}" if message else type(cause).__name__
     quoted = re.search(r"when evaluating expression '(.*?)'", message)
     if quoted:
@@ -153,12 +217,6 @@ def _located(template: str, error: Exception) -> str:
             if quoted.group(1) in line:
                 return f"template: line {number}: {message}"
     return f"template: {message}"
-
-
-def xacro_exception() -> type[Exception]:
-    import xacro
-
-    return xacro.XacroException
 
 
 def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -182,6 +240,8 @@ def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[
         )
     except subprocess.TimeoutExpired:
         raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS} s") from None
+    if done.returncode == -signal.SIGXCPU:
+        raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS} s of CPU")
     try:
         answer = json.loads(done.stdout)
     except ValueError:

@@ -169,3 +169,28 @@ def test_offsets_turn_joints_and_show_only_where_a_space_uses_them() -> None:
     assert not any("offset" in key for key in design_params(design))
     assert "offset_roll" not in design.model_dump(mode="json")["joints"][0]
     assert "offset_roll" not in plain.model_dump(mode="json")["joint"]
+
+
+def test_a_kind_s_unused_specs_stay_placeholders() -> None:
+    """A continuous joint whose servo catalogue gives limits still turns all round; a
+    joint override of a spec its kind has no use for is refused by name."""
+    body = {
+        "type": "design",
+        "parts": {"leg": {"length": {"low": 0.1, "high": 0.3}}},
+        "catalogues": {"motors": {"a": {"effort": 1.0, "lower": -0.5, "upper": 0.5}}},
+        "joint": {"choose": "motors"},
+        "instances": [
+            {"name": "a", "part": "leg"},
+            {"name": "b", "part": "leg", "joint_type": "continuous"},
+            {"name": "c", "part": "leg"},
+        ],
+        "structures": [[["a", "b"], ["a", "c"]]],
+    }
+    limited = DesignSpace.model_validate(body)
+    design = decode(limited, identity_representation(limited), [0.5] * spec_layout(limited).size)
+    joints = {joint.child: joint for joint in design.joints}
+    assert (joints["b"].lower, joints["b"].upper) == (-math.pi, math.pi)
+    assert (joints["c"].lower, joints["c"].upper) == (-0.5, 0.5)  # a revolute takes them
+    assert joints["b"].effort == 1.0
+    with pytest.raises(ValidationError, match=r"'b'\): its joint is fixed, which has no use for"):
+        space(b={"joint_type": "fixed", "joint_overrides": {"lower": 0.0}})

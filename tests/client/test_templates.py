@@ -4,12 +4,10 @@ line), in a child process that a hostile template cannot hang or exhaust."""
 
 from __future__ import annotations
 
-import time
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import pytest
-from pydantic import ValidationError
 
 from adclient import templates
 from adclient.importing import read_import
@@ -99,6 +97,8 @@ def test_the_isolated_expansion_is_the_same_robot() -> None:
         ('<link name="$(env HOME)"/>', "$(env ...)"),
         ('<link name="$(optenv AD_TOKEN none)"/>', "$(env ...)"),
         ("<link name=\"${xacro.load_yaml('/etc/hosts')}\"/>", "load_yaml"),
+        ("<link name=\"$(eval open('/etc/hostname').read())\"/>", "$(eval ...)"),
+        ('<link name="$(cwd)"/>', "$(cwd)"),
     ],
 )
 def test_a_template_that_reads_files_or_the_environment_is_refused(construct, named) -> None:
@@ -110,17 +110,46 @@ def test_a_template_that_reads_files_or_the_environment_is_refused(construct, na
         template_problems(ROBOT.replace("</robot>", f"<!-- {construct} --></robot>"), ["b_length"])
         == []
     )
-    with pytest.raises(ValidationError, match="is not allowed"):
-        TemplateSpace(
-            type="template", template=template, params=[BoxParam(name="b_length", low=0.1, high=1)]
-        )
+    with pytest.raises(TemplateError, match="is not allowed"):
+        check_template(template, [BoxParam(name="b_length", low=0.1, high=1)])
+
+
+@pytest.mark.parametrize(
+    ("construct", "named"),
+    [
+        # spelt so that no text check sees them: the hardened xacro still refuses them
+        ("<link name=\"$(${'ev' + 'al'} 1 + 1)\"/>", r"\$\(eval \.\.\.\) is not allowed"),
+        ("<link name=\"$(${'en' + 'v'} HOME)\"/>", r"\$\(env \.\.\.\) is not allowed"),
+        ("<link name=\"$(${'cw' + 'd'})\"/>", r"\$\(cwd \.\.\.\) is not allowed"),
+        ("<link name=\"${xacro['load_' + 'yaml']('/etc/hosts')}\"/>", "KeyError"),
+        ("<link name=\"${python['va' + 'rs'](math)}\"/>", "KeyError"),
+        (
+            "<xacro:element xacro:name=\"${'xacro:incl' + 'ude'}\" filename=\"/etc/passwd\"/>",
+            "xacro:include is not allowed",
+        ),
+    ],
+)
+def test_the_expanding_xacro_refuses_what_the_text_check_cannot_see(construct, named) -> None:
+    template = ROBOT.replace("<robot", '<robot xmlns:xacro="http://www.ros.org/wiki/xacro"')
+    template = template.replace("</robot>", construct + "</robot>")
+    assert template_problems(template, ["b_length"]) == []  # the text check is fooled
+    with pytest.raises(TemplateError, match=named):
+        expand_isolated(template, [{"b_length": 0.5}])
 
 
 def test_a_param_the_template_never_uses_is_named() -> None:
     params = [*PARAMS, BoxParam(name="elbow_effort", low=1, high=5)]
-    with pytest.raises(ValidationError, match="'elbow_effort' is not used by the template"):
-        TemplateSpace(type="template", template=ARM, params=params)
-    assert TemplateSpace(type="template", template=ARM, params=PARAMS).params == PARAMS
+    with pytest.raises(TemplateError, match="'elbow_effort' is not used by the template"):
+        check_template(ARM, params)
+    assert template_problems(ARM, [param.name for param in PARAMS]) == []
+
+
+def test_the_text_check_is_one_pass() -> None:
+    """A megabyte of unclosed openings: nothing in them counts as a use (a rescanning
+    pattern took minutes on this; ``_pieces`` scans once)."""
+    for opening in ("<!--", "${", "$(", "<xacro:arg "):
+        template = ROBOT + opening * (1_000_000 // len(opening))
+        assert template_problems(template, ["b_length"]) == []
 
 
 @pytest.mark.parametrize(
@@ -206,26 +235,13 @@ def test_a_hostile_template_cannot_exhaust_or_hang_the_expanding_process(monkeyp
     with pytest.raises(TemplateError, match="MemoryError"):
         expand_isolated('<robot name="r"><link name="${\'x\' * 10**10}"/></robot>', [{}])
     monkeypatch.setattr(templates, "EXPAND_SECONDS", 2)
-    started = time.monotonic()
-    with pytest.raises(TemplateError, match=r"took over 2 s|failed"):
+    with pytest.raises(TemplateError, match=r"took over 2 s"):
         expand_isolated('<robot name="r"><link name="${python.sum(range(10**12))}"/></robot>', [{}])
-    assert time.monotonic() - started < 30  # the limit held: not the 10**12 loop
-
-
-def test_the_expanding_process_sees_no_environment(monkeypatch) -> None:
-    """Even a $(optenv) slipped past the text check would read nothing of the caller's."""
-    monkeypatch.setenv("AD_SECRET_FOR_TEST", "leaked")
-    (urdf,) = expand_isolated(
-        '<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro">'
-        '<link name="$(optenv AD_SECRET_FOR_TEST none)"/></robot>',
-        [{}],
-    )
-    assert "leaked" not in urdf and 'name="none"' in urdf
 
 
 def test_a_csv_is_read_in_a_template_s_param_types() -> None:
-    """Trials imported into a template study: a categorical cell stays its choice, an
-    int cell an int (as a box study reads them)."""
+    """Trials imported into a template study: a categorical cell stays its choice (text
+    "02", which a reader without the space takes for the number 2), an int cell an int."""
     space = TemplateSpace(
         type="template",
         template=ROBOT.replace('length="${b_length}"', 'length="${b_length * n}"').replace(
@@ -234,9 +250,9 @@ def test_a_csv_is_read_in_a_template_s_param_types() -> None:
         params=[
             BoxParam(name="b_length", low=0.1, high=1.0),
             BoxParam(name="n", type="int", low=1, high=3),
-            BoxParam(name="finish", type="categorical", choices=["matte", "gloss"]),
+            BoxParam(name="finish", type="categorical", choices=["01", "02"]),
         ],
     ).model_dump(mode="json")
-    plan = read_import("b_length,n,finish,value\n0.5,2,gloss,1.5\n", format="csv", space=space)
+    plan = read_import("b_length,n,finish,value\n0.5,2,02,1.5\n", format="csv", space=space)
     (trial,) = plan.trials
-    assert trial.params == {"b_length": 0.5, "n": 2, "finish": "gloss"}
+    assert trial.params == {"b_length": 0.5, "n": 2, "finish": "02"}  # not the number 2

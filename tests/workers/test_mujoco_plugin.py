@@ -19,6 +19,7 @@ import yaml
 
 from adclient import Client
 from adclient.design import Design
+from adclient.errors import Invalid
 from adclient.urdf import design_to_urdf, link_inertia
 from adworker import designs
 from adworker.learners import ConstantTargetSearch, evaluate_policy
@@ -37,7 +38,8 @@ except ImportError as error:  # the dev extra installs it: `make install`
         allow_module_level=True,
     )
 
-PLUGIN = Path(__file__).resolve().parents[2] / "examples" / "mujoco-plugin"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+PLUGIN = EXAMPLES / "mujoco-plugin"
 
 
 @pytest.fixture
@@ -230,6 +232,12 @@ def test_a_mujoco_study_runs_end_to_end_and_only_workers_with_the_plugin_lease_i
     try:
         with Client(server.url) as client:
             assert "mujoco-reach" in {task.name for task in client.tasks()}
+            # its plugin builds from a design: a template study of it is refused
+            template = (EXAMPLES / "templates" / "arm.urdf.xacro").read_text()
+            params = [{"name": "upper_length", "low": 0.1, "high": 0.5}]
+            space = {"type": "template", "template": template, "params": params}
+            with pytest.raises(Invalid, match="takes no template"):
+                client.create_study({**reach_study(), "space": space})
             study = client.create_study(reach_study())
 
             without = WorkerProcess(server, tmp_path, "without", "--idle-exit", "3")

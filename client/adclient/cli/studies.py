@@ -37,7 +37,7 @@ def _when(value: Any) -> str:
 
 def _space_text(space: Any) -> str:
     """A box's params with their types and ranges (``n int [1, 64] log``, ``act in relu,
-    tanh``); a design space by its type alone."""
+    tanh``), a template's the same; a design space by its type alone."""
     if not isinstance(space, BoxSpace):
         return str(space.type)
     parts = []
@@ -50,7 +50,7 @@ def _space_text(space: Any) -> str:
         text += " log" if param.log else ""
         text += f" step {compact_text(param.step)}" if param.step is not None else ""
         parts.append(text)
-    return "box: " + "; ".join(parts)
+    return f"{space.type}: " + "; ".join(parts)  # box, or template (a box with a robot)
 
 
 def _status_table(info: Study, dashboard: str) -> Table:

@@ -151,7 +151,9 @@ class BoxSpace(Strict):
 class TemplateSpace(BoxSpace):
     """Your own robot: a URDF or xacro text (``adclient.templates``) whose args or
     properties are the params, searched as a box's are. A box space in every way but
-    the robot: a worker expands the template at a trial's params and builds that."""
+    the robot: a worker expands the template at a trial's params and builds that. The
+    server checks the template when a study is created (``adclient.templates``), not
+    each time a stored space is read."""
 
     type: Literal["template"]  # type: ignore[assignment]
     template: str = Field(
@@ -159,15 +161,6 @@ class TemplateSpace(BoxSpace):
         max_length=MAX_TEMPLATE_CHARS,
         description="the URDF or xacro text (the CLI reads a file path given here)",
     )
-
-    @model_validator(mode="after")
-    def _stands_alone(self) -> TemplateSpace:
-        from adclient.templates import template_problems
-
-        problems = template_problems(self.template, [param.name for param in self.params])
-        if problems:
-            raise ValueError("; ".join(problems))
-        return self
 
 
 Space = Annotated[BoxSpace | DesignSpace | TemplateSpace, Field(discriminator="type")]

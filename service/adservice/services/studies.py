@@ -60,6 +60,15 @@ def _check_template(body: StudyCreate) -> None:
     from adclient.templates import TemplateError, check_template
 
     assert isinstance(body.space, TemplateSpace)
+    if body.task is not None and not body.task.external:
+        from adclient.plugins import catalogue
+
+        if not catalogue().task(body.task.name).templates:
+            raise InvalidError(
+                f"task.name: task {body.task.name!r} builds its robot from a design space "
+                "(its plugin takes no template): use space.type design, or a task that "
+                "takes templates (stand-up, lift-highest, walk-forward, diagonal-gesture)"
+            )
     links = body.task.links_looked_up() if body.task is not None else []
     try:
         check_template(body.space.template, body.space.params, links)

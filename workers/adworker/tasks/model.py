@@ -16,7 +16,7 @@ from itertools import product
 
 import numpy as np
 
-from adclient.design import Design
+from adclient.design import Design, Joint
 from adclient.urdf_model import DRIVEN_KINDS, Shape, UrdfModel
 
 _Z = np.array([0.0, 0.0, 1.0])
@@ -98,8 +98,8 @@ def model_of_design(design: Design) -> RobotModel:
                 child=joint.child,
                 axis=_turned(joint.offset, joint.axis),
                 # an empty range (lower = upper) leaves a revolute joint free all round
-                lower=joint.lower if joint.lower < joint.upper else -math.pi,
-                upper=joint.upper if joint.lower < joint.upper else math.pi,
+                lower=-math.pi if _all_round(joint) else joint.lower,
+                upper=math.pi if _all_round(joint) else joint.upper,
                 effort=joint.effort,
                 velocity=joint.velocity,
             )
@@ -108,6 +108,10 @@ def model_of_design(design: Design) -> RobotModel:
         masses={link.name: link.mass for link in design.links},
         lay_down=True,
     )
+
+
+def _all_round(joint: Joint) -> bool:
+    return joint.kind in ("revolute", "continuous") and not joint.lower < joint.upper
 
 
 def model_of_urdf(model: UrdfModel) -> RobotModel:

@@ -283,7 +283,9 @@ class Robot:
             return
         cid = self.sim.client
         if not self.model.lay_down:
-            orientation = (0.0, 0.0, 0.0, 1.0)
+            # The engine poses a base by its inertial frame: turned as its URDF turns it,
+            # the link frame is upright.
+            orientation = self.sim.dynamics_info(self.body, -1).inertial_orientation
             pybullet.resetBasePositionAndOrientation(self.body, [0, 0, 1.0], orientation, cid)
             bottom = min(self.read().bottom)
             pybullet.resetBasePositionAndOrientation(
