@@ -51,7 +51,7 @@ class Shape:
 class UrdfLink:
     name: str
     mass: float
-    """Its ``<inertial><mass>`` (0 without one)."""
+    """Its ``<inertial><mass>``; without ``<inertial>``, PyBullet's default (1 kg)."""
     shapes: tuple[Shape, ...]
 
 
@@ -81,7 +81,7 @@ class UrdfModel:
 
     @property
     def mass(self) -> float:
-        """The sum of the links' inertial masses (kg)."""
+        """The sum of the links' masses as PyBullet simulates them (kg)."""
         return math.fsum(link.mass for link in self.links.values())
 
 
@@ -206,7 +206,13 @@ def _origin(element: ET.Element, what: str) -> Origin:
     return Origin((xyz[0], xyz[1], xyz[2]), (rpy[0], rpy[1], rpy[2]))
 
 
+DEFAULT_MASS = 1.0
+"""What PyBullet simulates a link without ``<inertial>`` as (kg; it warns and uses 1)."""
+
+
 def _mass(link: ET.Element, what: str) -> float:
+    if link.find("inertial") is None:
+        return DEFAULT_MASS
     mass = link.find("inertial/mass")
     if mass is None:
         return 0.0

@@ -84,6 +84,17 @@ def test_the_arm_template_is_built_from_its_urdf(tmp_path) -> None:
         env.close()
 
 
+def test_a_link_without_inertial_weighs_what_pybullet_simulates(tmp_path) -> None:
+    """1 kg, PyBullet's default, in the model (so in the mass metric) and in the engine
+    (a free robot: a fixed base is static, and PyBullet reports it as 0)."""
+    assert read_urdf(SLIDER).links["post"].mass == 1.0
+    env = _env(LiftHighest, SLIDER, tmp_path, SimulatorOptions())
+    try:
+        assert env.robot.geometry[env.robot.link_position("post")].mass == 1.0
+    finally:
+        env.close()
+
+
 def test_prismatic_continuous_capsule_and_several_shapes(tmp_path) -> None:
     env = _env(DiagonalGesture, SLIDER, tmp_path, DiagonalGestureOptions(init_noise=0.0))
     try:
@@ -93,6 +104,7 @@ def test_prismatic_continuous_capsule_and_several_shapes(tmp_path) -> None:
             ("spin", pytest.approx(-np.pi), pytest.approx(np.pi)),
         ]
         assert [g.kind for g in robot.geometry] == ["box", "compound", "capsule"]
+
         env.reset(seed=0)
         start = env.snapshot()
         carriage, wheel = robot.link_position("carriage"), robot.link_position("wheel")
