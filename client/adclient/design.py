@@ -476,6 +476,7 @@ class DesignSpace(_Strict):
 
     _trees: list[list[Edge]] | None = PrivateAttr(default=None)
     _ties: dict[str, Tie] = PrivateAttr(default_factory=dict)
+    _turned: bool | None = PrivateAttr(default=None)
 
     @model_validator(mode="after")
     def _check(self) -> DesignSpace:
@@ -748,11 +749,13 @@ class DesignSpace(_Strict):
     def uses_offsets(self) -> bool:
         """Whether any joint of the space is turned on its parent (an offset not 0, or
         searched): its designs then show every joint's offsets."""
-        return any(
-            self._joint_spec(instance.name, spec) != 0.0
-            for instance in self.instances
-            for spec in OFFSET_SPECS
-        )
+        if self._turned is None:  # decoding asks on every ask, lease and job
+            self._turned = any(
+                self._joint_spec(instance.name, spec) != 0.0
+                for instance in self.instances
+                for spec in OFFSET_SPECS
+            )
+        return self._turned
 
     def joint_kind(self, instance_name: str) -> JointKind:
         """The kind of the joint from an instance to its parent (a tied one's source's)."""

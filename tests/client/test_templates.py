@@ -145,11 +145,14 @@ def test_a_param_the_template_never_uses_is_named() -> None:
 
 
 def test_the_text_check_is_one_pass() -> None:
-    """A megabyte of unclosed openings: nothing in them counts as a use (a rescanning
-    pattern took minutes on this; ``_pieces`` scans once)."""
-    for opening in ("<!--", "${", "$(", "<xacro:arg "):
-        template = ROBOT + opening * (1_000_000 // len(opening))
-        assert template_problems(template, ["b_length"]) == []
+    """A megabyte of unclosed openings (a rescanning pattern took minutes on this;
+    ``_pieces`` scans once): a name inside one is no use of a param, one closed before
+    them is."""
+    for opening, use in (("<!--", "${c}"), ("${", "${c}"), ("$(", "$(arg c)"), ("<x:arg ", "${c}")):
+        flood = opening * (1_000_000 // len(opening))
+        unused = template_problems(ROBOT + flood + use.replace("}", ""), ["b_length", "c"])
+        assert len(unused) == 1 and "'c' is not used" in unused[0]
+        assert template_problems(ROBOT + use + flood, ["b_length", "c"]) == []
 
 
 @pytest.mark.parametrize(

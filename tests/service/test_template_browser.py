@@ -20,29 +20,11 @@ pytestmark = pytest.mark.browser
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
-KINDS: dict[str, Any] = {
-    "name": "joint-kinds",
-    "space": {
-        "type": "design",
-        "parts": {
-            "chassis": {"shape": "box", "length": 0.3, "radius": 0.1, "mass": 2.0},
-            "rod": {"shape": "capsule", "length": {"low": 0.1, "high": 0.4}, "radius": 0.03},
-        },
-        "instances": [
-            {"name": "body", "part": "chassis"},
-            {"name": "wheel", "part": "rod", "joint_type": "continuous"},
-            {
-                "name": "lift",
-                "part": "rod",
-                "joint_type": "prismatic",
-                "joint_overrides": {"lower": 0.0, "upper": 0.2},
-            },
-            {"name": "mast", "part": "rod", "joint_type": "fixed"},
-        ],
-        "structures": [[["body", "wheel"], ["body", "lift"], ["lift", "mast"]]],
-    },
-    "proposer": {"name": "random", "seed": 3},
-}
+
+def kinds_study() -> dict[str, Any]:
+    body = yaml.safe_load((EXAMPLES / "joint-kinds.yaml").read_text())
+    body.pop("task")
+    return dict(body)
 
 
 def template_study() -> dict[str, Any]:
@@ -81,7 +63,7 @@ def test_template_and_joint_kind_robots_in_3d(
         assert browser.evaluate(f"document.querySelector('{view}').dataset.joints") == "2"
         assert browser.evaluate(f"{ROBOT_PIXELS}('{view}')") > 500
 
-        view = show_best(http, browser, live_server.url, KINDS)
+        view = show_best(http, browser, live_server.url, kinds_study())
         assert browser.evaluate(f"document.querySelector('{view}').dataset.links") == "4"
         assert browser.evaluate(f"document.querySelector('{view}').dataset.joints") == "2"
         units = browser.evaluate(

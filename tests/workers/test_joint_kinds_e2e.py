@@ -14,50 +14,22 @@ import pytest
 from adclient import Client
 from adclient.design import link_volume
 from tests.workers.processes import completed_trials
+from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e
 
-STUDY = {
-    "name": "joint-kinds",
-    "space": {
-        "type": "design",
-        "parts": {
-            "chassis": {"shape": "box", "length": 0.3, "radius": 0.1, "mass": 2.0},
-            "rod": {
-                "shape": "capsule",
-                "length": {"low": 0.1, "high": 0.4},
-                "radius": 0.03,
-                "density": 800.0,
-            },
-        },
-        "joint": {"effort": 5.0, "velocity": 3.0},
-        "instances": [
-            {"name": "body", "part": "chassis"},
-            {"name": "wheel", "part": "rod", "joint_type": "continuous"},
-            {
-                "name": "lift",
-                "part": "rod",
-                "joint_type": "prismatic",
-                "joint_overrides": {"lower": 0.0, "upper": 0.2},
-            },
-            {
-                "name": "mast",
-                "part": "rod",
-                "joint_type": "fixed",
-                "joint_overrides": {"offset_roll": 0.5},
-            },
-        ],
-        "structures": [[["body", "wheel"], ["body", "lift"], ["lift", "mast"]]],
-    },
-    "proposer": {"name": "random", "seed": 5},
-    "task": {"name": "lift-highest", "learner": "fast", "train_steps": 64, "eval_episodes": 1},
-    "max_trials": 2,
-}
+
+def small_study() -> dict:
+    """examples/joint-kinds.yaml, two trials of a small budget."""
+    body = example_study("joint-kinds").model_dump(mode="json")
+    body["max_trials"] = 2
+    body["task"].update(train_steps=64, eval_episodes=1)
+    return body
 
 
 def test_a_study_of_joint_kinds_runs_on_a_real_worker(server, workers):
     with Client(server.url) as client:
-        study = client.create_study(STUDY)
+        study = client.create_study(small_study())
         workers(server, "kinds")
         for trial in completed_trials(study, 2):
             params = trial.params
