@@ -78,7 +78,8 @@ sys.path.insert(0, str(ROOT))
 from tests.servers import ServerProcess  # noqa: E402
 
 from adclient.decode import build_design, spec_layout  # noqa: E402
-from adclient.design import Design, DesignSpace  # noqa: E402
+from adclient.design import DesignSpace  # noqa: E402
+from adclient.designs import Design  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
 
 RESULTS_PATH = ROOT / "bench" / "results" / "design_suite-i26.jsonl"

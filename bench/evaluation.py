@@ -48,8 +48,9 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from adclient.decode import encode, identity_representation  # noqa: E402
-from adclient.design import Design  # noqa: E402
+from adclient.decode import identity_representation  # noqa: E402
+from adclient.designs import Design  # noqa: E402
+from adclient.encode import encode  # noqa: E402
 from adclient.plugins import catalogue  # noqa: E402
 from adclient.schemas import Job, StudyCreate, TaskConfig  # noqa: E402
 from adclient.urdf import design_to_urdf  # noqa: E402

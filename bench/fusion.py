@@ -33,8 +33,8 @@ from scipy.spatial.distance import pdist, squareform
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from adclient.design import _pruefer_edges
 from adclient.similarity import similarity_matrix
+from adclient.trees import pruefer_edges
 from adservice.fusion import (
     GAP_TOLERANCE,
     VIOLATION_TOLERANCE,
@@ -58,7 +58,7 @@ def random_tree(rng: np.random.Generator, size: int) -> list[tuple[str, str]]:
     names = INSTANCES[:size]
     if size == 2:
         return [("a", "b")]
-    undirected = _pruefer_edges(list(rng.integers(0, size, size - 2)), size)
+    undirected = pruefer_edges(list(rng.integers(0, size, size - 2)), size)
     adjacency: dict[int, list[int]] = {node: [] for node in range(size)}
     for u, v in undirected:
         adjacency[u].append(v)

@@ -35,374 +35,39 @@ Spec keys: ``"<instance>.<part spec>"`` (``"a.length"``) and
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import math
-import re
-import sys
-from collections.abc import Iterable, Iterator, Mapping, MutableMapping
-from typing import Annotated, Any, Literal, NotRequired, cast
+from collections.abc import Iterable, Mapping
+from typing import Literal
 
 from pydantic import (
-    BaseModel,
-    BeforeValidator,
-    ConfigDict,
     Field,
     PrivateAttr,
-    SerializerFunctionWrapHandler,
-    ValidationError,
-    model_serializer,
     model_validator,
 )
-from typing_extensions import TypedDict
 
 from adclient.catalogues import check_catalogue, choice_slots
+from adclient.parts import JointType, PartInstance, PartType
 from adclient.spec_constraints import SpecConstraint
-from adclient.ties import Mirror, Tie, mirrored_angle, resolve_ties
+from adclient.specs import (
+    JOINT_SPECS,
+    MASS_SPECS,
+    NAME_PATTERN,
+    OFFSET_SPECS,
+    PART_SPECS,
+    PLACEHOLDERS,
+    UNUSED_JOINT_SPECS,
+    Bound,
+    StrictModel,
+    check_limits,
+    check_spec,
+    show_spec,
+)
+from adclient.ties import Tie, mirrored_angle, resolve_ties
+from adclient.trees import Edge, all_trees, check_tree, valid_name
 from adclient.urdf_model import JointKind
 
-NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]{0,63}$"
 
-SUBNORMAL_LOW = (
-    f"a log scale's low must be at least {sys.float_info.min} (the smallest normal float: "
-    "below it exp(ln low + x span) keeps too few bits to give its slot back)"
-)
-
-PART_SPECS: tuple[str, ...] = ("length", "radius", "mass", "density")
-"""The searchable specs of a part, in spec-vector order; a link uses one of ``mass``
-and ``density`` (``MASS_SPECS``), the other is no spec of it."""
-
-MASS_SPECS: tuple[str, str] = ("mass", "density")
-"""How a link's mass is given: its own ``mass`` (kg), or ``density`` (kg/m^3) times its
-volume."""
-
-JOINT_SPECS: tuple[str, ...] = (
-    "axis_theta",
-    "axis_phi",
-    "position",
-    "lower",
-    "upper",
-    "effort",
-    "velocity",
-    "offset_roll",
-    "offset_pitch",
-    "offset_yaw",
-)
-"""The searchable specs of a joint, in spec-vector order."""
-
-OFFSET_SPECS: tuple[str, str, str] = ("offset_roll", "offset_pitch", "offset_yaw")
-"""How a joint's frame is turned on its parent (radians, URDF's rpy: roll about x, then
-pitch about y, then yaw about z, each about the parent's axes); 0 by default, and a
-space that never turns one shows none of them (``DesignSpace.uses_offsets``)."""
-
-# JointKind (adclient.urdf_model): revolute, about its axis within [lower, upper]
-# (radians); continuous, about its axis all round (lower and upper unused); prismatic,
-# along its axis within [lower, upper] (metres); fixed, holding its child, driven by
-# nothing (only ``position`` used).
-
-UNUSED_JOINT_SPECS: dict[str, tuple[str, ...]] = {
-    "continuous": ("lower", "upper"),
-    "fixed": ("axis_theta", "axis_phi", "lower", "upper", "effort", "velocity"),
-}
-"""The joint specs a kind of joint has no use for: never searched, and set to a
-placeholder (``DesignSpace.joint_spec``)."""
-
-_PLACEHOLDERS = {"lower": -math.pi, "upper": math.pi, "axis_theta": 0.0, "axis_phi": 0.0}
-
-Shape = Literal["cylinder", "box", "capsule"]
-
-_POSITIVE_SPECS = frozenset({"length", "radius", "mass", "density", "effort", "velocity"})
-
-
-def _drop_unset(data: MutableMapping[str, Any], *keys: str) -> None:
-    """Leave out of a serialised model the optional fields it does not set, so its JSON is
-    what it was before they existed and older servers and workers read it."""
-    for key in keys:
-        if key in data and data[key] is None:
-            del data[key]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class Bound(_Strict):
-    """A searched spec: any value in [low, high], on a log scale with ``log``.
-
-    Its slot of the spec vector is the value normalised to [0, 1]: linearly, or with
-    ``log`` as ``(ln value - ln low) / (ln high - ln low)`` (``adclient.decode``), so a
-    proposer searching [0, 1] searches the log scale, as a box param's ``log`` does.
-    """
-
-    low: float
-    high: float
-    log: bool = False
-
-    @model_validator(mode="after")
-    def _check(self) -> Bound:
-        for name, value in (("low", self.low), ("high", self.high)):
-            if not math.isfinite(value):
-                raise ValueError(f"bound {name} must be a finite number, got {value!r}")
-        if not self.low < self.high:
-            raise ValueError(f"bound low ({self.low}) must be < high ({self.high})")
-        if self.log and not self.low > 0:
-            raise ValueError(f"log: a log scale needs low > 0, got {self.low}")
-        if self.log and self.low < sys.float_info.min:
-            raise ValueError(f"log: {SUBNORMAL_LOW}, got {self.low}")
-        return self
-
-    @model_serializer(mode="wrap")
-    def _log_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """``log`` is written only when true: a linear spec's JSON is what it was before
-        log specs, so stored spaces and workers of older versions read it unchanged."""
-        data: dict[str, Any] = handler(self)
-        if not self.log:
-            data.pop("log", None)
-        return data
-
-
-def _spec_value(value: Any) -> Any:
-    """One clear message for a bad spec, instead of pydantic's two union branches."""
-    if isinstance(value, Bound):
-        return value
-    if isinstance(value, dict):
-        try:
-            return Bound.model_validate(value)
-        except ValidationError as error:
-            messages = "; ".join(
-                (f"{'.'.join(map(str, item['loc']))}: " if item["loc"] else "")
-                + str(item["msg"]).removeprefix("Value error, ")
-                for item in error.errors()
-            )
-            raise ValueError(f"a searched spec is {{low, high}}: {messages}") from None
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(
-            f"a spec is a number (fixed) or {{low: .., high: ..}} (searched), got {value!r}"
-        )
-    if not math.isfinite(value):
-        raise ValueError(f"a fixed spec must be a finite number, got {value!r}")
-    return float(value)
-
-
-SpecValue = Annotated[float | Bound, BeforeValidator(_spec_value)]
-"""A spec is fixed (a number) or searched (a Bound)."""
-
-
-def _optional_spec_value(value: Any) -> Any:
-    return None if value is None else _spec_value(value)
-
-
-OptionalSpecValue = Annotated[float | Bound | None, BeforeValidator(_optional_spec_value)]
-"""A spec a part may leave out (``null``): its ``mass`` or its ``density``."""
-
-
-def link_volume(shape: str, length: float, radius: float) -> float:
-    """A link's volume (m^3): a solid cylinder's ``pi radius^2 length``, a box's
-    ``(2 radius)^2 length``, a capsule's cylinder and its two half-balls."""
-    if shape == "box":
-        return 4.0 * radius * radius * length
-    if shape == "capsule":
-        return math.pi * radius * radius * (length + 4.0 * radius / 3.0)
-    return math.pi * radius * radius * length
-
-
-def link_mass(shape: str, length: float, radius: float, density: float) -> float:
-    """The mass (kg) of a link of uniform ``density`` (kg/m^3): density times
-    ``link_volume``, a solid cylinder's ``density * pi r^2 length``. What a link whose
-    part gives ``density`` weighs in its design, its URDF and the simulator."""
-    return density * link_volume(shape, length, radius)
-
-
-def spec_range(value: float | Bound) -> tuple[float, float]:
-    """The smallest and largest value a spec can take."""
-    if isinstance(value, Bound):
-        return value.low, value.high
-    return value, value
-
-
-def is_free(value: float | Bound) -> bool:
-    return isinstance(value, Bound)
-
-
-def _check_spec(name: str, value: float | Bound | None, where: str) -> None:
-    if value is None:
-        return
-    low, high = spec_range(value)
-    if name in _POSITIVE_SPECS and not low > 0:
-        raise ValueError(f"{where}.{name}: must be > 0, got {_show(value)}")
-    if name == "position" and not (low >= 0.0 and high <= 1.0):
-        raise ValueError(
-            f"{where}.position: must lie in [0, 1] (a fraction of the parent's length), "
-            f"got {_show(value)}"
-        )
-
-
-def _show(value: float | Bound) -> str:
-    if isinstance(value, Bound):
-        log = ", log: true" if value.log else ""
-        return f"{{low: {value.low}, high: {value.high}{log}}}"
-    return repr(value)
-
-
-def _check_limits(lower: float | Bound, upper: float | Bound, where: str) -> None:
-    if spec_range(lower)[1] > spec_range(upper)[0]:
-        raise ValueError(
-            f"{where}: joint limit lower ({_show(lower)}) can exceed upper ({_show(upper)}); "
-            "the largest lower must be <= the smallest upper"
-        )
-
-
-class PartJSON(TypedDict):
-    """A part as written, which the API's description shows (a Bound as written is an
-    object, as ``Bound``'s own serialiser says)."""
-
-    shape: Shape
-    length: float | dict[str, Any]
-    radius: float | dict[str, Any]
-    mass: NotRequired[float | dict[str, Any]]
-    density: NotRequired[float | dict[str, Any]]
-
-
-class PartType(_Strict):
-    """A kind of link. Its mass is ``mass`` (kg), or ``density`` (kg/m^3) times its
-    volume when it gives ``density`` instead (a solid cylinder: ``density * pi r^2
-    length``; ``link_mass``), so that a longer or thicker link weighs more. A part
-    gives one of the two: ``density`` alone leaves ``mass`` out (``None``), both is an
-    error (``DesignSpace`` names the part), neither is the default ``mass: 1.0``."""
-
-    shape: Shape = "cylinder"
-    length: SpecValue = 0.4
-    radius: SpecValue = 0.04
-    mass: OptionalSpecValue = 1.0
-    density: OptionalSpecValue = None
-    choose: str | None = None
-    """A catalogue (``DesignSpace.catalogues``) whose components this part is: their
-    entries named like part specs set those specs."""
-
-    @model_validator(mode="before")
-    @classmethod
-    def _density_replaces_mass(cls, data: Any) -> Any:
-        if isinstance(data, dict) and data.get("density") is not None and "mass" not in data:
-            return {**data, "mass": None}
-        return data
-
-    @model_validator(mode="after")
-    def _check(self) -> PartType:
-        for name in PART_SPECS:
-            _check_spec(name, getattr(self, name), "part")
-        return self
-
-    @model_serializer(mode="wrap")
-    def _given_mass_spec(self, handler: SerializerFunctionWrapHandler) -> PartJSON:
-        """Only the mass spec the part gives is written: a part with ``mass`` has the
-        JSON it had before ``density`` existed, so older servers and workers read it."""
-        data = handler(self)
-        _drop_unset(data, *MASS_SPECS, "choose")
-        return cast(PartJSON, data)
-
-
-class JointType(_Strict):
-    type: JointKind = "revolute"
-    axis_theta: SpecValue = Bound(low=0.0, high=3.141592653589793)
-    axis_phi: SpecValue = Bound(low=0.0, high=3.141592653589793)
-    position: SpecValue = 1.0
-    lower: SpecValue = -1.5707963267948966
-    upper: SpecValue = 1.5707963267948966
-    effort: SpecValue = 20.0
-    velocity: SpecValue = 5.0
-    offset_roll: SpecValue = 0.0
-    offset_pitch: SpecValue = 0.0
-    offset_yaw: SpecValue = 0.0
-    choose: str | None = None
-    """A catalogue (``DesignSpace.catalogues``) whose components every joint is: their
-    entries named like joint specs (``effort``, ``velocity``) set those specs."""
-
-    @model_serializer(mode="wrap")
-    def _set_fields_only(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """``choose`` is written only when set and an offset only when not 0, so older
-        servers read the JSON."""
-        data: dict[str, Any] = handler(self)
-        _drop_unset(data, "choose")
-        for spec in OFFSET_SPECS:
-            if data.get(spec) == 0.0:
-                del data[spec]
-        return data
-
-    @model_validator(mode="after")
-    def _check(self) -> JointType:
-        for name in JOINT_SPECS:
-            _check_spec(name, getattr(self, name), "joint")
-        _check_limits(self.lower, self.upper, "joint")
-        return self
-
-
-class PartInstance(_Strict):
-    """One link of the robot, of a ``part`` type, with its own overrides; or tied:
-    ``same_as`` another instance, whose specs and joint it takes (searched once),
-    reflected across x = 0 or y = 0 with ``mirror`` (``adclient.ties``). A tied
-    instance may leave ``part`` out (it is its source's) and overrides only where it
-    sits on its parent (``joint_overrides: {position: ..}``: a robot's front and back
-    legs are alike but not in one place)."""
-
-    name: str = Field(pattern=NAME_PATTERN)
-    part: str = ""
-    same_as: str | None = Field(default=None, pattern=NAME_PATTERN)
-    mirror: Mirror | None = None
-    overrides: dict[str, SpecValue] = Field(default_factory=dict)
-    joint_overrides: dict[str, SpecValue] = Field(default_factory=dict)
-    joint_type: JointKind | None = None
-    """The kind of its joint to its parent, when not the shared joint's ``type``."""
-
-    @model_serializer(mode="wrap")
-    def _tie_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """``same_as``, ``mirror`` and ``joint_type`` are written only when set: an
-        instance's JSON is what it was before them, so older servers and workers read
-        it."""
-        data: dict[str, Any] = handler(self)
-        _drop_unset(data, "same_as", "mirror", "joint_type")
-        return data
-
-    @model_validator(mode="after")
-    def _check(self) -> PartInstance:
-        if self.mirror is not None and self.same_as is None:
-            raise ValueError(
-                f"instance {self.name!r}: mirror: {self.mirror} needs same_as (the instance "
-                "it mirrors)"
-            )
-        own = sorted(set(self.joint_overrides) - {"position"})
-        if self.same_as is not None and self.joint_type is not None:
-            raise ValueError(
-                f"instance {self.name!r}: same_as {self.same_as!r} takes that instance's "
-                f"joint, its kind included: leave joint_type out"
-            )
-        if self.same_as is not None and (self.overrides or own):
-            names = [*self.overrides, *own]
-            raise ValueError(
-                f"instance {self.name!r}: same_as {self.same_as!r} takes every spec and the "
-                f"joint of that instance, so it overrides none of them ({', '.join(names)}); "
-                "only joint_overrides.position (where it sits on its parent) is its own"
-            )
-        if self.same_as is None and not self.part:
-            raise ValueError(
-                f"instance {self.name!r}: part is required (or same_as: <instance> to take "
-                "another instance's part and specs)"
-            )
-        for field, known in (("overrides", PART_SPECS), ("joint_overrides", JOINT_SPECS)):
-            for key, value in getattr(self, field).items():
-                if key not in known:
-                    raise ValueError(
-                        f"instance {self.name!r}: {field} has unknown key {key!r} "
-                        f"(expected one of {', '.join(known)})"
-                    )
-                _check_spec(key, value, f"instance {self.name!r}: {field}")
-        return self
-
-
-Edge = tuple[str, str]
-"""(parent instance, child instance): one joint (revolute unless its kind says)."""
-
-
-class DesignSpace(_Strict):
+class DesignSpace(StrictModel):
     """Parts, instances and candidate trees; see the module docstring for conventions.
 
     ``structures: "all"`` means every labelled tree over the instances (Cayley:
@@ -485,7 +150,7 @@ class DesignSpace(_Strict):
         self._tie_instances()
         self._check_catalogues()
         for part_name, part in self.parts.items():
-            if not _valid_name(part_name):
+            if not valid_name(part_name):
                 raise ValueError(f"parts: part type name {part_name!r} must match {NAME_PATTERN}")
             _check_mass_specs(
                 part.mass, part.density, f"parts: part {part_name!r}", "leave one out"
@@ -510,7 +175,7 @@ class DesignSpace(_Strict):
                     f"instances[{index}] ({instance.name!r}): overrides",
                     "override only one (either replaces its part's)",
                 )
-            _check_limits(
+            check_limits(
                 self.joint_spec(instance.name, "lower"),
                 self.joint_spec(instance.name, "upper"),
                 f"instances[{index}] ({instance.name!r})",
@@ -639,7 +304,7 @@ class DesignSpace(_Strict):
             for component, entries in self.catalogues[chosen].items():
                 for key, value in entries.items():
                     if key in specs:
-                        _check_spec(key, value, f"catalogues.{chosen}.{component}")
+                        check_spec(key, value, f"catalogues.{chosen}.{component}")
                 if kind == "joint" and entries.get("lower", -math.inf) > entries.get(
                     "upper", math.inf
                 ):
@@ -697,7 +362,7 @@ class DesignSpace(_Strict):
         first_of: dict[frozenset[Edge], int] = {}
         for index, edges in enumerate(structures):
             where = f"structures[{index}]"
-            _check_tree(edges, names, where)
+            check_tree(edges, names, where)
             key = frozenset(edges)
             if key in first_of:
                 raise ValueError(f"{where}: same tree as structures[{first_of[key]}]")
@@ -771,8 +436,8 @@ class DesignSpace(_Strict):
         continuous joint's limits -pi and pi, a fixed joint's axis along its parent
         (theta 0) and its motor's numbers their given value or lower bound."""
         if spec in UNUSED_JOINT_SPECS.get(self.joint_kind(instance_name), ()):
-            if spec in _PLACEHOLDERS:
-                return _PLACEHOLDERS[spec]
+            if spec in PLACEHOLDERS:
+                return PLACEHOLDERS[spec]
             given = self._joint_spec(instance_name, spec)
             return given.low if isinstance(given, Bound) else given
         return self._joint_spec(instance_name, spec)
@@ -793,7 +458,7 @@ class DesignSpace(_Strict):
         if self._trees is None:
             if self.structures == "all":
                 names = [instance.name for instance in self.instances]
-                self._trees = list(_all_trees(names))
+                self._trees = list(all_trees(names))
             else:
                 self._trees = [[(p, c) for p, c in edges] for edges in self.structures]
         return self._trees
@@ -878,7 +543,7 @@ def _check_mass_specs(
     """A link's mass is given once: by ``mass`` or by ``density``, not both, not neither."""
     if mass is not None and density is not None:
         raise ValueError(
-            f"{where} gives both mass ({_show(mass)}) and density ({_show(density)}); "
+            f"{where} gives both mass ({show_spec(mass)}) and density ({show_spec(density)}); "
             f"a link's mass is its mass or its density times its volume: {fix}"
         )
     if mass is None and density is None:
@@ -886,200 +551,3 @@ def _check_mass_specs(
             f"{where} gives neither mass nor density; give one (mass in kg, or density "
             "in kg/m^3 for a mass of density times the link's volume)"
         )
-
-
-def _valid_name(name: str) -> bool:
-    return re.fullmatch(NAME_PATTERN, name) is not None
-
-
-def _check_tree(edges: list[Edge], names: set[str], where: str) -> None:
-    """A structure is a rooted tree: >= 1 edge, one parent per child, one root, connected."""
-    if not edges:
-        raise ValueError(f"{where}: a structure needs at least one edge (two links)")
-    parent_of: dict[str, str] = {}
-    nodes: list[str] = []
-    for number, (parent, child) in enumerate(edges):
-        for name in (parent, child):
-            if name not in names:
-                raise ValueError(
-                    f"{where}[{number}]: unknown instance {name!r} "
-                    f"(instances: {', '.join(sorted(names))})"
-                )
-            if name not in nodes:
-                nodes.append(name)
-        if parent == child:
-            raise ValueError(f"{where}[{number}]: edge joins {parent!r} to itself")
-        if child in parent_of:
-            raise ValueError(
-                f"{where}: not a tree: {child!r} has two parents "
-                f"({parent_of[child]!r} and {parent!r})"
-            )
-        parent_of[child] = parent
-    roots = [name for name in nodes if name not in parent_of]
-    if len(roots) != 1:
-        raise ValueError(
-            f"{where}: not a tree: it has no root (a cycle)"
-            if not roots
-            else f"{where}: not a tree: several roots ({', '.join(map(repr, roots))}), "
-            "so it is not connected"
-        )
-    for start in parent_of:
-        seen = {start}
-        node = start
-        while node in parent_of:
-            node = parent_of[node]
-            if node in seen:
-                raise ValueError(f"{where}: not a tree: a cycle through {node!r}")
-            seen.add(node)
-
-
-def _all_trees(names: list[str]) -> Iterator[list[Edge]]:
-    """Every labelled tree over ``names`` (Pruefer sequences in lexicographic order),
-    rooted at ``names[0]``, edges listed breadth-first with children in name order."""
-    n = len(names)
-    if n == 2:
-        yield [(names[0], names[1])]
-        return
-    for sequence in itertools.product(range(n), repeat=n - 2):
-        adjacency: list[list[int]] = [[] for _ in range(n)]
-        for u, v in _pruefer_edges(list(sequence), n):
-            adjacency[u].append(v)
-            adjacency[v].append(u)
-        edges: list[Edge] = []
-        visited = {0}
-        frontier = [0]
-        while frontier:
-            following: list[int] = []
-            for node in frontier:
-                for neighbour in sorted(adjacency[node]):
-                    if neighbour not in visited:
-                        visited.add(neighbour)
-                        edges.append((names[node], names[neighbour]))
-                        following.append(neighbour)
-            frontier = following
-        yield edges
-
-
-def _pruefer_edges(sequence: list[int], n: int) -> list[tuple[int, int]]:
-    degree = [1] * n
-    for node in sequence:
-        degree[node] += 1
-    leaves = [node for node in range(n) if degree[node] == 1]
-    heapq.heapify(leaves)
-    edges: list[tuple[int, int]] = []
-    for node in sequence:
-        leaf = heapq.heappop(leaves)
-        edges.append((leaf, node))
-        degree[node] -= 1
-        if degree[node] == 1:
-            heapq.heappush(leaves, node)
-    u, v = heapq.heappop(leaves), heapq.heappop(leaves)
-    edges.append((u, v))
-    return edges
-
-
-class Link(BaseModel):
-    """One link of a design. ``mass`` is what it weighs (kg), whatever gave it: its
-    ``mass`` spec, or ``density`` (kg/m^3, then also set) times its volume
-    (``link_mass``); the URDF writer and the simulator use ``mass``."""
-
-    name: str
-    shape: Shape
-    length: float
-    radius: float
-    mass: float
-    density: float | None = None
-    choice: str | None = None
-    """The catalogue component it is, when its part chooses one."""
-
-    @model_serializer(mode="wrap")
-    def _density_when_set(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        data: dict[str, Any] = handler(self)
-        _drop_unset(data, "density", "choice")
-        return data
-
-
-class Joint(BaseModel):
-    name: str
-    parent: str
-    child: str
-    axis: tuple[float, float, float]
-    axis_theta: float
-    axis_phi: float
-    position: float
-    lower: float
-    upper: float
-    effort: float
-    velocity: float
-    choice: str | None = None
-    """The catalogue component it is, when the joint chooses one."""
-    kind: JointKind = "revolute"
-    offset_roll: float | None = None
-    offset_pitch: float | None = None
-    offset_yaw: float | None = None
-    """How its frame is turned on its parent (``OFFSET_SPECS``); None: its space turns
-    no joint."""
-
-    @property
-    def offset(self) -> tuple[float, float, float]:
-        """(roll, pitch, yaw), 0 where not set."""
-        return (self.offset_roll or 0.0, self.offset_pitch or 0.0, self.offset_yaw or 0.0)
-
-    @model_serializer(mode="wrap")
-    def _set_fields_only(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """``choice`` only when set, ``kind`` only when not revolute: a design's JSON is
-        what it was before them."""
-        data: dict[str, Any] = handler(self)
-        _drop_unset(data, "choice", *OFFSET_SPECS)
-        if data.get("kind") == "revolute":
-            del data["kind"]
-        return data
-
-
-class Design(BaseModel):
-    """One concrete robot: a tree of links joined by revolute joints."""
-
-    structure_index: int
-    root: str
-    links: list[Link]
-    joints: list[Joint]
-
-    def edges(self) -> list[Edge]:
-        return [(joint.parent, joint.child) for joint in self.joints]
-
-
-class Representation(BaseModel):
-    """What turns a search vector back into a design, computed once per study.
-
-    ``identity``: one structure; the vector is the spec vector normalised to [0, 1].
-    ``fused``: several structures; the vector lives in the MDS embedding of the
-    fused distances, decoded by nearest reference design plus an affine map.
-    ``onehot``: several structures, plain encoding: one [0, 1] coordinate per
-    structure (the largest wins, ties to the first), then the normalised spec vector.
-    ``mixed``: several structures; the vector is the structure index (searched in
-    [-0.5, S - 0.5] and rounded, so every structure owns an equal share) followed by
-    the normalised spec vector, decoded by identity. ``structure_coords`` (S x k)
-    places the structures in the fused geometry (the proposer's structure kernel).
-
-    ``affine[s]`` is a ``(dim + 1) x p`` matrix: the normalised spec vector of
-    structure ``s`` at search vector ``v`` is ``[v, 1] @ affine[s]``, clipped to
-    [0, 1]. ``ref_coords`` (M x dim) and ``ref_structure`` (M) are the reference
-    designs' coordinates and structure indices.
-
-    ``spec_low``/``spec_high`` are the free specs' physical ranges, for reading; the
-    decoder takes each slot's scale (linear, or ``log``) from the space's Bounds, which
-    it always has (``adclient.decode.spec_layout``), so a representation's JSON is the
-    same for log and linear specs.
-    """
-
-    kind: Literal["identity", "mixed", "fused", "onehot"]
-    spec_names: list[str]
-    spec_low: list[float]
-    spec_high: list[float]
-    structures: list[list[Edge]]
-    bounds: list[list[float]] = Field(description="search box, [lows, highs]")
-    ref_coords: list[list[float]] = Field(default_factory=list)
-    ref_structure: list[int] = Field(default_factory=list)
-    affine: list[list[list[float]]] = Field(default_factory=list)
-    structure_coords: list[list[float]] = Field(default_factory=list)
-    info: dict[str, float | int | str] = Field(default_factory=dict)

@@ -106,7 +106,7 @@ class TaskSpec:
     """A task: what studies name, how its options are checked, and what builds its env.
 
     The worker calls the factory with keyword arguments ``design`` (the decoded
-    :class:`~adclient.design.Design`), ``urdf_path`` (where the worker wrote its URDF)
+    :class:`~adclient.designs.Design`), ``urdf_path`` (where the worker wrote its URDF)
     and ``options`` (an instance of ``options``); it returns the task's environment
     (see docs/plugins.md for what the learners need of it)."""
 

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from adclient.decode import design_params, spec_layout
-from adclient.design import Design, DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Design, Representation
 from adclient.spec_constraints import TOLERANCE, SpecConstraint
 from adclient.ties import mirrored_angle
 

@@ -7,7 +7,7 @@ an identity rotation without one).
 Inertias are those of a solid, uniform cylinder or box of the link's mass, about its
 centre; the inertial frame sits at the shape's centre, unrotated. The mass written is
 ``Link.mass``: the link's ``mass`` spec, or its ``density`` times its volume when its
-part gives density (``adclient.design.link_mass``), so both the mass and the inertia
+part gives density (``adclient.specs.link_mass``), so both the mass and the inertia
 tensor follow the geometry for such a link.
 """
 
@@ -17,7 +17,8 @@ import math
 import re
 import xml.etree.ElementTree as ET
 
-from adclient.design import NAME_PATTERN, Design, Link
+from adclient.designs import Design, Link
+from adclient.specs import NAME_PATTERN
 
 _COLOURS = (
     "0.86 0.37 0.34 1",

@@ -45,8 +45,10 @@ from adclient.decode import (
     onehot_representation,
     spec_layout,
 )
-from adclient.design import Bound, DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Representation
 from adclient.similarity import similarity_matrix
+from adclient.specs import Bound
 from adservice.fusion import fuse
 from adservice.proposers.base import AxisColumns, ChoiceColumns, SearchStructure
 

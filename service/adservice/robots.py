@@ -6,7 +6,8 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from adclient.design import DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Representation
 from adservice.errors import InvalidError
 from adservice.repository import studies as study_repo
 from adservice.repository import trials as trial_repo

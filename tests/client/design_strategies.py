@@ -8,7 +8,8 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from adclient.design import JOINT_SPECS, MASS_SPECS, PART_SPECS, _pruefer_edges
+from adclient.specs import JOINT_SPECS, MASS_SPECS, PART_SPECS
+from adclient.trees import pruefer_edges
 
 NAMES = ["a", "b", "c", "d", "e", "f"]
 
@@ -38,7 +39,7 @@ def trees(draw: st.DrawFn, names: list[str]) -> list[tuple[str, str]]:
         edges = [(0, 1)]
     else:
         sequence = draw(st.lists(st.integers(0, n - 1), min_size=n - 2, max_size=n - 2))
-        edges = _pruefer_edges(sequence, n)
+        edges = pruefer_edges(sequence, n)
     root = draw(st.integers(0, n - 1))
     adjacency: dict[int, list[int]] = {node: [] for node in range(n)}
     for u, v in edges:

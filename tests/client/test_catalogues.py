@@ -16,14 +16,9 @@ import yaml
 from pydantic import ValidationError
 
 from adclient.catalogues import choice_slots, coordinate, coordinates, nearest
-from adclient.decode import (
-    decode,
-    design_catalogue_totals,
-    design_params,
-    encode,
-    identity_representation,
-)
+from adclient.decode import decode, design_catalogue_totals, design_params, identity_representation
 from adclient.design import DesignSpace
+from adclient.encode import encode
 
 ROOT = Path(__file__).resolve().parents[2]
 ARM = yaml.safe_load((ROOT / "examples" / "catalogue-arm.yaml").read_text(encoding="utf-8"))

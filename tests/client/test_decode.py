@@ -13,15 +13,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from adclient.decode import (
-    decode,
-    design_params,
-    encode,
-    identity_representation,
-    spec_layout,
-)
-from adclient.design import Bound, DesignSpace, link_mass
+from adclient.decode import decode, design_params, identity_representation, spec_layout
+from adclient.design import DesignSpace
+from adclient.encode import encode
 from adclient.schemas import NAME_PATTERN as PARAM_NAME
+from adclient.specs import Bound, link_mass
 from tests.client.design_strategies import multi_structure_spaces, single_structure_spaces
 
 

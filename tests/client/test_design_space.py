@@ -14,8 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from adclient.decode import decode, encode, identity_representation, spec_layout
+from adclient.decode import decode, identity_representation, spec_layout
 from adclient.design import DesignSpace
+from adclient.encode import encode
 from adclient.schemas import StudyCreate
 from adclient.similarity import structure_similarity, tree_edit_distance
 from tests.client.design_strategies import NAMES, single_structure_spaces, trees

@@ -12,8 +12,10 @@ from typing import Any
 import pytest
 from pydantic import ValidationError
 
-from adclient.decode import decode, design_params, encode, identity_representation, spec_layout
-from adclient.design import DesignSpace, link_volume
+from adclient.decode import decode, design_params, identity_representation, spec_layout
+from adclient.design import DesignSpace
+from adclient.encode import encode
+from adclient.specs import link_volume
 from adclient.urdf import design_to_urdf
 
 LEG = {"shape": "capsule", "length": {"low": 0.1, "high": 0.3}, "radius": 0.03, "density": 1000.0}

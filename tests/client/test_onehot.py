@@ -11,8 +11,9 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from adclient.decode import decode, encode, onehot_representation, spec_layout, structure_of
+from adclient.decode import decode, onehot_representation, spec_layout, structure_of
 from adclient.design import DesignSpace
+from adclient.encode import encode
 from tests.client.design_strategies import multi_structure_spaces, single_structure_spaces
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

@@ -14,7 +14,8 @@ import pytest
 import yaml
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from adclient.design import Bound, DesignSpace, JointType, PartInstance, PartType
+from adclient.design import DesignSpace
+from adclient.parts import JointType, PartInstance, PartType
 from adclient.plugins import SimulatorOptions, catalogue
 from adclient.pruning import PrunerConfig
 from adclient.schemas import (
@@ -26,6 +27,7 @@ from adclient.schemas import (
     TemplateSpace,
 )
 from adclient.spec_constraints import SpecConstraint
+from adclient.specs import Bound
 from adclient.templates import check_template
 
 ROOT = Path(__file__).resolve().parents[2]

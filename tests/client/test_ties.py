@@ -18,11 +18,11 @@ from adclient.decode import (
     axis_from_angles,
     decode,
     design_params,
-    encode,
     identity_representation,
     spec_layout,
 )
 from adclient.design import DesignSpace
+from adclient.encode import encode
 
 ROOT = Path(__file__).resolve().parents[2]
 QUADRUPED = yaml.safe_load((ROOT / "examples" / "quadruped.yaml").read_text(encoding="utf-8"))

@@ -15,7 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from adclient.decode import decode, identity_representation
-from adclient.design import Design, DesignSpace, Joint, Link
+from adclient.design import DesignSpace
+from adclient.designs import Design, Joint, Link
 from adclient.urdf import URDFError, design_mass, design_to_urdf, link_inertia
 from tests.client.design_strategies import single_structure_spaces
 

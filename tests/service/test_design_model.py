@@ -18,7 +18,8 @@ import torch
 import yaml
 
 from adclient.decode import PAD, decode, spec_layout
-from adclient.design import DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Representation
 from adclient.schemas import StudyCreate
 from adservice.proposers import get_proposer
 from adservice.proposers.base import (

@@ -12,7 +12,8 @@ import pytest
 import yaml
 
 from adclient.decode import decode
-from adclient.design import DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Representation
 from tests.servers import ServerProcess
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

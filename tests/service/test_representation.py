@@ -16,8 +16,10 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from scipy.spatial.distance import pdist, squareform
 
-from adclient.decode import decode, encode, mixed_bounds, spec_layout
-from adclient.design import DesignSpace, Representation
+from adclient.decode import decode, mixed_bounds, spec_layout
+from adclient.design import DesignSpace
+from adclient.designs import Representation
+from adclient.encode import encode
 from adclient.schemas import StudyCreate
 from adclient.urdf import design_to_urdf
 from adservice.fusion import (

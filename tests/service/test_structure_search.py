@@ -17,7 +17,8 @@ import pytest
 import torch
 
 from adclient.decode import decode
-from adclient.design import Design, DesignSpace
+from adclient.design import DesignSpace
+from adclient.designs import Design
 from adservice.proposers import get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
 from adservice.proposers.gpfit import fit_outcome

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from adclient.design import Design
+from adclient.designs import Design
 from adclient.plugins import catalogue
 from adworker import designs
 from tests.servers import ServerProcess

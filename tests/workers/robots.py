@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from adclient.design import Design
+from adclient.designs import Design
 
 
 def _fallback_urdf(design: Design, robot_name: str = "robot") -> str:
@@ -72,7 +72,8 @@ def make_job(example: str, specs: dict[str, float], trial_id: int = 1, **task: o
     """A Job for a single-structure example, its vector encoding ``specs``."""
     from datetime import UTC, datetime, timedelta
 
-    from adclient.decode import encode, identity_representation
+    from adclient.decode import identity_representation
+    from adclient.encode import encode
     from adclient.schemas import Job
 
     study = example_study(example)

@@ -12,7 +12,7 @@ import httpx
 import pytest
 
 from adclient import Client
-from adclient.design import link_volume
+from adclient.specs import link_volume
 from tests.workers.processes import completed_trials
 from tests.workers.robots import example_study
 

@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from adclient import Client
-from adclient.design import Design
+from adclient.designs import Design
 from adclient.errors import Invalid
 from adclient.urdf import design_to_urdf, link_inertia
 from adworker import designs

@@ -7,7 +7,7 @@ import numpy as np
 import pybullet
 import pytest
 
-from adclient.design import Link
+from adclient.designs import Link
 from adworker import designs
 from adworker.tasks.model import model_of_design
 from adworker.tasks.robot import Robot, unit_axis

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from adclient.design import Design, Joint, Link
+from adclient.designs import Design, Joint, Link
 
 HALF_PI = math.pi / 2
 

@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from adclient.design import Design, DesignSpace
+from adclient.design import DesignSpace
+from adclient.designs import Design
 from adclient.plugins import PluginError, TaskOptions, catalogue
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Job, TaskConfig

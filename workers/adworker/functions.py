@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from adclient.design import Design, DesignSpace
+from adclient.design import DesignSpace
+from adclient.designs import Design
 from adclient.plugins import load_object
 from adclient.schemas import NAME_PATTERN, Job, TaskConfig, TemplateSpace
 from adworker.runner import Artifact, Outcome, Report, no_report

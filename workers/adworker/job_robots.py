@@ -3,7 +3,8 @@ template expanded at the job's params. Light on purpose: function runners use it
 
 from __future__ import annotations
 
-from adclient.design import Design, DesignSpace
+from adclient.design import DesignSpace
+from adclient.designs import Design
 from adclient.schemas import Job, TemplateSpace
 from adworker.runner import JobError
 

@@ -12,7 +12,8 @@ in their modules. Import from this package: its names are the contract.
 
 from __future__ import annotations
 
-from adclient.design import DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Representation
 from adclient.objectives import (
     MAX_CONSTRAINTS,
     MAX_OBJECTIVES,

@@ -13,8 +13,9 @@ from pydantic import (
     model_validator,
 )
 
-from adclient.design import SUBNORMAL_LOW, DesignSpace
+from adclient.design import DesignSpace
 from adclient.schemas.common import NAME_PATTERN, Strict, finite, plain_text
+from adclient.specs import SUBNORMAL_LOW
 
 MAX_TEMPLATE_CHARS = 1_000_000
 

@@ -11,7 +11,7 @@ from pydantic import (
     Field,
 )
 
-from adclient.design import Representation
+from adclient.designs import Representation
 from adclient.pruning import Checkpoint, PrunerConfig
 from adclient.schemas.common import NAME_PATTERN, NO_NUL_PATTERN, Strict
 from adclient.schemas.config import TaskConfig

@@ -20,7 +20,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from adclient.design import Design
+from adclient.designs import Design
 from adplugin_mujoco import MujocoReachOptions
 from adplugin_mujoco.mjcf import design_to_mjcf, driven_joints, joint_range
 

@@ -19,7 +19,7 @@ import math
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 
-from adclient.design import Design, Joint, Link
+from adclient.designs import Design, Joint, Link
 
 SERVO_GAIN = 100.0
 """Position servo stiffness (N m / rad); its force is capped at the joint's effort."""

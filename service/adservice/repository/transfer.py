@@ -18,7 +18,7 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from adclient.decode import spec_vector, used_slots
-from adclient.design import Representation
+from adclient.designs import Representation
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import TaskConfig, TransferSource, Trial, TrialState
 from adclient.ties import Tie

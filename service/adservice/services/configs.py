@@ -12,7 +12,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from adclient.boxspace import BoxEncoding
-from adclient.design import DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Representation
 from adclient.objectives import Outcomes, stored_outcomes
 from adclient.polytope import SpecPolytope, broken_spec_constraints, spec_polytope
 from adclient.pruning import PrunerConfig
@@ -132,7 +133,8 @@ class StudyConfig:
         assert self.representation is not None
         if self.representation.kind == "fused":  # encode is approximate there
             return clipped
-        from adclient.decode import decode, encode
+        from adclient.decode import decode
+        from adclient.encode import encode
 
         return np.array(
             [
@@ -170,7 +172,8 @@ class StudyConfig:
         (``structure_index`` picks the structure; a ``structure`` given must agree)."""
         if self.representation is None or self.design_space is None:
             return (self.box or BoxEncoding.of(self.space)).encode(params)
-        from adclient.decode import decode, encode
+        from adclient.decode import decode
+        from adclient.encode import encode
 
         try:
             vector = np.asarray(encode(self.design_space, self.representation, params))

@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from adclient.design import DesignSpace, Representation
+from adclient.design import DesignSpace
+from adclient.designs import Representation
 from adclient.polytope import spec_polytope
 from adclient.schemas import StudyCreate, TemplateSpace
 from adservice.artifacts import ArtifactStore

@@ -31,7 +31,7 @@ from typing import Any, ClassVar, Generic, TypeVar
 import gymnasium as gym
 import numpy as np
 
-from adclient.design import Design
+from adclient.designs import Design
 from adclient.plugins import SimulatorOptions
 from adclient.urdf_model import read_urdf
 from adworker.tasks.model import RobotModel, model_of_design, model_of_urdf

@@ -16,7 +16,7 @@ from itertools import product
 
 import numpy as np
 
-from adclient.design import Design, Joint
+from adclient.designs import Design, Joint
 from adclient.urdf_model import DRIVEN_KINDS, Shape, UrdfModel
 
 _Z = np.array([0.0, 0.0, 1.0])
