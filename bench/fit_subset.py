@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from adservice.proposers import gpfit
 from adservice.proposers.base import ProposalRequest, empty_history
-from adservice.proposers.gpmodel import Posterior
+from adservice.proposers.posterior import Posterior
 from adservice.proposers.qei_shared import QEIOptions
 from bench.asklatency import objective
 

@@ -9,7 +9,7 @@ import torch
 
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
 from adservice.proposers.gpfit import FIT_BEST, FIT_POINTS, clear_caches, fit_outcome, fit_subset
-from adservice.proposers.gpmodel import Posterior
+from adservice.proposers.posterior import Posterior
 from adservice.proposers.qei_shared import QEIOptions
 
 TKW: dict[str, Any] = {"dtype": torch.float64, "device": torch.device("cpu")}

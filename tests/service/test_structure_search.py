@@ -22,8 +22,8 @@ from adclient.designs import Design
 from adservice.proposers import get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
 from adservice.proposers.gpfit import fit_outcome
-from adservice.proposers.gpmodel import Posterior
 from adservice.proposers.initial import structure_order
+from adservice.proposers.posterior import Posterior
 from adservice.proposers.qei_shared import QEIOptions
 from adservice.representation import build_representation, search_structure
 

@@ -27,13 +27,13 @@ import typer
 
 from adclient.cli.common import CA_BUNDLE_OPTION
 from adclient.devices import LEARNER_DEVICE_VARIABLE, device_problem
+from adworker.pool import run_pool
 from adworker.worker import (
     EXIT_SETUP,
     Worker,
     WorkerConfig,
     configure_logging,
     default_worker_id,
-    run_pool,
 )
 
 

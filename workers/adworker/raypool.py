@@ -35,14 +35,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from adworker.worker import (
-    EXIT_OK,
-    EXIT_SETUP,
-    WorkerConfig,
-    configure_logging,
-    pool_action,
-    start_worker,
-)
+from adworker.pool import pool_action, start_worker
+from adworker.worker import EXIT_OK, EXIT_SETUP, WorkerConfig, configure_logging
 
 # Read when Ray is imported: every actor's log line reaches the driver as it was written,
 # not folded into "[repeated Nx across cluster]".
@@ -234,7 +228,7 @@ def run_ray(
     log_level: int = logging.INFO,
 ) -> int:
     """Run ``concurrency`` workers as actors on the cluster at ``address`` until they
-    stop; the pool's rules are :func:`adworker.worker.run_pool`'s (a worker that dies
+    stop; the pool's rules are :func:`adworker.pool.run_pool`'s (a worker that dies
     is replaced; a refused token or a worker that cannot start stops the pool).
     Each actor holds ``sizing``. Raises :class:`RaySetupError` when the cluster cannot
     be used."""

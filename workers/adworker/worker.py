@@ -1,7 +1,7 @@
 """The worker loop: lease a job, keep its lease alive, evaluate it, report, repeat.
 
 One :class:`Worker` runs jobs one at a time in its own process; ``--concurrency N``
-runs N of them in child processes (:func:`run_pool`). What evaluates a job is its
+runs N of them in child processes (:func:`adworker.pool.run_pool`). What evaluates a job is its
 runner (:mod:`adworker.runner`): the installed tasks, or a function
 (``--function``); the loop is the same for both, and leases only the runner's tasks.
 The rules it keeps:
@@ -33,19 +33,17 @@ The rules it keeps:
   ends (unless ``--keep-files``), inside the worker's folder (``--workdir``, else a
   temporary ``adworker-*`` made at its first job and removed when it stops). A worker
   that could not clean up (SIGKILL, out of memory) leaves its temporary folder; the
-  next worker to start on the machine removes it (:func:`remove_abandoned_workdirs`).
+  next worker to start on the machine removes it (:mod:`adworker.workdirs`).
 """
 
 from __future__ import annotations
 
-import fcntl
 import logging
 import os
 import random
 import shutil
 import signal
 import socket
-import tempfile
 import threading
 import time
 import traceback
@@ -60,6 +58,7 @@ from adclient.pruning import CHECKPOINT_ARTIFACT, ReportResponse
 from adclient.schemas import Job
 from adworker.heartbeat import Heartbeat
 from adworker.runner import TRANSFER_FILE, Artifact, Cancelled, Pruned, Runner
+from adworker.workdirs import make_workdir, remove_abandoned_workdirs
 
 log = logging.getLogger("adworker")
 
@@ -73,9 +72,6 @@ EXIT_SETUP = 3
 """The runner could not be made (a --function that does not import...)."""
 TIMES = ("time_total_s", "time_cpu_s")
 """The metrics of a trial's time, summed over a paused trial's attempts."""
-WORKDIR_PREFIX = "adworker-"
-WORKDIR_LOCK = ".lock"
-"""In a worker's temporary folder: a file locked (flock) while the worker lives."""
 
 
 class AuthError(Exception):
@@ -520,48 +516,6 @@ class Worker:
                 return True
 
 
-def make_workdir(*, lock: bool = True) -> tuple[Path, int | None]:
-    """A new temporary folder ``adworker-*`` and, with ``lock``, the descriptor of its
-    lock file, locked (flock) until closed or the process ends, however it ends: what
-    tells a live worker's folder from an abandoned one. The lock is taken before the
-    file has its name, so no folder is ever seen with an unlocked lock of a live
-    worker."""
-    path = Path(tempfile.mkdtemp(prefix=WORKDIR_PREFIX))
-    if not lock:
-        return path, None
-    staging = path / f"{WORKDIR_LOCK}.new"
-    descriptor = os.open(staging, os.O_CREAT | os.O_RDWR, 0o600)
-    fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    os.rename(staging, path / WORKDIR_LOCK)
-    return path, descriptor
-
-
-def remove_abandoned_workdirs() -> list[Path]:
-    """Remove the temporary folders of this machine's workers that died without
-    cleaning up (SIGKILL, the out-of-memory killer): those whose lock file no process
-    holds. Folders without one (being made, kept with ``--keep-files``, or another
-    program's) are left alone. Returns what it removed (logged)."""
-    removed = []
-    for path in Path(tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*"):
-        try:
-            descriptor = os.open(path / WORKDIR_LOCK, os.O_RDWR)
-        except OSError:
-            continue
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            continue  # its worker is alive
-        else:
-            shutil.rmtree(path, ignore_errors=True)
-            removed.append(path)
-        finally:
-            os.close(descriptor)
-    if removed:
-        names = ", ".join(path.name for path in removed)
-        log.info("removed the folders of workers that died: %s", names)
-    return removed
-
-
 def _spent(job: Job, metrics: dict[str, float]) -> dict[str, float]:
     """A resumed job's times count its trial's attempts up to the pause too, so a trial's
     ``time_total_s`` and ``time_cpu_s`` are all it took; it says where it resumed, and
@@ -582,124 +536,6 @@ def _failure_message(exc: BaseException) -> str:
     head = f"{type(exc).__name__}: {exc}"
     tail = "".join(traceback.format_exception(exc)[-6:])
     return (head + "\n\n" + tail)[:MESSAGE_LIMIT]
-
-
-# ------------------------------------------------------------------------- pool
-
-
-class SharedBudget:
-    """A pool's ``--max-jobs``, shared by its processes: each claims a job before leasing
-    and gives the claim back when no job came (a Ray pool keeps one in an actor)."""
-
-    def __init__(self, value: Any) -> None:
-        self.value = value
-        """A ``multiprocessing.Value("i")``, or None: no limit."""
-
-    def claim(self) -> bool:
-        if self.value is None:
-            return True
-        with self.value.get_lock():
-            if self.value.value <= 0:
-                return False
-            self.value.value -= 1
-            return True
-
-    def unclaim(self) -> None:
-        if self.value is not None:
-            with self.value.get_lock():
-                self.value.value += 1
-
-
-def start_worker(
-    config: WorkerConfig, claim: Callable[[], bool], unclaim: Callable[[], None]
-) -> Worker | None:
-    """A pool's worker, or None (logged) when it cannot start: its slot then ends with
-    ``EXIT_SETUP``, which stops the pool (a process pool's child, a Ray actor)."""
-    try:
-        return Worker(config, claim=claim, unclaim=unclaim)
-    except Exception as error:
-        log.error("cannot start: %s: %s", type(error).__name__, error)
-        return None
-
-
-def pool_action(code: int | None, signals_seen: int) -> str:
-    """What a pool does when one of its workers ended with ``code`` (None: it died
-    without one, as a Ray actor whose process or node died): ``"stop"`` the pool (the
-    token refused, or it could not start), ``"replace"`` it (it crashed while the pool
-    was not stopping), or ``"drop"`` it (it stopped as asked, idle or out of jobs)."""
-    if code in (EXIT_AUTH, EXIT_SETUP):
-        return "stop"
-    if code != EXIT_OK and signals_seen == 0:
-        return "replace"
-    return "drop"
-
-
-def _child_main(config: WorkerConfig, budget: Any, log_level: int) -> None:
-    """Entry point of one pool process (spawned: a fresh interpreter)."""
-    configure_logging(log_level, config.worker_id)
-    shared = SharedBudget(budget)
-    worker = start_worker(config, shared.claim, shared.unclaim)
-    if worker is None:
-        raise SystemExit(EXIT_SETUP)
-    worker.install_signal_handlers()
-    # Ctrl-C reaches the whole process group; the parent passes it on as SIGTERM, so
-    # a child that also took the SIGINT would count one keypress as two signals.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    raise SystemExit(worker.run())
-
-
-def run_pool(config: WorkerConfig, concurrency: int, log_level: int = logging.INFO) -> int:
-    """Run ``concurrency`` workers in child processes until they stop.
-
-    Signals are passed on to the children (each finishes or abandons its own job).
-    A child that dies of something else (a crash inside the physics engine) is
-    replaced; one that stops on a refused token, or cannot start, stops the pool.
-    """
-    import multiprocessing
-
-    context = multiprocessing.get_context("spawn")
-    budget = context.Value("i", config.max_jobs) if config.max_jobs is not None else None
-    children: dict[int, Any] = {}
-    signals_seen = 0
-
-    def start(slot: int) -> None:
-        process = context.Process(
-            target=_child_main,
-            args=(config.for_slot(slot), budget, log_level),
-            name=f"adworker-{slot}",
-        )
-        process.start()
-        children[slot] = process
-
-    def forward(signum: int, _frame: Any) -> None:
-        nonlocal signals_seen
-        signals_seen += 1
-        log.info("%s: passing it on to %d workers", signal.Signals(signum).name, len(children))
-        for process in children.values():
-            if process.is_alive() and process.pid is not None:
-                os.kill(process.pid, signal.SIGTERM)
-
-    signal.signal(signal.SIGTERM, forward)
-    signal.signal(signal.SIGINT, forward)
-    for slot in range(concurrency):
-        start(slot)
-    code = EXIT_OK
-    while children:
-        time.sleep(0.2)
-        for slot, process in list(children.items()):
-            if process.is_alive():
-                continue
-            process.join()
-            del children[slot]
-            action = pool_action(process.exitcode, signals_seen)
-            if action == "stop":
-                code = process.exitcode or EXIT_SETUP
-                forward(signal.SIGTERM, None)
-            elif action == "replace":
-                log.error("worker %d died (exit %s); starting another", slot, process.exitcode)
-                time.sleep(1.0)
-                start(slot)
-    return code
 
 
 def configure_logging(level: int, worker_id: str) -> None:

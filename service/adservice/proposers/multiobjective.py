@@ -195,7 +195,7 @@ class AnalyticLogEHVI:
     them); with constraints, a candidate's LogEHVI adds the log probability that every
     constraint's GP is at or below 0 there, and while nothing is feasible it is that
     log probability alone. Pending points are Kriging believers of every GP (as
-    ``gpmodel.AnalyticLogEI``): their believed objectives join the front when their
+    ``posterior.AnalyticLogEI``): their believed objectives join the front when their
     believed slacks are all <= 0, so a candidate gains nothing for duplicating one."""
 
     def __init__(
@@ -208,7 +208,7 @@ class AnalyticLogEHVI:
         noisy: bool,
         ref_point: np.ndarray,
     ) -> None:
-        from adservice.proposers.gpmodel import Posterior
+        from adservice.proposers.posterior import Posterior
 
         self.objectives = [Posterior(model) for model in models]
         self.constraints = [Posterior(model) for model in constraint_models]
@@ -359,7 +359,7 @@ def optimise_outcomes(
     from botorch.sampling.normal import SobolQMCNormalSampler
 
     from adservice.proposers.gpfit import fit_outcome
-    from adservice.proposers.gpmodel import AnalyticConstrainedLogEI
+    from adservice.proposers.posterior import AnalyticConstrainedLogEI
 
     limit_threads(torch)
     _no_kernel_compilation()

@@ -20,7 +20,7 @@ geometry; joint axes enter as unit vectors. The preprint's ``fused`` and the
 Decisions worth knowing:
 
 - Acquisition (``options["acquisition"]``): ``analytic`` (default) is LogEI on the
-  posterior computed directly (``gpmodel.Posterior``), with pending points as
+  posterior computed directly (``posterior.Posterior``), with pending points as
   Kriging believers (the model conditioned on its own mean there) and, for a noisy
   study, the best posterior mean at the observed points as the incumbent. ``mc`` is
   BoTorch's Monte Carlo qLogEI (qLogNEI when noisy) with the pending points, also
@@ -471,7 +471,7 @@ class QLogEIProposer:
         from botorch.sampling.normal import SobolQMCNormalSampler
 
         from adservice.proposers.gpfit import fit_outcome
-        from adservice.proposers.gpmodel import AnalyticLogEI
+        from adservice.proposers.posterior import AnalyticLogEI
 
         limit_threads(torch)
         device = torch.device(options.device or PROPOSER_DEVICE)
