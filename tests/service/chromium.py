@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -37,6 +40,11 @@ class Chromium:
 
     def __init__(self, executable: str, profile: Path, *, width: int = 1400, height: int = 1800):
         self.profile = profile
+        # Chromium makes its singleton socket's folder (org.chromium.Chromium.*) in TMPDIR
+        # and leaves it when stopped by a signal: a folder of its own, removed at close
+        # (not the profile's: a socket's path is limited to 107 characters).
+        self.temporary = Path(tempfile.mkdtemp(prefix="adchromium-"))
+        self._log = (profile / "chromium.log").open("wb")
         self.process = subprocess.Popen(
             [
                 executable,
@@ -54,7 +62,8 @@ class Chromium:
                 "about:blank",
             ],
             stdout=subprocess.DEVNULL,
-            stderr=(profile / "chromium.log").open("wb"),
+            stderr=self._log,
+            env={**os.environ, "TMPDIR": str(self.temporary)},
         )
         self.errors: list[str] = []
         self.requested: list[str] = []
@@ -158,3 +167,5 @@ class Chromium:
                 except subprocess.TimeoutExpired:
                     self.process.kill()
                     self.process.wait()
+            self._log.close()
+            shutil.rmtree(self.temporary, ignore_errors=True)
