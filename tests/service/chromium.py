@@ -70,10 +70,14 @@ class Chromium:
         """Every URL the page asked for (documents, scripts, fetches, images)."""
         self._next_id = 0
         self._exits = contextlib.ExitStack()
-        self._socket = self._connect()
-        self.send("Runtime.enable")
-        self.send("Page.enable")
-        self.send("Network.enable")
+        try:
+            self._socket = self._connect()
+            self.send("Runtime.enable")
+            self.send("Page.enable")
+            self.send("Network.enable")
+        except BaseException:
+            self.close()  # a browser that never came up leaves no process or folder
+            raise
 
     def _connect(self) -> ClientConnection:
         port_file = self.profile / "DevToolsActivePort"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -27,3 +28,16 @@ def test_chromium_keeps_its_singleton_folder_in_its_profile(
         chromium.close()
     assert chromium.process.returncode is not None
     assert not chromium.temporary.exists()
+
+
+def test_a_browser_that_never_comes_up_leaves_no_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A Chromium that exits at once (here /bin/false) fails with its log, and its
+    temporary folder is removed all the same."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    profile = tmp_path / "profile"
+    profile.mkdir()
+    with pytest.raises(RuntimeError, match="did not open its DevTools port"):
+        Chromium("/bin/false", profile)
+    assert not list(tmp_path.glob("adchromium-*"))
