@@ -15,6 +15,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from adclient.ids import MAX_ID
+
 MAX_STEP = 2**31 - 1
 """Steps are INTEGER columns (32-bit on PostgreSQL)."""
 
@@ -163,7 +165,10 @@ class PauseRequest(_Strict):
     value: float | None = Field(default=None, description="default: the last reported value")
     metrics: dict[str, float] = Field(default_factory=dict, max_length=256)
     transfer_from: int | None = Field(
-        default=None, ge=1, description="as a tell's: the trial its controller started from"
+        default=None,
+        ge=1,
+        le=MAX_ID,
+        description="as a tell's: the trial its controller started from",
     )
 
     @field_validator("value")

@@ -178,7 +178,8 @@ def evaluate_job(
     interim_envs: list[Any] = []
     try:
         t = lap("env", t)
-        steps = task.train_steps if task.train_steps is not None else learner.default_steps
+        budget = task.train_steps if task.train_steps is not None else learner.default_steps
+        steps = budget
         if job.resume is not None and "transfer_steps" in job.resume.metrics:
             steps = int(job.resume.metrics["transfer_steps"])  # it was warm-started
         if report is not None and job.pruner.name != "none":
@@ -192,7 +193,9 @@ def evaluate_job(
                 episodes = evaluate_policy(interim_envs[0], policy, evaluation_seeds(task), check)
                 return float(np.mean([episode.score for episode in episodes]))
 
-            every = job.pruner.report_every or max(1, steps // 10)
+            # on the from-scratch budget's steps, warm or resumed: every attempt of every
+            # design reports at the same steps, so ASHA's rungs compare like with like
+            every = job.pruner.report_every or max(1, budget // 10)
             learner.reporting = Reporting(every=every, evaluate=interim, report=report)
         try:
             trained = learner.train(env, steps=steps, seed=task.seed, check=check)

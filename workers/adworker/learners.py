@@ -147,10 +147,10 @@ class Learner:
         """Set by the worker for a study with ``task.transfer``: a learner that transfers
         loads it (when it fits this design) and trains ``warm_start.steps``."""
         self.keep_checkpoint = False
-        self.warm_problem: str | None = None
-        """Why ``warm_start`` was not used (the learner trained from scratch), if so."""
         """Set by the worker for a study with ``task.transfer``: return the final state
         as ``TrainResult.checkpoint``, so later designs can start from it."""
+        self.warm_problem: str | None = None
+        """Why ``warm_start`` was not used (the learner trained from scratch), if so."""
 
     def train(
         self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check

@@ -17,6 +17,7 @@ from pydantic import (
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
 
+from adclient.ids import MAX_ID
 from adclient.objectives import MAX_OBJECTIVES
 from adclient.pruning import Checkpoint
 from adclient.schemas.common import (
@@ -148,6 +149,7 @@ class TellRequest(Strict):
     transfer_from: int | None = Field(
         default=None,
         ge=1,
+        le=MAX_ID,
         description="the trial of the same study whose controller this one started from "
         "(task.transfer); kept as the trial's info.transfer_from",
     )

@@ -12,6 +12,7 @@ from typing import Annotated
 from fastapi import Depends, Path, Request
 from sqlalchemy.orm import Session
 
+from adclient.ids import MAX_ID
 from adservice.artifacts import ArtifactStore
 from adservice.auth import Principal, Role, require
 from adservice.db import Database
@@ -57,8 +58,5 @@ ReaderDep = Annotated[Principal, Depends(require(Role.reader))]
 WorkerDep = Annotated[Principal, Depends(require(Role.worker))]
 UserDep = Annotated[Principal, Depends(require(Role.user))]
 
-MAX_ID = 2**31 - 1
-"""Ids and trial numbers are INTEGER columns, 32-bit on PostgreSQL: anything larger is a
-422, not an overflow."""
 StudyId = Annotated[int, Path(ge=1, le=MAX_ID, description="A study's id")]
 TrialId = Annotated[int, Path(ge=1, le=MAX_ID, description="A trial's id")]

@@ -3,10 +3,12 @@ design a job's controller starts from, and recording where a trial started.
 
 Same conventions as every module of :mod:`adservice.repository` (an open session,
 keyword-only arguments, domain errors). A source is a finished trial of the same study
-whose checkpoint artifact was uploaded, of the same tree as the job's design (so the
-same observation and action spaces), among the ``transfer_among`` best of that tree; of
-those, the nearest by the normalised spec distance. The choice runs when a job is
-leased, never on the ask/tell hot path of a study without transfer.
+whose checkpoint artifact was uploaded in its last attempt, of the same tree as the
+job's design (so the same observation and action spaces) and feasible under the study's
+constraints, among the ``transfer_among`` best of that tree (for several objectives:
+its non-dominated designs); of those, the nearest by the normalised spec distance. The
+choice runs when a job is leased, never on the ask/tell hot path of a study without
+transfer.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from sqlalchemy.orm import Session
 
 from adclient.decode import spec_vector, used_slots
 from adclient.designs import Representation
+from adclient.objectives import Outcomes, pareto_front
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import TaskConfig, TransferSource, Trial, TrialState
 from adclient.ties import Tie
@@ -26,7 +29,8 @@ from adservice.errors import InvalidError
 from adservice.models import ArtifactRow, TrialRow
 
 SCANNED_SOURCES = 2000
-"""The most finished trials with a checkpoint a lease looks through (the best first)."""
+"""The most finished trials with a checkpoint a lease looks through (for one objective
+the best first, for several the newest first)."""
 
 
 def transfer_source(
@@ -37,36 +41,55 @@ def transfer_source(
     representation: Representation | None,
     ties: Mapping[str, Tie],
     bounds: np.ndarray,
-    maximize: bool,
+    outcomes: Outcomes,
 ) -> TransferSource | None:
     """Where ``trial``'s controller starts, or None (transfer off, a trial resuming
-    from its own checkpoint, or no evaluated design of its tree with a checkpoint)."""
+    from its own checkpoint, or no feasible evaluated design of its tree with a
+    checkpoint among those scanned). For several objectives the best of a tree are its
+    non-dominated designs."""
     if task.transfer == "none" or trial.checkpoint is not None:
         return None
-    order = TrialRow.value.desc() if maximize else TrialRow.value.asc()
-    rows = session.execute(
-        sa.select(TrialRow.id, TrialRow.vector)
+    query = (
+        sa.select(TrialRow.id, TrialRow.vector, TrialRow.values)
         .join(ArtifactRow, ArtifactRow.trial_id == TrialRow.id)
         .where(
             TrialRow.study_id == trial.study_id,
             TrialRow.id != trial.id,
             TrialRow.state == TrialState.complete.value,
-            TrialRow.value.is_not(None),
+            sa.or_(TrialRow.feasible.is_(None), TrialRow.feasible.is_(True)),
             ArtifactRow.name == CHECKPOINT_ARTIFACT,
+            # uploaded in the attempt that completed: a promoted trial whose final upload
+            # failed still holds its rung's checkpoint, which is no final controller
+            ArtifactRow.created_at >= TrialRow.started_at,
         )
-        .order_by(order, TrialRow.id)
         .limit(SCANNED_SOURCES)
-    ).all()
-    tree, specs, used = _key(representation, ties, bounds, trial.vector)
+    )
+    if outcomes.multi:
+        query = query.where(TrialRow.values.is_not(None)).order_by(TrialRow.id.desc())
+    else:
+        maximize = outcomes.signs[0] > 0
+        order = TrialRow.value.desc() if maximize else TrialRow.value.asc()
+        query = query.where(TrialRow.value.is_not(None)).order_by(order, TrialRow.id)
+    tree, specs = _tree_and_specs(representation, bounds, trial.vector)
     best: list[tuple[int, np.ndarray]] = []
-    for row in rows:
-        other_tree, other_specs, _ = _key(representation, ties, bounds, row.vector)
-        if other_tree == tree:
+    points: list[list[float]] = []  # several objectives: the values of each of ``best``
+    for row in session.execute(query):
+        other_tree, other_specs = _tree_and_specs(representation, bounds, row.vector)
+        if other_tree != tree:
+            continue
+        if outcomes.multi:
+            if len(row.values) == outcomes.count and None not in row.values:
+                best.append((row.id, other_specs))
+                points.append(row.values)
+        else:
             best.append((row.id, other_specs))
             if len(best) == task.transfer_among:
                 break
+    if outcomes.multi:
+        best = [best[index] for index in pareto_front(points, outcomes.signs)]
     if not best:
         return None
+    used = _used(representation, ties, tree, len(specs))
     distances = [
         float(np.sqrt(np.mean((other[used] - specs[used]) ** 2))) if used.any() else 0.0
         for _, other in best
@@ -77,24 +100,24 @@ def transfer_source(
     )
 
 
-def _key(
-    representation: Representation | None,
-    ties: Mapping[str, Tie],
-    bounds: np.ndarray,
-    vector: Sequence[float],
-) -> tuple[int, np.ndarray, np.ndarray]:
-    """(tree, coordinates in [0, 1], the tree's coordinates) of a trial's vector."""
+def _tree_and_specs(
+    representation: Representation | None, bounds: np.ndarray, vector: Sequence[float]
+) -> tuple[int, np.ndarray]:
+    """(tree, coordinates in [0, 1]) of a trial's vector (a box is one tree)."""
     if representation is None:
         low, high = bounds
         span = np.where(high > low, high - low, 1.0)
-        values = np.clip((np.asarray(vector, dtype=np.float64) - low) / span, 0.0, 1.0)
-        return 0, values, np.ones(len(values), dtype=bool)
-    structure, specs = spec_vector(representation, vector)
-    return (
-        structure,
-        specs,
-        used_slots(representation.spec_names, representation.structures[structure], ties),
-    )
+        return 0, np.clip((np.asarray(vector, dtype=np.float64) - low) / span, 0.0, 1.0)
+    return spec_vector(representation, vector)
+
+
+def _used(
+    representation: Representation | None, ties: Mapping[str, Tie], tree: int, size: int
+) -> np.ndarray:
+    """The coordinates a tree's designs are compared on (a box: all of them)."""
+    if representation is None:
+        return np.ones(size, dtype=bool)
+    return used_slots(representation.spec_names, representation.structures[tree], ties)
 
 
 def check_transfer_from(session: Session, *, trial_id: int, source_id: int) -> None:

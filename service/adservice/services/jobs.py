@@ -95,7 +95,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
                 representation=config.representation,
                 ties=config.design_space.ties() if config.design_space else {},
                 bounds=config.bounds,
-                maximize=config.maximize,
+                outcomes=config.outcomes,
             )
     return Job.model_validate(
         {
