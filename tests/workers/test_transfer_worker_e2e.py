@@ -2,7 +2,8 @@
 stable-baselines3 against a real adserver: a design starts from the checkpoint of an
 evaluated design of its own tree and records it; a design of another tree never gets
 a foreign one; a corrupt or missing source checkpoint means training from scratch with
-the reason logged; a warm start whose lease is lost loses nothing."""
+the reason logged; a warm start whose lease is lost loses nothing; under ASHA a warm
+design pauses and resumes with its source and warm budget."""
 
 from __future__ import annotations
 
@@ -172,3 +173,57 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
         assert log.count(f"trial {queued.id}: starting from trial {source.id}'s") == 2, log
         after = hashlib.sha256(client.get_artifact(source, CHECKPOINT_ARTIFACT)).hexdigest()
         assert after == before
+
+
+def test_warm_started_trials_pause_at_asha_rungs_and_resume_with_their_warm_budget(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """The two trees under ASHA with promotion (one rung, 256 steps; no bootstrap, so a
+    design alone at the rung goes on) and transfer: a warm design that pauses at the
+    rung keeps its ``transfer_from``; one promoted later (cold designs of the other tree
+    bring lower values to the rung) resumes from its own rung checkpoint, trains to its
+    warm budget, not the from-scratch one, and reports at the same steps as a cold
+    design (a tenth of the from-scratch budget); one left paused ends pruned. The
+    other tree never completes a design (its cold designs stay below the warm ones at
+    the rung), so it keeps bringing low values: with the proposer's seed, the fifth
+    design is promoted."""
+    train_steps, warm_steps, every = 1280, 512, 128
+    options = {
+        "min_resource": 256,
+        "reduction_factor": 2,
+        "bootstrap_count": 0,
+        "max_resource": 512,
+        "promotion": True,
+    }
+    body = study_body("ppo", train_steps, warm_steps)
+    body["pruner"] = {"name": "asha", "options": options}
+    body = {**body, "name": "transfer-asha", "max_trials": 10}
+    with Client(server.url) as client:
+        study = client.create_study(body)
+        worker = WorkerProcess(server, tmp_path, "asha", "--no-render", "--idle-exit", "5")
+        try:
+            info = study.wait(poll=0.2, timeout=PATIENCE)
+            assert info.n_complete + info.n_pruned == 10 and info.n_failed == 0, worker.log()
+        finally:
+            worker.stop()
+        trials = client.get_study(study.id).trials
+        by_id = {t.id: t for t in trials}
+        paused = [t for t in trials if t.checkpoint is not None and "transfer_from" in t.info]
+        assert paused, [(t.number, t.state, t.info) for t in trials]
+        for trial in paused:
+            source = by_id[trial.info["transfer_from"]]
+            assert source.state == "complete" and source.number < trial.number
+            assert trial.checkpoint is not None and trial.checkpoint.rung == 256
+            assert trial.checkpoint.metrics["transfer_steps"] == warm_steps
+        resumed = [t for t in paused if t.state == "complete"]
+        for trial in resumed:
+            assert trial.metrics["resumed_from_step"] == 256
+            assert warm_steps <= trial.metrics["train_steps"] < train_steps
+            assert trial.metrics["transfer_steps"] == warm_steps
+        for trial in trials:
+            steps = [report.step for report in client.reports(trial)]
+            assert steps and all(step % every == 0 for step in steps), (trial.number, steps)
+        for trial in paused:
+            if trial.state == "pruned":
+                assert "budget" in (trial.message or "")
+        assert resumed, [(t.number, t.state) for t in paused]
