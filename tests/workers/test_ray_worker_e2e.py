@@ -13,9 +13,11 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -61,9 +63,21 @@ def stop(worker: WorkerProcess) -> None:
     worker.stop()
 
 
+@pytest.fixture(scope="module", autouse=True)
+def ray_tmpdir() -> Iterator[Path]:
+    """Ray's session folders (logs, sockets) for the module's drivers and clusters, in a
+    short temporary folder removed afterwards, not in /tmp/ray, where they would stay:
+    ``RAY_TMPDIR``, which every process started here inherits."""
+    folder = Path(tempfile.mkdtemp(prefix="adray-"))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("RAY_TMPDIR", str(folder))
+        yield folder
+    shutil.rmtree(folder, ignore_errors=True)
+
+
 @pytest.fixture(scope="module")
 def cluster(
-    tmp_path_factory: pytest.TempPathFactory,
+    tmp_path_factory: pytest.TempPathFactory, ray_tmpdir: Path
 ) -> Iterator[tuple[ServerProcess, WorkerProcess, str]]:
     """A server (3 s leases) and ``adworker --ray local --concurrency 2`` serving it (half
     a CPU per job: the two hold one of the cluster's CPUs, so a second driver fits);
@@ -86,6 +100,7 @@ def cluster(
             "the local Ray cluster",
         )
         assert isinstance(found, re.Match), driver.log()
+        assert any(ray_tmpdir.glob("ray/session_*")), "Ray's session is not in RAY_TMPDIR"
         yield server, driver, found.group(1)
     finally:
         stop(driver)
