@@ -137,7 +137,7 @@ def test_a_job_starts_from_the_nearest_of_the_best_evaluated_designs_of_its_tree
             source = job.transfer.trial_id if job.transfer is not None else None
             told = tell(client, kind, job, source)
             assert told.info.get("transfer_from") == source
-        assert started_from >= 15  # six trees, 40 designs: most start from another
+        assert started_from >= 20  # six trees, 40 designs: most start from another
 
 
 def test_a_checkpoint_of_an_earlier_attempt_is_no_source(live_server: ServerProcess) -> None:

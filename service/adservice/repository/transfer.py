@@ -49,8 +49,10 @@ def transfer_source(
     non-dominated designs."""
     if task.transfer == "none" or trial.checkpoint is not None:
         return None
+    # several objectives rank by ``values``; one by ``value``, in the query's order
+    columns = [TrialRow.id, TrialRow.vector] + ([TrialRow.values] if outcomes.multi else [])
     query = (
-        sa.select(TrialRow.id, TrialRow.vector, TrialRow.values)
+        sa.select(*columns)
         .join(ArtifactRow, ArtifactRow.trial_id == TrialRow.id)
         .where(
             TrialRow.study_id == trial.study_id,
