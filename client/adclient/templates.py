@@ -31,7 +31,8 @@ from typing import Any
 XACRO_NS = "http://www.ros.org/wiki/xacro"
 
 EXPAND_SECONDS = 20
-"""Wall-clock limit of one isolated expansion (a batch of points)."""
+"""CPU limit of one isolated expansion (a batch of points); its wall-clock limit is a
+second more, so a busy child is ended by the CPU limit and a stalled one by the clock."""
 EXPAND_MEMORY = 1 << 30
 """Address-space limit of the expanding process (bytes)."""
 MAX_URDF_BYTES = 8 << 20
@@ -234,12 +235,12 @@ def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[
             [sys.executable, "-S", "-P", __file__, str(EXPAND_MEMORY), str(EXPAND_SECONDS)],
             input=request.encode(),
             capture_output=True,
-            timeout=EXPAND_SECONDS,
+            timeout=EXPAND_SECONDS + 1,
             env=env,
             check=False,
         )
     except subprocess.TimeoutExpired:
-        raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS} s") from None
+        raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS + 1} s") from None
     if done.returncode == -signal.SIGXCPU:
         raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS} s of CPU")
     try:
@@ -275,7 +276,9 @@ def _limit(memory: int, seconds: int) -> None:
     import resource
 
     resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
-    resource.setrlimit(resource.RLIMIT_CPU, (seconds, seconds))
+    # the soft limit sends SIGXCPU, which ends the child with its own exit status; a hard
+    # limit equal to it would send SIGKILL instead, read as an unexplained failure
+    resource.setrlimit(resource.RLIMIT_CPU, (seconds, seconds + 1))
 
 
 def check_points(params: Sequence[Any]) -> list[tuple[str, dict[str, Any]]]:

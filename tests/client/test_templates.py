@@ -4,6 +4,11 @@ line), in a child process that a hostile template cannot hang or exhaust."""
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
@@ -232,14 +237,28 @@ def test_read_urdf_names_what_no_robot_can_be(structure, message) -> None:
         read_urdf(f"<robot name='r'>{structure}</robot>")
 
 
+BUSY_TEMPLATE = '<robot name="r"><link name="${python.sum(range(10**12))}"/></robot>'
+
+
 def test_a_hostile_template_cannot_exhaust_or_hang_the_expanding_process(monkeypatch) -> None:
     """Memory past EXPAND_MEMORY and CPU past EXPAND_SECONDS end the child, not the
     caller: a TemplateError each, and this process unharmed."""
     with pytest.raises(TemplateError, match="MemoryError"):
         expand_isolated('<robot name="r"><link name="${\'x\' * 10**10}"/></robot>', [{}])
     monkeypatch.setattr(templates, "EXPAND_SECONDS", 2)
-    with pytest.raises(TemplateError, match=r"took over 2 s"):
-        expand_isolated('<robot name="r"><link name="${python.sum(range(10**12))}"/></robot>', [{}])
+    # the CPU limit ends a busy child (a starved one meets the clock a second later)
+    with pytest.raises(TemplateError, match=r"took over (2 s of CPU|3 s)"):
+        expand_isolated(BUSY_TEMPLATE, [{}])
+
+
+def test_the_expanding_child_ends_itself_with_sigxcpu_at_its_cpu_limit() -> None:
+    """The child's CPU limit sends SIGXCPU, read as "took over N s of CPU"; a hard limit
+    equal to the soft one would SIGKILL it, an unexplained "exit -9"."""
+    request = json.dumps({"template": BUSY_TEMPLATE, "points": [{}]})
+    env = {"PATH": os.defpath, "PYTHONPATH": templates._child_path()}
+    child = [sys.executable, "-S", "-P", templates.__file__, str(1 << 30), "1"]
+    done = subprocess.run(child, input=request.encode(), capture_output=True, env=env, timeout=60)
+    assert done.returncode == -signal.SIGXCPU, done.stderr.decode(errors="replace")[-300:]
 
 
 def test_a_csv_is_read_in_a_template_s_param_types() -> None:
