@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 from bench.paper import METHODS, Cell, grid, main, study_create
-from bench.paper_report import Study, _ratio, summarise
+from bench.paper_stats import Study, _ratio, summarise
 from bench.paperlib import append_jsonl, quantiles, read_jsonl
 
 
