@@ -10,15 +10,39 @@ from adclient.designs import Design
 from adclient.plugins import catalogue
 from adworker import designs
 from tests.servers import ServerProcess
-from tests.workers.processes import WorkerProcess
+from tests.workers.processes import WorkerProcess, pip_install_target
 from tests.workers.robots import write_urdf
+
+PLUGIN_FIXTURE = Path(__file__).resolve().parent / "plugin_fixture"
+
+
+@pytest.fixture(scope="session")
+def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """tests/workers/plugin_fixture as ``pip install`` leaves it: a package and its
+    dist-info with the entry points, in a folder of its own that only processes given it
+    on their PYTHONPATH see (built from a copy: the build writes files)."""
+    site = pip_install_target(PLUGIN_FIXTURE, tmp_path_factory.mktemp("plugin"))
+    assert (site / "adplugin_reach").is_dir()
+    return site
 
 
 @pytest.fixture
 def server(tmp_path: Path) -> Iterator[ServerProcess]:
-    """A real adserver on a fresh SQLite file (test_plugins_e2e has its own)."""
+    """A real adserver on a fresh SQLite file (``plugin_server``: one that has the plugin)."""
     process = ServerProcess(
         database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path
+    ).start()
+    yield process
+    process.stop()
+
+
+@pytest.fixture
+def plugin_server(plugin_site: Path, tmp_path: Path) -> Iterator[ServerProcess]:
+    """A real adserver that has the test plugin (its tasks, and the hold learner)."""
+    process = ServerProcess(
+        database_url=f"sqlite:///{tmp_path / 'studies.db'}",
+        workdir=tmp_path,
+        env={"PYTHONPATH": str(plugin_site)},
     ).start()
     yield process
     process.stop()

@@ -3,15 +3,14 @@ a real adserver checks the study with the plugin's declarations, a real adworker
 its task with its learner, and a worker without the plugin leaves its trials alone.
 
 The package (tests/workers/plugin_fixture) is installed into a folder of its own that
-only the spawned server and worker processes see (PYTHONPATH), so the venv, and every
-other test, stays as it was."""
+only the spawned server and worker processes see (PYTHONPATH: conftest's
+``plugin_site``), so the venv, and every other test, stays as it was."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,32 +21,17 @@ import yaml
 from adclient import Client
 from adclient.plugins import catalogue
 from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, pip_install_target
+from tests.workers.processes import PATIENCE, WorkerProcess
 
 pytestmark = pytest.mark.e2e
 
-FIXTURE = Path(__file__).resolve().parent / "plugin_fixture"
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
-@pytest.fixture(scope="module")
-def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The plugin as ``pip install`` leaves it: a package and its dist-info with the
-    entry points, in a folder of its own (built from a copy: the build writes files)."""
-    site = pip_install_target(FIXTURE, tmp_path_factory.mktemp("plugin"))
-    assert (site / "adplugin_reach").is_dir()
-    return site
-
-
 @pytest.fixture
-def server(plugin_site: Path, tmp_path: Path) -> Iterator[ServerProcess]:
-    process = ServerProcess(
-        database_url=f"sqlite:///{tmp_path / 'studies.db'}",
-        workdir=tmp_path,
-        env={"PYTHONPATH": str(plugin_site)},
-    ).start()
-    yield process
-    process.stop()
+def server(plugin_server: ServerProcess) -> ServerProcess:
+    """Every server here has the plugin."""
+    return plugin_server
 
 
 def reach_up_study(**task: Any) -> dict[str, Any]:
@@ -65,7 +49,9 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerPr
     with Client(server.url) as client:
         tasks = {task.name: task for task in client.tasks()}
         learners = {learner.name: learner for learner in client.learners()}
-    assert sorted(tasks) == sorted([*catalogue().tasks, "reach-up", "reach-elsewhere"])
+    assert sorted(tasks) == sorted(
+        [*catalogue().tasks, "reach-up", "arm-length", "reach-elsewhere"]
+    )
     reach = tasks["reach-up"]
     assert "fixed base" in reach.description
     tip = reach.options_schema["properties"]["tip_link"]

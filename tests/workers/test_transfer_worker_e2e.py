@@ -175,18 +175,34 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
         assert after == before
 
 
+def arm(length: float) -> dict[str, Any]:
+    """Params of diagonal-gesture's arm (a chain of three links) with links of
+    ``length``: arm-length scores it 3 * length, whatever its controller does."""
+    params: dict[str, Any] = {f"{link}.length": length for link in "abc"}
+    for child in "bc":
+        params[f"{child}.joint.axis_theta"] = 1.0
+        params[f"{child}.joint.axis_phi"] = 1.0
+    return params
+
+
+LENGTHS = [0.5, 0.4, 0.3, 0.25, 0.22]
+"""arm-length's designs in the order they run, scored 1.5, 1.2, 0.9, 0.75 and 0.66 at
+every report. Under ASHA (one rung, 256 steps; halving; no bootstrap) the first,
+alone at the rung, goes on and completes; each later one starts from a completed
+design and pauses there (not the best of 2 or 3 values, nor in the top 2 of 4 or 5).
+The fourth's value at the rung makes the second (1.2) the second best of four: it is
+promoted and resumes. The last three are left paused until the budget is spent."""
+
+
 def test_warm_started_trials_pause_at_asha_rungs_and_resume_with_their_warm_budget(
-    server: ServerProcess, tmp_path: Path
+    plugin_server: ServerProcess, plugin_site: Path, tmp_path: Path
 ) -> None:
-    """The two trees under ASHA with promotion (one rung, 256 steps; no bootstrap, so a
-    design alone at the rung goes on) and transfer: a warm design that pauses at the
-    rung keeps its ``transfer_from``; one promoted later (cold designs of the other tree
-    bring lower values to the rung) resumes from its own rung checkpoint, trains to its
-    warm budget, not the from-scratch one, and reports at the same steps as a cold
-    design (a tenth of the from-scratch budget); one left paused ends pruned. The
-    other tree never completes a design (its cold designs stay below the warm ones at
-    the rung), so it keeps bringing low values: with the proposer's seed, the fifth
-    design is promoted."""
+    """A warm design that pauses at an ASHA rung keeps its ``transfer_from``; promoted,
+    it resumes from its own rung checkpoint, trains to its warm budget (not the
+    from-scratch one) and reports at the same steps as a cold design (a tenth of the
+    from-scratch budget); one left paused ends pruned when the budget is spent. The
+    plugin's arm-length task scores a design by its lengths alone, so which design
+    pauses and which is promoted is known whatever PPO learns."""
     train_steps, warm_steps, every = 1280, 512, 128
     options = {
         "min_resource": 256,
@@ -195,35 +211,47 @@ def test_warm_started_trials_pause_at_asha_rungs_and_resume_with_their_warm_budg
         "max_resource": 512,
         "promotion": True,
     }
-    body = study_body("ppo", train_steps, warm_steps)
+    body = yaml.safe_load((EXAMPLES / "diagonal-gesture.yaml").read_text())
+    body["space"]["parts"]["link"]["length"] = {"low": 0.2, "high": 0.6}
+    body["task"] = {
+        "name": "arm-length",
+        "learner": "ppo",
+        "train_steps": train_steps,
+        "eval_episodes": 1,
+        "transfer": "nearest",
+        "transfer_steps": warm_steps,
+    }
     body["pruner"] = {"name": "asha", "options": options}
-    body = {**body, "name": "transfer-asha", "max_trials": 10}
-    with Client(server.url) as client:
+    body = {**body, "name": "transfer-asha", "max_trials": len(LENGTHS)}
+    with Client(plugin_server.url) as client:
         study = client.create_study(body)
-        worker = WorkerProcess(server, tmp_path, "asha", "--no-render", "--idle-exit", "5")
+        client.add_trials(study.id, [{"params": arm(length)} for length in LENGTHS])
+        env = {"PYTHONPATH": str(plugin_site)}
+        worker = WorkerProcess(
+            plugin_server, tmp_path, "asha", "--no-render", "--idle-exit", "5", env=env
+        )
         try:
             info = study.wait(poll=0.2, timeout=PATIENCE)
-            assert info.n_complete + info.n_pruned == 10 and info.n_failed == 0, worker.log()
+            assert (info.n_complete, info.n_pruned, info.n_failed) == (2, 3, 0), worker.log()
         finally:
             worker.stop()
-        trials = client.get_study(study.id).trials
-        by_id = {t.id: t for t in trials}
-        paused = [t for t in trials if t.checkpoint is not None and "transfer_from" in t.info]
-        assert paused, [(t.number, t.state, t.info) for t in trials]
-        for trial in paused:
-            source = by_id[trial.info["transfer_from"]]
+        first, promoted, *left = sorted(client.get_study(study.id).trials, key=lambda t: t.number)
+        assert first.state == "complete" and "transfer_from" not in first.info
+        assert first.value == pytest.approx(1.5) and first.metrics["train_steps"] >= train_steps
+        for trial in [promoted, *left]:  # each paused at the rung with its source
+            source = client.get_trial(trial.info["transfer_from"])
             assert source.state == "complete" and source.number < trial.number
             assert trial.checkpoint is not None and trial.checkpoint.rung == 256
             assert trial.checkpoint.metrics["transfer_steps"] == warm_steps
-        resumed = [t for t in paused if t.state == "complete"]
-        for trial in resumed:
-            assert trial.metrics["resumed_from_step"] == 256
-            assert warm_steps <= trial.metrics["train_steps"] < train_steps
-            assert trial.metrics["transfer_steps"] == warm_steps
-        for trial in trials:
+        assert promoted.info["transfer_from"] == first.id  # the only complete design then
+        assert promoted.state == "complete" and promoted.value == pytest.approx(1.2)
+        assert promoted.metrics["resumed_from_step"] == 256
+        assert warm_steps <= promoted.metrics["train_steps"] < train_steps
+        assert promoted.metrics["transfer_steps"] == warm_steps
+        for trial in left:
+            assert trial.state == "pruned" and "budget" in (trial.message or ""), trial
+        for trial in [first, promoted, *left]:
             steps = [report.step for report in client.reports(trial)]
             assert steps and all(step % every == 0 for step in steps), (trial.number, steps)
-        for trial in paused:
-            if trial.state == "pruned":
-                assert "budget" in (trial.message or "")
-        assert resumed, [(t.number, t.state) for t in paused]
+        # resumed at the rung, it reports on at the cold designs' steps
+        assert [report.step for report in client.reports(promoted)][:3] == [128, 256, 384]

@@ -14,6 +14,10 @@ class ReachUpOptions(SimulatorOptions):
         return [("tip_link", self.tip_link)]
 
 
+class ArmLengthOptions(SimulatorOptions):
+    """arm-length has no options of its own."""
+
+
 class HoldOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -31,6 +35,12 @@ REACH_ELSEWHERE = TaskSpec(
     options=ReachUpOptions,
     description="reach-up on a simulator this machine does not have.",
     factory="adplugin_reach.elsewhere:make_env",
+)
+ARM_LENGTH = TaskSpec(
+    name="arm-length",
+    options=ArmLengthOptions,
+    description="An arm on a fixed base scored by its links' total length, whatever it does.",
+    factory="adplugin_reach.env:ArmLength.make_env",
 )
 HOLD = LearnerSpec(
     name="hold",
