@@ -30,7 +30,7 @@ from optuna.importance import PedAnovaImportanceEvaluator, get_param_importances
 
 from tests.servers import ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.test_dashboard_browser import (
+from tests.service.dashboard_pages import (
     COUNT_PIXELS,
     DISPLAY,
     EXAMPLES,

@@ -21,7 +21,7 @@ import pytest
 from tests.conftest import DATABASES
 from tests.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.test_dashboard_browser import (
+from tests.service.dashboard_pages import (
     COUNT_PIXELS,
     lease,
     png,

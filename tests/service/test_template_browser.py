@@ -14,7 +14,7 @@ import yaml
 
 from tests.servers import ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.test_dashboard_browser import ROBOT_PIXELS, STUDY_PAGE_READY, tell
+from tests.service.dashboard_pages import ROBOT_PIXELS, STUDY_PAGE_READY, tell
 
 pytestmark = pytest.mark.browser
 
