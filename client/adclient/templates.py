@@ -31,8 +31,9 @@ from typing import Any
 XACRO_NS = "http://www.ros.org/wiki/xacro"
 
 EXPAND_SECONDS = 20
-"""CPU limit of one isolated expansion (a batch of points); its wall-clock limit is a
-second more, so a busy child is ended by the CPU limit and a stalled one by the clock."""
+"""CPU limit of one isolated expansion (a batch of points). Its wall-clock limit is a
+second more: a child with a core to itself meets the CPU limit first, a stalled or
+starved one the clock."""
 EXPAND_MEMORY = 1 << 30
 """Address-space limit of the expanding process (bytes)."""
 MAX_URDF_BYTES = 8 << 20
@@ -226,13 +227,10 @@ def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[
     import subprocess  # here: the child, this file run as a script, needs none of it
 
     request = json.dumps({"template": template, "points": [dict(p) for p in points]})
-    env = {"PATH": os.defpath, "PYTHONPATH": _child_path()}
+    command, env = child_command()
     try:
         done = subprocess.run(
-            # this file as a script, without site (-S) or its own folder (-P) on the
-            # path: the child imports xacro, PyYAML and the standard library, not the
-            # SDK (it starts in half the time)
-            [sys.executable, "-S", "-P", __file__, str(EXPAND_MEMORY), str(EXPAND_SECONDS)],
+            command,
             input=request.encode(),
             capture_output=True,
             timeout=EXPAND_SECONDS + 1,
@@ -253,6 +251,14 @@ def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[
     if "error" in answer:
         raise TemplateError(answer["error"])
     return list(answer["urdfs"])
+
+
+def child_command() -> tuple[list[str], dict[str, str]]:
+    """The expanding child's command line and its whole environment: this file as a
+    script, without site (-S) or its own folder (-P) on the path (the child imports
+    xacro, PyYAML and the standard library, not the SDK: it starts in half the time)."""
+    command = [sys.executable, "-S", "-P", __file__, str(EXPAND_MEMORY), str(EXPAND_SECONDS)]
+    return command, {"PATH": os.defpath, "PYTHONPATH": _child_path()}
 
 
 def _child_path() -> str:
@@ -279,6 +285,9 @@ def _limit(memory: int, seconds: int) -> None:
     # the soft limit sends SIGXCPU, which ends the child with its own exit status; a hard
     # limit equal to it would send SIGKILL instead, read as an unexplained failure
     resource.setrlimit(resource.RLIMIT_CPU, (seconds, seconds + 1))
+    # SIGXCPU and an abort dump core: never a file of up to EXPAND_MEMORY in the caller's
+    # folder
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
 
 def check_points(params: Sequence[Any]) -> list[tuple[str, dict[str, Any]]]:

@@ -5,10 +5,9 @@ line), in a child process that a hostile template cannot hang or exhaust."""
 from __future__ import annotations
 
 import json
-import os
+import resource
 import signal
 import subprocess
-import sys
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
@@ -251,14 +250,31 @@ def test_a_hostile_template_cannot_exhaust_or_hang_the_expanding_process(monkeyp
         expand_isolated(BUSY_TEMPLATE, [{}])
 
 
-def test_the_expanding_child_ends_itself_with_sigxcpu_at_its_cpu_limit() -> None:
-    """The child's CPU limit sends SIGXCPU, read as "took over N s of CPU"; a hard limit
-    equal to the soft one would SIGKILL it, an unexplained "exit -9"."""
-    request = json.dumps({"template": BUSY_TEMPLATE, "points": [{}]})
-    env = {"PATH": os.defpath, "PYTHONPATH": templates._child_path()}
-    child = [sys.executable, "-S", "-P", templates.__file__, str(1 << 30), "1"]
-    done = subprocess.run(child, input=request.encode(), capture_output=True, env=env, timeout=60)
+def test_the_expanding_child_ends_itself_with_sigxcpu_at_its_cpu_limit_and_dumps_no_core(
+    monkeypatch, tmp_path: Path
+) -> None:
+    """The child's CPU limit sends SIGXCPU, read as "took over N s of CPU" (a hard limit
+    equal to the soft one would SIGKILL it, an unexplained "exit -9"), and the core that
+    SIGXCPU dumps is never written, even where the caller's limits allow one."""
+    monkeypatch.setattr(templates, "EXPAND_SECONDS", 1)
+    command, env = templates.child_command()
+    request = json.dumps({"template": BUSY_TEMPLATE, "points": [{}]}).encode()
+
+    def allow_cores() -> None:
+        _, hard = resource.getrlimit(resource.RLIMIT_CORE)
+        resource.setrlimit(resource.RLIMIT_CORE, (hard, hard))
+
+    done = subprocess.run(
+        command,
+        input=request,
+        capture_output=True,
+        env=env,
+        cwd=tmp_path,
+        preexec_fn=allow_cores,
+        timeout=60,
+    )
     assert done.returncode == -signal.SIGXCPU, done.stderr.decode(errors="replace")[-300:]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_csv_is_read_in_a_template_s_param_types() -> None:
