@@ -4,7 +4,6 @@ the numbers are bench/paper_stats.py's."""
 from __future__ import annotations
 
 import re
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -120,9 +119,14 @@ def plot_best_so_far(
     return paths
 
 
+PICTURE_LABEL = "activedesign-best"
+"""A best-design picture's PNG text key: which study's design it shows."""
+
+
 def best_designs(studies: list[Study], learner: str, folder: Path) -> list[str]:
-    """Copy each (task, method)'s best design picture (the copy made before, once the
-    run's own is gone); return markdown table rows."""
+    """Copy each (task, method)'s best design picture, labelled with the study and
+    evaluation it shows; return markdown table rows. Once the run's own picture is gone
+    the copy stands in, but only while it shows the design the row names."""
     groups = grouped(studies)
     rows = []
     for key in ordered_keys(groups):
@@ -130,19 +134,41 @@ def best_designs(studies: list[Study], learner: str, folder: Path) -> list[str]:
         if not candidates:
             continue
         study = max(candidates, key=lambda s: s.record["best"]["value"])
-        source = REPO / study.record["png"]
-        name = f"best-{key[0]}-{key[1]}-{learner}.png"
-        if source.exists():
-            shutil.copyfile(source, folder / name)
-        elif not (folder / name).exists():  # the run's workdir is gone: keep the copy
-            continue
         best = study.record["best"]
+        label = f"{key[0]} {key[1]} {learner} seed {study.record['seed']} number {best['number']}"
+        source = REPO / study.record["png"]
+        copy = folder / f"best-{key[0]}-{key[1]}-{learner}.png"
+        if source.exists():
+            save_labelled(source, copy, label)
+        elif picture_label(copy) != label:
+            continue
         rows.append(
-            f"| {TASK_LABELS[key[0]]} | {key[1]} | ![{key[1]}](paper/{name}) "
+            f"| {TASK_LABELS[key[0]]} | {key[1]} | ![{key[1]}](paper/{copy.name}) "
             f"| {best['value']:.4f} (seed {study.record['seed']}, evaluation "
             f"{best['number'] + 1}) | {_design_text(best['params'])} |"
         )
     return rows
+
+
+def save_labelled(source: Path, copy: Path, label: str) -> None:
+    """``source`` saved as ``copy``, a PNG whose ``PICTURE_LABEL`` text is ``label``."""
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text(PICTURE_LABEL, label)
+    with Image.open(source) as image:
+        image.save(copy, format="PNG", pnginfo=info)
+
+
+def picture_label(path: Path) -> str | None:
+    """The ``PICTURE_LABEL`` of a picture saved by :func:`save_labelled` (None: no such
+    file, or a picture without one)."""
+    if not path.exists():
+        return None
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return getattr(image, "text", {}).get(PICTURE_LABEL)
 
 
 def _design_text(params: dict[str, Any]) -> str:

@@ -7,8 +7,10 @@ from pathlib import Path
 
 import pytest
 from bench.paper import METHODS, Cell, grid, main, study_create
+from bench.paper_report import best_designs, picture_label
 from bench.paper_stats import Study, _ratio, summarise
 from bench.paperlib import append_jsonl, quantiles, read_jsonl
+from PIL import Image
 
 
 def _study(values: list[float | None], target: float = 1.0, budget: int | None = None) -> Study:
@@ -100,3 +102,26 @@ def test_space_override_reaches_the_study_body_and_needs_a_tag(
     with pytest.raises(SystemExit):
         main(["--tag", "x", "--space", "embedding_max_dim"])
     assert "KEY=VALUE" in capsys.readouterr().err
+
+
+def test_a_best_design_copy_stands_in_only_for_the_design_it_shows(tmp_path: Path) -> None:
+    """The report copies a study's best-design picture labelled with the evaluation it
+    shows; once the run's own picture is gone the copy stands in for that evaluation,
+    never for a later best whose picture is gone too."""
+    source = tmp_path / "run" / "robot.png"
+    source.parent.mkdir()
+    Image.new("RGB", (4, 3), (200, 10, 10)).save(source)
+    folder = tmp_path / "figures"
+    folder.mkdir()
+    study = _study([0.2, 0.9])
+    study.record.update(
+        best={"value": 0.9, "number": 1, "params": {"structure": "a-b,b-c"}}, png=str(source)
+    )
+    (row,) = best_designs([study], "fast", folder)
+    assert "0.9000 (seed 0, evaluation 2)" in row and "paper/best-stand-up-qei-fast.png" in row
+    copy = folder / "best-stand-up-qei-fast.png"
+    assert picture_label(copy) == "stand-up qei fast seed 0 number 1"
+    source.unlink()
+    assert best_designs([study], "fast", folder) == [row]
+    study.record["best"] = {"value": 1.1, "number": 5, "params": {"structure": "a-b"}}
+    assert best_designs([study], "fast", folder) == []
