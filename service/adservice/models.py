@@ -83,6 +83,12 @@ class StudyRow(Base):
     """The creating token's name, kept for display after the token is revoked."""
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    proposal_error: Mapped[str | None] = mapped_column(sa.Text, nullable=True)
+    """Why the study's last proposal failed (None: it succeeded, or none was made)."""
+    proposal_failures: Mapped[int] = mapped_column(default=0, server_default=sa.text("0"))
+    """Proposals failed in a row; reset by one that succeeds."""
+    proposal_retry_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    """Before this time the lease scheduler skips the study (backoff after failures)."""
 
 
 class TrialRow(Base):
@@ -155,6 +161,24 @@ class ArtifactRow(Base):
     size: Mapped[int]
     sha256: Mapped[str] = mapped_column(sa.String(64))
     path: Mapped[str] = mapped_column(sa.String(1024))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    uploader: Mapped[str | None] = mapped_column(sa.String(16), nullable=True)
+    """Who uploaded it: ``worker`` (under the trial's lease) or ``owner`` (an asked trial
+    with no worker); None for files stored before this was recorded (never trusted)."""
+    attempt: Mapped[int | None] = mapped_column(nullable=True)
+    """The trial's attempt (``TrialRow.attempts``) whose lease uploaded it."""
+
+
+class TrialURDFRow(Base):
+    """A trial's URDF, expanded once from its study's template when its params were
+    fixed; reads serve this text instead of expanding again."""
+
+    __tablename__ = "trial_urdfs"
+
+    trial_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("trials.id", ondelete="CASCADE"), primary_key=True
+    )
+    urdf: Mapped[str] = mapped_column(sa.Text)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 

@@ -19,6 +19,7 @@ from adservice.models import Base
 from tests.servers import ADSERVER
 
 TABLES = {
+    "trial_urdfs",
     "studies",
     "trials",
     "trial_reports",
