@@ -55,6 +55,7 @@ from adservice.repository import leases as lease_repo
 from adservice.repository import promotion as promotion_repo
 from adservice.security import BrowserEdge
 from adservice.services.configs import StudyConfigs
+from adservice.services.proposal_failures import Backoff
 from adservice.services.trials import Proposing
 from adservice.settings import Settings, get_settings
 
@@ -212,7 +213,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             settings.proposal_threads or available_cores(),
             AskBudget(settings.ask_seconds, None if memory is None else int(memory * 2**20)),
         )
-        app.state.proposing = Proposing(db, StudyConfigs(db), StudyLocks(), runner)
+        backoff = Backoff(settings.proposal_backoff_seconds, settings.proposal_backoff_max_seconds)
+        app.state.proposing = Proposing(db, StudyConfigs(db), StudyLocks(), runner, backoff)
         app.state.principals = PrincipalCache()
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
         stop = threading.Event()

@@ -47,6 +47,9 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             "created_by": row.created_by,
             "created_at": row.created_at,
             "updated_at": row.updated_at,
+            "proposal_error": row.proposal_error,
+            "proposal_failures": row.proposal_failures or 0,
+            "proposal_retry_at": row.proposal_retry_at,
         }
     )
 

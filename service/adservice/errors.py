@@ -31,6 +31,13 @@ class StudyConfigError(ConflictError):
     code = "invalid_study"
 
 
+class ProposalFailedError(ConflictError):
+    """A study's proposal raised (a model fit, a bug, memory): recorded on the study,
+    whose proposals then back off; other studies are untouched."""
+
+    code = "proposal_failed"
+
+
 class InvalidError(DomainError):
     """A request naming a bad value; its answer always lists ``problems`` (the detail
     alone when none are given), as request validation's answers do."""

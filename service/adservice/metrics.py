@@ -24,7 +24,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from adclient.plugins import catalogue
 from adclient.schemas import TrialState
-from adservice.models import StudyRow, TrialRow
+from adservice.models import StudyRow, TrialRow, utcnow
 
 TELL = ("POST", "/api/v1/trials/{trial_id}/tell")
 ASK = ("POST", "/api/v1/studies/{study_id}/ask")
@@ -44,8 +44,13 @@ DATABASE_GAUGES: dict[str, tuple[str, tuple[str, ...]]] = {
     ),
     "activedesign_queue_depth": (
         "Trials waiting for a worker, by task: queued trials of running managed studies "
-        "plus the trials those studies may still propose (max_trials - n_trials).",
+        "plus the trials those studies may still propose (max_trials - n_trials), but not "
+        "while a study's failed proposals back off.",
         ("task",),
+    ),
+    "activedesign_proposal_failures": (
+        "Proposals of a study that failed in a row, by study id (0: its last succeeded).",
+        ("study",),
     ),
 }
 """Name -> (help, labels) of the gauges read from the database (the k8s test checks the
@@ -114,6 +119,8 @@ _GAUGE_QUERY = (
         StudyRow.task["name"].as_string(),
         StudyRow.max_trials,
         StudyRow.n_trials,
+        StudyRow.proposal_failures,
+        StudyRow.proposal_retry_at,
         TrialRow.state,
         sa.func.count(TrialRow.id),
         sa.func.count(TrialRow.lease_expires_at),
@@ -122,7 +129,7 @@ _GAUGE_QUERY = (
     .group_by(StudyRow.id, TrialRow.state)
 )
 """One statement, so one snapshot on PostgreSQL: trial counts per study and state beside
-each study's state, task and room."""
+each study's state, task, room and failed proposals."""
 
 
 def database_gauges(session: Session) -> list[Metric]:
@@ -131,15 +138,20 @@ def database_gauges(session: Session) -> list[Metric]:
         for name, (help_, labels) in DATABASE_GAUGES.items()
     }
     trials: dict[int, dict[str, int]] = {}
+    failing: dict[int, int] = {}
     waiting = dict.fromkeys(catalogue().tasks, 0)
     leases = 0
-    for study, study_state, task, max_trials, n_trials, state, count, leased in session.execute(
-        _GAUGE_QUERY
-    ):
+    now = utcnow()
+    for row in session.execute(_GAUGE_QUERY):
+        study, study_state, task, max_trials, n_trials, failures, retry_at, *rest = row
+        state, count, leased = rest
         counts = trials.get(study)
         if counts is None:
             counts = trials[study] = dict.fromkeys(TrialState, 0)
-            if study_state == "running" and task is not None:
+            failing[study] = failures or 0
+            # A study whose proposals fail waits for a worker only once its backoff is over.
+            proposes = retry_at is None or retry_at <= now
+            if study_state == "running" and task is not None and proposes:
                 waiting[task] = waiting.get(task, 0) + max((max_trials or 0) - n_trials, 0)
         if state is None:
             continue  # a study without trials
@@ -151,6 +163,7 @@ def database_gauges(session: Session) -> list[Metric]:
     for study, counts in sorted(trials.items()):
         for state, count in counts.items():
             families["activedesign_trials"].add_metric([str(study), state], count)
+        families["activedesign_proposal_failures"].add_metric([str(study)], failing[study])
     families["activedesign_leases_active"].add_metric([], leases)
     for task, count in sorted(waiting.items()):
         families["activedesign_queue_depth"].add_metric([task], count)

@@ -26,6 +26,10 @@ class Settings(BaseSettings):
     ask_memory_mb: float | None = Field(default=1024.0, gt=0)
     """The memory one ask may take by its estimate: a study whose options, or an ask
     whose count, would exceed it is refused (422 naming it). None: no limit."""
+    proposal_backoff_seconds: float = Field(default=5.0, gt=0)
+    """After a study's proposal fails, workers' leases skip the study this long, doubled
+    with each failure in a row up to ``proposal_backoff_max_seconds``; a success resets it."""
+    proposal_backoff_max_seconds: float = Field(default=600.0, gt=0)
     sweep_seconds: float = 2.0
     """How often expired leases are returned to the queue in the background."""
     max_body_bytes: int = 1_000_000

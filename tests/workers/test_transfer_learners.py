@@ -3,24 +3,23 @@ real PyBullet envs): a learner returns its final state when asked, a warm-starte
 trains its warm budget from that state (its parameters stay near the source's, far from
 a fresh start's; an off-policy learner keeps the source's replay buffer), and a state
 that does not fit the design (another tree) or does not load is refused with the reason,
-the design then trained from scratch."""
+the design then trained from scratch. A checkpoint whose unpickling would run code is
+refused unread, warm start or resume (issue 36)."""
 
 from __future__ import annotations
 
 import io
+import pickle
 import zipfile
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
+from adworker.checkpoints import PARAMETERS_MEMBER, REPLAY_MEMBER
 from adworker.designs import HALF_PI, arch_chain, tree_design
-from adworker.learners import (
-    MODEL_MEMBER,
-    REPLAY_MEMBER,
-    StableBaselinesLearner,
-    TrainResult,
-    WarmStart,
-)
+from adworker.learners import StableBaselinesLearner, TrainResult, WarmStart
 
 pytestmark = pytest.mark.slow
 
@@ -42,22 +41,19 @@ def parameters(result: TrainResult) -> np.ndarray:
     import torch
 
     assert result.checkpoint is not None
-    with zipfile.ZipFile(io.BytesIO(result.checkpoint)) as outer:
-        saved = outer.read(MODEL_MEMBER)
-    with zipfile.ZipFile(io.BytesIO(saved)) as model:
-        state = torch.load(io.BytesIO(model.read("policy.pth")), weights_only=True)
+    with zipfile.ZipFile(io.BytesIO(result.checkpoint)) as archive:
+        saved = archive.read(PARAMETERS_MEMBER)
+    state = torch.load(io.BytesIO(saved), weights_only=True)["state_dicts"]["policy"]
     return np.concatenate([value.numpy().ravel() for value in state.values()])
 
 
 def replay_size(result: TrainResult) -> int | None:
-    import pickle
-
     assert result.checkpoint is not None
     with zipfile.ZipFile(io.BytesIO(result.checkpoint)) as archive:
         if REPLAY_MEMBER not in archive.namelist():
             return None
-        buffer = pickle.loads(archive.read(REPLAY_MEMBER))
-    return int(buffer.buffer_size if buffer.full else buffer.pos)
+        with np.load(io.BytesIO(archive.read(REPLAY_MEMBER)), allow_pickle=False) as buffer:
+            return len(buffer["observations"])
 
 
 @pytest.mark.parametrize("name", LEARNERS)
@@ -96,3 +92,74 @@ def test_a_state_that_does_not_fit_is_refused_and_the_design_trains_from_scratch
         result = learner.train(env_of("lift-highest", star), steps=64, seed=0)
         assert not result.warm_started and result.train_steps >= 64
         assert learner.warm_problem is not None and reason in learner.warm_problem.lower()
+
+
+class WritesFile:
+    """Unpickled, it opens ``path`` for writing: the file then exists."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = str(path)
+
+    def __reduce__(self) -> tuple[Any, tuple[str, str]]:
+        return (open, (self.path, "w"))
+
+
+def with_member(checkpoint: bytes, name: str, data: bytes) -> bytes:
+    """``checkpoint`` with its member ``name`` replaced by ``data``."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(checkpoint)) as old, zipfile.ZipFile(out, "w") as new:
+        for member in old.namelist():
+            if member != name:
+                new.writestr(member, old.read(member))
+        new.writestr(name, data)
+    return out.getvalue()
+
+
+def hostile(genuine: bytes, marker: Path, learner: StableBaselinesLearner, env: Any) -> dict:
+    """Checkpoints that write ``marker`` if a loader unpickles them: the weights as a
+    pickle, the replay buffer as an object array, and the format SB3's own ``save``
+    and ``save_replay_buffer`` make (a model that loads, then a pickled buffer)."""
+    import torch
+
+    weights = io.BytesIO()
+    torch.save({"state_dicts": WritesFile(marker), "variables": {}}, weights)
+    with zipfile.ZipFile(io.BytesIO(genuine)) as archive:
+        saved = np.load(io.BytesIO(archive.read("replay_buffer.npz")), allow_pickle=False)
+        arrays = {name: saved[name] for name in saved.files}
+    arrays["observations"] = np.array([WritesFile(marker)], dtype=object)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    model = io.BytesIO()
+    learner.make_model(env, steps=SOURCE_STEPS, seed=0).save(model)
+    sb3_format = io.BytesIO()
+    with zipfile.ZipFile(sb3_format, "w") as archive:
+        archive.writestr("model.zip", model.getvalue())
+        archive.writestr("replay_buffer.pkl", pickle.dumps(WritesFile(marker)))
+    return {
+        "weights": with_member(genuine, "parameters.pt", weights.getvalue()),
+        "replay buffer": with_member(genuine, "replay_buffer.npz", buffer.getvalue()),
+        "SB3's pickles": sb3_format.getvalue(),
+    }
+
+
+def test_a_checkpoint_that_would_run_code_is_refused_unread(env_of, tmp_path: Path) -> None:
+    """Each hostile checkpoint, as a warm start, is refused with the reason and the
+    design trains from scratch; as a resume point the job fails with the reason. The
+    file its unpickling would write never appears."""
+    source = learner_of("sac").train(env_of("stand-up", "arch_chain"), steps=SOURCE_STEPS, seed=0)
+    assert source.checkpoint is not None
+    marker = tmp_path / "unpickled"
+    env = env_of("stand-up", "arch_chain")
+    checkpoints = hostile(source.checkpoint, marker, learner_of("sac"), env)
+    for kind, checkpoint in checkpoints.items():
+        warm = learner_of("sac")
+        warm.warm_start = WarmStart(checkpoint, WARM_STEPS)
+        result = warm.train(env, steps=64, seed=0)
+        assert not marker.exists(), kind
+        assert not result.warm_started and result.train_steps >= 64, kind
+        assert warm.warm_problem is not None and "refused" in warm.warm_problem, kind
+        resumed = learner_of("sac")
+        resumed.resume_from = checkpoint
+        with pytest.raises(ValueError, match="refused unread"):
+            resumed.train(env, steps=SOURCE_STEPS + 32, seed=0)
+        assert not marker.exists(), kind

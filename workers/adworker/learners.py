@@ -27,11 +27,9 @@ direction long enough to find a pose.
 
 from __future__ import annotations
 
-import io
 import logging
 import math
 import os
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -40,13 +38,11 @@ import numpy as np
 from pydantic import BaseModel
 
 from adclient.devices import LEARNER_DEVICE_VARIABLE
+from adworker import checkpoints
 from adworker.runner import Pruned
 from adworker.tasks.base import RobotEnv
 
 Policy = Callable[[np.ndarray], np.ndarray]
-MODEL_MEMBER = "model.zip"
-REPLAY_MEMBER = "replay_buffer.pkl"
-"""The members of an SB3 learner's checkpoint zip."""
 log = logging.getLogger("adworker")
 
 
@@ -375,7 +371,7 @@ class StableBaselinesLearner(Learner):
         resuming = self.resume_from is not None
         warm = None if resuming else self._warm_model(env, seed=seed)
         if self.resume_from is not None:
-            model = self.load_checkpoint(env, self.resume_from, seed=seed)
+            model = self.load_checkpoint(env, self.resume_from, steps=steps, seed=seed)
             if reporting is not None:
                 reporting.resume_at(int(model.num_timesteps))
         elif warm is not None:
@@ -408,11 +404,14 @@ class StableBaselinesLearner(Learner):
         """The model of ``warm_start`` on this design's env, its step count at zero and
         its replay buffer kept (an off-policy learner updates from the first step);
         None, with the reason logged, when there is none or it does not fit (another
-        observation or action space, a corrupt file): the design trains from scratch."""
+        observation or action space, a corrupt file, one that is not weights alone):
+        the design trains from scratch."""
         if self.warm_start is None:
             return None
         try:
-            model = self.load_checkpoint(env, self.warm_start.checkpoint, seed=seed)
+            model = self.load_checkpoint(
+                env, self.warm_start.checkpoint, steps=self.warm_start.steps, seed=seed
+            )
         except Exception as error:
             self.warm_problem = f"{type(error).__name__}: {error}"
             log.warning("warm start refused (%s): training from scratch", self.warm_problem)
@@ -424,37 +423,23 @@ class StableBaselinesLearner(Learner):
         return model
 
     def checkpoint(self, model: Any) -> bytes:
-        """The model (``model.save``) and, for an off-policy learner, its replay buffer,
-        as one zip: without the buffer a resumed SAC/TD3/DDPG would update at once from
-        a nearly empty one (``learning_starts`` is long past), a different algorithm
-        from the one that would have trained on. The buffer holds at most the budget's
-        transitions, about 0.2 kB each deflated for these robots (4 MB at 20,000 steps,
-        within the server's artifact limit)."""
-        saved = io.BytesIO()
-        model.save(saved)
-        with io.BytesIO() as out:
-            with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-                archive.writestr(MODEL_MEMBER, saved.getvalue())
-                if getattr(model, "replay_buffer", None) is not None:
-                    buffer = io.BytesIO()
-                    model.save_replay_buffer(buffer)
-                    archive.writestr(REPLAY_MEMBER, buffer.getvalue())
-            return out.getvalue()
+        """The model's weights, optimisers and step count and, for an off-policy learner,
+        its replay buffer, as data only (:mod:`adworker.checkpoints`): without the buffer
+        a resumed SAC/TD3/DDPG would update at once from a nearly empty one
+        (``learning_starts`` is long past), a different algorithm from the one that
+        would have trained on. The buffer holds at most the budget's transitions, about
+        0.2 kB each deflated for these robots (4 MB at 20,000 steps, within the
+        server's artifact limit)."""
+        return checkpoints.save(model)
 
-    def load_checkpoint(self, env: Any, checkpoint: bytes, *, seed: int) -> Any:
-        """The model of a :meth:`checkpoint`, on a fresh ``env`` (reset at the next
-        ``learn``: the saved last observation belongs to the paused worker's env)."""
-        import stable_baselines3
-
-        cls = getattr(stable_baselines3, self.algorithm)
-        with zipfile.ZipFile(io.BytesIO(checkpoint)) as archive:
-            model = cls.load(
-                io.BytesIO(archive.read(MODEL_MEMBER)), env=env, device=learner_device()
-            )
-            if REPLAY_MEMBER in archive.namelist():
-                model.load_replay_buffer(io.BytesIO(archive.read(REPLAY_MEMBER)))
-        _without_log_folder(model)  # a loaded model has SB3's default logger again
-        model._last_obs = None
+    def load_checkpoint(self, env: Any, checkpoint: bytes, *, steps: int, seed: int) -> Any:
+        """A model built here for ``env`` from this learner's own settings (as
+        :meth:`make_model` for ``steps``), filled with a :meth:`checkpoint`'s state;
+        ``checkpoints.CheckpointError`` when it does not fit. Nothing in the file is
+        unpickled: it cannot choose what is built. The env is reset at the next
+        ``learn``."""
+        model = self.make_model(env, steps=steps, seed=seed)
+        checkpoints.load_into(model, checkpoint)
         # Seeded from the step it resumes at: not the exploration it started with.
         model.set_random_seed(seed + int(model.num_timesteps))
         return model

@@ -53,6 +53,20 @@ def _space_text(space: Any) -> str:
     return f"{space.type}: " + "; ".join(parts)  # box, or template (a box with a robot)
 
 
+def _proposal_rows(info: Study) -> list[tuple[str, str]]:
+    """A study whose proposals fail: how often in a row, until when workers skip it, why."""
+    if not info.proposal_failures:
+        return []
+    return [
+        (
+            "proposals",
+            f"failing ({info.proposal_failures} in a row); workers skip the study until "
+            f"{_when(info.proposal_retry_at)} UTC",
+        ),
+        ("proposal error", info.proposal_error or ""),
+    ]
+
+
 def _status_table(info: Study, dashboard: str) -> Table:
     table = Table(title=f"study {info.id}: {escape(info.name)}", show_header=False)
     table.add_column("field", style="bold")
@@ -78,6 +92,7 @@ def _status_table(info: Study, dashboard: str) -> Table:
         ("created", _when(info.created_at)),
         ("updated", _when(info.updated_at)),
         ("dashboard", dashboard),
+        *_proposal_rows(info),
         *((f"user attr {key}", compact_text(value, 200)) for key, value in info.user_attrs.items()),
     ]
     for field, value in rows:
@@ -213,7 +228,7 @@ def studies(
             str(info.id),
             escape(info.name),
             info.direction.value,
-            info.state.value,
+            info.state.value + (" (proposals failing)" if info.proposal_failures else ""),
             f"{info.n_trials}{budget}",
             str(info.n_complete),
             str(info.n_failed),

@@ -244,6 +244,19 @@ class Study(BaseModel):
     )
     created_at: datetime
     updated_at: datetime
+    proposal_error: str | None = Field(
+        default=None,
+        description="why the study's last proposal failed (its exception's type and "
+        "message); null once one succeeds",
+    )
+    proposal_failures: int = Field(
+        default=0, description="proposals of the study that failed in a row (0: none)"
+    )
+    proposal_retry_at: datetime | None = Field(
+        default=None,
+        description="after failed proposals, workers' leases skip the study until this "
+        "time (UTC); the wait doubles with each failure, up to AD_PROPOSAL_BACKOFF_MAX_SECONDS",
+    )
 
 
 class StudyUpdate(Strict):

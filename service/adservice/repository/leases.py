@@ -114,13 +114,15 @@ def lease_queued_trial(
 
 
 def studies_wanting_trials(session: Session, *, tasks: Sequence[str] | None = None) -> list[int]:
-    """Running managed studies (of one of ``tasks``) with room for a trial, oldest first."""
+    """Running managed studies (of one of ``tasks``) with room for a trial, oldest first;
+    a study whose proposals failed is left out until its ``proposal_retry_at``."""
     query = (
         sa.select(StudyRow.id)
         .where(
             StudyRow.state == "running",
             *_task_among(tasks),
             StudyRow.n_trials < StudyRow.max_trials,
+            sa.or_(StudyRow.proposal_retry_at.is_(None), StudyRow.proposal_retry_at <= utcnow()),
         )
         .order_by(StudyRow.id)
     )

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import timedelta
 from typing import Any, cast
 
 import numpy as np
@@ -101,6 +102,36 @@ def stop_study(session: Session, *, study_id: int, caller: Principal) -> StudyRo
     study.state = "stopped"
     study.updated_at = now
     return study
+
+
+def record_proposal_failure(
+    session: Session,
+    *,
+    study_id: int,
+    error: str,
+    backoff_seconds: float,
+    max_backoff_seconds: float,
+) -> StudyRow:
+    """One more failed proposal of the study in a row: why, and when leases may try it
+    again (``backoff_seconds``, doubled with each failure in a row, at most
+    ``max_backoff_seconds``)."""
+    study = get_study(session, study_id=study_id, for_update=True)
+    study.proposal_failures = (study.proposal_failures or 0) + 1
+    study.proposal_error = error
+    delay = min(max_backoff_seconds, backoff_seconds * 2.0 ** min(study.proposal_failures - 1, 64))
+    study.proposal_retry_at = utcnow() + timedelta(seconds=delay)
+    return study
+
+
+def clear_proposal_failures(session: Session, *, study_id: int) -> None:
+    """A proposal succeeded: the study's recorded failures and backoff are gone (one
+    UPDATE that changes nothing, and locks nothing, when none were recorded)."""
+    session.execute(
+        sa.update(StudyRow)
+        .where(StudyRow.id == study_id, StudyRow.proposal_failures > 0)
+        .values(proposal_failures=0, proposal_error=None, proposal_retry_at=None)
+        .execution_options(synchronize_session=False)
+    )
 
 
 def check_manager(study: StudyRow, caller: Principal) -> None:

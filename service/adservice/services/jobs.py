@@ -12,6 +12,7 @@ from adservice.repository import leases as lease_repo
 from adservice.repository import promotion as promotion_repo
 from adservice.repository import transfer as transfer_repo
 from adservice.services.configs import StudyConfigs
+from adservice.services.proposal_failures import failures_recorded
 from adservice.services.trials import Proposing, propose_trials, proposes_instantly
 
 
@@ -27,7 +28,9 @@ async def lease_job(
     with room; None when there is no work (of ``tasks``, when given). Paused trials of
     studies whose budget is spent are ended first (pruned). Leasing a queued
     trial is one short write that never waits for a proposal; a model-based proposal
-    runs in the proposal threads, preferring a study with none under way."""
+    runs in the proposal threads, preferring a study with none under way. A study whose
+    proposal fails is recorded and skipped (``proposal_failures``): the same lease goes
+    on to the next study."""
     db, configs, locks, proposals = (
         proposing.db,
         proposing.configs,
@@ -58,17 +61,18 @@ async def lease_job(
     for study_id in proposals.free_first(await db.run(wanting)):
 
         def propose(study_id: int = study_id) -> Job:
-            (trial,) = propose_trials(
-                db,
-                configs,
-                locks,
-                study_id=study_id,
-                count=1,
-                caller=caller,
-                worker_id=worker_id,
-                lease_seconds=lease_seconds,
-                budget=proposals.budget,
-            )
+            with failures_recorded(db, proposing.backoff, study_id=study_id):
+                (trial,) = propose_trials(
+                    db,
+                    configs,
+                    locks,
+                    study_id=study_id,
+                    count=1,
+                    caller=caller,
+                    worker_id=worker_id,
+                    lease_seconds=lease_seconds,
+                    budget=proposals.budget,
+                )
             return job_for(db, configs, trial)
 
         try:
@@ -76,7 +80,7 @@ async def lease_job(
                 return await db.run(propose)
             return await proposals.run(study_id, propose)
         except ConflictError:
-            continue  # filled or stopped meanwhile: try the next study
+            continue  # filled or stopped meanwhile, or its proposal failed: the next study
     return None
 
 

@@ -11,7 +11,7 @@ per ask (``AskBudget``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -32,6 +32,7 @@ from adservice.repository import trials as trial_repo
 from adservice.repository.studies import History
 from adservice.services.budget import check_ask_memory
 from adservice.services.configs import StudyConfig, StudyConfigs
+from adservice.services.proposal_failures import Backoff, failures_recorded
 
 
 def _request(
@@ -101,6 +102,7 @@ def _record(
         if wanted == 0:
             return claimed
         first = trial_repo.reserve_numbers(session, study_id=config.study_id, count=wanted)
+        study_repo.clear_proposal_failures(session, study_id=config.study_id)
         proposal = propose(first, wanted)
         candidates = config.canonical(proposal.candidates)
         infos = [_in_own_directions(info, config) for info in proposal.info]
@@ -343,6 +345,7 @@ class Proposing:
     configs: StudyConfigs
     locks: StudyLocks
     runner: ProposalRunner
+    backoff: Backoff = field(default_factory=Backoff)
 
 
 async def ask_trials(
@@ -353,15 +356,16 @@ async def ask_trials(
     comes, so it never holds a request thread."""
 
     def propose() -> list[Trial]:
-        return propose_trials(
-            proposing.db,
-            proposing.configs,
-            proposing.locks,
-            study_id=study_id,
-            count=count,
-            caller=caller,
-            budget=proposing.runner.budget,
-        )
+        with failures_recorded(proposing.db, proposing.backoff, study_id=study_id):
+            return propose_trials(
+                proposing.db,
+                proposing.configs,
+                proposing.locks,
+                study_id=study_id,
+                count=count,
+                caller=caller,
+                budget=proposing.runner.budget,
+            )
 
     if proposes_instantly(proposing.configs, study_id):
         return await proposing.db.run(propose)

@@ -49,6 +49,7 @@ export class StudyHeader {
           <button type="button" class="danger" data-delete hidden>Delete study</button></h1>
         <p class="meta" data-meta></p>
         <p class="meta" data-attrs hidden></p>
+        <p class="error" data-proposal-error hidden></p>
       </section>
       <dialog class="confirm" data-delete-dialog>
         <form method="dialog">
@@ -110,12 +111,23 @@ export class StudyHeader {
     window.location.hash = '#/';
   }
 
+  /** A study whose proposals fail says so, and why (the error is text, never markup). */
+  renderProposalError(s) {
+    const failing = s.proposal_failures > 0;
+    this.$('proposal-error').hidden = !failing;
+    this.$('proposal-error').textContent = failing
+      ? `Proposals failing (${s.proposal_failures} in a row; workers skip this study until ` +
+        `${new Date(s.proposal_retry_at).toLocaleString()}): ${s.proposal_error ?? ''}`
+      : '';
+  }
+
   render(s) {
     this.study = s;
     this.$('delete').hidden = !mayManage(s);
     const attrs = Object.entries(s.user_attrs ?? {});
     this.$('attrs').hidden = attrs.length === 0;
     this.$('attrs').textContent = attrs.map(([k, v]) => `${k}: ${attrText(v)}`).join(' · ');
+    this.renderProposalError(s);
     document.title = `${s.name} · activedesign`;
     setCrumbs(`<a href="#/studies/${s.id}">${esc(s.name)}</a>`);
     this.$('name').textContent = s.name;

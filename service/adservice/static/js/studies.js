@@ -45,7 +45,7 @@ export class StudiesPage {
         (s) => `<tr>
           <td><a href="#/studies/${s.id}">${esc(s.name)}</a> <span class="meta">#${s.id}</span>
             ${s.task ? `<span class="tag">${esc(s.task.name)}</span>` : ''}</td>
-          <td>${badge(s.state)}</td>
+          <td>${badge(s.state)}${s.proposal_failures > 0 ? ' <span class="tag failing">proposals failing</span>' : ''}</td>
           <td class="progress-cell">${progressBar(s, 'small')}<span class="meta">${esc(countsText(s))}</span></td>
           <td class="num">${best(s)}</td>
           <td title="${esc(s.updated_at)}">${ago(s.updated_at)}</td>
