@@ -50,13 +50,14 @@ def read_representation(database_url: str, study_id: int) -> dict[str, Any]:
 
 
 def store_representation(database_url: str, study_id: int, representation: dict[str, Any]) -> None:
+    update_study(database_url, study_id, representation=representation)
+
+
+def update_study(database_url: str, study_id: int, **values: Any) -> None:
+    """Set columns of a study's row directly, as no request can."""
     engine = sa.create_engine(database_url)
     try:
         with engine.begin() as connection:
-            connection.execute(
-                sa.update(StudyRow)
-                .where(StudyRow.id == study_id)
-                .values(representation=representation)
-            )
+            connection.execute(sa.update(StudyRow).where(StudyRow.id == study_id).values(**values))
     finally:
         engine.dispose()

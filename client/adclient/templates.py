@@ -223,8 +223,9 @@ def _located(template: str, error: Exception) -> str:
 
 def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[str]:
     """:func:`expand` at each point, in a child process limited to ``EXPAND_MEMORY``
-    and ``EXPAND_SECONDS`` that inherits no environment but the import path."""
-    import subprocess  # here: the child, this file run as a script, needs none of it
+    and ``EXPAND_SECONDS`` that inherits no environment but the import path, and
+    confined further where this machine allows (:mod:`adclient.template_child`)."""
+    import subprocess  # here: the child, which imports this module, needs none of it
 
     request = json.dumps({"template": template, "points": [dict(p) for p in points]})
     command, env = child_command()
@@ -248,25 +249,51 @@ def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[
         raise TemplateError(
             f"template: expanding it failed (exit {done.returncode}) {last[:200]}".strip()
         ) from None
+    _warn_missing_isolation(answer.get("isolation", {}).get("missing", {}))
     if "error" in answer:
         raise TemplateError(answer["error"])
     return list(answer["urdfs"])
 
 
+_WARNED_MISSING: set[str] = set()
+
+
+def _warn_missing_isolation(missing: Mapping[str, str]) -> None:
+    """Logs, once a process, each layer of the child's confinement this machine lacks
+    (a template still expands without it: the layers are defence in depth)."""
+    new = {layer: why for layer, why in missing.items() if layer not in _WARNED_MISSING}
+    if new:
+        import logging
+
+        _WARNED_MISSING.update(new)
+        logging.getLogger(__name__).warning(
+            "the template-expanding child runs without %s (see docs/security.md)",
+            "; ".join(f"{layer}: {why}" for layer, why in sorted(new.items())),
+        )
+
+
 def child_command() -> tuple[list[str], dict[str, str]]:
-    """The expanding child's command line and its whole environment: this file as a
-    script, without site (-S) or its own folder (-P) on the path (the child imports
-    xacro, PyYAML and the standard library, not the SDK: it starts in half the time)."""
-    command = [sys.executable, "-S", "-P", __file__, str(EXPAND_MEMORY), str(EXPAND_SECONDS)]
-    return command, {"PATH": os.defpath, "PYTHONPATH": _child_path()}
+    """The expanding child's command line and its whole environment: template_child.py
+    as a script, without site (-S) or its own folder (-P) on the path (the child imports
+    xacro, PyYAML, the standard library and this module, not the rest of the SDK: it
+    starts in half the time); argv: its memory (bytes), its CPU seconds, and where it
+    makes (and at once removes) the empty folder it takes for its root."""
+    import tempfile
+
+    child = os.path.join(os.path.dirname(os.path.abspath(__file__)), "template_child.py")
+    limits = [str(EXPAND_MEMORY), str(EXPAND_SECONDS), tempfile.gettempdir()]
+    return [sys.executable, "-S", "-P", child, *limits], {
+        "PATH": os.defpath,
+        "PYTHONPATH": _child_path(),
+    }
 
 
 def _child_path() -> str:
-    """Where the child finds xacro and PyYAML (without ``site``, nothing else is on its
-    path): their folders, then this process's PYTHONPATH."""
+    """Where the child finds xacro, PyYAML and adclient (without ``site``, nothing else
+    is on its path): their folders, then this process's PYTHONPATH."""
     import importlib.util
 
-    folders = []
+    folders = [os.path.dirname(os.path.dirname(os.path.abspath(__file__)))]
     for name in ("xacro", "yaml"):
         spec = importlib.util.find_spec(name)
         if spec is None or spec.origin is None:
@@ -274,20 +301,6 @@ def _child_path() -> str:
         folders.append(os.path.dirname(os.path.dirname(spec.origin)))
     folders += [folder for folder in os.environ.get("PYTHONPATH", "").split(os.pathsep) if folder]
     return os.pathsep.join(dict.fromkeys(folders))
-
-
-def _limit(memory: int, seconds: int) -> None:
-    """The child limits itself before it reads the template (a ``preexec_fn`` would do
-    it before exec, but is unsafe in a threaded server)."""
-    import resource
-
-    resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
-    # the soft limit sends SIGXCPU, which ends the child with its own exit status; a hard
-    # limit equal to it would send SIGKILL instead, read as an unexplained failure
-    resource.setrlimit(resource.RLIMIT_CPU, (seconds, seconds + 1))
-    # SIGXCPU and an abort dump core: never a file of up to EXPAND_MEMORY in the caller's
-    # folder
-    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
 
 def check_points(params: Sequence[Any]) -> list[tuple[str, dict[str, Any]]]:
@@ -340,29 +353,3 @@ def check_template(
                     f"task.options.{option}: the template's robot has no link {link!r} "
                     f"(its links: {', '.join(model.links)})"
                 )
-
-
-def _main() -> None:
-    """``python -P templates.py MEMORY SECONDS``: JSON {template, points} on stdin, JSON
-    {urdfs} or {error} on stdout (see :func:`expand_isolated`); argv: the memory (bytes)
-    and CPU seconds it may use."""
-    memory, seconds = (int(value) for value in sys.argv[1:3])
-    _limit(memory, seconds)
-    request = json.loads(sys.stdin.buffer.read())
-    try:
-        urdfs = [expand(request["template"], point) for point in request["points"]]
-        too_big = [len(urdf) for urdf in urdfs if len(urdf) > MAX_URDF_BYTES]
-        if too_big:
-            raise TemplateError(
-                f"template: it expands to {too_big[0]} bytes, over {MAX_URDF_BYTES}"
-            )
-        answer: dict[str, Any] = {"urdfs": urdfs}
-    except TemplateError as error:
-        answer = {"error": str(error)}
-    except MemoryError:
-        answer = {"error": f"template: expanding it needs over {memory} bytes"}
-    sys.stdout.write(json.dumps(answer))
-
-
-if __name__ == "__main__":
-    _main()

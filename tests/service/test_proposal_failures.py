@@ -12,17 +12,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from adservice.app import create_app
-from adservice.models import StudyRow, utcnow
+from adservice.models import utcnow
 from adservice.settings import Settings
 from tests.failing_proposals import (
     ERROR,
     design_study,
     store_representation,
     unfit_representation,
+    update_study,
 )
 from tests.servers import SDK_HEADERS
 from tests.service.conftest import LOCAL
@@ -73,16 +73,7 @@ def retry_at(answer: dict[str, Any]) -> datetime:
 def backoff_over(database_url: str, study_id: int) -> None:
     """As if the study's backoff had passed (the tests' backoffs are long, so that no
     lease can come after one by chance on a slow machine)."""
-    engine = sa.create_engine(database_url)
-    try:
-        with engine.begin() as connection:
-            connection.execute(
-                sa.update(StudyRow)
-                .where(StudyRow.id == study_id)
-                .values(proposal_retry_at=utcnow() - timedelta(seconds=1))
-            )
-    finally:
-        engine.dispose()
+    update_study(database_url, study_id, proposal_retry_at=utcnow() - timedelta(seconds=1))
 
 
 def gauge(api: TestClient, line_start: str) -> float:
