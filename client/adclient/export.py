@@ -1,11 +1,21 @@
 """A study and its trials as text: JSON, or CSV in the manner of Optuna's
-``trials_dataframe``."""
+``trials_dataframe``.
+
+The CSV is made to be opened in a spreadsheet, and its text is whatever users and
+workers wrote (messages, categorical choices, user attributes), so no text cell may read
+as a formula (OWASP's CSV injection rule): a text cell that does not start with a letter,
+a digit or inert punctuation gets a leading ``'``, which a spreadsheet reads as "this is
+text" (and :func:`unescaped` takes off again on import), and every text cell is quoted,
+so a ``;`` in it cannot start a new cell where a spreadsheet splits on ``;``. Numbers are
+written bare and stay numbers (``-1.5`` is a number, never escaped).
+"""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
+import string
 from collections.abc import Mapping
 from datetime import datetime
 from typing import Any, Literal
@@ -13,6 +23,13 @@ from typing import Any, Literal
 from adclient.schemas import Study, Trial
 
 ExportFormat = Literal["json", "csv"]
+
+INERT_FIRST = frozenset(string.punctuation) - frozenset("=+-@'")
+"""ASCII characters a text cell may start with unescaped, besides letters and digits of
+any script. A whitelist: a space, a tab, a carriage return, a full-width equals sign
+(U+FF1D) or any other character a spreadsheet might skip or read as a formula's start
+is escaped; so is ``'``, so that :func:`unescaped` undoes exactly what
+:func:`formula_safe` did."""
 
 
 CSV_FIELDS = [
@@ -54,13 +71,13 @@ def export_csv(trials: list[Trial]) -> str:
             "id": trial.id,
             "state": trial.state.value,
             "value": _cell(trial.value),
-            "worker_id": trial.worker_id or "",
+            "worker_id": _cell(trial.worker_id),
             "attempts": trial.attempts,
             "created_at": _cell(trial.created_at),
             "started_at": _cell(trial.started_at),
             "finished_at": _cell(trial.finished_at),
             "duration_s": _duration(trial.started_at, trial.finished_at),
-            "message": trial.message or "",
+            "message": _cell(trial.message),
         }
         if trial.info.get("transfer_from") is not None:
             value_columns.setdefault("transfer_from")
@@ -90,6 +107,7 @@ def export_csv(trials: list[Trial]) -> str:
         fieldnames=[*CSV_FIELDS, *value_columns, *param_columns, *metric_columns, *attr_columns],
         restval="",
         lineterminator="\n",
+        quoting=csv.QUOTE_NONNUMERIC,  # text quoted; numbers bare (floats as repr)
     )
     writer.writeheader()
     writer.writerows(rows)
@@ -107,19 +125,34 @@ def _flatten(value: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]
     return items
 
 
+def formula_safe(text: str) -> str:
+    """``text`` as a CSV cell no spreadsheet reads as a formula."""
+    if text and not (text[0].isalnum() or text[0] in INERT_FIRST):
+        return "'" + text
+    return text
+
+
+def unescaped(cell: str) -> str:
+    """A cell as it was before :func:`formula_safe` (a cell it left alone is unchanged)."""
+    if cell.startswith("'") and formula_safe(cell[1:]) != cell[1:]:
+        return cell[1:]
+    return cell
+
+
 def _cell(value: Any) -> Any:
+    """A number as itself, text made formula-safe, anything else as text of ours."""
     if value is None:
         return ""
+    if isinstance(value, str):
+        return formula_safe(value)
     if isinstance(value, datetime):
         return value.isoformat()
-    if isinstance(value, float):
-        return repr(value)
     if isinstance(value, list | dict | tuple):
         return json.dumps(value, separators=(",", ":"))
     return value
 
 
-def _duration(start: datetime | None, end: datetime | None) -> str:
+def _duration(start: datetime | None, end: datetime | None) -> float | str:
     if start is None or end is None:
         return ""
-    return f"{(end - start).total_seconds():.3f}"
+    return round((end - start).total_seconds(), 3)

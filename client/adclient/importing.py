@@ -1,6 +1,8 @@
 """Reading trials back in: the JSON that ``adclient export`` writes, or a CSV with one
 column per param (``x`` or ``params_x``, as the CSV export names them) and a ``value``
 column (``state``, ``message`` and ``metrics_<name>`` columns are read when present).
+A file may start with a byte-order mark, as Excel saves one; a CSV's text cells come back
+as they were before the export made them formula-safe (:func:`adclient.export.unescaped`).
 
 Pure functions: :func:`read_import` turns a file's text into what to create and add;
 the CLI sends it. Finished trials (complete, failed, pruned) come in as evaluations the
@@ -13,15 +15,20 @@ from __future__ import annotations
 import csv
 import io
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from pydantic import ValidationError
 
-from adclient.export import CSV_FIELDS
-from adclient.schemas import BoxSpace, StudyCreate, TrialAdd
+from adclient.export import CSV_FIELDS, unescaped
+from adclient.schemas import MAX_JSON_DEPTH, BoxSpace, StudyCreate, TrialAdd
+from adclient.schemas.common import json_depth
 
 FINISHED = ("complete", "failed", "pruned")
+EXPORT_DEPTH = MAX_JSON_DEPTH + 3
+"""How deep an export nests at most: a free JSON field (a trial's user attributes, a
+proposer's options) three levels in (the file's object, the list of trials, a trial)."""
 
 
 class ImportFileError(ValueError):
@@ -46,6 +53,7 @@ def read_import(
 ) -> ImportPlan:
     """``format``: ``json`` (an export) or ``csv``; ``space``: the space of the study the
     trials go to (a CSV's cells are read in its params' types)."""
+    text = text.removeprefix("\ufeff")
     if format == "json":
         return _from_export(text, queue_unfinished=queue_unfinished)
     if format == "csv":
@@ -72,9 +80,23 @@ def _trial(row: dict[str, Any], where: str, queue_unfinished: bool) -> TrialAdd 
         raise ImportFileError(f"{where}: {problems}") from None
 
 
+def load_json(text: str, *, deepest: int) -> Any:
+    """JSON text whose objects and arrays nest at most ``deepest`` levels; deeper is an
+    :class:`ImportFileError`, since it exhausts Python's stack, in the parser or when the
+    value is sent on (text that is not JSON: ``json.JSONDecodeError``)."""
+    try:
+        value = json.loads(text)
+    except RecursionError:
+        value = None  # the parser gave up: deeper than any limit
+    else:
+        if json_depth(value, deepest) <= deepest:
+            return value
+    raise ImportFileError(f"objects and arrays nest deeper than {deepest} levels")
+
+
 def _from_export(text: str, *, queue_unfinished: bool) -> ImportPlan:
     try:
-        payload = json.loads(text)
+        payload = load_json(text, deepest=EXPORT_DEPTH)
     except json.JSONDecodeError as exc:
         raise ImportFileError(f"not JSON: {exc}") from None
     if not isinstance(payload, dict) or not isinstance(payload.get("trials"), list):
@@ -119,8 +141,16 @@ def _one_way_of_objectives(body: dict[str, Any]) -> None:
 
 
 def _from_csv(text: str, *, space: dict[str, Any] | None, queue_unfinished: bool) -> ImportPlan:
+    try:
+        return _read_csv(text, space=space, queue_unfinished=queue_unfinished)
+    except csv.Error as exc:  # a NUL byte, a cell past the csv module's size limit
+        raise ImportFileError(f"not a CSV: {exc}") from None
+
+
+def _read_csv(text: str, *, space: dict[str, Any] | None, queue_unfinished: bool) -> ImportPlan:
     reader = csv.DictReader(io.StringIO(text))
     columns = reader.fieldnames or []
+    _one_column_each(columns)
     several = sorted(
         (c for c in columns if c.startswith("values_") and c[7:].isdigit()),
         key=lambda c: int(c[7:]),
@@ -139,6 +169,7 @@ def _from_csv(text: str, *, space: dict[str, Any] | None, queue_unfinished: bool
         for column, cell in cells.items():
             if column is None or cell is None or cell == "":
                 continue
+            cell = unescaped(cell)
             if column.startswith("metrics_"):
                 metrics[column.removeprefix("metrics_")] = _number(cell, f"line {line}, {column}")
             elif column == "value":
@@ -173,6 +204,20 @@ def _plan(
     return ImportPlan(study=study, trials=trials, left_out=left_out)
 
 
+def _one_column_each(columns: Sequence[str]) -> None:
+    """Refuse a header that names a column twice (``x,x``, or ``x,params_x``: one param):
+    the csv module would keep a row's last cell of the name and drop the others."""
+    seen: dict[tuple[bool, str], str] = {}
+    for column in columns:
+        param = column.startswith("params_") or not _about_the_run(column)
+        key = (param, column.removeprefix("params_") if param else column)
+        if key in seen and seen[key] == column:
+            raise ImportFileError(f"the header names column {column!r} twice")
+        if key in seen:
+            raise ImportFileError(f"columns {seen[key]!r} and {column!r} name one param")
+        seen[key] = column
+
+
 def _about_the_run(column: str) -> bool:
     """A column of the CSV export that is not a param (the run's own, feasibility, the
     trial a controller started from, user attributes: they do not come back in)."""
@@ -191,11 +236,16 @@ def _box_types(space: dict[str, Any] | None) -> dict[str, Any]:
     return {param.name: param for param in box.params}
 
 
+def _shown(cell: str, most: int = 60) -> str:
+    """A cell as an error message quotes it: a long one cut short."""
+    return repr(cell if len(cell) <= most else cell[:most] + "...")
+
+
 def _number(cell: str, where: str) -> float:
     try:
         return float(cell)
     except ValueError:
-        raise ImportFileError(f"{where}: {cell!r} is not a number") from None
+        raise ImportFileError(f"{where}: {_shown(cell)} is not a number") from None
 
 
 def _param(cell: str, param: Any, where: str) -> Any:
@@ -207,11 +257,13 @@ def _param(cell: str, param: Any, where: str) -> Any:
                 choice
             ):
                 return choice
-        raise ImportFileError(f"{where}: {cell!r} is not one of {param.choices}")
+        raise ImportFileError(f"{where}: {_shown(cell)} is not one of {param.choices}")
     if param is not None:
         number = _number(cell, where)
         return int(number) if param.type == "int" and number.is_integer() else number
     try:
-        return json.loads(cell)
+        return load_json(cell, deepest=MAX_JSON_DEPTH)
     except json.JSONDecodeError:
         return cell
+    except ImportFileError as exc:
+        raise ImportFileError(f"{where}: {exc}") from None

@@ -19,7 +19,7 @@ from starlette.middleware.cors import CORSMiddleware
 
 from adclient import __version__
 from adclient.plugins import catalogue
-from adclient.schemas import ErrorBody
+from adclient.schemas import MAX_JSON_DEPTH, ErrorBody
 from adservice.api.routes import (
     artifacts,
     dashboard,
@@ -146,9 +146,20 @@ def _allowed_methods(app: FastAPI, path: str) -> list[str]:
     return sorted(methods)
 
 
+TOO_DEEP_BODY = (
+    "body: objects and arrays nest deeper than the JSON parser reads (a free JSON field "
+    f"takes at most {MAX_JSON_DEPTH} levels)"
+)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, error: StarletteHTTPException) -> JSONResponse:
+        if isinstance(error.__cause__, RecursionError):  # FastAPI's "error parsing the body"
+            return JSONResponse(
+                {"error": "invalid", "detail": TOO_DEEP_BODY, "problems": [TOO_DEEP_BODY]},
+                status_code=422,
+            )
         headers = dict(error.headers or {})
         if error.status_code == 405:
             headers["Allow"] = ", ".join(_allowed_methods(app, request.url.path))

@@ -14,6 +14,9 @@ auth off (loopback), where no token stands in the way.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from urllib.parse import urlsplit
+
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -54,6 +57,41 @@ def host_name(host: bytes) -> str:
     if text.startswith("["):
         return text[: text.find("]") + 1]
     return text.rsplit(":", 1)[0] if text.count(":") == 1 else text
+
+
+OWN_FETCH_SITES = frozenset({"same-origin", "none"})
+"""``Sec-Fetch-Site`` values of the server's own pages (``none``: typed in the address
+bar); ``same-site`` is a sibling host's page, ``cross-site`` any other site's."""
+
+
+def _origin(url: str) -> tuple[str, str, int] | None:
+    """Scheme, host name and port of an origin (the scheme's port where none is given);
+    None for ``null`` or anything else that is not one."""
+    try:
+        parts = urlsplit(url.strip().lower())
+        port = parts.port or {"http": 80, "https": 443}.get(parts.scheme)
+    except ValueError:
+        return None
+    if parts.hostname is None or port is None:
+        return None
+    return parts.scheme, parts.hostname, port
+
+
+def from_own_origin(headers: Mapping[str, str], scheme: str, public_url: str | None) -> bool:
+    """Whether a request comes from the server's own pages, where a browser says: its
+    ``Sec-Fetch-Site`` is one of :data:`OWN_FETCH_SITES` and its ``Origin`` is the origin
+    it was sent to (its scheme and ``Host``) or ``AD_PUBLIC_URL``'s (behind a proxy).
+    A request with neither header (no browser, or an old one's same-origin GET) passes."""
+    site = headers.get("sec-fetch-site")
+    if site is not None and site.strip().lower() not in OWN_FETCH_SITES:
+        return False
+    origin = headers.get("origin")
+    if origin is None:
+        return True
+    own = {_origin(f"{scheme}://{headers.get('host', '')}")}
+    if public_url:
+        own.add(_origin(public_url))
+    return (sent := _origin(origin)) is not None and sent in own
 
 
 def _encoded(headers: dict[str, str]) -> list[tuple[bytes, bytes]]:

@@ -4,6 +4,7 @@ same space; the SDK's ``enqueue_trial`` and ``add_trial`` do what Optuna's do.""
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
@@ -123,7 +124,7 @@ def test_a_study_of_two_objectives_round_trips_with_its_front(
     assert {tuple(t.values or []) for t in client.pareto(copy)} == front
     table = tmp_path / "two.csv"
     ok(run(server.url, "export", str(study.id), "--output", str(table)))
-    header = table.read_text().splitlines()[0].split(",")
+    header = next(csv.reader(table.read_text().splitlines()))
     assert {"values_0", "values_1", "feasible"} <= set(header)
     target = client.create_study(
         name="two-csv",

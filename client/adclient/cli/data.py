@@ -46,7 +46,8 @@ def import_trials(
     if format == "csv" and study_id is None:
         fail("a CSV has no space to make a study from: give --study ID", code=2)
     try:
-        text = file.read_text(encoding="utf-8")
+        with file.open(encoding="utf-8", newline="") as stream:  # a cell's "\r" stays
+            text = stream.read()
     except (OSError, UnicodeDecodeError) as exc:
         fail(f"cannot read {file}: {exc}")
     with get_settings(ctx).client() as client:
@@ -108,7 +109,7 @@ def export(
         sys.stdout.write(text)
         return
     try:
-        output.write_text(text, encoding="utf-8")
+        output.write_text(text, encoding="utf-8", newline="")
     except OSError as exc:
         fail(f"cannot write {output}: {exc.strerror or exc}")
     stderr_console().print(f"wrote study {study_id} to {escape(str(output))}")

@@ -23,7 +23,8 @@ from adclient.cli.common import (
     trial_scope,
     trial_table,
 )
-from adclient.schemas import TrialState
+from adclient.importing import ImportFileError, load_json
+from adclient.schemas import MAX_JSON_DEPTH, TrialState
 
 
 @app.command()
@@ -158,9 +159,11 @@ def enqueue(
 ) -> None:
     """Queue PARAMS in a study: its next ask (or a worker) takes them before proposing."""
     try:
-        given = json.loads(params)
+        given = load_json(params, deepest=MAX_JSON_DEPTH)
     except json.JSONDecodeError as exc:
         fail(f"--params is not JSON: {exc}", code=2)
+    except ImportFileError as exc:
+        fail(f"--params: {exc}", code=2)
     if not isinstance(given, dict):
         fail("--params must be a JSON object of param name -> value", code=2)
     with get_settings(ctx).client() as client, study_scope(study_id):

@@ -87,7 +87,7 @@ def finite(value: float, what: str) -> float:
     return value
 
 
-def _json_depth(value: Any, limit: int) -> int:
+def json_depth(value: Any, limit: int) -> int:
     """How deep objects and arrays nest in ``value``, counted no further than one past
     ``limit`` (without recursion: a hostile value must not exhaust the stack)."""
     deepest = 0
@@ -109,7 +109,7 @@ def _json_depth(value: Any, limit: int) -> int:
 def _bounded_json(value: dict[str, Any], limit: int = MAX_JSON_BYTES) -> dict[str, Any]:
     """Refuse a free JSON object nested deeper than ``MAX_JSON_DEPTH`` or larger than
     ``limit`` bytes encoded: stored, it would cost every listing, or fail to serialise."""
-    if _json_depth(value, MAX_JSON_DEPTH) > MAX_JSON_DEPTH:
+    if json_depth(value, MAX_JSON_DEPTH) > MAX_JSON_DEPTH:
         raise ValueError(f"objects and arrays nest deeper than {MAX_JSON_DEPTH} levels")
     size = len(json.dumps(value, ensure_ascii=False, default=str).encode("utf-8", "surrogatepass"))
     if size > limit:
@@ -166,7 +166,7 @@ def _cut_json(value: Any, levels: int) -> Any:
 def _shown_json(value: dict[str, Any]) -> dict[str, Any]:
     """A stored free JSON object as answers carry it: nesting past ``MAX_JSON_DEPTH``
     (a row stored before the limit) is cut, so one such row cannot fail a listing."""
-    if _json_depth(value, MAX_JSON_DEPTH) <= MAX_JSON_DEPTH:
+    if json_depth(value, MAX_JSON_DEPTH) <= MAX_JSON_DEPTH:
         return value
     cut: dict[str, Any] = _cut_json(value, MAX_JSON_DEPTH)
     return cut

@@ -7,17 +7,31 @@ from __future__ import annotations
 import secrets
 from datetime import timedelta
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Depends, Request, Response
 
 from adclient.schemas import SessionInfo, SignInRequest
 from adservice.api.deps import DatabaseDep, SettingsDep
 from adservice.auth import SESSION_COOKIE, authenticate, new_session_id, session_id_of, token_digest
-from adservice.errors import UnauthorizedError
+from adservice.errors import ForbiddenError, UnauthorizedError
 from adservice.models import utcnow
 from adservice.principals import Principal, Role
 from adservice.repository import tokens as token_repo
+from adservice.security import from_own_origin
 
-router = APIRouter(prefix="/api/v1/session", tags=["session"])
+
+async def own_pages_only(request: Request, settings: SettingsDep) -> None:
+    """The session answers only the server's own pages: another site's page must not
+    learn the CSRF token, nor sign the visitor in or out (403 naming why)."""
+    if not from_own_origin(request.headers, request.url.scheme, settings.public_url):
+        raise ForbiddenError(
+            "the session answers only this server's own pages: the request's Origin "
+            "(or Sec-Fetch-Site) names another site"
+        )
+
+
+router = APIRouter(
+    prefix="/api/v1/session", tags=["session"], dependencies=[Depends(own_pages_only)]
+)
 
 
 def _info(principal: Principal, *, auth: bool) -> SessionInfo:
