@@ -149,6 +149,11 @@ class Checkpoint(BaseModel):
         description="its metrics when it paused; a resumed job adds its own time to "
         "time_total_s and time_cpu_s",
     )
+    lease: int | None = Field(
+        default=None,
+        description="the trial's lease (its count of leases) that uploaded the checkpoint "
+        "and paused: a job resumes from the artifact only while it is still that upload",
+    )
 
 
 class PauseRequest(_Strict):
@@ -168,6 +173,7 @@ class PauseRequest(_Strict):
         default=None,
         ge=1,
         le=MAX_ID,
+        strict=True,
         description="as a tell's: the trial its controller started from",
     )
 

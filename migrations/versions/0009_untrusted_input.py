@@ -1,5 +1,5 @@
 """Issue 36 (trust nothing a user sends): a trial's expanded URDF, stored once; who
-uploaded an artifact, under which attempt; a study whose proposals fail.
+uploaded an artifact, under which lease (trials.leases); a study whose proposals fail.
 
 Revision ID: 0009
 Revises: 0008
@@ -31,6 +31,8 @@ def upgrade() -> None:
     with op.batch_alter_table("artifacts") as batch:
         batch.add_column(sa.Column("uploader", sa.String(16), nullable=True))
         batch.add_column(sa.Column("attempt", sa.Integer(), nullable=True))
+    with op.batch_alter_table("trials") as batch:
+        batch.add_column(sa.Column("leases", sa.Integer(), nullable=False, server_default="0"))
     with op.batch_alter_table("studies") as batch:
         batch.add_column(sa.Column("proposal_error", sa.Text(), nullable=True))
         batch.add_column(
@@ -44,6 +46,8 @@ def downgrade() -> None:
         batch.drop_column("proposal_retry_at")
         batch.drop_column("proposal_failures")
         batch.drop_column("proposal_error")
+    with op.batch_alter_table("trials") as batch:
+        batch.drop_column("leases")
     with op.batch_alter_table("artifacts") as batch:
         batch.drop_column("attempt")
         batch.drop_column("uploader")

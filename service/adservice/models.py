@@ -116,6 +116,10 @@ class TrialRow(Base):
     info: Mapped[dict[str, Any]] = mapped_column(sa.JSON, default=dict)
     worker_id: Mapped[str | None] = mapped_column(sa.String(128), nullable=True)
     attempts: Mapped[int] = mapped_column(default=0)
+    leases: Mapped[int] = mapped_column(default=0, server_default=sa.text("0"))
+    """How many times the trial was leased, never counted back (``attempts`` is, for a
+    release or a pause): the number of its current lease, which an artifact uploaded
+    under it records as its ``attempt``."""
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     started_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
@@ -166,7 +170,8 @@ class ArtifactRow(Base):
     """Who uploaded it: ``worker`` (under the trial's lease) or ``owner`` (an asked trial
     with no worker); None for files stored before this was recorded (never trusted)."""
     attempt: Mapped[int | None] = mapped_column(nullable=True)
-    """The trial's attempt (``TrialRow.attempts``) whose lease uploaded it."""
+    """The trial's lease (``TrialRow.leases``) it was uploaded under; None for an owner's
+    upload (no lease)."""
 
 
 class TrialURDFRow(Base):

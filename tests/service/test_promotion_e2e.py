@@ -2,7 +2,7 @@
 stopped at a rung pauses with its checkpoint artifact, waits, is promoted (queued, its
 job carrying the checkpoint) once it is in its rung's top fraction, and ends pruned
 when the study's budget is spent; the pause contract's errors, only the lease holder's
-token pausing."""
+token pausing; only a worker's checkpoint of the pausing lease resumed from (issue 36)."""
 
 from __future__ import annotations
 
@@ -120,6 +120,7 @@ def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(
         "step": 10,
         "rung": 10,
         "metrics": {"time_total_s": 3.0},
+        "lease": 1,
     }
     again = pause(http, b["trial_id"], "wb", 10, metrics={"time_total_s": 3.0})
     assert again.status_code == 200 and again.json()["state"] == "paused"
@@ -258,3 +259,56 @@ def test_the_sweeper_ends_paused_trials_of_a_spent_study_without_any_worker_aski
         assert (ended["state"], ended["value"]) == ("pruned", 0.5)
         info = http.get(f"/api/v1/studies/{study}").json()
         assert (info["state"], info["n_pruned"], info["n_paused"]) == ("complete", 1, 0)
+
+
+def test_only_a_workers_checkpoint_of_the_pausing_lease_is_resumed_from(
+    server_factory: Callable[..., ServerProcess],
+) -> None:
+    """Issue 36: the study's owner leases a job with its user token, uploads a
+    checkpoint under that lease and pauses the trial (taken: it did reach the rung);
+    a worker whose checkpoint was uploaded under an earlier lease of its trial (before
+    it gave the lease back) may not pause on it until it uploads again. Promoted, the
+    owner's trial goes out without a resume point (the worker trains it from scratch);
+    the worker's resumes from its checkpoint."""
+    secured = server_factory(AD_AUTH="true")
+    owner, worker = (
+        httpx.Client(
+            base_url=secured.url,
+            headers={"Authorization": f"Bearer {make_token(secured, role)}", **SDK_HEADERS},
+            timeout=30,
+        )
+        for role in ("user", "worker")
+    )
+    with owner, worker:
+        create(owner, managed(PROMOTION, max_trials=6))
+        a = lease(worker, "wa")
+        assert a is not None
+        report(worker, a["trial_id"], "wa", 10, 1.0)
+        users = paused_at_rung(owner, "u", 0.5)
+
+        retried = lease(worker, "wc")
+        assert retried is not None
+        upload_checkpoint(worker, retried["trial_id"], "wc")
+        given_back = {"worker_id": "wc"}
+        released = worker.post(f"/api/v1/trials/{retried['trial_id']}/release", json=given_back)
+        assert released.status_code == 200, released.text
+        again = lease(worker, "wc")
+        assert again is not None and again["trial_id"] == retried["trial_id"]
+        assert report(worker, retried["trial_id"], "wc", 10, 0.45)["pause"] is True
+        stale = pause(worker, retried["trial_id"], "wc", 10)
+        assert stale.status_code == 409 and "under this lease" in stale.text, stale.text
+        upload_checkpoint(worker, retried["trial_id"], "wc")
+        assert pause(worker, retried["trial_id"], "wc", 10).status_code == 200
+
+        # Rung 10 at [1.0, 0.5, 0.45, 0.1]: the top two go on, so the owner's trial.
+        paused_at_rung(worker, "wd", 0.1)
+        promoted = lease(worker, "we")
+        assert promoted is not None and promoted["trial_id"] == users
+        assert promoted["resume"] is None, promoted["resume"]
+        # Six values: the top three go on, so the worker's.
+        paused_at_rung(worker, "wf", 0.05)
+        paused_at_rung(worker, "wg", 0.01)
+        resumed = lease(worker, "wh")
+        assert resumed is not None and resumed["trial_id"] == retried["trial_id"]
+        assert resumed["resume"] == trial(worker, retried["trial_id"])["checkpoint"]
+        assert resumed["resume"]["lease"] == 2

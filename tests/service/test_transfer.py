@@ -1,18 +1,22 @@
 """Issue 27, the service's side of ``task.transfer``: which evaluated design a leased
 job's controller starts from, and where a trial's controller started, as a real
 ``adserver`` keeps it. Workers of our own (SDK lease, artifact upload, tell) stand in
-for adworker here, which tests/workers/test_transfer_worker_e2e.py runs for real."""
+for adworker here, which tests/workers/test_transfer_worker_e2e.py runs for real.
+Issue 36: only a worker's checkpoint of the completing lease is ever a source, and a
+scan that fails still leases the job."""
 
 from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import httpx
 import numpy as np
 import pytest
+import sqlalchemy as sa
 import yaml
 
 from adclient import Client
@@ -20,7 +24,8 @@ from adclient.decode import spec_vector, used_slots
 from adclient.errors import Invalid
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Job
-from tests.servers import SDK_HEADERS, ServerProcess
+from adservice.models import TrialRow
+from tests.servers import SDK_HEADERS, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 
@@ -170,36 +175,50 @@ def test_a_checkpoint_of_an_earlier_attempt_is_no_source(live_server: ServerProc
 def test_transfer_from_names_another_trial_of_the_same_study_or_nothing_is_stored(
     live_server: ServerProcess,
 ) -> None:
-    """A tell naming a trial of another study, or the trial itself, and a tell or pause
-    naming an id past the database's integers, are refused and leave the trial running;
-    a right one is kept in its info and exports."""
+    """A tell naming a trial of another study, the trial itself, one still running or
+    one completed without a checkpoint, a tell in a study without ``task.transfer``,
+    and a tell or pause naming ``true`` or an id past the database's integers, are
+    refused and leave the trial running; a right one is kept in its info and exports."""
     with Client(live_server.url) as client:
         study = client.create_study(study_body("transfer-a", name="alpha"))
         client.create_study(study_body("transfer-b", name="beta"))
-        foreign, source, mine = (
+        cold = client.create_study({**study_body("transfer-c", name="gamma"), "task": None})
+        foreign, source, mine, bare = (
             client.lease("w", tasks=["beta"]),
             client.lease("w", tasks=["alpha"]),
             client.lease("w", tasks=["alpha"]),
+            client.lease("w", tasks=["alpha"]),
         )
-        assert foreign is not None and source is not None and mine is not None
-        for wrong in (foreign.trial_id, mine.trial_id):
+        assert foreign and source and mine and bare
+        client.tell(bare.trial_id, 0.9, worker_id="w")  # complete, no checkpoint
+        for wrong in (foreign.trial_id, mine.trial_id, source.trial_id, bare.trial_id):
             with pytest.raises(Invalid, match="transfer_from"):
                 client.tell(mine.trial_id, 1.0, worker_id="w", transfer_from=wrong)
             assert client.get_trial(mine.trial_id).state == "running"
         for route, body in (("tell", {"value": 1.0}), ("pause", {"step": 1})):
-            refused = httpx.post(
-                f"{live_server.url}/api/v1/trials/{mine.trial_id}/{route}",
-                json={**body, "worker_id": "w", "transfer_from": 2**70},
-                headers=SDK_HEADERS,
-            )
-            assert refused.status_code == 422 and "transfer_from" in refused.text, refused.text
-            assert client.get_trial(mine.trial_id).state == "running"
+            for wrong in (2**70, True):
+                refused = httpx.post(
+                    f"{live_server.url}/api/v1/trials/{mine.trial_id}/{route}",
+                    json={**body, "worker_id": "w", "transfer_from": wrong},
+                    headers=SDK_HEADERS,
+                )
+                assert refused.status_code == 422 and "transfer_from" in refused.text, refused.text
+                assert client.get_trial(mine.trial_id).state == "running"
+        client.put_artifact(source.trial_id, CHECKPOINT_ARTIFACT, b"PK", worker_id="w")
         client.tell(source.trial_id, 0.5, worker_id="w")
+        (asked,) = client.ask(cold.id)
+        with pytest.raises(Invalid, match=r"no task\.transfer"):
+            client.tell(asked.id, 1.0, transfer_from=source.trial_id)
+        assert client.get_trial(asked.id).state == "running"
         told = client.tell(mine.trial_id, 0.7, worker_id="w", transfer_from=source.trial_id)
         assert told.info["transfer_from"] == source.trial_id
         rows = csv.DictReader(io.StringIO(client.export(study.id, "csv")))
         cells = {row["id"]: row["transfer_from"] for row in rows}
-        assert cells == {str(source.trial_id): "", str(mine.trial_id): str(source.trial_id)}
+        assert cells == {
+            str(source.trial_id): "",
+            str(mine.trial_id): str(source.trial_id),
+            str(bare.trial_id): "",
+        }
 
 
 def test_a_learner_that_cannot_start_from_another_controller_is_refused(
@@ -211,3 +230,85 @@ def test_a_learner_that_cannot_start_from_another_controller_is_refused(
         with pytest.raises(Invalid, match="learner 'fast' cannot start from another"):
             client.create_study(body)
         assert all(s.name != "transfer-fast" for s in client.studies())
+
+
+BOX = {
+    "name": "box-transfer",
+    "space": {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
+    "proposer": {"name": "random", "seed": 1},
+    "task": {"name": "curve", "external": True, "transfer": "nearest"},
+    "max_trials": 20,
+}
+
+
+def as_token(server: ServerProcess, role: str) -> httpx.Client:
+    token = make_token(server, role)
+    headers = {"Authorization": f"Bearer {token}", **SDK_HEADERS}
+    return httpx.Client(base_url=server.url, headers=headers, timeout=30)
+
+
+def done(api: httpx.Client, trial_id: int, worker: str | None, value: float) -> None:
+    """Upload a checkpoint to a trial (under ``worker``'s lease, or as the owner of an
+    asked trial), then tell it ``value``."""
+    lease = {"worker_id": worker} if worker else {}
+    put = api.put(
+        f"/api/v1/trials/{trial_id}/artifacts/{CHECKPOINT_ARTIFACT}", params=lease, content=b"PK"
+    )
+    assert put.status_code == 201, put.text
+    told = api.post(f"/api/v1/trials/{trial_id}/tell", json={"value": value, **lease})
+    assert told.status_code == 200, told.text
+
+
+def test_a_checkpoint_a_user_uploaded_is_never_a_source(
+    server_factory: Callable[..., ServerProcess],
+) -> None:
+    """Issue 36: the owner of a study with transfer asks a trial itself, uploads its
+    checkpoint and tells it the study's best value; it also leases a job with its user
+    token, uploads under that lease and tells the next best. Neither is a source of a
+    worker's job, nor may a tell name it; a worker token's upload under the lease that
+    completed its trial is the source of the next job."""
+    secured = server_factory(AD_AUTH="true")
+    with as_token(secured, "user") as owner, as_token(secured, "worker") as worker:
+        created = owner.post("/api/v1/studies", json=BOX)
+        assert created.status_code == 201, created.text
+        asked = owner.post(f"/api/v1/studies/{created.json()['id']}/ask", json={})
+        done(owner, asked.json()["trials"][0]["id"], None, 100.0)
+        own = owner.post("/api/v1/jobs/lease", json={"worker_id": "u"}).json()
+        done(owner, own["trial_id"], "u", 90.0)
+
+        job = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+        assert job["transfer"] is None, job["transfer"]
+        for untrusted in (asked.json()["trials"][0]["id"], own["trial_id"]):
+            named = {"value": 1.0, "worker_id": "w", "transfer_from": untrusted}
+            refused = worker.post(f"/api/v1/trials/{job['trial_id']}/tell", json=named)
+            assert refused.status_code == 422 and "worker uploaded" in refused.text, refused.text
+        done(worker, job["trial_id"], "w", 1.0)
+        following = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+        assert following["transfer"]["trial_id"] == job["trial_id"], following
+
+
+def test_a_transfer_scan_that_fails_still_leases_the_job(live_server: ServerProcess) -> None:
+    """Choosing a source raises here for real: a checkpointed trial's stored vector is
+    made undecodable straight in the database (``["not a number"]``, as corruption or a
+    hand edit would leave it). The next job is leased all the same, without a source,
+    the reason is in the server's log, and its worker tells it."""
+    with Client(live_server.url) as client:
+        study = client.create_study(BOX)
+        first = client.lease("w")
+        assert first is not None
+        client.put_artifact(first.trial_id, CHECKPOINT_ARTIFACT, b"PK", worker_id="w")
+        client.tell(first.trial_id, 1.0, worker_id="w")
+        client.add_trials(study.id, [{"params": {"x": 0.5}}])  # leased next, no proposal
+        engine = sa.create_engine(live_server.database_url)
+        with engine.begin() as connection:
+            connection.execute(
+                sa.update(TrialRow.__table__)
+                .where(TrialRow.__table__.c.id == first.trial_id)
+                .values(vector=["not a number"])
+            )
+        engine.dispose()
+        job = client.lease("w")
+        assert job is not None and job.params == {"x": 0.5} and job.transfer is None
+        log = live_server.log_path.read_text()
+        assert f"trial {job.trial_id}: no transfer source (ValueError" in log, log[-2000:]
+        assert client.tell(job.trial_id, 0.5, worker_id="w").state == "complete"

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import hashlib
 import io
-import pickle
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 import yaml
 
@@ -78,8 +78,8 @@ def run(
 def replay_size(client: Client, trial: Trial) -> int:
     """Transitions in the replay buffer of a trial's final checkpoint."""
     archive = zipfile.ZipFile(io.BytesIO(client.get_artifact(trial, CHECKPOINT_ARTIFACT)))
-    buffer = pickle.loads(archive.read("replay_buffer.pkl"))
-    return int(buffer.buffer_size if buffer.full else buffer.pos)
+    with np.load(io.BytesIO(archive.read("replay_buffer.npz")), allow_pickle=False) as buffer:
+        return len(buffer["observations"])
 
 
 def test_a_design_starts_from_its_trees_checkpoint_and_keeps_its_replay_buffer(

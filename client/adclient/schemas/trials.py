@@ -150,8 +150,10 @@ class TellRequest(Strict):
         default=None,
         ge=1,
         le=MAX_ID,
+        strict=True,  # an id, never a boolean (true is not trial 1)
         description="the trial of the same study whose controller this one started from "
-        "(task.transfer); kept as the trial's info.transfer_from",
+        "(task.transfer): a complete trial with a checkpoint a worker uploaded when it "
+        "completed it; kept as the trial's info.transfer_from",
     )
 
     @model_validator(mode="after")

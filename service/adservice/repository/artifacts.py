@@ -1,4 +1,5 @@
-"""Repository of artifacts: the files a running trial uploads, within its quota.
+"""Repository of artifacts: the files a running trial uploads, within its quota, and
+who uploaded each under which lease (what a worker may be given to load).
 
 Same conventions as every module of :mod:`adservice.repository` (an open session,
 keyword-only arguments, domain errors, rows out); the files themselves are the caller's
@@ -8,17 +9,45 @@ keyword-only arguments, domain errors, rows out); the files themselves are the c
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import InstrumentedAttribute, Session
 
 from adclient.schemas import TrialState
 from adservice.errors import ConflictError, NotFoundError, TooLargeError
 from adservice.models import ArtifactRow, TrialRow, utcnow
-from adservice.principals import Principal
+from adservice.principals import Principal, Role
 from adservice.repository.leases import held_trial
 from adservice.repository.studies import check_manager, get_study
 from adservice.repository.trials import get_trial
+
+
+class Uploader(StrEnum):
+    """Who uploaded an artifact (``ArtifactRow.uploader``). Only a ``worker``'s file is
+    ever handed to another job to load (docs/security.md, "What a worker trusts")."""
+
+    worker = "worker"
+    """The lease holder, with a worker or admin token (or any caller with auth off)."""
+    user = "user"
+    """The lease holder, with a user token: a user may lease jobs, not feed workers."""
+    owner = "owner"
+    """The study's owner, to a trial it asked (no worker, no lease)."""
+
+
+def trusted_checkpoint(
+    lease: sa.ColumnElement[int] | InstrumentedAttribute[int] | int,
+) -> sa.ColumnElement[bool]:
+    """The artifact row (joined or selected) is a checkpoint a worker may load: a
+    worker uploaded it under the trial's lease numbered ``lease``. Rows stored before
+    uploaders were recorded (uploader NULL) never are."""
+    return sa.and_(ArtifactRow.uploader == Uploader.worker.value, ArtifactRow.attempt == lease)
+
+
+def _uploader(trial: TrialRow, caller: Principal) -> Uploader:
+    if trial.worker_id is None:
+        return Uploader.owner
+    return Uploader.user if caller.role == Role.user else Uploader.worker
 
 
 @dataclass(frozen=True)
@@ -80,9 +109,10 @@ def record_artifact(
     quota: ArtifactQuota,
 ) -> tuple[ArtifactRow, str | None]:
     """Record an artifact whose file is already complete on disk (last step of a PUT),
-    checking again that the lease and the quota still allow it; also returns the path of
-    the file it replaces, if any (the caller removes it after the commit)."""
-    _, room = artifact_room(
+    checking again that the lease and the quota still allow it, with who uploaded it
+    under which lease; also returns the path of the file it replaces, if any (the caller
+    removes it after the commit)."""
+    trial, room = artifact_room(
         session, trial_id=trial_id, name=name, worker_id=worker_id, caller=caller, quota=quota
     )
     if size > room:
@@ -99,6 +129,8 @@ def record_artifact(
     row.sha256 = sha256
     row.path = path
     row.created_at = utcnow()
+    row.uploader = _uploader(trial, caller).value
+    row.attempt = None if row.uploader == Uploader.owner else trial.leases
     session.flush()
     return row, replaced
 

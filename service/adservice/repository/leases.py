@@ -106,6 +106,7 @@ def lease_queued_trial(
     trial.worker_id = worker_id
     trial.lease_token_id = lease_token_id
     trial.attempts += 1
+    trial.leases += 1
     trial.started_at = now
     trial.heartbeat_at = now
     trial.lease_expires_at = now + timedelta(seconds=lease_seconds)

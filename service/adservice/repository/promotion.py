@@ -3,7 +3,9 @@ trials that qualify at their rung, end the ones left when the study's budget is 
 
 Same conventions as every module of :mod:`adservice.repository` (an open session,
 keyword-only arguments, domain errors, rows out). Nothing here is on the ask/tell hot
-path: pausing and promoting happen on reports, settling when a worker asks for work.
+path: pausing and promoting happen on reports, settling when a worker asks for work. A
+promoted trial resumes only from the checkpoint a worker uploaded under the lease that
+paused it (:func:`resume_point`).
 """
 
 from __future__ import annotations
@@ -15,13 +17,13 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session, aliased
 
 from adclient.pruning import AshaOptions, Checkpoint, PauseRequest, PrunerConfig
-from adclient.schemas import TrialState
+from adclient.schemas import Trial, TrialState
 from adservice.errors import ConflictError, InvalidError
-from adservice.models import StudyRow, TrialRow, WorkerRow, utcnow
+from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow, utcnow
 from adservice.principals import Principal
 from adservice.pruners.asha import qualifies, rung_values, waiting_rung
 from adservice.pruners.base import Curve
-from adservice.repository.artifacts import artifact_path
+from adservice.repository.artifacts import trusted_checkpoint
 from adservice.repository.leases import check_lease_token, held_trial
 from adservice.repository.reports import curves_by_trial
 from adservice.repository.studies import History, finish_study_if_done, get_study
@@ -52,7 +54,7 @@ def pause_trial(
     uploaded: the trial leaves its lease and waits at its rung (promoted at once if it
     already qualifies there). A repeat is harmless; 403 for another token, 409 for a
     lost lease, a study that does not pause trials or a missing checkpoint, 422 for a
-    step below the first rung."""
+    step below the first rung. The checkpoint must be uploaded under this lease."""
     trial = get_trial(session, trial_id=trial_id, for_update=True)
     if _same_pause(trial, body):
         check_lease_token(trial, caller)
@@ -73,10 +75,15 @@ def pause_trial(
             f"({options.min_resource * options.reduction_factor**options.min_early_stopping_rate}"
             "): a trial pauses at a rung"
         )
-    if artifact_path(session, trial_id=trial_id, name=body.checkpoint) is None:
+    uploaded = session.scalar(
+        sa.select(ArtifactRow.attempt).where(
+            ArtifactRow.trial_id == trial_id, ArtifactRow.name == body.checkpoint
+        )
+    )
+    if uploaded is None or uploaded != trial.leases:
         raise ConflictError(
-            f"trial {trial_id} has no artifact {body.checkpoint!r}: upload the checkpoint, "
-            "then pause"
+            f"trial {trial_id} has no artifact {body.checkpoint!r} uploaded under this lease: "
+            "upload the checkpoint, then pause"
         )
     maximize = study.direction == "maximize"
     curves = curves_by_trial(session, study_id=study.id, maximize=maximize)
@@ -88,7 +95,11 @@ def pause_trial(
     trial.value = value
     trial.metrics = dict(body.metrics)
     trial.checkpoint = Checkpoint(
-        artifact=body.checkpoint, step=body.step, rung=rung, metrics=body.metrics
+        artifact=body.checkpoint,
+        step=body.step,
+        rung=rung,
+        metrics=body.metrics,
+        lease=trial.leases,
     ).model_dump()
     trial.worker_id = None
     trial.lease_token_id = None
@@ -108,6 +119,24 @@ def pause_trial(
     promote(session, study_id=study.id, options=options, curves=curves)
     settle(session, study=study)
     return trial
+
+
+def resume_point(session: Session, *, trial: Trial) -> Checkpoint | None:
+    """Where a promoted trial's job resumes: its checkpoint while the artifact is still
+    the one a worker uploaded under the lease that paused it; else None (a user token's
+    or an owner's upload, one replaced since, or a pause recorded before uploaders
+    were), and the job trains from scratch."""
+    checkpoint = trial.checkpoint
+    if checkpoint is None or checkpoint.lease is None:
+        return None
+    found = session.scalar(
+        sa.select(ArtifactRow.id).where(
+            ArtifactRow.trial_id == trial.id,
+            ArtifactRow.name == checkpoint.artifact,
+            trusted_checkpoint(checkpoint.lease),
+        )
+    )
+    return checkpoint if found is not None else None
 
 
 def promote(

@@ -2,8 +2,10 @@
 design a job's controller starts from, and recording where a trial started.
 
 Same conventions as every module of :mod:`adservice.repository` (an open session,
-keyword-only arguments, domain errors). A source is a finished trial of the same study
-whose checkpoint artifact was uploaded in its last attempt, of the same tree as the
+keyword-only arguments, domain errors). A source is a complete trial of the same study
+whose checkpoint artifact a worker uploaded under the lease that completed it (never an
+owner's or a user token's upload, nor an earlier lease's: see
+:func:`adservice.repository.artifacts.trusted_checkpoint`), of the same tree as the
 job's design (so the same observation and action spaces) and feasible under the study's
 constraints, among the ``transfer_among`` best of that tree (for several objectives:
 its non-dominated designs); of those, the nearest by the normalised spec distance. The
@@ -26,7 +28,8 @@ from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import TaskConfig, TransferSource, Trial, TrialState
 from adclient.ties import Tie
 from adservice.errors import InvalidError
-from adservice.models import ArtifactRow, TrialRow
+from adservice.models import ArtifactRow, StudyRow, TrialRow
+from adservice.repository.artifacts import trusted_checkpoint
 
 SCANNED_SOURCES = 2000
 """The most finished trials with a checkpoint a lease looks through (for one objective
@@ -60,9 +63,9 @@ def transfer_source(
             TrialRow.state == TrialState.complete.value,
             sa.or_(TrialRow.feasible.is_(None), TrialRow.feasible.is_(True)),
             ArtifactRow.name == CHECKPOINT_ARTIFACT,
-            # uploaded in the attempt that completed: a promoted trial whose final upload
-            # failed still holds its rung's checkpoint, which is no final controller
-            ArtifactRow.created_at >= TrialRow.started_at,
+            # by a worker, under the lease that completed: a promoted trial whose final
+            # upload failed still holds its rung's checkpoint, which is no final controller
+            trusted_checkpoint(TrialRow.leases),
         )
         .limit(SCANNED_SOURCES)
     )
@@ -123,16 +126,41 @@ def _used(
 
 
 def check_transfer_from(session: Session, *, trial_id: int, source_id: int) -> None:
-    """A trial's ``transfer_from`` names another trial of its own study (InvalidError)."""
-    study_of = dict(
-        session.execute(
-            sa.select(TrialRow.id, TrialRow.study_id).where(TrialRow.id.in_([trial_id, source_id]))
-        ).all()
-    )
-    if source_id == trial_id or study_of.get(source_id) != study_of.get(trial_id):
+    """A trial's ``transfer_from`` names what a lease could have offered it: another
+    trial of its own study, which has ``task.transfer``, complete with a checkpoint a
+    worker uploaded under the lease that completed it (InvalidError)."""
+    study_id, task = session.execute(
+        sa.select(TrialRow.study_id, StudyRow.task)
+        .join(StudyRow, StudyRow.id == TrialRow.study_id)
+        .where(TrialRow.id == trial_id)
+    ).one()
+    if (task or {}).get("transfer", "none") == "none":
+        raise InvalidError(
+            f"transfer_from: study {study_id} has no task.transfer, so its controllers "
+            "start from nothing"
+        )
+    source = session.execute(
+        sa.select(TrialRow.study_id, TrialRow.state, ArtifactRow.id.label("checkpoint"))
+        .outerjoin(
+            ArtifactRow,
+            sa.and_(
+                ArtifactRow.trial_id == TrialRow.id,
+                ArtifactRow.name == CHECKPOINT_ARTIFACT,
+                trusted_checkpoint(TrialRow.leases),
+            ),
+        )
+        .where(TrialRow.id == source_id)
+    ).one_or_none()
+    if source_id == trial_id or source is None or source.study_id != study_id:
         raise InvalidError(
             f"transfer_from: trial {source_id} is not another trial of trial {trial_id}'s "
             "study (a controller starts only from its own study's designs)"
+        )
+    if source.state != TrialState.complete or source.checkpoint is None:
+        raise InvalidError(
+            f"transfer_from: trial {source_id} ({source.state}) is not a complete trial "
+            f"with a {CHECKPOINT_ARTIFACT} a worker uploaded when it completed it: no "
+            "controller starts from it"
         )
 
 

@@ -97,6 +97,7 @@ def _new_trial(
         "info": {},
         "worker_id": None,
         "attempts": 0,
+        "leases": 0,
         "created_at": now,
         "started_at": None,
         "finished_at": None,
@@ -127,6 +128,7 @@ def insert_trials(
         lease = {
             "worker_id": worker_id,
             "attempts": 1,
+            "leases": 1,
             "heartbeat_at": now,
             "lease_expires_at": now + timedelta(seconds=lease_seconds),
             "lease_token_id": lease_token_id,

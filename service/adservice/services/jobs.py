@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
+
+from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import Job, Trial
 from adservice.db import Database
@@ -14,6 +17,8 @@ from adservice.repository import transfer as transfer_repo
 from adservice.services.configs import StudyConfigs
 from adservice.services.proposal_failures import failures_recorded
 from adservice.services.trials import Proposing, propose_trials, proposes_instantly
+
+log = logging.getLogger("adservice")
 
 
 async def lease_job(
@@ -38,7 +43,7 @@ async def lease_job(
         proposing.runner,
     )
 
-    def queued() -> Job | None:
+    def queued() -> Trial | None:
         with db.write() as session:
             promotion_repo.settle_spent_studies(session)
             row = lease_repo.lease_queued_trial(
@@ -48,19 +53,18 @@ async def lease_job(
                 lease_seconds=lease_seconds,
                 tasks=tasks,
             )
-            trial = Trial.model_validate(row, from_attributes=True) if row else None
-        return job_for(db, configs, trial) if trial else None
+            return Trial.model_validate(row, from_attributes=True) if row else None
 
     def wanting() -> list[int]:
         with db.read() as session:
             return lease_repo.studies_wanting_trials(session, tasks=tasks)
 
-    job = await db.run(queued)
-    if job is not None:
-        return job
+    trial = await db.run(queued)
+    if trial is not None:  # job_for reads (a resume point, a transfer scan): off the loop
+        return await run_in_threadpool(job_for, db, configs, trial)
     for study_id in proposals.free_first(await db.run(wanting)):
 
-        def propose(study_id: int = study_id) -> Job:
+        def propose(study_id: int = study_id) -> Trial:
             with failures_recorded(db, proposing.backoff, study_id=study_id):
                 (trial,) = propose_trials(
                     db,
@@ -73,33 +77,55 @@ async def lease_job(
                     lease_seconds=lease_seconds,
                     budget=proposals.budget,
                 )
-            return job_for(db, configs, trial)
+            return trial
 
         try:
             if proposes_instantly(configs, study_id):
-                return await db.run(propose)
-            return await proposals.run(study_id, propose)
+                trial = await db.run(propose)
+            else:
+                trial = await proposals.run(study_id, propose)
         except ConflictError:
             continue  # filled or stopped meanwhile, or its proposal failed: the next study
+        return await run_in_threadpool(job_for, db, configs, trial)
     return None
 
 
 def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
-    """The job of a leased trial; for a study with ``task.transfer``, with its source
-    (read after the lease's write, so the lease never waits on it)."""
+    """The job of a leased trial, read after the lease's write (so the lease never waits
+    on it): a promoted trial's resume point while a worker's (``resume_point``); for a
+    study with ``task.transfer``, its source, left out with the reason logged when it
+    cannot be chosen (the lease stands: the design trains from scratch)."""
     config = configs.get(trial.study_id)
     assert config.task is not None and trial.lease_expires_at is not None
     transfer = None
-    if config.task.transfer != "none":
+    resume = None
+    if trial.checkpoint is not None:
         with db.read() as session:
-            transfer = transfer_repo.transfer_source(
-                session,
-                trial=trial,
-                task=config.task,
-                representation=config.representation,
-                ties=config.design_space.ties() if config.design_space else {},
-                bounds=config.bounds,
-                outcomes=config.outcomes,
+            resume = promotion_repo.resume_point(session, trial=trial)
+        if resume is None:
+            log.warning(
+                "trial %s: its checkpoint is no worker's upload of the lease that paused "
+                "it: it trains from scratch",
+                trial.id,
+            )
+    if config.task.transfer != "none":
+        try:
+            with db.read() as session:
+                transfer = transfer_repo.transfer_source(
+                    session,
+                    trial=trial,
+                    task=config.task,
+                    representation=config.representation,
+                    ties=config.design_space.ties() if config.design_space else {},
+                    bounds=config.bounds,
+                    outcomes=config.outcomes,
+                )
+        except Exception as error:
+            log.warning(
+                "trial %s: no transfer source (%s: %s): its controller starts from scratch",
+                trial.id,
+                type(error).__name__,
+                error,
             )
     return Job.model_validate(
         {
@@ -114,7 +140,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
             "representation": config.representation,
             "lease_expires_at": trial.lease_expires_at,
             "pruner": config.pruner,
-            "resume": trial.checkpoint,
+            "resume": resume,
             "transfer": transfer,
         }
     )
