@@ -6,14 +6,15 @@ whether or not the file declares ``<xacro:property name="name">``): :func:`expan
 hands each param's value to all three, so a declared property's value is replaced and
 an undeclared one is defined before the first element. The result is a plain URDF.
 
-xacro evaluates ``${...}`` as Python, so a template is expanded in a child process of
-its own (:func:`expand_isolated`), limited in memory and time and without the parent's
+A template's ``${...}`` is in the template language of :mod:`adclient.template_expr`
+(numbers, texts, arithmetic, comparisons, named math functions), never Python: its
+xacro is hardened (:func:`_harden_xacro`) so that this is xacro's only evaluator,
+``$(arg name)`` its only substitution, and ``xacro:include`` does not exist, however the
+text spells them; :func:`template_problems` names the plain spellings before anything
+runs. Still a template is expanded in a child process of its own
+(:func:`expand_isolated`), limited in memory and time and without the parent's
 environment: a server checking a stranger's template, or a worker building it, cannot
-be made to hang, exhaust memory or read a setting. A template must also stand alone:
-its xacro is hardened (:func:`_harden_xacro`) so that ``$(arg name)`` is its only
-substitution, ``xacro:include`` and ``xacro.load_yaml`` do not exist and Python's
-introspection is gone, however the text spells them; :func:`template_problems` names
-the plain spellings before anything runs.
+be made to hang, exhaust memory or read a setting.
 """
 
 from __future__ import annotations
@@ -167,20 +168,31 @@ def expand(template: str, values: Mapping[str, Any]) -> str:
         return str(doc.toprettyxml(indent="  "))
 
 
-_UNSAFE_SYMBOLS = frozenset(
-    {"load_yaml", "abs_filename", "dotify", "type", "vars", "isinstance", "issubclass", "hash"}
-)
-"""xacro's ``${...}`` symbols a template may not have: the ones that read files, and
-Python's introspection (a way round the double-underscore rule)."""
-
-
 def _harden_xacro() -> None:
     """xacro, as a template may use it: ``$(arg name)`` its only substitution (no
     ``eval``, ``env``, ``optenv``, ``find``, ``dirname``, ``cwd``, however the text spells
     them: a ``${...}`` inside ``$(...)`` is evaluated first), no ``xacro:include`` (also
-    one made by ``xacro:element``), no symbol of ``_UNSAFE_SYMBOLS``. Idempotent."""
+    one made by ``xacro:element``), and ``${...}`` (also ``xacro:if``, property values,
+    macro arguments) in the template language of :mod:`adclient.template_expr` instead of
+    Python's ``eval``: xacro's every evaluation goes through ``safe_eval``. Idempotent."""
     import xacro
     from xacro import substitution_args
+
+    from adclient.template_expr import evaluate
+
+    def template_eval(expression: str, symbols: Any, _: Any = None) -> Any:
+        """xacro's ``safe_eval``: its names the template's properties and macro
+        arguments, found in the tables up to (never in) xacro's Python symbols."""
+
+        def lookup(name: str) -> Any:
+            table = symbols
+            while isinstance(table, xacro.Table):
+                if dict.__contains__(table, name):
+                    return table[name]  # a lazy property is evaluated here
+                table = table.parent
+            raise KeyError(name)
+
+        return evaluate(str(expression), lookup)
 
     def only_args(text: str) -> str:
         for call in substitution_args._collect_args(text):
@@ -197,12 +209,7 @@ def _harden_xacro() -> None:
 
     xacro.eval_extension = only_args
     xacro.process_include = no_include
-    for table in (
-        xacro._global_symbols,
-        *[value for value in xacro._global_symbols.values() if isinstance(value, dict)],
-    ):
-        for name in _UNSAFE_SYMBOLS & set(table):
-            del table[name]
+    xacro.safe_eval = template_eval
 
 
 def _located(template: str, error: Exception) -> str:
@@ -211,7 +218,9 @@ def _located(template: str, error: Exception) -> str:
     message = " ".join(str(error).split())
     import xacro
 
-    if not isinstance(cause, xacro.XacroException):
+    from adclient.template_expr import ExpressionError
+
+    if not isinstance(cause, xacro.XacroException | ExpressionError):
         message = f"{type(cause).__name__}: {message}" if message else type(cause).__name__
     quoted = re.search(r"when evaluating expression '(.*?)'", message)
     if quoted:

@@ -2,12 +2,13 @@
 example against a real adserver with a real adworker. Each trial's robot is the user's
 xacro expanded at its params: the worker simulates it (its mass metric is the expanded
 URDF's), ``/trials/{id}/urdf`` and the worker's robot.urdf artifact are that URDF, and a
-template that does not expand, reads a file or lacks a task's link is a 422 naming it
-that stores nothing."""
+template that does not expand, reads a file, lacks a task's link or would run a command
+(issue 36) is a 422 naming it that stores nothing."""
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ElementTree
+from html import escape
 from pathlib import Path
 
 import httpx
@@ -22,6 +23,10 @@ pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TRIALS = 3
+RUN_COMMAND = (  # issue 36: Python's eval of the robot's name ran the command
+    "(lambda: [c for c in ().__class__.__base__.__subclasses__() if c.__name__ == "
+    "'_wrap_close'][0].__init__.__globals__['system']('touch pwned'))()"
+)
 
 
 def small_copy(tmp_path: Path) -> Path:
@@ -83,6 +88,11 @@ def test_a_bad_template_is_a_422_that_stores_nothing(server, tmp_path):
             "xacro:include",
         ),
         (template, {"name": "stand-up", "learner": "fast"}, "task.options.lifted_link"),
+        (
+            template.replace('<robot name="arm"', f'<robot name="${{{escape(RUN_COMMAND)}}}"'),
+            {},
+            "line 6: lambda `lambda: [c for c in ().__class__",
+        ),
     ]
     with httpx.Client(base_url=server.url, timeout=60) as http:
         for text, task, named in cases:
@@ -93,6 +103,7 @@ def test_a_bad_template_is_a_422_that_stores_nothing(server, tmp_path):
             assert refused.status_code == 422, refused.text
             assert named in refused.json()["detail"]
         assert http.get("/api/v1/studies").json() == []
+    assert not (server.workdir / "pwned").exists()  # where the expanding child runs
     # the CLI reads the file and names one it cannot read
     missing = tmp_path / "study.yaml"
     missing.write_text(
