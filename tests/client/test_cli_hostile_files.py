@@ -119,7 +119,8 @@ def test_the_escape_is_formula_safe_and_undone_exactly(text: str) -> None:
 def test_a_csv_as_excel_saves_it_imports(
     server: ServerProcess, client: Client, tmp_path: Path
 ) -> None:
-    """A byte-order mark, CRLF line ends, and a choice Excel shows as text."""
+    """A byte-order mark, CRLF line ends, and a choice Excel shows as text; a study file
+    with a byte-order mark too."""
     table = tmp_path / "excel.csv"
     table.write_bytes('\ufeffx,c,value\r\n-1.5,plain,2.5\r\n0.5,"\'+1+1",-3\r\n'.encode())
     target = new_study(client, "from-excel")
@@ -130,6 +131,11 @@ def test_a_csv_as_excel_saves_it_imports(
         ({"x": -1.5, "c": "plain"}, 2.5),
         ({"x": 0.5, "c": "+1+1"}, -3.0),
     ]
+    study_file = tmp_path / "study.json"  # saved by a Windows editor, with a byte-order mark
+    study_file.write_bytes(("\ufeff" + json.dumps({"name": "bom", "space": SPACE})).encode())
+    submitted = run_adclient(server, "submit", str(study_file))
+    assert submitted.returncode == 0, submitted.stderr
+    assert "bom" in [study.name for study in client.studies()]
 
 
 def test_a_column_named_twice_is_refused_naming_it(
@@ -171,6 +177,11 @@ def test_json_nested_past_any_use_is_a_clear_error(
     refused = run_adclient(server, "import", str(wide), "--study", str(target))
     failed_cleanly(refused, "line 2, x: '[[[[")
     assert len(refused.stderr) < 400  # the cell cut short, not 10,000 characters
+    for suffix in ("json", "yaml"):  # a study file too (YAML's parser is recursive)
+        study_file = tmp_path / f"study.{suffix}"
+        study_file.write_text('{"name": "deep", "metadata": ' + "[" * levels + "]" * levels + "}")
+        refused = run_adclient(server, "submit", str(study_file))
+        failed_cleanly(refused, "objects and arrays nest")
     params = '{"x": ' + "[" * levels + "]" * levels + "}"
     refused = run_adclient(server, "enqueue", str(target), "--params", params)
     failed_cleanly(refused, "--params: objects and arrays nest deeper than 32 levels", code=2)

@@ -3,7 +3,6 @@ the studies and show one."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ from adclient.cli.common import (
     study_scope,
 )
 from adclient.client import StudyHandle
+from adclient.importing import EXPORT_DEPTH, load_json
 from adclient.schemas import BoxSpace, Study
 
 
@@ -102,11 +102,16 @@ def _status_table(info: Study, dashboard: str) -> Table:
 
 def _read_study_file(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark, as Windows saves one
     except OSError as exc:
         fail(f"cannot read {path}: {exc.strerror or exc}")
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+        if path.suffix.lower() == ".json":
+            data = load_json(text, deepest=EXPORT_DEPTH)
+        else:
+            data = yaml.safe_load(text)
+    except RecursionError:  # YAML's parser, nested past the stack
+        fail(f"cannot parse {path}: objects and arrays nest too deep")
     except (ValueError, yaml.YAMLError) as exc:
         first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         fail(f"cannot parse {path}: {first_line}")
