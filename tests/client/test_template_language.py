@@ -106,6 +106,8 @@ HOSTILE = [
     ("open('/etc/hostname')", "calling `open`"),
     ("\uff45\uff56\uff41\uff4c('1')", "calling `\uff45\uff56\uff41\uff4c`"),  # fullwidth eval
     ("__builtins__", "name '__builtins__' is not defined"),
+    ("max(range(10**12))", "calling `range`"),
+    ("(lambda: 0).__code__", "attribute access `(lambda: 0).__code__`"),
     # format strings
     ("'{0.__class__'.format(1)", "attribute access `'{0.__class__'.format`"),
     ("'%s' % 1", "`%` takes numbers"),
