@@ -255,6 +255,12 @@ class DesignSpace(StrictModel):
                     f"{where}.terms: {key!r} is no spec (an instance's specs: "
                     f"{', '.join(PART_SPECS)}; its joint's: joint.{', joint.'.join(JOINT_SPECS)})"
                 )
+            kind = self.joint_kind(instance)
+            if joint and spec.removeprefix("joint.") in UNUSED_JOINT_SPECS.get(kind, ()):
+                raise ValueError(
+                    f"{where}.terms: {key!r} is a placeholder: {instance!r}'s joint is {kind}, "
+                    "which has no use for it, so no design changes it; leave it out"
+                )
             value = (
                 self.joint_spec(instance, spec.removeprefix("joint."))
                 if joint

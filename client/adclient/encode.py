@@ -5,42 +5,162 @@ and ``design_values``. The inverse of ``adclient.decode``."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from adclient.catalogues import coordinate
-from adclient.decode import PAD, SpecLayout, checked_layout, spec_owner
+from adclient.decode import NORMALISE_ULPS, PAD, SpecLayout, checked_layout, spec_owner
 from adclient.design import DesignSpace
-from adclient.designs import Design, Representation
+from adclient.designs import Design, Joint, Link, Representation
 from adclient.specs import (
     JOINT_SPECS,
     PART_SPECS,
     link_mass,
 )
+from adclient.ties import Tie, mirrored_angle, unmirrored_angle
 from adclient.trees import Edge
 
 
 def design_values(layout: SpecLayout, design: Design) -> dict[str, float]:
     """The free specs (physical values) a design fills; slots it leaves empty are absent."""
-    links = {link.name: link for link in design.links}
-    joints = {joint.child: joint for joint in design.joints}
+    standing_in = _stand_in_values(layout, design.edges(), design)
     values: dict[str, float] = {}
     for key in layout.names:
-        instance, _, spec = key.partition(".")
-        if ".choice." in key:
-            owner, entry = key.split(".choice.")
-            holder = (joints if owner.endswith(".joint") else links).get(instance)
-            if holder is not None and holder.choice is not None:
-                values[key] = coordinate(layout.catalogue_of(owner), holder.choice, entry)
+        instance = key.partition(".")[0]
+        owner, entry = spec_owner(key)
+        if entry.startswith("choice."):
+            chosen_key = f"{owner}.choice"
+            chosen = standing_in.get(chosen_key, _shown(design, instance, chosen_key))
+            if chosen is not None:
+                slot = entry.removeprefix("choice.")
+                values[key] = coordinate(layout.catalogue_of(owner), chosen, slot)
             continue
-        if spec.startswith("joint."):
-            if instance in joints:
-                values[key] = float(getattr(joints[instance], spec.removeprefix("joint.")))
-        elif instance in links and getattr(links[instance], spec) is not None:
-            values[key] = float(getattr(links[instance], spec))
+        value = standing_in.get(key, _shown(design, instance, key))
+        if value is not None:
+            values[key] = float(value)
     return values
+
+
+def _shown(design_or_specs: Design | Mapping[str, Any], instance: str, key: str) -> Any:
+    """What a design or params show for one of an instance's specs (``"b.length"``,
+    ``"b.joint.axis_theta"``, ``"b.joint.choice"``); None for nothing."""
+    if not isinstance(design_or_specs, Design):
+        return design_or_specs.get(key)
+    rest = key.partition(".")[2]
+    if rest.startswith("joint."):
+        joints = (joint for joint in design_or_specs.joints if joint.child == instance)
+        holder: Joint | Link | None = next(joints, None)
+    else:
+        holder = next((link for link in design_or_specs.links if link.name == instance), None)
+    return None if holder is None else getattr(holder, rest.removeprefix("joint."), None)
+
+
+def stand_in_instances(layout: SpecLayout, edges: Sequence[Edge]) -> dict[str, list[str]]:
+    """Where a structure uses a tie source's slots for its tied instances but has no
+    link of the source (it is absent) or no joint (it is the root, or absent), the tied
+    instances there that have one, whose specs show them: owner (``"a"`` for a link,
+    ``"a.joint"`` for a joint) -> instances."""
+    members = {name for edge in edges for name in edge}
+    children = {child for _, child in edges}
+    found: dict[str, list[str]] = {}
+    for name, tie in layout.ties.items():
+        if name in members and tie.source not in members:
+            found.setdefault(tie.source, []).append(name)
+        if name in children and tie.source not in children:
+            found.setdefault(f"{tie.source}.joint", []).append(name)
+    return found
+
+
+def _gives_back(spec: str, tie: Tie) -> bool:
+    """Whether a tie's mirroring of ``spec`` undoes to the bit (unchanged or negated)."""
+    return abs(mirrored_angle(spec, 1.0, tie)) == 1.0
+
+
+def _stand_in_values(
+    layout: SpecLayout, edges: Sequence[Edge], design_or_specs: Design | Mapping[str, Any]
+) -> dict[str, Any]:
+    """A tie source's specs and choices the structure has no link or joint of it to
+    show (``stand_in_instances``), read from a tied instance's (an axis angle
+    unmirrored), one whose mirroring undoes to the bit first:
+    ``{"a.joint.axis_theta": 0.3, "a.joint.choice": "xm430"}``."""
+    found: dict[str, Any] = {}
+    for owner, instances in stand_in_instances(layout, edges).items():
+        source = owner.removesuffix(".joint")
+        joint = owner.endswith(".joint")
+        specs = [*JOINT_SPECS, "choice"] if joint else [*PART_SPECS, "choice"]
+        for spec in specs:
+            rest = f"joint.{spec}" if joint else spec
+            for instance in sorted(instances, key=lambda i: not _gives_back(spec, layout.ties[i])):
+                value = _shown(design_or_specs, instance, f"{instance}.{rest}")
+                if value is None:
+                    continue
+                if joint and isinstance(value, int | float) and not isinstance(value, bool):
+                    value = unmirrored_angle(spec, float(value), layout.ties[instance])
+                found[f"{source}.{rest}"] = value
+                break
+    return found
+
+
+def _shown_exactly(
+    layout: SpecLayout,
+    edges: Sequence[Edge],
+    design_or_specs: Design | Mapping[str, Any],
+    x: np.ndarray,
+) -> None:
+    """Nudge (in place) each normalised slot of ``x`` read from mirrored stand-ins'
+    axis angles, by at most ``NORMALISE_ULPS`` floats each way, to one that decodes to
+    the angles they showed, to the bit where one does (``pi - t`` rounds, so the
+    unmirrored value's own slot may show an ulp off)."""
+    for owner, instances in stand_in_instances(layout, edges).items():
+        for spec in ("axis_theta", "axis_phi"):
+            key = f"{owner}.{spec}"
+            if key not in layout.names:
+                continue
+            shown = [
+                (layout.ties[instance], value)
+                for instance in instances
+                if isinstance(
+                    value := _shown(design_or_specs, instance, f"{instance}.joint.{spec}"), float
+                )
+            ]
+            if all(_gives_back(spec, tie) for tie, _ in shown):
+                continue
+            k = layout.names.index(key)
+            x[k] = _nearest_slot(float(x[k]), partial(_shown_error, layout, x, k, spec, shown))
+
+
+def _shown_error(
+    layout: SpecLayout,
+    x: np.ndarray,
+    k: int,
+    spec: str,
+    shown: Sequence[tuple[Tie, float]],
+    slot: float,
+) -> float:
+    """How far ``x`` with ``slot`` at ``k`` decodes from the mirrored angles ``shown``."""
+    trial = x.copy()
+    trial[k] = slot
+    value = float(layout.denormalise(trial)[k])
+    return max(abs(mirrored_angle(spec, value, tie) - seen) for tie, seen in shown)
+
+
+def _nearest_slot(slot: float, error: Callable[[float], float]) -> float:
+    """Of ``slot`` and its ``NORMALISE_ULPS`` neighbouring floats each way, the one of
+    least ``error`` (the first 0 found)."""
+    best, best_error = slot, error(slot)
+    for direction in (-np.inf, np.inf):
+        near = slot
+        for _ in range(NORMALISE_ULPS):
+            if best_error == 0.0:
+                return best
+            near = float(np.clip(np.nextafter(near, direction), 0.0, 1.0))
+            near_error = error(near)
+            if near_error < best_error:
+                best, best_error = near, near_error
+    return best
 
 
 def _structure_index(layout: SpecLayout, edges: Sequence[Edge]) -> int:
@@ -79,6 +199,8 @@ def encode(
         structure = int(design_or_specs.get("structure_index", 0))
         if not 0 <= structure < len(layout.structures):
             raise ValueError(f"structure_index {structure} out of range")
+        edges = layout.structures[structure]
+        design_or_specs = {**_stand_in_values(layout, edges, design_or_specs), **design_or_specs}
         values = _chosen_values(layout, structure, design_or_specs)
         for key, value in design_or_specs.items():
             if key in layout.names and ".choice." not in key:
@@ -89,17 +211,21 @@ def encode(
         if not used[k]:
             continue
         if key not in values:
-            raise ValueError(f"encode: spec {key!r} is missing")
+            raise ValueError(f"encode: spec {_named(layout, structure, key)} is missing")
         value = values[key]
         low, high = layout.low[k], layout.high[k]
         tolerance = 1e-9 * max(1.0, abs(low), abs(high))
         if not (math.isfinite(value) and low - tolerance <= value <= high + tolerance):
-            raise ValueError(f"encode: spec {key!r} = {value!r} lies outside [{low}, {high}]")
+            raise ValueError(
+                f"encode: spec {_named(layout, structure, key)} = {value!r} lies outside "
+                f"[{low}, {high}]"
+            )
         physical[k] = min(max(value, low), high)
     if not isinstance(design_or_specs, Design):
         _check_derived_masses(space, layout, structure, values, design_or_specs)
         _check_derived_values(layout, structure, values, design_or_specs)
     x = np.where(used, layout.normalise(physical), PAD)
+    _shown_exactly(layout, layout.structures[structure], design_or_specs, x)
     if representation.kind == "identity":
         return x.tolist()
     if representation.kind == "onehot":
@@ -109,6 +235,20 @@ def encode(
     if representation.kind == "mixed":
         return [float(structure), *x.tolist()]
     return _encode_fused(representation, structure, x, used).tolist()
+
+
+def _named(layout: SpecLayout, structure: int, key: str) -> str:
+    """A spec key as a message names it: a tie source's its stand-in shows, as shown."""
+    owner = spec_owner(key)[0]
+    instances = stand_in_instances(layout, layout.structures[structure]).get(owner)
+    if not instances:
+        return repr(key)
+    source = owner.removesuffix(".joint")
+    what = "joint" if owner.endswith(".joint") else "link"
+    return (
+        f"{key!r}, given as {instances[0] + key.removeprefix(source)!r} ({instances[0]!r} "
+        f"is tied to {source!r}, which has no {what} in this structure)"
+    )
 
 
 def _check_derived_masses(
@@ -165,7 +305,9 @@ def _chosen_values(
         catalogue = layout.catalogue_of(owner)
         name = given.get(f"{owner}.choice")
         if name is None:
-            raise ValueError(f"encode: spec {owner + '.choice'!r} is missing")
+            raise ValueError(
+                f"encode: spec {_named(layout, structure, owner + '.choice')} is missing"
+            )
         if name not in catalogue:
             raise ValueError(
                 f"encode: {owner}.choice: {name!r} is no component of catalogue "

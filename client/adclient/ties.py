@@ -91,3 +91,11 @@ def mirrored_angle(spec: str, value: float, tie: Tie) -> float:
     if spec == "axis_theta":
         return math.pi - value
     return math.pi - value if tie.flip_y else -value
+
+
+def unmirrored_angle(spec: str, value: float, tie: Tie) -> float:
+    """The source's spec from a tied joint's (the inverse of ``mirrored_angle``): what
+    an encoded design reads where the source has no joint of its own to show it."""
+    if tie.flip_x and tie.flip_y and spec == "axis_phi":
+        return value - math.pi
+    return mirrored_angle(spec, value, tie)  # every other mirroring is its own inverse

@@ -19,6 +19,7 @@ from adclient.decode import (
     decode,
     design_params,
     identity_representation,
+    onehot_representation,
     spec_layout,
 )
 from adclient.design import DesignSpace
@@ -262,3 +263,87 @@ def test_an_untied_space_serialises_as_before() -> None:
         "joint_overrides": {},
     }
     assert DesignSpace.model_validate(tied).ties() == DesignSpace.model_validate(PAIR).ties()
+
+
+MOTORS = {
+    "small": {"effort": 2.0, "velocity": 6.0, "cost": 10.0},
+    "large": {"effort": 9.0, "velocity": 3.0, "cost": 40.0},
+    "mid": {"effort": 5.0, "velocity": 4.0, "cost": 20.0},
+}
+
+
+def _chain(tied: list[dict[str, Any]], structures: list[list[list[str]]]) -> dict[str, Any]:
+    """Links a, b, c (and d) whose joints choose motors; ``tied`` replaces instances."""
+    instances = {name: {"name": name, "part": "leg"} for name in "abcd"}
+    instances.update({instance["name"]: instance for instance in tied})
+    used = {name for edges in structures for edge in edges for name in edge}
+    return {
+        **_space([instances[name] for name in "abcd" if name in used], []),
+        "joint": {"choose": "motors", "offset_yaw": {"low": -0.5, "high": 0.5}},
+        "catalogues": {"motors": MOTORS},
+        "structures": structures,
+    }
+
+
+CHAIN = [[["a", "b"], ["b", "c"]]]
+ROOT_TIES = {
+    "last link as the root": _chain([{"name": "c", "same_as": "a"}], CHAIN),
+    "a child as the root": _chain([{"name": "b", "same_as": "a"}], CHAIN),
+    "a child mirroring the root": _chain([{"name": "b", "same_as": "a", "mirror": "y"}], CHAIN),
+    "a chain to the root": _chain(
+        [{"name": "b", "same_as": "a", "mirror": "x"}, {"name": "c", "same_as": "b"}], CHAIN
+    ),
+    "mirrors that differ": _chain(
+        [
+            {"name": "c", "same_as": "a", "mirror": "y"},
+            {"name": "d", "same_as": "c", "mirror": "x"},
+        ],
+        [[["a", "b"], ["b", "c"], ["b", "d"]]],
+    ),
+    "a source absent from a structure": _chain(
+        [{"name": "c", "same_as": "a", "mirror": "y"}],
+        [[["b", "a"], ["b", "c"]], [["b", "c"]]],
+    ),
+}
+
+
+@pytest.mark.parametrize("space_json", ROOT_TIES.values(), ids=ROOT_TIES.keys())
+def test_a_tie_to_an_instance_without_a_joint_takes_the_joint_specs_searched_for_it(
+    space_json: dict[str, Any],
+) -> None:
+    """Issue 36: a tie whose source is the root (or absent) was created, and every ask
+    failed (``encode: spec 'a.joint.choice.0' is missing``): the source's joint slots,
+    searched for its tied instances, have no joint of the source's to be read from.
+    They are read from a tied instance's, and every design goes there and back to the
+    bit, from the design and from its params (the tied instance's alone giving them)."""
+    space = DesignSpace.model_validate(space_json)
+    representation = (
+        identity_representation(space)
+        if len(space.tree_structures()) == 1
+        else onehot_representation(space)
+    )
+    assert "a.joint.choice.0" in spec_layout(space).names
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        vector = rng.uniform(*representation.bounds).tolist()
+        design = decode(space, representation, vector)
+        params = design_params(design)
+        assert decode(space, representation, encode(space, representation, design)) == design
+        again = decode(space, representation, encode(space, representation, params))
+        assert design_params(again) == params
+
+
+def test_a_tie_to_the_root_names_the_tied_joint_when_it_is_missing_or_off() -> None:
+    space = DesignSpace.model_validate(ROOT_TIES["a child mirroring the root"])
+    representation = identity_representation(space)
+    params = design_params(decode(space, representation, [0.5] * len(representation.bounds[0])))
+    for key in ("b.joint.choice", "b.joint.offset_yaw"):
+        with pytest.raises(ValueError, match=rf"given as '{key}' \('b' is tied to 'a', which"):
+            encode(space, representation, {k: v for k, v in params.items() if k != key})
+    with pytest.raises(ValueError, match=r"given as 'b.joint.offset_yaw' .* lies outside"):
+        encode(space, representation, {**params, "b.joint.offset_yaw": 2.0})
+    other = "large" if params["b.joint.choice"] != "large" else "mid"
+    chosen = {k: v for k, v in params.items() if k not in ("b.joint.effort", "b.joint.velocity")}
+    vector = encode(space, representation, {**chosen, "b.joint.choice": other})
+    joints = {joint.child: joint for joint in decode(space, representation, vector).joints}
+    assert (joints["b"].choice, joints["b"].effort) == (other, MOTORS[other]["effort"])

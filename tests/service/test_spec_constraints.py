@@ -239,3 +239,20 @@ def test_the_fused_encoding_cannot_take_spec_constraints(http: httpx.Client) -> 
     refused = _create(http, "fused", {**TREES, "encoding": "fused"}, {"name": "random"})
     assert refused.status_code == 422
     assert "need the mixed or onehot encoding" in refused.text
+
+
+@pytest.mark.parametrize(("kind", "spec"), [("fixed", "effort"), ("continuous", "lower")])
+def test_a_term_on_a_spec_its_joint_kind_has_no_use_for_is_a_422(
+    http: httpx.Client, kind: str, spec: str
+) -> None:
+    """Issue 36: such a spec is a placeholder no design changes (docs/study-file.md,
+    Joints), so a budget on it constrains nothing; it was accepted."""
+    instances = [*CHAIN["instances"][:2], {"name": "c", "part": "link", "joint_type": kind}]
+    space = {
+        **CHAIN,
+        "instances": instances,
+        "spec_constraints": [{"terms": {f"c.joint.{spec}": 1.0}, "op": "<=", "bound": 5.0}],
+    }
+    refused = _create(http, "placeholder", space, {"name": "random"})
+    assert refused.status_code == 422, refused.text
+    assert f"'c.joint.{spec}' is a placeholder: 'c''s joint is {kind}" in refused.text
