@@ -135,7 +135,11 @@ class LearnerSpec:
 
     ``transfers``: it takes part in a study's ``task.transfer`` (docs/worker.md): it
     trains on from ``learner.warm_start`` (bytes of a checkpoint it returned) when the
-    worker sets it, and returns its final state as ``TrainResult.checkpoint``."""
+    worker sets it, and returns its final state as ``TrainResult.checkpoint``. Those
+    bytes (and a promoted trial's ``resume_from``) come from the server: a worker's
+    upload, but still to be read as data only (``torch.load(weights_only=True)``,
+    ``np.load(allow_pickle=False)``, JSON; never ``pickle`` or SB3's ``Model.load``),
+    filling a model built from the job's own settings (docs/plugins.md)."""
 
     name: str
     description: str

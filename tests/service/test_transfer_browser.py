@@ -24,6 +24,12 @@ def test_a_warm_started_trial_names_its_source(
         first = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
         second = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
         for job, source in ((first, None), (second, first["trial_id"])):
+            put = http.put(  # a source is a trial with a worker's checkpoint
+                f"/api/v1/trials/{job['trial_id']}/artifacts/checkpoint.zip",
+                params={"worker_id": "w"},
+                content=b"PK",
+            )
+            assert put.status_code == 201, put.text
             told = {"value": 1.0, "worker_id": "w", "transfer_from": source}
             response = http.post(f"/api/v1/trials/{job['trial_id']}/tell", json=told)
             assert response.status_code == 200, response.text

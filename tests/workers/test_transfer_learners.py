@@ -163,3 +163,24 @@ def test_a_checkpoint_that_would_run_code_is_refused_unread(env_of, tmp_path: Pa
         with pytest.raises(ValueError, match="refused unread"):
             resumed.train(env, steps=SOURCE_STEPS + 32, seed=0)
         assert not marker.exists(), kind
+
+
+def test_a_warm_model_keeps_every_transition_of_a_larger_source_buffer(env_of) -> None:
+    """A warm start builds its model for its own budget (here a 1,000-transition buffer)
+    while its source's buffer held 1,100 (a full ring, its oldest at 100): the loaded
+    buffer grows to hold them all, oldest first, as the source's own held them."""
+    env = env_of("stand-up", "arch_chain")
+    learner = learner_of("sac")
+    source = learner.make_model(env, steps=1100, seed=0)
+    ring = source.replay_buffer
+    rng = np.random.default_rng(0)
+    for name in ("observations", "next_observations", "actions", "rewards"):
+        getattr(ring, name)[:] = rng.random(getattr(ring, name).shape, dtype=np.float32)
+    ring.pos, ring.full = 100, True
+
+    warm = learner.load_checkpoint(env, learner.checkpoint(source), steps=WARM_STEPS, seed=0)
+    assert learner.make_model(env, steps=WARM_STEPS, seed=0).replay_buffer.buffer_size == 1000
+    loaded = warm.replay_buffer
+    assert (loaded.buffer_size, loaded.pos, loaded.full) == (1100, 0, True)
+    for name in ("observations", "next_observations", "actions", "rewards"):
+        assert np.array_equal(getattr(loaded, name), np.roll(getattr(ring, name), -100, axis=0))

@@ -114,9 +114,9 @@ def load_into(model: Any, checkpoint: bytes) -> None:
                 f"({found.group(1) if found else type(error).__name__})"
             ) from None
         _load_parameters(model, state)
-        buffer = getattr(model, "replay_buffer", None)
-        if REPLAY_MEMBER in names and _replay_arrays(buffer) is not None:
-            _load_replay(buffer, _read(archive, REPLAY_MEMBER))
+        keeps_replay = _replay_arrays(getattr(model, "replay_buffer", None)) is not None
+        if REPLAY_MEMBER in names and keeps_replay:
+            _load_replay(model, _read(archive, REPLAY_MEMBER))
     model.num_timesteps = meta.num_timesteps
     model._n_updates = meta.n_updates
 
@@ -183,8 +183,10 @@ def _replay_arrays(buffer: Any) -> dict[str, np.ndarray] | None:
     return {name: array[order] for name, array in arrays.items()}
 
 
-def _load_replay(buffer: Any, raw: bytes) -> None:
-    """Saved transitions into ``buffer`` (the newest ones, when it holds fewer)."""
+def _load_replay(model: Any, raw: bytes) -> None:
+    """Saved transitions into ``model``'s buffer, grown to hold them all when it was
+    built for fewer steps (a warm start's budget below its source's), as the source's
+    own buffer held them."""
     with np.load(io.BytesIO(raw), allow_pickle=False) as saved:
         if any(info.file_size > MAX_MEMBER_BYTES for info in saved.zip.infolist()):
             raise CheckpointError(f"{REPLAY_MEMBER} unpacks to more than allowed")
@@ -197,6 +199,7 @@ def _load_replay(buffer: Any, raw: bytes) -> None:
                 f"{REPLAY_MEMBER} is not plain arrays, refused unread ({error})"
             ) from None
     count = len(arrays["observations"])
+    buffer = model.replay_buffer
     for name, array in arrays.items():
         target = getattr(buffer, name)
         if array.dtype != target.dtype or array.shape != (count, *target.shape[1:]):
@@ -204,11 +207,21 @@ def _load_replay(buffer: Any, raw: bytes) -> None:
                 f"its replay buffer's {name} ({array.dtype}, {array.shape}) does not fit "
                 f"this model's ({target.dtype}, (n, {', '.join(map(str, target.shape[1:]))}))"
             )
-    kept = min(count, buffer.buffer_size)
+    if count > buffer.buffer_size:
+        model.buffer_size = count
+        model.replay_buffer = buffer = type(buffer)(
+            count,
+            model.observation_space,
+            model.action_space,
+            device=model.device,
+            n_envs=model.n_envs,
+            optimize_memory_usage=False,
+            **model.replay_buffer_kwargs,
+        )
     for name, array in arrays.items():
-        getattr(buffer, name)[:kept] = array[count - kept :]
-    buffer.pos = kept % buffer.buffer_size
-    buffer.full = kept == buffer.buffer_size
+        getattr(buffer, name)[:count] = array
+    buffer.pos = count % buffer.buffer_size
+    buffer.full = count == buffer.buffer_size
 
 
 def _attribute(model: Any, dotted: str) -> Any:
