@@ -25,7 +25,8 @@ def upgrade() -> None:
             sa.ForeignKey("trials.id", ondelete="CASCADE"),
             primary_key=True,
         ),
-        sa.Column("urdf", sa.Text(), nullable=False),
+        sa.Column("urdf", sa.Text(), nullable=True),
+        sa.Column("error", sa.Text(), nullable=True),
         sa.Column("created_at", sa.DateTime(), nullable=False),
     )
     with op.batch_alter_table("artifacts") as batch:

@@ -39,6 +39,7 @@ from adservice.artifacts import ArtifactStore
 from adservice.auth import Authentication, PrincipalCache
 from adservice.db import Database, upgrade_to_head
 from adservice.errors import (
+    BusyError,
     ConflictError,
     DomainError,
     ForbiddenError,
@@ -47,6 +48,7 @@ from adservice.errors import (
     TooLargeError,
     UnauthorizedError,
 )
+from adservice.expansions import ExpansionPool
 from adservice.limits import BodyLimits
 from adservice.locks import StudyLocks
 from adservice.metrics import install_metrics
@@ -68,6 +70,7 @@ STATUS_BY_ERROR: dict[type[DomainError], int] = {
     ConflictError: 409,
     InvalidError: 422,
     TooLargeError: 413,
+    BusyError: 503,
     UnauthorizedError: 401,
     ForbiddenError: 403,
 }
@@ -96,6 +99,7 @@ ERROR_RESPONSES = {
     415: "A change sent with neither a JSON body nor the X-Activedesign-Client header",
     422: "Invalid field; the detail names it",
     431: "Request line and headers longer than AD_MAX_HEADER_BYTES (a long query string)",
+    503: "Busy (the template expansion queue is full): nothing was done; see Retry-After",
 }
 PLAIN_TEXT_ERRORS = {431}
 """Answered by the server's protocol layer before any route, in plain text."""
@@ -174,6 +178,8 @@ def install_error_handlers(app: FastAPI) -> None:
     async def domain_error(_request: Request, error: DomainError) -> JSONResponse:
         status = _status_for(error)
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+        if isinstance(error, BusyError):
+            headers = {"Retry-After": str(error.retry_after)}
         body: dict[str, Any] = {"error": error.code, "detail": error.detail}
         if error.problems:
             body["problems"] = error.problems
@@ -225,7 +231,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             AskBudget(settings.ask_seconds, None if memory is None else int(memory * 2**20)),
         )
         backoff = Backoff(settings.proposal_backoff_seconds, settings.proposal_backoff_max_seconds)
-        app.state.proposing = Proposing(db, StudyConfigs(db), StudyLocks(), runner, backoff)
+        expansions = ExpansionPool(settings.expand_threads, settings.expand_queue)
+        app.state.proposing = Proposing(
+            db, StudyConfigs(db), StudyLocks(), runner, backoff, expansions
+        )
         app.state.principals = PrincipalCache()
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
         stop = threading.Event()
@@ -239,6 +248,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             stop.set()
             sweeper.join(timeout=5)
             runner.shutdown()
+            expansions.shutdown()
             db.dispose()
 
     app = FastAPI(

@@ -52,6 +52,17 @@ class TooLargeError(DomainError):
     code = "too_large"
 
 
+class BusyError(DomainError):
+    """A bounded pool of the server's is full: nothing was done, and the same request
+    may be sent again after ``retry_after`` seconds."""
+
+    code = "busy"
+
+    def __init__(self, detail: str, *, retry_after: int) -> None:
+        super().__init__(detail)
+        self.retry_after = retry_after
+
+
 class UnauthorizedError(DomainError):
     code = "unauthorized"
 

@@ -176,14 +176,18 @@ class ArtifactRow(Base):
 
 class TrialURDFRow(Base):
     """A trial's URDF, expanded once from its study's template when its params were
-    fixed; reads serve this text instead of expanding again."""
+    fixed; reads serve this text instead of expanding again. Exactly one of ``urdf``
+    and ``error`` is set: a template that does not expand at the params is stored too,
+    so no read expands it again."""
 
     __tablename__ = "trial_urdfs"
 
     trial_id: Mapped[int] = mapped_column(
         sa.ForeignKey("trials.id", ondelete="CASCADE"), primary_key=True
     )
-    urdf: Mapped[str] = mapped_column(sa.Text)
+    urdf: Mapped[str | None] = mapped_column(sa.Text, nullable=True)
+    error: Mapped[str | None] = mapped_column(sa.Text, nullable=True)
+    """Why the template does not expand at the trial's params (``urdf`` is None)."""
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 

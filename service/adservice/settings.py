@@ -30,6 +30,13 @@ class Settings(BaseSettings):
     """After a study's proposal fails, workers' leases skip the study this long, doubled
     with each failure in a row up to ``proposal_backoff_max_seconds``; a success resets it."""
     proposal_backoff_max_seconds: float = Field(default=600.0, gt=0)
+    expand_threads: int = Field(default=2, ge=1)
+    """Threads that expand users' templates (study creation, a template study's new
+    trials, a URDF read of a trial stored before URDFs were), apart from the ones
+    serving requests: each runs one expanding child process at a time."""
+    expand_queue: int = Field(default=16, ge=0)
+    """Expansions that may wait for one of those threads; past them a request that
+    needs one is answered 503 with Retry-After, and nothing is stored."""
     sweep_seconds: float = 2.0
     """How often expired leases are returned to the queue in the background."""
     max_body_bytes: int = 1_000_000

@@ -10,12 +10,16 @@ from adworker.runner import JobError
 
 
 def job_robot(job: Job) -> tuple[Design | None, str]:
-    """The job's design and URDF: a design space's decoded and written, or a
-    template's expanded at the job's params (in a child process) with no design."""
+    """The job's design and URDF: a design space's decoded and written, or a template
+    study's robot with no design: the URDF the server expanded once (``job.urdf``), or,
+    for a trial stored before the server kept URDFs, the template expanded here at the
+    job's params (in a child process)."""
     from adclient.templates import TemplateError, expand_isolated
     from adclient.urdf import design_to_urdf
 
     if isinstance(job.space, TemplateSpace):
+        if job.urdf is not None:
+            return None, job.urdf
         try:
             (urdf,) = expand_isolated(job.space.template, [job.params])
         except TemplateError as error:

@@ -74,6 +74,12 @@ class Job(BaseModel):
         description="start the controller from this trial's checkpoint and train "
         "transfer.steps instead of the task's budget from scratch",
     )
+    urdf: str | None = Field(
+        default=None,
+        description="a template study's robot: its template expanded at the params, once, "
+        "by the server; None for a trial stored before the server kept URDFs, or from "
+        "an older server (the worker expands the template itself then)",
+    )
 
 
 class TransferSource(BaseModel):

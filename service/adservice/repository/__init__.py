@@ -14,6 +14,7 @@ above it, so there is no import circle:
 - ``trials``: new trials (asked, enqueued, added) and reading them (the ask hot path).
 - ``leases``: leases and workers: lease, heartbeat, release, expiry; the workers seen.
 - ``tell``: finishing a trial (the tell hot path).
+- ``urdfs``: a template study's trial's URDF, expanded once and stored.
 - ``artifacts``: a running trial's uploaded files and their quota.
 - ``reports``: intermediate reports and learning curves.
 - ``promotion``: ASHA pausing and promotion.

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import Job, Trial
 from adservice.db import Database
-from adservice.errors import ConflictError
+from adservice.errors import BusyError, ConflictError
 from adservice.principals import Principal
 from adservice.repository import leases as lease_repo
 from adservice.repository import promotion as promotion_repo
 from adservice.repository import transfer as transfer_repo
+from adservice.repository import urdfs as urdf_repo
+from adservice.services import urdfs
 from adservice.services.configs import StudyConfigs
 from adservice.services.proposal_failures import failures_recorded
 from adservice.services.trials import Proposing, propose_trials, proposes_instantly
@@ -79,14 +81,21 @@ async def lease_job(
                 )
             return trial
 
-        try:
+        async def leased(propose: Callable[[], Trial] = propose, study_id: int = study_id) -> Job:
             if proposes_instantly(configs, study_id):
                 trial = await db.run(propose)
             else:
                 trial = await proposals.run(study_id, propose)
-        except ConflictError:
-            continue  # filled or stopped meanwhile, or its proposal failed: the next study
-        return await run_in_threadpool(job_for, db, configs, trial)
+            return await run_in_threadpool(job_for, db, configs, trial)
+
+        try:
+            job = await urdfs.with_urdf(proposing, study_id=study_id, lease=leased)
+        except (ConflictError, BusyError):
+            # filled or stopped meanwhile, its proposal failed, or no place to expand its
+            # template: the next study
+            continue
+        if job is not None:  # None: the template does not expand at its params
+            return job
     return None
 
 
@@ -94,10 +103,17 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
     """The job of a leased trial, read after the lease's write (so the lease never waits
     on it): a promoted trial's resume point while a worker's (``resume_point``); for a
     study with ``task.transfer``, its source, left out with the reason logged when it
-    cannot be chosen (the lease stands: the design trains from scratch)."""
+    cannot be chosen (the lease stands: the design trains from scratch); for a template
+    study, with its stored URDF (none yet for a trial just proposed: see
+    ``urdfs.with_urdf``)."""
     config = configs.get(trial.study_id)
     assert config.task is not None and trial.lease_expires_at is not None
     transfer = None
+    urdf: str | None = None
+    if config.space.get("type") == "template":
+        with db.read() as session:
+            stored = urdf_repo.stored_urdfs(session, trial_ids=[trial.id]).get(trial.id)
+        urdf = stored.urdf if stored else None
     resume = None
     if trial.checkpoint is not None:
         with db.read() as session:
@@ -142,5 +158,6 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
             "pruner": config.pruner,
             "resume": resume,
             "transfer": transfer,
+            "urdf": urdf,
         }
     )

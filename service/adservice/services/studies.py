@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any
 
 import numpy as np
+from starlette.concurrency import run_in_threadpool
 
 from adclient.design import DesignSpace
 from adclient.designs import Representation
@@ -14,6 +16,7 @@ from adclient.schemas import StudyCreate, TemplateSpace
 from adservice.artifacts import ArtifactStore
 from adservice.db import Database
 from adservice.errors import InvalidError
+from adservice.expansions import ExpansionPool
 from adservice.models import StudyRow
 from adservice.principals import Principal
 from adservice.proposal_runner import AskBudget
@@ -24,12 +27,34 @@ from adservice.services.budget import check_options_memory
 from adservice.services.configs import check_proposer
 
 
-def create_study(
-    db: Database, *, body: StudyCreate, owner: Principal, budget: AskBudget | None = None
+async def create_study(
+    db: Database,
+    expansions: ExpansionPool,
+    *,
+    body: StudyCreate,
+    owner: Principal,
+    budget: AskBudget | None = None,
 ) -> StudyRow:
     """Check what the schema cannot (the proposer and its options, the representation's
-    numbers, an ask's memory within ``budget``), then store the study; InvalidError, with
-    nothing stored, otherwise."""
+    numbers, an ask's memory within ``budget``; a template's expansions last, in the
+    expansion pool), then store the study; InvalidError (or BusyError when the pool is
+    full), with nothing stored, otherwise."""
+    representation = await run_in_threadpool(_checked, body, budget)
+    if isinstance(body.space, TemplateSpace):
+        await expansions.run(partial(_check_template, body))
+
+    def store() -> StudyRow:
+        with db.write() as session:
+            return study_repo.create_study(
+                session, body=body, representation=representation, owner=owner
+            )
+
+    return await db.run(store)
+
+
+def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | None:
+    """The checks short of expanding a template; the search representation of a design
+    space (None for the others)."""
     check_proposer(body.proposer)
     _check_proposer_outcomes(body)
     representation = None
@@ -43,24 +68,17 @@ def create_study(
         dim = len(representation["bounds"][0])
     else:
         if isinstance(body.space, TemplateSpace):
-            _check_template(body)
+            _check_template_task(body)
         dim = len(body.space.params)
     if budget is not None and budget.memory_bytes is not None:
         check_options_memory(
             body.proposer, dim=dim, budget=budget.memory_bytes, outcomes=body.outcomes()
         )
-    with db.write() as session:
-        return study_repo.create_study(
-            session, body=body, representation=representation, owner=owner
-        )
+    return representation
 
 
-def _check_template(body: StudyCreate) -> None:
-    """The template expands to a robot a worker can build, having the links its task
-    looks up (in a child process: ``adclient.templates``)."""
-    from adclient.templates import TemplateError, check_template
-
-    assert isinstance(body.space, TemplateSpace)
+def _check_template_task(body: StudyCreate) -> None:
+    """A task that builds its robot from a template (its plugin takes one)."""
     if body.task is not None and not body.task.external:
         from adclient.plugins import catalogue
 
@@ -70,6 +88,14 @@ def _check_template(body: StudyCreate) -> None:
                 "(its plugin takes no template): use space.type design, or a task that "
                 "takes templates (stand-up, lift-highest, walk-forward, diagonal-gesture)"
             )
+
+
+def _check_template(body: StudyCreate) -> None:
+    """The template expands to a robot a worker can build, having the links its task
+    looks up (in a child process: ``adclient.templates``)."""
+    from adclient.templates import TemplateError, check_template
+
+    assert isinstance(body.space, TemplateSpace)
     links = body.task.links_looked_up() if body.task is not None else []
     try:
         check_template(body.space.template, body.space.params, links)

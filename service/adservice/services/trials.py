@@ -16,11 +16,13 @@ from typing import Any
 
 import numpy as np
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from adclient.objectives import Outcome, OutcomeError
 from adclient.schemas import Trial, TrialAdd
 from adservice.db import Database
 from adservice.errors import ConflictError, InvalidError, StudyConfigError
+from adservice.expansions import Expansion, ExpansionPool
 from adservice.locks import StudyLocks
 from adservice.principals import Principal, check_manager
 from adservice.proposal_runner import AskBudget, ProposalRunner
@@ -29,7 +31,9 @@ from adservice.proposers.base import empty_history
 from adservice.repository import promotion as promotion_repo
 from adservice.repository import studies as study_repo
 from adservice.repository import trials as trial_repo
+from adservice.repository import urdfs as urdf_repo
 from adservice.repository.studies import History
+from adservice.services import urdfs
 from adservice.services.budget import check_ask_memory
 from adservice.services.configs import StudyConfig, StudyConfigs
 from adservice.services.proposal_failures import Backoff, failures_recorded
@@ -262,16 +266,34 @@ def propose_trials(
         )
 
 
-def add_trials(
-    db: Database,
-    configs: StudyConfigs,
-    *,
-    study_id: int,
-    adds: list[TrialAdd],
-    caller: Principal,
+async def add_trials(
+    proposing: Proposing, *, study_id: int, adds: list[TrialAdd], caller: Principal
 ) -> list[Trial]:
     """Enqueue trials or add evaluated ones (``TrialAdd``), by the study's owner; each
-    one's params are checked against the space first, so a bad one stores nothing."""
+    one's params are checked against the space first, and a template study's expanded
+    (in the expansion pool), so a bad one stores nothing."""
+    db, configs = proposing.db, proposing.configs
+    template = await urdfs.template_of(proposing, study_id)
+    if template is None:
+        return await run_in_threadpool(
+            lambda: _store_adds(db, study_id, adds, _checked_adds(configs, study_id, adds, caller))
+        )
+    checked = await run_in_threadpool(_checked_adds, configs, study_id, adds, caller)
+    expanded = await urdfs.expand_added(proposing.expansions, template, adds, checked.params)
+    return await run_in_threadpool(_store_adds, db, study_id, adds, checked, expanded)
+
+
+@dataclass(frozen=True)
+class _CheckedAdds:
+    vectors: list[list[float]]
+    params: list[dict[str, Any]]
+    """Each one's params as its trial keeps them."""
+    outcomes: list[Outcome | None]
+
+
+def _checked_adds(
+    configs: StudyConfigs, study_id: int, adds: list[TrialAdd], caller: Principal
+) -> _CheckedAdds:
     config = configs.get(study_id)
     check_manager(
         caller,
@@ -301,6 +323,19 @@ def add_trials(
                 problems.append(f"{where}.{error}")
     if problems:
         raise InvalidError("; ".join(problems), problems=problems)
+    return _CheckedAdds(vectors, kept, outcomes)
+
+
+def _store_adds(
+    db: Database,
+    study_id: int,
+    adds: list[TrialAdd],
+    checked: _CheckedAdds,
+    expanded: list[Expansion] | None = None,
+) -> list[Trial]:
+    """The new ones stored in one write (with their URDFs, ``expanded``, for a template
+    study); with ``skip_if_exists``, an existing trial in a new one's place."""
+    vectors, kept, outcomes = checked.vectors, checked.params, checked.outcomes
     with db.write() as session:
         existing: dict[tuple[float, ...], Trial] = {}
         if any(add.skip_if_exists for add in adds):
@@ -329,6 +364,11 @@ def add_trials(
                 adds=[adds[index] for index in new],
                 outcomes=[outcomes[index] for index in new],
             )
+        if expanded is not None:
+            urdf_repo.store_urdfs(
+                session,
+                expansions={trial.id: expanded[i] for i, trial in zip(new, added, strict=True)},
+            )
     by_index = dict(zip(new, added, strict=True))
     return [
         by_index.get(repeats.get(index, index)) or existing[tuple(vector)]
@@ -346,6 +386,7 @@ class Proposing:
     locks: StudyLocks
     runner: ProposalRunner
     backoff: Backoff = field(default_factory=Backoff)
+    expansions: ExpansionPool = field(default_factory=ExpansionPool)
 
 
 async def ask_trials(
@@ -367,6 +408,9 @@ async def ask_trials(
                 budget=proposing.runner.budget,
             )
 
-    if proposes_instantly(proposing.configs, study_id):
-        return await proposing.db.run(propose)
-    return await proposing.runner.run(study_id, propose)
+    async def asked() -> list[Trial]:
+        if proposes_instantly(proposing.configs, study_id):
+            return await proposing.db.run(propose)
+        return await proposing.runner.run(study_id, propose)
+
+    return await urdfs.with_urdfs(proposing, study_id=study_id, fix=asked)

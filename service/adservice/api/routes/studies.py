@@ -66,9 +66,13 @@ TrialOrder = Annotated[
 
 
 @router.post("", status_code=201)
-def create_study(body: StudyCreate, proposing: ProposingDep, caller: UserDep) -> Study:
-    row = study_service.create_study(
-        proposing.db, body=body, owner=caller, budget=proposing.runner.budget
+async def create_study(body: StudyCreate, proposing: ProposingDep, caller: UserDep) -> Study:
+    row = await study_service.create_study(
+        proposing.db,
+        proposing.expansions,
+        body=body,
+        owner=caller,
+        budget=proposing.runner.budget,
     )
     return study_schema(row, {})
 

@@ -110,8 +110,12 @@ def release(trial_id: TrialId, body: ReleaseRequest, db: DatabaseDep, caller: Wo
 
 
 @router.get("/{trial_id}/urdf", response_class=Response)
-def trial_urdf(trial_id: TrialId, session: SessionDep, _: ReaderDep) -> Response:
-    urdf = robots.trial_urdf(session, trial_id=trial_id)
+async def trial_urdf(trial_id: TrialId, proposing: ProposingDep, _: ReaderDep) -> Response:
+    """The trial's robot as URDF: a design study's written from its design, a template
+    study's as expanded once when its params were fixed (422 naming the template's
+    message where they do not expand; 503 while the expansion queue is full, for a
+    trial stored before the server kept URDFs)."""
+    urdf = await robots.trial_urdf(proposing.db, proposing.expansions, trial_id=trial_id)
     return Response(
         urdf,
         media_type="application/xml",

@@ -1,0 +1,129 @@
+"""Where the server expands users' templates: threads of their own, a bounded queue.
+
+Issue 36: a template's expansion (a child process allowed ``EXPAND_SECONDS`` of CPU) ran
+in the request threads, at a study's creation and again at every URDF read: 42 creations
+of a slow template held AnyIO's 40 threads, and a study's read took 18.6 s instead of
+0.15 s. Now a trial's URDF is expanded once and stored (``adservice.services.urdfs``),
+and every expansion the server makes takes a place in this pool first:
+``AD_EXPAND_THREADS`` places run (default 2), ``AD_EXPAND_QUEUE`` wait (default 16), and
+a request that finds them all taken is answered 503 with ``Retry-After`` before it
+stores anything. Waiting holds no thread; a place is held until its work ends, even if
+the request that took it was cancelled meanwhile, so the count is what the threads owe.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, TypeVar
+
+from adservice.errors import BusyError, InvalidError
+
+T = TypeVar("T")
+
+RETRY_AFTER_SECONDS = 5
+"""What a refused request is told to wait: an expansion takes a fraction of a second, a
+hostile one up to ``EXPAND_SECONDS``; 5 s is also the SDK's longest backoff."""
+
+
+@dataclass(frozen=True)
+class Expansion:
+    """A template at one trial's params: its URDF, or why it does not expand there."""
+
+    urdf: str | None = None
+    error: str | None = None
+
+    def text(self) -> str:
+        """The URDF; InvalidError with the template's message when it did not expand."""
+        if self.urdf is None:
+            raise InvalidError(f"the trial's template does not expand at its params: {self.error}")
+        return self.urdf
+
+
+def expand_each(template: str, points: Sequence[Mapping[str, Any]]) -> list[Expansion]:
+    """Each point's expansion: one child for them all (a child's start costs 25 times an
+    expansion of the example arm), and only when that fails, a child per point to tell
+    which ones do not expand."""
+    from adclient.templates import TemplateError, expand_isolated
+
+    try:
+        return [Expansion(urdf=urdf) for urdf in expand_isolated(template, points)]
+    except TemplateError as error:
+        if len(points) == 1:
+            return [Expansion(error=str(error))]
+    return [expand_each(template, [point])[0] for point in points]
+
+
+class Place:
+    """One expansion's place in the pool (:meth:`ExpansionPool.admit`): held until the
+    work given to :meth:`run` ends, or until the ``with`` block ends if none was."""
+
+    def __init__(self, pool: ExpansionPool) -> None:
+        self._pool = pool
+        self._running = False
+        self._released = False
+
+    def __enter__(self) -> Place:
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        if not self._running:
+            self._release()
+
+    async def run(self, work: Callable[[], T]) -> T:
+        """``work()`` in an expansion thread (one work per place)."""
+        assert not self._running, "a place runs one work"
+        self._running = True
+        try:
+            future: Future[T] = self._pool._executor.submit(work)
+        except BaseException:
+            self._release()
+            raise
+        future.add_done_callback(lambda _: self._release())
+        return await asyncio.wrap_future(future)
+
+    def _release(self) -> None:
+        with self._pool._lock:
+            if not self._released:
+                self._released = True
+                self._pool._taken -= 1
+
+
+class ExpansionPool:
+    """``threads`` expansions at a time, ``queue`` more waiting, no more."""
+
+    def __init__(self, threads: int = 2, queue: int = 16) -> None:
+        self.places = threads + queue
+        self._executor = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="expand")
+        self._lock = threading.Lock()
+        self._taken = 0
+
+    def admit(self) -> Place:
+        """A place, or BusyError (503) at once when every one is taken."""
+        with self._lock:
+            if self._taken >= self.places:
+                raise BusyError(
+                    f"the server is busy expanding templates ({self.places} expansions "
+                    f"running or waiting): nothing was done; retry in {RETRY_AFTER_SECONDS} s",
+                    retry_after=RETRY_AFTER_SECONDS,
+                )
+            self._taken += 1
+        return Place(self)
+
+    async def run(self, work: Callable[[], T]) -> T:
+        """``work()`` in an expansion thread, if a place is free (else BusyError)."""
+        with self.admit() as place:
+            return await place.run(work)
+
+    def shutdown(self) -> None:
+        """Drop waiting expansions and wait for running ones (a child's limits bound them)."""
+        self._executor.shutdown(wait=True, cancel_futures=True)
