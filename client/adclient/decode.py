@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from adclient.catalogues import catalogue_totals, choice_slots, nearest
-from adclient.design import DesignSpace, with_tie_sources
+from adclient.design import DesignSpace, slot_used
 from adclient.designs import Design, Joint, Link, Representation
 from adclient.specs import (
     JOINT_SPECS,
@@ -168,14 +168,10 @@ def used_slots(
     names: Sequence[str], structure: Sequence[Edge], ties: Mapping[str, Tie] | None = None
 ) -> np.ndarray:
     """Boolean mask of the spec slots ``names`` a structure uses (its links, its
-    non-root joints; a tied instance's are its source's)."""
-    members = with_tie_sources((name for edge in structure for name in edge), ties or {})
-    children = with_tie_sources((child for _, child in structure), ties or {})
-    mask = np.zeros(len(names), dtype=bool)
-    for k, key in enumerate(names):
-        instance, _, rest = key.partition(".")
-        mask[k] = instance in children if rest.startswith("joint.") else instance in members
-    return mask
+    non-root joints; a tied instance's are its source's: ``slot_used``)."""
+    members = {name for edge in structure for name in edge}
+    children = {child for _, child in structure}
+    return np.array([slot_used(key, members, children, ties or {}) for key in names], dtype=bool)
 
 
 def spec_layout(space: DesignSpace) -> SpecLayout:

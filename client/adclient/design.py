@@ -36,7 +36,7 @@ Spec keys: ``"<instance>.<part spec>"`` (``"a.length"``) and
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Literal
 
 from pydantic import (
@@ -187,6 +187,7 @@ class DesignSpace(StrictModel):
                     f"instances[{index}] ({instance.name!r}): its joint is {kind}, which has "
                     f"no use for {', '.join(unused)}: leave them out of joint_overrides"
                 )
+            self._check_chosen_overrides(f"instances[{index}] ({instance.name!r})", instance)
         if self.structures == "all":
             n = len(self.instances)
             if n < 2:
@@ -217,6 +218,7 @@ class DesignSpace(StrictModel):
         self._ties = resolve_ties(
             {instance.name: instance.same_as for instance in self.instances},
             {instance.name: instance.mirror for instance in self.instances},
+            {instance.name: instance.joint_overrides for instance in self.instances},
         )
         for index, instance in enumerate(self.instances):
             tie = self._ties.get(instance.name)
@@ -326,6 +328,34 @@ class DesignSpace(StrictModel):
                     raise ValueError(
                         f"{where}.choose: catalogue {chosen!r} sets {other} but the part's "
                         f"mass is given by {given}"
+                    )
+
+    def _check_chosen_overrides(self, where: str, instance: PartInstance) -> None:
+        """An instance overrides no spec its chosen component sets (the component's would
+        win unseen), and its mass is given by the spec its part's catalogue sets, if any
+        (an override of density under a catalogue of masses left the masses unused)."""
+        fields: tuple[tuple[str, Literal["part", "joint"]], ...] = (
+            ("overrides", "part"),
+            ("joint_overrides", "joint"),
+        )
+        for field, kind in fields:
+            chosen = self.chosen_catalogue(instance.name, kind)
+            if chosen is None:
+                continue
+            entries = next(iter(self.catalogues[chosen].values()))
+            clashing = sorted(set(getattr(instance, field)) & set(entries))
+            if clashing:
+                raise ValueError(
+                    f"{where}: {field} {', '.join(clashing)}: the component chosen from "
+                    f"catalogue {chosen!r} sets them; leave them out"
+                )
+            if kind == "part" and instance.same_as is None:
+                given = self.mass_spec(instance.name)
+                other = "density" if given == "mass" else "mass"
+                if other in entries:
+                    raise ValueError(
+                        f"{where}: its mass is given by {given} (its override), but catalogue "
+                        f"{chosen!r} sets {other}; override {other} instead, or nothing"
                     )
 
     def chosen_catalogue(self, instance_name: str, kind: Literal["part", "joint"]) -> str | None:
@@ -474,19 +504,19 @@ class DesignSpace(StrictModel):
 
         A part slot exists when its instance is in some structure and its spec is a
         Bound; a joint slot when its instance is a child in some structure. A tied
-        instance's specs are its source's slots, which exist when either would; its
-        own searched ``position`` is its only slot.
+        instance's specs are its source's slots, which exist when either would
+        (``slot_used``); its own searched ``position`` is its only slot.
         """
         structures = self.tree_structures()
-        members: set[str] = set()
-        children: set[str] = set()
-        for edges in structures:
-            for parent, child in edges:
-                members.update(with_tie_sources((parent, child), self._ties))
-                children.update(with_tie_sources((child,), self._ties))
+        members = {name for edges in structures for edge in edges for name in edge}
+        children = {child for edges in structures for _, child in edges}
+
+        def used(key: str) -> bool:
+            return slot_used(key, members, children, self._ties)
+
         slots: list[tuple[str, Bound]] = []
         for instance in self.instances:
-            if instance.name not in members or instance.name in self._ties:
+            if not used(f"{instance.name}.length") or instance.name in self._ties:
                 continue
             slots += self._choice_slots(instance.name, "part")
             for spec in PART_SPECS:
@@ -496,11 +526,11 @@ class DesignSpace(StrictModel):
                 if isinstance(value, Bound):
                     slots.append((f"{instance.name}.{spec}", value))
         for instance in self.instances:
-            if instance.name not in children:
-                continue
-            if instance.name not in self._ties:
+            if instance.name not in self._ties and used(f"{instance.name}.joint.choice"):
                 slots += self._choice_slots(instance.name, "joint")
             for spec in JOINT_SPECS:
+                if not used(f"{instance.name}.joint.{spec}"):
+                    continue
                 if instance.name in self._ties and spec not in instance.joint_overrides:
                     continue
                 if self.catalogue_sets(instance.name, f"joint.{spec}"):
@@ -536,11 +566,21 @@ class DesignSpace(StrictModel):
         return [key for key, _ in slots], [(bound.low, bound.high) for _, bound in slots]
 
 
-def with_tie_sources(names: Iterable[str], ties: Mapping[str, Tie]) -> set[str]:
-    """``names`` and the sources of the tied instances among them: the instances whose
-    spec slots they use."""
-    names = set(names)
-    return names | {ties[name].source for name in names if name in ties}
+def slot_used(key: str, members: set[str], children: set[str], ties: Mapping[str, Tie]) -> bool:
+    """Whether a spec slot (``"a.length"``, ``"a.joint.choice.0"``) is used where
+    ``members`` are the links and ``children`` the joints' children: by its instance,
+    or by an instance tied to it there that takes the spec (not its own ``position``)."""
+    instance, _, rest = key.partition(".")
+    joint = rest.startswith("joint.")
+    users = children if joint else members
+    if instance in users:
+        return True
+    spec = rest.removeprefix("joint.").partition(".")[0]
+    return any(
+        tie.source == instance and not (joint and spec in tie.own)
+        for name, tie in ties.items()
+        if name in users
+    )
 
 
 def _check_mass_specs(

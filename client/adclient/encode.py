@@ -84,8 +84,8 @@ def _stand_in_values(
 ) -> dict[str, Any]:
     """A tie source's specs and choices the structure has no link or joint of it to
     show (``stand_in_instances``), read from a tied instance's (an axis angle
-    unmirrored), one whose mirroring undoes to the bit first:
-    ``{"a.joint.axis_theta": 0.3, "a.joint.choice": "xm430"}``."""
+    unmirrored) that is not its own (``joint_overrides.position``), one whose mirroring
+    undoes to the bit first: ``{"a.joint.axis_theta": 0.3, "a.joint.choice": "xm430"}``."""
     found: dict[str, Any] = {}
     for owner, instances in stand_in_instances(layout, edges).items():
         source = owner.removesuffix(".joint")
@@ -94,6 +94,8 @@ def _stand_in_values(
         for spec in specs:
             rest = f"joint.{spec}" if joint else spec
             for instance in sorted(instances, key=lambda i: not _gives_back(spec, layout.ties[i])):
+                if spec in layout.ties[instance].own:
+                    continue
                 value = _shown(design_or_specs, instance, f"{instance}.{rest}")
                 if value is None:
                     continue

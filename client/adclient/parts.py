@@ -41,6 +41,7 @@ class PartJSON(TypedDict):
     radius: float | dict[str, Any]
     mass: NotRequired[float | dict[str, Any]]
     density: NotRequired[float | dict[str, Any]]
+    choose: NotRequired[str]
 
 
 class PartType(StrictModel):

@@ -19,6 +19,7 @@ from adclient.decode import design_params, spec_layout
 from adclient.design import DesignSpace
 from adclient.designs import Design, Representation
 from adclient.spec_constraints import TOLERANCE, SpecConstraint
+from adclient.specs import OFFSET_SPECS
 from adclient.ties import mirrored_angle
 
 
@@ -82,8 +83,12 @@ def spec_polytope(space: DesignSpace, representation: Representation) -> SpecPol
 
 def broken_spec_constraints(space: DesignSpace, design: Design) -> list[str]:
     """The spec constraints a design breaks, each as ``spec_constraints[j] (a.length +
-    b.length <= 1.2): the design has 1.31``."""
-    params = design_params(design)
+    b.length <= 1.2): the design has 1.31``. Offsets count as 0 in a space that
+    turns no joint (its params show none)."""
+    unturned = {
+        f"{joint.child}.joint.{spec}": 0.0 for joint in design.joints for spec in OFFSET_SPECS
+    }
+    params = {**unturned, **design_params(design)}
     broken = []
     for number, constraint in enumerate(space.spec_constraints):
         if not constraint.holds(params):

@@ -13,7 +13,7 @@ half turn about z.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Literal
 
@@ -29,14 +29,19 @@ class Tie:
     source: str
     flip_x: bool = False
     flip_y: bool = False
+    own: frozenset[str] = frozenset()
+    """The joint specs the tied instance gives itself (``joint_overrides.position``:
+    where it sits on its parent), which are not its source's."""
 
 
 def resolve_ties(
-    same_as: Mapping[str, str | None], mirror: Mapping[str, Mirror | None]
+    same_as: Mapping[str, str | None],
+    mirror: Mapping[str, Mirror | None],
+    own: Mapping[str, Iterable[str]] | None = None,
 ) -> dict[str, Tie]:
     """Every tied instance's Tie (untied instances are absent). ``same_as`` maps every
-    instance, in order, to the instance it names or None. A ValueError names an
-    unknown instance or a cycle."""
+    instance, in order, to the instance it names or None; ``own`` to the joint specs
+    it gives itself. A ValueError names an unknown instance or a cycle."""
     ties: dict[str, Tie] = {}
     for name, target in same_as.items():
         if target is None:
@@ -63,7 +68,8 @@ def resolve_ties(
                 )
             chain.append(following)
             current = following
-        ties[name] = Tie(source=chain[-1], flip_x=flip_x, flip_y=flip_y)
+        mine = frozenset((own or {}).get(name, ()))
+        ties[name] = Tie(source=chain[-1], flip_x=flip_x, flip_y=flip_y, own=mine)
     return ties
 
 

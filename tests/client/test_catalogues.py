@@ -144,6 +144,13 @@ def test_a_part_chooses_stock_tubes() -> None:
     links = {link.name: link for link in design.links}
     assert (links["b"].choice, links["c"].choice) == ("t25", "t16")
     assert links["b"].radius == 0.0125 and links["b"].density == 2700.0
+    # issue 36: the part's JSON (what the server stores and workers read) dropped its
+    # choose, so a stored study's slots differed from its representation's and every
+    # ask failed ("the representation does not belong to this space")
+    stored = DesignSpace.model_validate(space.model_dump(mode="json"))
+    assert stored.parts["link"].choose == "tubes"
+    assert stored.free_specs() == space.free_specs()
+    assert decode(stored, representation, vector) == design
 
 
 @pytest.mark.parametrize(
@@ -179,6 +186,43 @@ def test_a_part_chooses_stock_tubes() -> None:
 def test_bad_catalogues_are_refused_by_name(change: dict[str, Any], message: str) -> None:
     with pytest.raises(ValidationError) as caught:
         DesignSpace.model_validate(_arm(**change))
+    assert re.search(message, str(caught.value)), str(caught.value)
+
+
+TUBES = {"t16": {"radius": 0.008, "density": 2700.0}, "t25": {"radius": 0.0125, "density": 2700.0}}
+
+
+@pytest.mark.parametrize(
+    ("instance", "message"),
+    [
+        (
+            {"joint_overrides": {"effort": 3.0}},
+            r"instances\[1\] \('b'\): joint_overrides effort: the component chosen from "
+            r"catalogue 'servos' sets them",
+        ),
+        (
+            {"overrides": {"radius": 0.01}},
+            r"\('b'\): overrides radius: the component chosen from catalogue 'tubes' sets them",
+        ),
+        (
+            {"overrides": {"mass": 0.2}},
+            r"\('b'\): its mass is given by mass \(its override\), but catalogue 'tubes' "
+            r"sets density",
+        ),
+    ],
+    ids=["joint override", "part override", "other mass spec"],
+)
+def test_an_override_of_what_a_component_sets_is_refused(
+    instance: dict[str, Any], message: str
+) -> None:
+    """Issue 36: the component's value won unseen (an overridden effort or radius was
+    ignored), or an override of the other mass spec left the catalogue's unused and
+    the params' mass refused on enqueue."""
+    space = _arm(catalogues={**ARM["space"]["catalogues"], "tubes": TUBES})
+    space["parts"]["link"]["choose"] = "tubes"
+    space["instances"][1].update(instance)
+    with pytest.raises(ValidationError) as caught:
+        DesignSpace.model_validate(space)
     assert re.search(message, str(caught.value)), str(caught.value)
 
 

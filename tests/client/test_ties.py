@@ -272,14 +272,16 @@ MOTORS = {
 }
 
 
-def _chain(tied: list[dict[str, Any]], structures: list[list[list[str]]]) -> dict[str, Any]:
+def _chain(
+    tied: list[dict[str, Any]], structures: list[list[list[str]]], **joint: Any
+) -> dict[str, Any]:
     """Links a, b, c (and d) whose joints choose motors; ``tied`` replaces instances."""
     instances = {name: {"name": name, "part": "leg"} for name in "abcd"}
     instances.update({instance["name"]: instance for instance in tied})
     used = {name for edges in structures for edge in edges for name in edge}
     return {
         **_space([instances[name] for name in "abcd" if name in used], []),
-        "joint": {"choose": "motors", "offset_yaw": {"low": -0.5, "high": 0.5}},
+        "joint": {"choose": "motors", "offset_yaw": {"low": -0.5, "high": 0.5}, **joint},
         "catalogues": {"motors": MOTORS},
         "structures": structures,
     }
@@ -299,6 +301,18 @@ ROOT_TIES = {
             {"name": "d", "same_as": "c", "mirror": "x"},
         ],
         [[["a", "b"], ["b", "c"], ["b", "d"]]],
+    ),
+    "a stand-in sitting where it likes": _chain(
+        [
+            {
+                "name": "b",
+                "same_as": "a",
+                "joint_overrides": {"position": {"low": 0.2, "high": 0.8}},
+            },
+            {"name": "c", "same_as": "a", "mirror": "y"},
+        ],
+        CHAIN,
+        position={"low": 0.5, "high": 1.0},
     ),
     "a source absent from a structure": _chain(
         [{"name": "c", "same_as": "a", "mirror": "y"}],
@@ -347,3 +361,30 @@ def test_a_tie_to_the_root_names_the_tied_joint_when_it_is_missing_or_off() -> N
     vector = encode(space, representation, {**chosen, "b.joint.choice": other})
     joints = {joint.child: joint for joint in decode(space, representation, vector).joints}
     assert (joints["b"].choice, joints["b"].effort) == (other, MOTORS[other]["effort"])
+
+
+def test_a_source_s_joint_spec_that_no_tied_instance_takes_is_not_searched() -> None:
+    """Issue 36: the root ``left``'s joint position was searched (and asked for on
+    enqueue, naming a spec no params show) though ``right``, the only instance that
+    takes ``left``'s joint, sits where its own position says."""
+    space = DesignSpace.model_validate(
+        {
+            **_space(
+                [
+                    {"name": "left", "part": "leg"},
+                    {"name": "torso", "part": "body"},
+                    {"name": "right", "same_as": "left", "joint_overrides": {"position": 0.3}},
+                ],
+                [["left", "torso"], ["torso", "right"]],
+            ),
+            "joint": {"position": {"low": 0.5, "high": 1.0}},
+        }
+    )
+    names = spec_layout(space).names
+    assert "left.joint.axis_theta" in names and "torso.joint.position" in names
+    assert "left.joint.position" not in names
+    representation = identity_representation(space)
+    design = decode(space, representation, [0.25] * len(names))
+    assert {joint.child: joint.position for joint in design.joints}["right"] == 0.3
+    params = design_params(design)
+    assert decode(space, representation, encode(space, representation, params)) == design

@@ -179,6 +179,23 @@ def test_an_enqueued_design_that_breaks_a_constraint_is_refused_and_not_stored(
     )
 
 
+def test_an_offset_of_a_space_that_turns_no_joint_counts_as_0_on_enqueue(
+    http: httpx.Client,
+) -> None:
+    """Issue 36: such a space's params show no offsets, and checking an enqueued design
+    against a budget naming one was a 500 (KeyError)."""
+    budget = {"terms": {"a.length": 1.0, "c.joint.offset_yaw": 1.0}, "op": "<=", "bound": 0.5}
+    created = _create(http, "offset", {**CHAIN, "spec_constraints": [budget]}, {"name": "random"})
+    study_id = created.json()["id"]
+    (trial,) = http.post(f"/api/v1/studies/{study_id}/ask", json={}).json()["trials"]
+    assert "c.joint.offset_yaw" not in trial["params"]
+    for length, status in ((0.4, 201), (0.55, 422)):
+        params = {**trial["params"], "a.length": length}
+        added = http.post(f"/api/v1/studies/{study_id}/trials", json={"params": params})
+        assert added.status_code == status, added.text
+    assert "the design has 0.55" in added.text
+
+
 @pytest.mark.parametrize(
     ("constraints", "message"),
     [
