@@ -20,6 +20,7 @@ from adservice.settings import Settings
 from tests.failing_proposals import (
     ERROR,
     design_study,
+    read_representation,
     store_representation,
     unfit_representation,
     update_study,
@@ -173,3 +174,36 @@ def test_an_owner_ask_of_a_failing_study_answers_409_naming_the_failure(
     response = api.post(f"/api/v1/studies/{failing}/ask", json={"count": 1})
     assert response.status_code == 409 and response.json()["error"] == "conflict", response.text
     assert study(api, failing)["proposal_failures"] == 4
+
+
+def test_a_queued_trial_whose_study_does_not_load_is_skipped_not_a_500(
+    settings: Settings, database_url: str
+) -> None:
+    """A queued trial is leased before its job is built; a study whose stored settings
+    do not load (here its representation, corrupted in the file) made that build raise
+    after the lease was written: a 500 to every lease, the trial held
+    until its lease ran out and the attempt counted. Now the failure is the study's:
+    recorded with its backoff, the trial back in the queue uncounted, and the same
+    lease answers the next study's job."""
+    with TestClient(create_app(settings), base_url=LOCAL, headers=SDK_HEADERS) as api:
+        stale = created(api, design_study("stale", task=TASK, max_trials=5, proposer=RANDOM))
+        response = api.post(f"/api/v1/studies/{stale}/ask", json={"count": 1})
+        assert response.status_code == 200, response.text
+        (asked,) = response.json()["trials"]
+        enqueued = api.post(f"/api/v1/studies/{stale}/trials", json={"params": asked["params"]})
+        assert enqueued.status_code == 201, enqueued.text
+        good = created(api, GOOD)
+    representation = read_representation(database_url, stale)
+    store_representation(database_url, stale, {**representation, "bounds": "lost"})
+
+    with TestClient(create_app(settings), base_url=LOCAL, headers=SDK_HEADERS) as api:
+        assert lease(api, "w0")["study_id"] == good
+        answer = study(api, stale)
+        assert answer["proposal_failures"] == 1, answer
+        assert answer["proposal_error"].startswith("ValidationError"), answer
+        trials = api.get(f"/api/v1/studies/{stale}/trials").json()
+        queued = [trial for trial in trials if trial["state"] == "queued"]
+        assert len(queued) == 1 and queued[0]["attempts"] == 0, trials
+        # backing off, its queued trial is not leased again: the good study's next job
+        assert lease(api, "w1")["study_id"] == good
+        assert study(api, stale)["proposal_failures"] == 1

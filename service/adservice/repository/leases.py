@@ -74,6 +74,11 @@ def _task_among(tasks: Sequence[str] | None) -> list[sa.ColumnElement[bool]]:
     return where
 
 
+def _not_backing_off(now: datetime) -> sa.ColumnElement[bool]:
+    """Studies whose proposals (or jobs) have not failed, or whose backoff is over."""
+    return sa.or_(StudyRow.proposal_retry_at.is_(None), StudyRow.proposal_retry_at <= now)
+
+
 def lease_queued_trial(
     session: Session,
     *,
@@ -82,7 +87,8 @@ def lease_queued_trial(
     lease_seconds: float,
     tasks: Sequence[str] | None = None,
 ) -> TrialRow | None:
-    """Lease the oldest queued trial of a running managed study (of one of ``tasks``)."""
+    """Lease the oldest queued trial of a running managed study (of one of ``tasks``)
+    that is not backing off after a failure (``proposal_retry_at``)."""
     now = utcnow()
     expire_leases(session, now=now)
     query = (
@@ -92,6 +98,7 @@ def lease_queued_trial(
             TrialRow.state == TrialState.queued,
             StudyRow.state == "running",
             *_task_among(tasks),
+            _not_backing_off(now),
         )
         .order_by(TrialRow.id)
         .limit(1)
@@ -123,7 +130,7 @@ def studies_wanting_trials(session: Session, *, tasks: Sequence[str] | None = No
             StudyRow.state == "running",
             *_task_among(tasks),
             StudyRow.n_trials < StudyRow.max_trials,
-            sa.or_(StudyRow.proposal_retry_at.is_(None), StudyRow.proposal_retry_at <= utcnow()),
+            _not_backing_off(utcnow()),
         )
         .order_by(StudyRow.id)
     )

@@ -9,7 +9,7 @@ from starlette.concurrency import run_in_threadpool
 
 from adclient.schemas import Job, Trial
 from adservice.db import Database
-from adservice.errors import BusyError, ConflictError
+from adservice.errors import BusyError, ConflictError, ProposalFailedError, StudyConfigError
 from adservice.principals import Principal
 from adservice.repository import leases as lease_repo
 from adservice.repository import promotion as promotion_repo
@@ -61,9 +61,27 @@ async def lease_job(
         with db.read() as session:
             return lease_repo.studies_wanting_trials(session, tasks=tasks)
 
+    def served(trial: Trial) -> Job | None:
+        """The queued trial's job; None when its study cannot make one (its stored
+        settings no longer load, say): that is recorded on the study, whose trials
+        leases then skip for its backoff, and the trial goes back to the queue with
+        its attempt not counted."""
+        try:
+            with failures_recorded(db, proposing.backoff, study_id=trial.study_id):
+                return job_for(db, configs, trial)
+        except (ProposalFailedError, StudyConfigError):
+            with db.write() as session:
+                lease_repo.release_lease(
+                    session, trial_id=trial.id, worker_id=worker_id, caller=caller
+                )
+            return None
+
     trial = await db.run(queued)
-    if trial is not None:  # job_for reads (a resume point, a transfer scan): off the loop
-        return await run_in_threadpool(job_for, db, configs, trial)
+    while trial is not None:  # job_for reads (a resume point, a transfer scan): off the loop
+        job = await run_in_threadpool(served, trial)
+        if job is not None:
+            return job
+        trial = await db.run(queued)
     for study_id in proposals.free_first(await db.run(wanting)):
 
         def propose(study_id: int = study_id) -> Trial:
