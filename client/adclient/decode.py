@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from adclient.catalogues import catalogue_totals, choice_slots, nearest
-from adclient.design import DesignSpace, slot_used
+from adclient.design import DesignSpace
 from adclient.designs import Design, Joint, Link, Representation
 from adclient.specs import (
     JOINT_SPECS,
@@ -34,7 +34,7 @@ from adclient.specs import (
     Bound,
     link_mass,
 )
-from adclient.ties import Tie, mirrored_angle
+from adclient.ties import Tie, mirrored_angle, slot_used
 from adclient.trees import Edge
 
 PAD = 0.5

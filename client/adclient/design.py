@@ -36,7 +36,6 @@ Spec keys: ``"<instance>.<part spec>"`` (``"a.length"``) and
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from typing import Literal
 
 from pydantic import (
@@ -62,7 +61,7 @@ from adclient.specs import (
     check_spec,
     show_spec,
 )
-from adclient.ties import Tie, mirrored_angle, resolve_ties
+from adclient.ties import Tie, mirrored_angle, resolve_ties, slot_used
 from adclient.trees import Edge, all_trees, check_tree, valid_name
 from adclient.urdf_model import JointKind
 
@@ -564,23 +563,6 @@ class DesignSpace(StrictModel):
         """
         slots = self.free_specs()
         return [key for key, _ in slots], [(bound.low, bound.high) for _, bound in slots]
-
-
-def slot_used(key: str, members: set[str], children: set[str], ties: Mapping[str, Tie]) -> bool:
-    """Whether a spec slot (``"a.length"``, ``"a.joint.choice.0"``) is used where
-    ``members`` are the links and ``children`` the joints' children: by its instance,
-    or by an instance tied to it there that takes the spec (not its own ``position``)."""
-    instance, _, rest = key.partition(".")
-    joint = rest.startswith("joint.")
-    users = children if joint else members
-    if instance in users:
-        return True
-    spec = rest.removeprefix("joint.").partition(".")[0]
-    return any(
-        tie.source == instance and not (joint and spec in tie.own)
-        for name, tie in ties.items()
-        if name in users
-    )
 
 
 def _check_mass_specs(

@@ -58,7 +58,7 @@ def _shown(design_or_specs: Design | Mapping[str, Any], instance: str, key: str)
     return None if holder is None else getattr(holder, rest.removeprefix("joint."), None)
 
 
-def stand_in_instances(layout: SpecLayout, edges: Sequence[Edge]) -> dict[str, list[str]]:
+def _stand_in_instances(layout: SpecLayout, edges: Sequence[Edge]) -> dict[str, list[str]]:
     """Where a structure uses a tie source's slots for its tied instances but has no
     link of the source (it is absent) or no joint (it is the root, or absent), the tied
     instances there that have one, whose specs show them: owner (``"a"`` for a link,
@@ -83,11 +83,11 @@ def _stand_in_values(
     layout: SpecLayout, edges: Sequence[Edge], design_or_specs: Design | Mapping[str, Any]
 ) -> dict[str, Any]:
     """A tie source's specs and choices the structure has no link or joint of it to
-    show (``stand_in_instances``), read from a tied instance's (an axis angle
+    show (``_stand_in_instances``), read from a tied instance's (an axis angle
     unmirrored) that is not its own (``joint_overrides.position``), one whose mirroring
     undoes to the bit first: ``{"a.joint.axis_theta": 0.3, "a.joint.choice": "xm430"}``."""
     found: dict[str, Any] = {}
-    for owner, instances in stand_in_instances(layout, edges).items():
+    for owner, instances in _stand_in_instances(layout, edges).items():
         source = owner.removesuffix(".joint")
         joint = owner.endswith(".joint")
         specs = [*JOINT_SPECS, "choice"] if joint else [*PART_SPECS, "choice"]
@@ -116,7 +116,7 @@ def _shown_exactly(
     axis angles, by at most ``NORMALISE_ULPS`` floats each way, to one that decodes to
     the angles they showed, to the bit where one does (``pi - t`` rounds, so the
     unmirrored value's own slot may show an ulp off)."""
-    for owner, instances in stand_in_instances(layout, edges).items():
+    for owner, instances in _stand_in_instances(layout, edges).items():
         for spec in ("axis_theta", "axis_phi"):
             key = f"{owner}.{spec}"
             if key not in layout.names:
@@ -188,10 +188,11 @@ def encode(
     map), to the specs nearest the design's; exact for reference designs up to the
     affine map's fit. One-hot ones: exact (the structure's coordinate 1, the others
     0). A mapping may name ``structure_index`` (default 0) and must give every free
-    spec the structure uses; other known spec keys (as in ``design_params``) are
-    ignored, except a derived mass: a ``"<link>.mass"`` given for a link whose mass
-    comes from ``density`` must be density times its volume (as ``design_params``
-    shows it), else a ValueError naming it.
+    spec the structure uses (a tie source's that has no link or joint there, on an
+    instance tied to it, as params show it); other known spec keys (as in
+    ``design_params``) are ignored, except a derived mass: a ``"<link>.mass"`` given
+    for a link whose mass comes from ``density`` must be density times its volume (as
+    ``design_params`` shows it), else a ValueError naming it.
     """
     layout = checked_layout(space, representation)
     if isinstance(design_or_specs, Design):
@@ -241,8 +242,12 @@ def encode(
 
 def _named(layout: SpecLayout, structure: int, key: str) -> str:
     """A spec key as a message names it: a tie source's its stand-in shows, as shown."""
-    owner = spec_owner(key)[0]
-    instances = stand_in_instances(layout, layout.structures[structure]).get(owner)
+    owner, entry = spec_owner(key)
+    instances = [
+        instance
+        for instance in _stand_in_instances(layout, layout.structures[structure]).get(owner, [])
+        if entry.partition(".")[0] not in layout.ties[instance].own
+    ]
     if not instances:
         return repr(key)
     source = owner.removesuffix(".joint")

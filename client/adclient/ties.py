@@ -105,3 +105,20 @@ def unmirrored_angle(spec: str, value: float, tie: Tie) -> float:
     if tie.flip_x and tie.flip_y and spec == "axis_phi":
         return value - math.pi
     return mirrored_angle(spec, value, tie)  # every other mirroring is its own inverse
+
+
+def slot_used(key: str, members: set[str], children: set[str], ties: Mapping[str, Tie]) -> bool:
+    """Whether a spec slot (``"a.length"``, ``"a.joint.choice.0"``) is used where
+    ``members`` are the links and ``children`` the joints' children: by its instance,
+    or by an instance tied to it there that takes the spec (not its own ``position``)."""
+    instance, _, rest = key.partition(".")
+    joint = rest.startswith("joint.")
+    users = children if joint else members
+    if instance in users:
+        return True
+    spec = rest.removeprefix("joint.").partition(".")[0]
+    return any(
+        tie.source == instance and not (joint and spec in tie.own)
+        for name, tie in ties.items()
+        if name in users
+    )

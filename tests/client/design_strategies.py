@@ -154,3 +154,153 @@ def multi_structure_spaces(draw: st.DrawFn) -> dict[str, Any]:
         "fusion_solver": draw(st.sampled_from(["osqp", "exact"])),
         "fusion_margin": draw(st.sampled_from([0.0, 0.1])),
     }
+
+
+SHAPES = ["cylinder", "box", "capsule"]
+JOINT_KINDS = ["revolute", "continuous", "prismatic", "fixed"]
+MOTORS = {
+    "small": {"effort": 2.0, "velocity": 8.0, "mass": 0.05, "cost": 10.0},
+    "mid": {"effort": 6.0, "velocity": 5.0, "mass": 0.1, "cost": 25.0},
+    "large": {"effort": 20.0, "velocity": 2.0, "mass": 0.3, "cost": 90.0},
+}
+"""Joint components: their effort and velocity set the joint's specs."""
+TUBES = {
+    "mass": {
+        "thin": {"radius": 0.01, "mass": 0.2, "cost": 3.0},
+        "thick": {"radius": 0.03, "mass": 0.9, "cost": 8.0},
+    },
+    "density": {
+        "plastic": {"radius": 0.02, "density": 1200.0},
+        "steel": {"radius": 0.015, "density": 7800.0},
+        "wood": {"radius": 0.04, "density": 600.0},
+    },
+}
+"""Part components by the spec that gives a part's mass: radius and it set the link's."""
+LIMITED_MOTORS = {
+    "narrow": {"effort": 4.0, "lower": -0.5, "upper": 0.5},
+    "wide": {"effort": 12.0, "lower": -2.0, "upper": 2.0},
+}
+"""Joint components that set the limits too (a continuous joint's are placeholders)."""
+
+
+@st.composite
+def any_spaces(draw: st.DrawFn) -> dict[str, Any]:
+    """A design space body from every feature the model has: trees (one, several, or
+    all), ties (to any instance, the root included, mirrored, chained, cyclic), part
+    and joint catalogues, joint kinds shared and per instance, overrides, offsets, log
+    bounds, shapes, masses and densities, spec constraints and every encoding. Many are
+    invalid; the server must refuse those cleanly and serve every other."""
+    n = draw(st.integers(2, 5))
+    names = NAMES[:n]
+    catalogues: dict[str, Any] = {}
+    parts: dict[str, Any] = {}
+    for index in range(draw(st.integers(1, 2))):
+        given = draw(st.sampled_from(MASS_SPECS))
+        part: dict[str, Any] = {
+            "shape": draw(st.sampled_from(SHAPES)),
+            **{
+                spec: draw(spec_values(spec))
+                for spec in PART_SPECS
+                if spec not in MASS_SPECS or spec == given
+            },
+        }
+        if draw(st.integers(0, 3)) == 0:
+            catalogues[f"{given}_tubes"] = TUBES[given]
+            part["choose"] = f"{given}_tubes"
+        parts[f"part{index}"] = part
+    joint: dict[str, Any] = {
+        spec: draw(spec_values(spec))
+        for spec in draw(st.sets(st.sampled_from(JOINT_SPECS)))
+        if spec not in ("lower", "upper")
+    }
+    joint["type"] = draw(st.sampled_from(JOINT_KINDS))
+    if draw(st.booleans()):
+        name, catalogue = draw(st.sampled_from([("motors", MOTORS), ("limits", LIMITED_MOTORS)]))
+        catalogues[name] = catalogue
+        joint["choose"] = name
+    instances = [
+        draw(_instances(name, names[:index], names, sorted(parts)))
+        for index, name in enumerate(names)
+    ]
+    structures = draw(_structures(names))
+    constraints = draw(st.lists(_spec_constraints(names, structures), max_size=2))
+    linear = bool(constraints) and draw(st.integers(0, 4)) > 0  # fused takes none
+    body: dict[str, Any] = {
+        "type": "design",
+        "parts": parts,
+        "joint": joint,
+        "instances": instances,
+        "structures": structures,
+        "encoding": draw(st.sampled_from(["mixed", "onehot", *([] if linear else ["fused"])])),
+        "reference_per_structure": draw(st.sampled_from([2, 4])),
+        "spec_constraints": constraints,
+    }
+    if catalogues:
+        body["catalogues"] = catalogues
+    return body
+
+
+@st.composite
+def _instances(
+    draw: st.DrawFn, name: str, earlier: list[str], names: list[str], parts: list[str]
+) -> dict[str, Any]:
+    """One instance: tied (same_as an earlier instance, or now and then any, itself
+    included: a cycle; maybe mirrored, maybe sitting elsewhere on its parent) a third of
+    the time, else of a part, with overrides and a joint kind of its own now and then."""
+    instance: dict[str, Any] = {"name": name}
+    # hypothesis often draws every choice as its least: that path makes no cycle
+    if draw(st.integers(0, 2)) == 2 and (earlier or draw(st.integers(0, 19)) == 19):
+        targets = earlier if earlier and draw(st.integers(0, 19)) < 19 else names
+        instance["same_as"] = draw(st.sampled_from(targets))
+        if draw(st.booleans()):
+            instance["mirror"] = draw(st.sampled_from(["x", "y"]))
+        if draw(st.integers(0, 3)) == 0:
+            instance["joint_overrides"] = {"position": draw(spec_values("position"))}
+        return instance
+    instance["part"] = draw(st.sampled_from(parts))
+    if draw(st.integers(0, 2)) == 0:
+        spec = draw(st.sampled_from(PART_SPECS))
+        instance["overrides"] = {spec: draw(spec_values(spec))}
+    if draw(st.integers(0, 2)) == 0:
+        spec = draw(st.sampled_from(JOINT_SPECS))
+        instance["joint_overrides"] = {spec: draw(spec_values(spec))}
+    if draw(st.integers(0, 2)) == 0:
+        instance["joint_type"] = draw(st.sampled_from(JOINT_KINDS))
+    return instance
+
+
+@st.composite
+def _structures(draw: st.DrawFn, names: list[str]) -> Any:
+    """``all`` (up to 4 instances), or one to three trees: the first over every
+    instance, the others over any two or more of them (the root anywhere)."""
+    if len(names) <= 4 and draw(st.integers(0, 3)) == 0:
+        return "all"
+    structures = [draw(trees(names))]
+    for _ in range(draw(st.integers(0, 2))):
+        some = draw(st.lists(st.sampled_from(names), min_size=2, max_size=len(names), unique=True))
+        structures.append(draw(trees(some)))
+    return [[list(edge) for edge in edges] for edges in structures]
+
+
+@st.composite
+def _spec_constraints(draw: st.DrawFn, names: list[str], structures: Any) -> dict[str, Any]:
+    """A budget on one to three specs, mostly of instances every structure has (joint
+    specs of ones each has as a child), its bound the terms' total at the middle of
+    their sensible ranges, give or take: often satisfiable, not always."""
+    trees = [[(names[0], name) for name in names[1:]]] if structures == "all" else structures
+    links = set.intersection(*({name for edge in tree for name in edge} for tree in trees))
+    children = set.intersection(*({child for _, child in tree} for tree in trees))
+    if draw(st.integers(0, 4)) == 0 or not links:
+        links = children = set(names)
+    specs = [
+        *((name, spec) for name in sorted(links) for spec in PART_SPECS),
+        *((name, f"joint.{spec}") for name in sorted(children) for spec in JOINT_SPECS),
+    ]
+    keys = draw(st.lists(st.sampled_from(specs).map(".".join), min_size=1, max_size=3, unique=True))
+    terms = {key: draw(st.sampled_from([-2.0, -1.0, 1.0, 2.0])) for key in keys}
+    middle = sum(
+        coefficient * sum(SPEC_RANGES[key.split(".")[-1]]) / 2 for key, coefficient in terms.items()
+    )
+    op = draw(st.sampled_from(["<=", ">="]))
+    slack = draw(st.floats(-0.2, 1.0)) * (1.0 if op == "<=" else -1.0)
+    return {"terms": terms, "op": op, "bound": middle + slack * max(1.0, abs(middle))}
