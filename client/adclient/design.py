@@ -186,7 +186,6 @@ class DesignSpace(StrictModel):
                     f"instances[{index}] ({instance.name!r}): its joint is {kind}, which has "
                     f"no use for {', '.join(unused)}: leave them out of joint_overrides"
                 )
-            self._check_chosen_overrides(f"instances[{index}] ({instance.name!r})", instance)
         if self.structures == "all":
             n = len(self.instances)
             if n < 2:
@@ -256,12 +255,6 @@ class DesignSpace(StrictModel):
                     f"{where}.terms: {key!r} is no spec (an instance's specs: "
                     f"{', '.join(PART_SPECS)}; its joint's: joint.{', joint.'.join(JOINT_SPECS)})"
                 )
-            kind = self.joint_kind(instance)
-            if joint and spec.removeprefix("joint.") in UNUSED_JOINT_SPECS.get(kind, ()):
-                raise ValueError(
-                    f"{where}.terms: {key!r} is a placeholder: {instance!r}'s joint is {kind}, "
-                    "which has no use for it, so no design changes it; leave it out"
-                )
             value = (
                 self.joint_spec(instance, spec.removeprefix("joint."))
                 if joint
@@ -327,6 +320,24 @@ class DesignSpace(StrictModel):
                     raise ValueError(
                         f"{where}.choose: catalogue {chosen!r} sets {other} but the part's "
                         f"mass is given by {given}"
+                    )
+
+    def check_at_creation(self) -> None:
+        """Rules a new space meets that a stored one need not: they came after studies
+        were stored under looser ones (issue 36), and a stored study must still load
+        (read, listed, proposed for), so the server checks them when it creates a study,
+        not whenever a space is read. ValueError naming what breaks one."""
+        for index, instance in enumerate(self.instances):
+            self._check_chosen_overrides(f"instances[{index}] ({instance.name!r})", instance)
+        for number, constraint in enumerate(self.spec_constraints):
+            for key in constraint.terms:
+                name, _, spec = key.partition(".")
+                kind = self.joint_kind(name)
+                if spec.startswith("joint.") and spec[6:] in UNUSED_JOINT_SPECS.get(kind, ()):
+                    raise ValueError(
+                        f"spec_constraints[{number}].terms: {key!r} is a placeholder: "
+                        f"{name!r}'s joint is {kind}, which has no use for it, so no "
+                        "design changes it; leave it out"
                     )
 
     def _check_chosen_overrides(self, where: str, instance: PartInstance) -> None:

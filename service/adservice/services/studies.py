@@ -61,6 +61,10 @@ def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | No
     if isinstance(body.space, DesignSpace):
         from adservice.representation import build_representation
 
+        try:
+            body.space.check_at_creation()
+        except ValueError as error:
+            raise InvalidError(f"space: {error}") from None
         built = build_representation(body.space)
         representation = built.model_dump(mode="json")
         _check_finite(body.space, representation)
