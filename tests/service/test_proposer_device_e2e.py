@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -39,3 +40,32 @@ def test_a_server_asked_for_cuda_without_a_gpu_exits_saying_why(tmp_path: Path) 
     assert said.startswith("adserver: AD_PROPOSER_DEVICE=cuda cannot be used: ")
     assert "AD_PROPOSER_DEVICE=cpu" in said
     assert not (tmp_path / "studies.db").exists()  # refused before touching the database
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA GPU")
+@pytest.mark.parametrize("objectives", [1, 2])
+def test_a_study_asking_for_cuda_on_a_server_without_it_is_refused_at_creation(
+    shared_server: ServerProcess, objectives: int
+) -> None:
+    """Accepted, every ask of it would fall back to Sobol points ("model failed"); one
+    objective (qLogEI) or several (qLogNEHVI) alike."""
+    body: dict[str, Any] = {
+        "name": f"cuda-{objectives}",
+        "space": BOX,
+        "proposer": {"name": "qei", "options": {"device": "cuda"}},
+    }
+    if objectives == 2:
+        body["objectives"] = [
+            {"metric": "score", "direction": "maximize"},
+            {"metric": "mass", "direction": "minimize"},
+        ]
+    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
+        refused = http.post("/api/v1/studies", json=body)
+        assert refused.status_code == 422, refused.text
+        detail = refused.json()["detail"]
+        assert "proposer.options.device: cuda cannot be used on this server" in detail, detail
+        assert "set it to cpu" in detail
+        names = [s["name"] for s in http.get("/api/v1/studies").json()]
+        assert f"cuda-{objectives}" not in names  # nothing stored
+        body["proposer"]["options"]["device"] = "cpu"
+        assert http.post("/api/v1/studies", json=body).status_code == 201

@@ -11,8 +11,9 @@ from starlette.concurrency import run_in_threadpool
 
 from adclient.design import DesignSpace
 from adclient.designs import Representation
+from adclient.devices import device_problem
 from adclient.polytope import spec_polytope
-from adclient.schemas import StudyCreate, TemplateSpace
+from adclient.schemas import ProposerConfig, StudyCreate, TemplateSpace
 from adservice.artifacts import ArtifactStore
 from adservice.db import Database
 from adservice.errors import InvalidError
@@ -56,6 +57,7 @@ def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | No
     """The checks short of expanding a template; the search representation of a design
     space (None for the others)."""
     check_proposer(body.proposer)
+    _check_proposer_device(body.proposer)
     _check_proposer_outcomes(body)
     representation = None
     if isinstance(body.space, DesignSpace):
@@ -79,6 +81,18 @@ def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | No
             body.proposer, dim=dim, budget=budget.memory_bytes, outcomes=body.outcomes()
         )
     return representation
+
+
+def _check_proposer_device(config: ProposerConfig) -> None:
+    """A study whose model asks for a device this server's torch cannot use is refused:
+    accepted, its every ask would fall back to Sobol points."""
+    device = config.options.get("device")
+    problem = device_problem(device) if isinstance(device, str) else None
+    if problem is not None:
+        raise InvalidError(
+            f"proposer.options.device: {device} cannot be used on this server: {problem}; "
+            "leave device out (the server's AD_PROPOSER_DEVICE) or set it to cpu"
+        )
 
 
 def _check_template_task(body: StudyCreate) -> None:
