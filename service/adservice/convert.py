@@ -50,6 +50,8 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             "proposal_error": row.proposal_error,
             "proposal_failures": row.proposal_failures or 0,
             "proposal_retry_at": row.proposal_retry_at,
+            "proposal_fallbacks": row.proposal_fallbacks or 0,
+            "proposal_fallback_reason": row.proposal_fallback_reason,
         }
     )
 

@@ -52,6 +52,11 @@ DATABASE_GAUGES: dict[str, tuple[str, tuple[str, ...]]] = {
         "Proposals of a study that failed in a row, by study id (0: its last succeeded).",
         ("study",),
     ),
+    "activedesign_proposal_fallbacks": (
+        "Candidates of a study that were Sobol points because a time or memory budget or a "
+        "failed model stopped its proposer, by study id.",
+        ("study",),
+    ),
 }
 """Name -> (help, labels) of the gauges read from the database (the k8s test checks the
 ScaledObject's query against these)."""
@@ -121,6 +126,7 @@ _GAUGE_QUERY = (
         StudyRow.n_trials,
         StudyRow.proposal_failures,
         StudyRow.proposal_retry_at,
+        StudyRow.proposal_fallbacks,
         TrialRow.state,
         sa.func.count(TrialRow.id),
         sa.func.count(TrialRow.lease_expires_at),
@@ -129,7 +135,7 @@ _GAUGE_QUERY = (
     .group_by(StudyRow.id, TrialRow.state)
 )
 """One statement, so one snapshot on PostgreSQL: trial counts per study and state beside
-each study's state, task, room and failed proposals."""
+each study's state, task, room, failed proposals and fallbacks."""
 
 
 def database_gauges(session: Session) -> list[Metric]:
@@ -139,16 +145,18 @@ def database_gauges(session: Session) -> list[Metric]:
     }
     trials: dict[int, dict[str, int]] = {}
     failing: dict[int, int] = {}
+    fallbacks: dict[int, int] = {}
     waiting = dict.fromkeys(catalogue().tasks, 0)
     leases = 0
     now = utcnow()
     for row in session.execute(_GAUGE_QUERY):
-        study, study_state, task, max_trials, n_trials, failures, retry_at, *rest = row
+        study, study_state, task, max_trials, n_trials, failures, retry_at, fell, *rest = row
         state, count, leased = rest
         counts = trials.get(study)
         if counts is None:
             counts = trials[study] = dict.fromkeys(TrialState, 0)
             failing[study] = failures or 0
+            fallbacks[study] = fell or 0
             # A study whose proposals fail waits for a worker only once its backoff is over.
             proposes = retry_at is None or retry_at <= now
             if study_state == "running" and task is not None and proposes:
@@ -164,6 +172,7 @@ def database_gauges(session: Session) -> list[Metric]:
         for state, count in counts.items():
             families["activedesign_trials"].add_metric([str(study), state], count)
         families["activedesign_proposal_failures"].add_metric([str(study)], failing[study])
+        families["activedesign_proposal_fallbacks"].add_metric([str(study)], fallbacks[study])
     families["activedesign_leases_active"].add_metric([], leases)
     for task, count in sorted(waiting.items()):
         families["activedesign_queue_depth"].add_metric([task], count)

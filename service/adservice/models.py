@@ -89,6 +89,11 @@ class StudyRow(Base):
     """Proposals failed in a row; reset by one that succeeds."""
     proposal_retry_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     """Before this time the lease scheduler skips the study (backoff after failures)."""
+    proposal_fallbacks: Mapped[int] = mapped_column(default=0, server_default=sa.text("0"))
+    """Candidates that were Sobol points because a budget or a failed model stopped the
+    proposer (``proposers.base.DEGRADED``), over the study's life."""
+    proposal_fallback_reason: Mapped[str | None] = mapped_column(sa.Text, nullable=True)
+    """Why the latest model-phase ask fell back (None: it did not, or none was made)."""
 
 
 class TrialRow(Base):

@@ -485,3 +485,35 @@ def test_the_acquisition_search_answers_a_fresh_point_when_every_search_ends_tak
     distance = np.max(np.abs(optimum.z - peak))
     assert 1e-6 < distance < 0.2
     assert optimum.value == pytest.approx(-float(np.sum((optimum.z[1:] - peak[1:]) ** 2)))
+
+
+def test_only_numerical_failures_of_a_model_fall_back() -> None:
+    """A fit that fails on its numbers degrades to Sobol points; a bug fails the ask
+    (caught as any Exception, it looked like an ordinary fall back: issue 37)."""
+    import torch
+    from botorch.exceptions import BotorchError
+    from linear_operator.utils.errors import NotPSDError
+
+    from adservice.proposers.qei import model_errors
+
+    caught = model_errors()
+    for numerical in (
+        NotPSDError("not p.d."),
+        torch.linalg.LinAlgError("singular"),
+        torch.OutOfMemoryError("cuda"),
+        BotorchError("optimisation"),
+        np.linalg.LinAlgError("singular"),
+        ValueError("NaN in the input"),
+        OverflowError("exp"),
+        MemoryError(),
+    ):
+        assert isinstance(numerical, caught), type(numerical)
+    for bug in (
+        TypeError(),
+        AttributeError(),
+        KeyError("x"),
+        IndexError(),
+        NameError(),
+        AssertionError(),
+    ):
+        assert not isinstance(bug, caught), type(bug)

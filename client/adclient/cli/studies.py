@@ -54,17 +54,28 @@ def _space_text(space: Any) -> str:
 
 
 def _proposal_rows(info: Study) -> list[tuple[str, str]]:
-    """A study whose proposals fail: how often in a row, until when workers skip it, why."""
-    if not info.proposal_failures:
-        return []
-    return [
-        (
-            "proposals",
-            f"failing ({info.proposal_failures} in a row); workers skip the study until "
-            f"{_when(info.proposal_retry_at)} UTC",
-        ),
-        ("proposal error", info.proposal_error or ""),
-    ]
+    """A study whose proposals fail: how often in a row, until when workers skip it, why;
+    one whose latest ask fell back to Sobol points: why, and how many so far."""
+    rows = []
+    if info.proposal_failures:
+        rows += [
+            (
+                "proposals",
+                f"failing ({info.proposal_failures} in a row); workers skip the study until "
+                f"{_when(info.proposal_retry_at)} UTC",
+            ),
+            ("proposal error", info.proposal_error or ""),
+        ]
+    if info.proposal_fallback_reason:
+        rows.append(
+            (
+                "fallback",
+                f"the latest ask fell back to Sobol points ({info.proposal_fallbacks} "
+                f"candidate{'' if info.proposal_fallbacks == 1 else 's'} so far): "
+                f"{info.proposal_fallback_reason}",
+            )
+        )
+    return rows
 
 
 def _status_table(info: Study, dashboard: str) -> Table:

@@ -257,6 +257,16 @@ class Study(BaseModel):
         description="after failed proposals, workers' leases skip the study until this "
         "time (UTC); the wait doubles with each failure, up to AD_PROPOSAL_BACKOFF_MAX_SECONDS",
     )
+    proposal_fallbacks: int = Field(
+        default=0,
+        description="candidates that were Sobol points because a time or memory budget "
+        "or a failed model stopped the proposer (their trials' info says degraded: true)",
+    )
+    proposal_fallback_reason: str | None = Field(
+        default=None,
+        description="why the latest model-based ask fell back to Sobol points; null when "
+        "it did not",
+    )
 
 
 class StudyUpdate(Strict):

@@ -213,6 +213,12 @@ class ProposalRequest:
         return int(self.bounds.shape[1])
 
 
+DEGRADED = "degraded"
+"""Info key (true) of a candidate that is not what the proposer would have chosen, for a
+reason the study's owner should see (a time or memory budget, a model that failed): the
+service counts them on the study (``proposal_fallbacks``, /metrics, dashboard, status)."""
+
+
 @dataclass(frozen=True)
 class Proposal:
     """``candidates``: (count, d) inside the bounds. ``info``: one JSON-able dict

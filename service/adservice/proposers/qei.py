@@ -61,12 +61,14 @@ Decisions worth knowing:
   scheme). Every candidate, Sobol points included, is snapped before it is compared
   with observed and pending points, and a noise-free study's model candidate is the
   best point found that is neither, while one remains.
-- Fallbacks never raise: with fewer than two distinct usable points, constant
-  observations, or a fit or acquisition optimisation that fails, the candidate
-  is the study's Sobol point at position ``n_issued + i`` and its info dict says
-  ``"method": "sobol-fallback"`` with the ``"reason"``. A model candidate that
-  duplicates another candidate of the batch (or, for noise-free studies, an
-  already observed or pending point) is replaced the same way.
+- Fallbacks: with fewer than two distinct usable points, constant observations, or a
+  fit or acquisition optimisation that fails numerically (``model_errors``; any other
+  exception is a bug and fails the ask), the candidate is the study's Sobol point at
+  position ``n_issued + i`` and its info dict says ``"method": "sobol-fallback"`` with
+  the ``"reason"``; one a budget or a failed model forced says ``"degraded": true``
+  (counted on the study, shown by the dashboard, ``adclient status`` and /metrics). A
+  model candidate that duplicates another candidate of the batch (or, for noise-free
+  studies, an already observed or pending point) is replaced the same way.
 - Seeding: the acquisition's quasi-Monte-Carlo samplers (the noisy baseline's
   pruning included) and the raw samples of the restarts have generators of their
   own, seeded from ``(seed, n_issued)``; nothing draws from torch's global generator,
@@ -127,6 +129,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from adservice.proposers.base import (
+    DEGRADED,
     Proposal,
     ProposalRequest,
     ProposerOptions,
@@ -153,6 +156,23 @@ _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
 _DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
+
+
+def model_errors() -> tuple[type[BaseException], ...]:
+    """The exceptions a fit or an acquisition search raises on numbers it cannot handle
+    (a covariance not positive definite, NaN, an overflow, out of memory: torch's and
+    gpytorch's are RuntimeErrors, BoTorch's its own), which fall back to Sobol points;
+    a TypeError, KeyError, AttributeError or AssertionError is a bug and fails the ask."""
+    from botorch.exceptions import BotorchError
+
+    return (
+        ArithmeticError,
+        MemoryError,
+        RuntimeError,
+        ValueError,
+        np.linalg.LinAlgError,
+        BotorchError,
+    )
 
 
 def _n_distinct(unit: np.ndarray) -> int:
@@ -316,8 +336,17 @@ class QLogEIProposer:
     # -- the model phase -------------------------------------------------------------
 
     def _fallback(
-        self, request: ProposalRequest, bounds: np.ndarray, first: int, q: int, reason: str
+        self,
+        request: ProposalRequest,
+        bounds: np.ndarray,
+        first: int,
+        q: int,
+        reason: str,
+        *,
+        degraded: bool = False,
     ) -> tuple[np.ndarray, list[dict[str, Any]]]:
+        """Sobol points in place of model candidates; ``degraded`` when the model could
+        have proposed but a budget or a failed fit stopped it (``DEGRADED``)."""
         start = request.n_issued + first
         unit = sobol_points(request.dim, request.seed, start, q)
         info = [
@@ -326,6 +355,7 @@ class QLogEIProposer:
                 "method": "sobol-fallback",
                 "reason": reason,
                 "sobol_index": start + i,
+                **({DEGRADED: True} if degraded else {}),
             }
             for i in range(q)
         ]
@@ -388,6 +418,7 @@ class QLogEIProposer:
                     q,
                     f"memory budget: {need.describe()}, over the budget of "
                     f"{request.memory_bytes / 2**20:.0f} MB per ask",
+                    degraded=True,
                 )
 
         cpu_started = time.thread_time()
@@ -409,10 +440,9 @@ class QLogEIProposer:
                 )
             else:
                 rows, extra = self._optimise(request, bounds, X, y, X_pending, q, options, deadline)
-        except Exception as error:  # any numerical failure must degrade, not crash the ask
-            return self._fallback(
-                request, bounds, first, q, f"model failed: {type(error).__name__}: {error}"[:300]
-            )
+        except model_errors() as error:  # a numerical failure degrades; a bug raises
+            reason = f"model failed: {type(error).__name__}: {error}"[:300]
+            return self._fallback(request, bounds, first, q, reason, degraded=True)
 
         extra.update(
             cpu_seconds=round(time.thread_time() - cpu_started, 4),
@@ -445,6 +475,7 @@ class QLogEIProposer:
                 first + done,
                 q - done,
                 f"time budget: {request.seconds:g} s spent after {done} of {q} model candidates",
+                degraded=True,
             )
             rows = np.concatenate([rows, late_rows])
             infos += [{**info, "budget": "time"} for info in late_info]

@@ -134,6 +134,30 @@ def clear_proposal_failures(session: Session, *, study_id: int) -> None:
     )
 
 
+def record_fallbacks(session: Session, *, study_id: int, count: int, reason: str | None) -> None:
+    """An ask's model phase ran: ``count`` of its candidates fell back for ``reason``
+    (0 and None: none did, which clears the study's reason; one UPDATE that changes
+    nothing, and locks nothing, when there was none to clear)."""
+    if count:
+        values = {
+            "proposal_fallbacks": StudyRow.proposal_fallbacks + count,
+            "proposal_fallback_reason": reason,
+        }
+        session.execute(
+            sa.update(StudyRow)
+            .where(StudyRow.id == study_id)
+            .values(values)
+            .execution_options(synchronize_session=False)
+        )
+        return
+    session.execute(
+        sa.update(StudyRow)
+        .where(StudyRow.id == study_id, StudyRow.proposal_fallback_reason.is_not(None))
+        .values(proposal_fallback_reason=None)
+        .execution_options(synchronize_session=False)
+    )
+
+
 def check_manager(study: StudyRow, caller: Principal) -> None:
     """Asking, telling, stopping or deleting a study is for its owner (or an admin)."""
     principals.check_manager(

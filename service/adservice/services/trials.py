@@ -27,7 +27,7 @@ from adservice.locks import StudyLocks
 from adservice.principals import Principal, check_manager
 from adservice.proposal_runner import AskBudget, ProposalRunner
 from adservice.proposers import Proposal, ProposalRequest, get_proposer
-from adservice.proposers.base import empty_history
+from adservice.proposers.base import DEGRADED, empty_history
 from adservice.repository import promotion as promotion_repo
 from adservice.repository import studies as study_repo
 from adservice.repository import trials as trial_repo
@@ -112,6 +112,7 @@ def _record(
         infos = [_in_own_directions(info, config) for info in proposal.info]
         if config.polytope is not None:
             candidates, infos = _inside_spec_constraints(config, candidates, infos)
+        _record_fallbacks(session, config.study_id, infos)
         return claimed + trial_repo.insert_trials(
             session,
             study_id=config.study_id,
@@ -123,6 +124,18 @@ def _record(
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
+
+
+def _record_fallbacks(session: Session, study_id: int, infos: list[dict[str, Any]]) -> None:
+    """Count the candidates a budget or a failed model made Sobol points (``DEGRADED``)
+    on the study, with the latest reason; an ask whose model proposed clears the reason.
+    An ask still in its Sobol start records nothing."""
+    degraded = [info for info in infos if info.get(DEGRADED)]
+    if degraded:
+        reason = str(degraded[-1].get("reason", ""))
+        study_repo.record_fallbacks(session, study_id=study_id, count=len(degraded), reason=reason)
+    elif any(not str(info.get("method", "")).startswith("sobol") for info in infos):
+        study_repo.record_fallbacks(session, study_id=study_id, count=0, reason=None)
 
 
 def _inside_spec_constraints(

@@ -50,6 +50,7 @@ export class StudyHeader {
         <p class="meta" data-meta></p>
         <p class="meta" data-attrs hidden></p>
         <p class="error" data-proposal-error hidden></p>
+        <p class="warning" data-fallback hidden></p>
       </section>
       <dialog class="confirm" data-delete-dialog>
         <form method="dialog">
@@ -121,6 +122,16 @@ export class StudyHeader {
       : '';
   }
 
+  /** A model that fell back to Sobol points (a budget, a failed fit) is never silent. */
+  renderFallback(s) {
+    const fell = Boolean(s.proposal_fallback_reason);
+    this.$('fallback').hidden = !fell;
+    this.$('fallback').textContent = fell
+      ? `The latest ask fell back to Sobol points (${s.proposal_fallbacks} ` +
+        `candidate${s.proposal_fallbacks === 1 ? '' : 's'} so far): ${s.proposal_fallback_reason}`
+      : '';
+  }
+
   render(s) {
     this.study = s;
     this.$('delete').hidden = !mayManage(s);
@@ -128,6 +139,7 @@ export class StudyHeader {
     this.$('attrs').hidden = attrs.length === 0;
     this.$('attrs').textContent = attrs.map(([k, v]) => `${k}: ${attrText(v)}`).join(' · ');
     this.renderProposalError(s);
+    this.renderFallback(s);
     document.title = `${s.name} · activedesign`;
     setCrumbs(`<a href="#/studies/${s.id}">${esc(s.name)}</a>`);
     this.$('name').textContent = s.name;
