@@ -194,3 +194,39 @@ def test_common_studies_fit_their_model_without_a_fall_back(
         degraded = [info for info in modelled if info.get("degraded")]
         assert degraded == [], degraded
         assert http.get(f"/api/v1/studies/{sid}").json()["proposal_fallbacks"] == 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("database", ["sqlite"])
+def test_a_study_of_ten_thousand_trials_gets_model_based_proposals(
+    database: str, server_factory: Callable[..., ServerProcess]
+) -> None:
+    """With the default memory budget, where every ask used to fall back to Sobol points
+    past about 3,000 observations ("memory budget: about 17567 MB ..." at 10,000)."""
+    server = server_factory()
+    dim, n = 6, 10_000
+    space = {
+        "type": "box",
+        "params": [{"name": f"x{i}", "low": 0.0, "high": 1.0} for i in range(dim)],
+    }
+    rng = np.random.default_rng(37)
+    unit = rng.random((n, dim))
+    values = -np.sum((unit - 0.3) ** 2, axis=1) + 0.2 * np.sin(5.0 * unit.sum(axis=1))
+    with httpx.Client(base_url=server.url, timeout=300) as http:
+        body = {"name": "ten-thousand", "space": space, "proposer": {"name": "qei"}}
+        study = http.post("/api/v1/studies", json=body).json()["id"]
+        known = [
+            {"params": {f"x{i}": float(v) for i, v in enumerate(row)}, "value": float(value)}
+            for row, value in zip(unit, values, strict=True)
+        ]
+        for start in range(0, n, 2_000):  # under the 1 MB body limit
+            chunk = known[start : start + 2_000]
+            added = http.post(f"/api/v1/studies/{study}/trials", json=chunk)
+            assert added.status_code in (200, 201), added.text[:500]
+        trials = ask(http, study, count=2)
+        for trial in trials:
+            info = trial["info"]
+            assert not info["method"].startswith("sobol"), info
+            assert (info["n_observed"], info["n_train"]) == (n, 1024), info
+        answer = http.get(f"/api/v1/studies/{study}").json()
+        assert (answer["proposal_fallbacks"], answer["n_trials"]) == (0, n + 2)

@@ -88,7 +88,8 @@ Decisions worth knowing:
   says ``"budget": "time"``. ``memory_need`` estimates an ask's peak memory from its
   options and sizes (the service refuses an ask whose count or options exceed the
   memory budget); one that exceeds it through its history alone falls back to Sobol
-  points with the reason.
+  points with the reason. Past ``max_train`` observations (1024) the model trains on a
+  subset (``subset``), so the history alone no longer outgrows the default budget.
 - Acquisition optimisation: as GPSampler, 2048 Sobol points and 10 local searches
   (L-BFGS-B) per candidate (``options`` may override ``num_restarts``,
   ``raw_samples``, ``maxiter``; with only ``raw_samples`` given, the restarts are at
@@ -148,6 +149,7 @@ from adservice.proposers.qei_shared import (
     limit_threads,
 )
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
+from adservice.proposers.subset import MAX_TRAIN, training_subset
 
 if TYPE_CHECKING:
     import torch
@@ -218,6 +220,7 @@ def memory_need(
     pending points), the kernel matrices of the fit and of the posterior. The factors
     are measured peaks over those sizes, rounded up (bench/RESULTS.md, issue 13: the
     estimate against the growth of a fresh process's peak memory)."""
+    n_train = min(n_train, options.max_train or MAX_TRAIN)  # a subset past it (subset.py)
     restarts = options.num_restarts or min(DEFAULT_RESTARTS, options.raw_samples or 10**9)
     raw = options.raw_samples or max(DEFAULT_RAW_SAMPLES, restarts)
     batch = min(_SCORED_AT_ONCE, raw)
@@ -389,6 +392,17 @@ class QLogEIProposer:
                 request, bounds, first, q, f"constant observations (all y = {y[0]:.6g})"
             )
 
+        n_observed = len(y)
+        kept = training_subset(
+            observed_Z,
+            outcomes[:, 0],
+            limit=options.max_train or MAX_TRAIN,
+            seed=request.seed,
+            n_issued=request.n_issued,
+        )
+        if kept is not None:
+            X, y, outcomes = X[kept], y[kept], outcomes[kept]
+
         pending = [np.asarray(request.pending, dtype=np.float64).reshape(-1, request.dim)]
         failed = np.asarray(request.failed, dtype=np.float64).reshape(-1, request.dim)
         pending.append(failed[-_MAX_FAILED_AS_PENDING:])
@@ -451,8 +465,11 @@ class QLogEIProposer:
             n_pending=len(X_pending),
             n_dropped=n_dropped,
         )
-        if len(y) > n_distinct:
-            extra["duplicate_points"] = len(y) - n_distinct
+        if n_observed > n_distinct:
+            extra["duplicate_points"] = n_observed - n_distinct
+        if kept is not None:
+            extra["n_observed"] = n_observed
+            extra["train_subset"] = "best, nearest the best, random (subset.py)"
         methods = extra.pop("methods")
         infos: list[dict[str, Any]] = []
         rows_Z = model_inputs(rows, bounds, request.structure)

@@ -72,6 +72,13 @@ class QEIOptions(ProposerOptions):
         "Monte Carlo qLogEI / qLogNEI with pending points",
     )
     warm_start: bool = True
+    max_train: int | None = Field(
+        default=None,
+        ge=16,
+        le=100_000,
+        description="observations the model trains on at most: past it, the best, those "
+        "nearest the best and a random rest (adservice.proposers.subset). Default: 1024",
+    )
     device: Literal["cpu", "cuda"] | None = Field(
         default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"
     )

@@ -1,0 +1,47 @@
+"""Which observations an exact GP trains on when a study has more than it can afford.
+
+An exact GP's fit costs n^3 time and about 16 n^2 floats of memory: past a few thousand
+observations an ask would not fit the memory budget, and would take minutes. Past
+``max_train`` observations the model trains on a subset of that size, chosen to keep
+what expected improvement needs (a subset of data, in the manner of TuRBO's local
+models, Eriksson et al. 2019):
+
+- the best quarter by the first outcome (the incumbent's neighbourhood in value),
+- the quarter nearest the best point in model inputs (the trust region around it),
+- the rest drawn at random, seeded by the study's seed and ``n_issued`` (the global
+  trend, so the acquisition still sees where nothing good was found).
+
+Every observation still counts where the model is not needed: duplicate checks,
+pending and failed points, the count of distinct points. bench/RESULTS.md ("Asks past
+thousands of observations") measures the cost in quality against the full fit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from adservice.proposers.simple import derived_seed
+
+MAX_TRAIN = 1024
+"""Observations an ask's model trains on at most unless ``options.max_train`` says."""
+
+
+def training_subset(
+    Z: np.ndarray, first_outcome: np.ndarray, *, limit: int, seed: int, n_issued: int
+) -> np.ndarray | None:
+    """Indices (ascending) of at most ``limit`` observations to train on, or None to
+    train on all. ``Z``: model inputs (n x k); ``first_outcome``: to be maximised."""
+    n = len(Z)
+    if n <= limit:
+        return None
+    quarter = limit // 4
+    chosen = np.zeros(n, dtype=bool)
+    order = np.argsort(-first_outcome, kind="stable")
+    chosen[order[:quarter]] = True
+    distance = np.linalg.norm(Z - Z[order[0]], axis=1)
+    distance[chosen] = np.inf
+    chosen[np.argsort(distance, kind="stable")[:quarter]] = True
+    rest = np.flatnonzero(~chosen)
+    rng = np.random.default_rng(derived_seed(seed, n_issued, 0x5B5E7))
+    chosen[rng.choice(rest, size=limit - int(chosen.sum()), replace=False)] = True
+    return np.flatnonzero(chosen)
