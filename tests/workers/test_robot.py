@@ -194,3 +194,50 @@ def test_a_free_robot_gains_no_energy_its_motors_did_not_give(sim, tmp_path) -> 
         assert work > 5.0  # the motors did work hard
         assert surplus < 0.05 * work, (surplus, work)
         assert fastest < 3.3  # the motor holds it to its limit, give or take an impact
+
+
+def test_what_docs_plugins_md_says_a_task_reads_is_so(sim, tmp_path) -> None:
+    """The task API table of docs/plugins.md (issue 39): every name it lists exists, and
+    its meanings hold in PyBullet: position is the centre of mass, axis runs from the
+    parent end to the tip, and a design link's tip is centre + axis * length / 2."""
+    import re
+    from pathlib import Path
+
+    robot = _robot(sim, STAR, tmp_path / "star.urdf")
+    snapshot = robot.reset(np.zeros(robot.joint_count))
+    for _ in range(5):
+        robot.act(np.array([0.6, -0.4, 0.8])[: robot.joint_count])
+        sim.step()
+    snapshot = robot.read()
+
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "plugins.md").read_text()
+    table = docs[docs.index("What a task reads") : docs.index("A link's tip, for a design")]
+    named = set(re.findall(r"`(robot|snapshot)\.(\w+)", table))
+    assert len(named) >= 15
+    for owner, name in named:
+        assert hasattr(robot if owner == "robot" else snapshot, name), f"{owner}.{name}"
+    for name in ("kind", "length", "radius", "mass", "centre", "axis"):
+        assert hasattr(robot.geometry[0], name)
+
+    cid = sim.client
+    for link in ("b", "c", "d"):
+        k = robot.link_position(link)
+        index = robot.geometry[k].index
+        state = pybullet.getLinkState(
+            robot.body, index, computeForwardKinematics=1, physicsClientId=cid
+        )
+        com, frame_position, frame_orientation = state[0], state[4], state[5]
+        assert snapshot.position(k) == pytest.approx(com, abs=1e-9)
+        rotation = np.array(pybullet.getMatrixFromQuaternion(frame_orientation)).reshape(3, 3)
+        length = robot.geometry[k].length
+        parent_end = np.array(frame_position)
+        tip = parent_end + rotation @ np.array([0.0, 0.0, length])
+        centre = np.asarray(snapshot.centre(k))
+        axis = np.asarray(snapshot.axis(k))
+        assert np.linalg.norm(axis) == pytest.approx(1.0)
+        assert centre + axis * length / 2 == pytest.approx(tip, abs=1e-6)
+        assert centre - axis * length / 2 == pytest.approx(parent_end, abs=1e-6)
+        assert snapshot.top[k] >= max(tip[2], parent_end[2]) - 1e-9
+        assert snapshot.bottom[k] <= min(tip[2], parent_end[2]) + 1e-9
+    with pytest.raises(KeyError, match="no link named 'nope'"):
+        robot.link_position("nope")
