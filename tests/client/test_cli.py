@@ -141,6 +141,51 @@ def test_submit_wait_follows_until_the_budget_is_spent(
     assert "6/6" in result.stderr  # the progress bar, on stderr
 
 
+def test_submit_wait_and_trials_say_why_trials_failed(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """Issue 39: the reasons, commonest first, where people look (not only in --json)."""
+    body = {"name": "all-failing", "space": BOX, "proposer": {"name": "random"}, "max_trials": 4}
+    messages = ["the function returned value = nan"] * 3 + ["[bold]target out of reach[/bold]"]
+    stop = threading.Event()
+
+    def drive() -> None:
+        with Client(server.url) as api:
+            while not stop.is_set():
+                study = next((s for s in api.studies() if s.name == "all-failing"), None)
+                if study is None:
+                    stop.wait(0.02)
+                    continue
+                handle = api.get_study(study.id)
+                for message in messages:
+                    handle.tell(handle.ask(), state="failed", message=message)
+                return
+
+    driver = threading.Thread(target=drive, daemon=True)
+    driver.start()
+    try:
+        result = run(
+            server.url, "submit", "--wait", "--poll", "0.05", str(write_study(tmp_path, body))
+        )
+    finally:
+        stop.set()
+        driver.join()
+    ok(result)
+    lines = [line.strip() for line in result.stdout.splitlines()]
+    at = lines.index("why trials failed:")
+    assert "0 complete, 4 failed" in lines[at - 1]
+    assert lines[at + 1 : at + 3] == [
+        "3 x the function returned value = nan",
+        "1 x [bold]target out of reach[/bold]",  # a message is text, never markup
+    ]
+    assert "no complete trial" in lines
+    study_id = lines[0].split()[1]
+    listed = ok(run(server.url, "trials", study_id)).stdout
+    assert "message" in listed.splitlines()[2]  # the header, after the title and a rule
+    assert listed.count("the function returned value = nan") == 3
+    assert "[bold]target out of reach[/bold]" in listed
+
+
 def test_submit_wait_on_a_stopped_study_reports_no_complete_trial(
     server: ServerProcess, client: Client, tmp_path: Path
 ) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import json
 import sys
+from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -31,7 +32,7 @@ from adclient.errors import (
     Unauthorized,
     Unavailable,
 )
-from adclient.schemas import Study, Trial
+from adclient.schemas import Study, Trial, TrialState
 
 DEFAULT_SERVER = "http://127.0.0.1:8000"
 CLI_RETRIES = 3
@@ -213,11 +214,15 @@ def _state_text(trial: Trial) -> str:
 
 
 def trial_table(trials: list[Trial], title: str | None = None) -> Table:
+    """The trials a row each; a ``message`` column (why a trial failed or was pruned)
+    when any of them has one."""
     table = Table(title=title)
-    for column in ("#", "id", "state", "value", "worker", "attempts", "params"):
+    messages = any(trial.message for trial in trials)
+    columns = ("#", "id", "state", "value", "worker", "attempts", "params")
+    for column in columns + (("message",) if messages else ()):
         table.add_column(column, justify="right" if column in {"#", "id", "value"} else "left")
     for trial in trials:
-        table.add_row(
+        row = [
             str(trial.number),
             str(trial.id),
             _state_text(trial),
@@ -225,8 +230,25 @@ def trial_table(trials: list[Trial], title: str | None = None) -> Table:
             escape(trial.worker_id or ""),
             str(trial.attempts),
             escape(compact_text(trial.params, 100)),
-        )
+        ]
+        if messages:
+            row.append(escape(compact_text(trial.message or "", 120)))
+        table.add_row(*row)
     return table
+
+
+def failure_lines(trials: list[Trial], most: int = 3) -> list[str]:
+    """Why a study's trials failed, the commonest reasons first: ``2 x the function
+    returned value = nan``."""
+    reasons = Counter(
+        trial.message or "(no message)" for trial in trials if trial.state == TrialState.failed
+    )
+    common = reasons.most_common(most)
+    lines = [f"{count} x {compact_text(reason, 200)}" for reason, count in common]
+    if len(reasons) > most:
+        others = len(reasons) - most
+        lines.append(f"... and {others} other reasons (adclient trials ID --state failed)")
+    return lines
 
 
 def outcome_text(trial: Trial) -> str:

@@ -16,6 +16,7 @@ from adclient.cli.common import (
     app,
     compact_text,
     fail,
+    failure_lines,
     friendly,
     front_table,
     get_settings,
@@ -180,6 +181,10 @@ def submit(
             f"study {study.id} {info.state.value}: {info.n_complete} complete, "
             f"{info.n_failed} failed, {info.n_pruned} pruned"
         )
+        if info.n_failed:
+            out.print("why trials failed:")
+            for line in failure_lines(study.get_trials("failed")):
+                out.print(f"  {escape(line)}")
         if len(info.directions) > 1:  # no single best trial: the front, as `pareto` shows it
             front = study.best_trials
             out.print(front_table(info, front) if front else "no complete trial")
