@@ -12,8 +12,8 @@ import pytest
 
 from adclient import Client
 from adclient.schemas import Trial
-from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, wait_for
+from tests.servers import ServerProcess, refused_at_start
+from tests.workers.processes import ADWORKER, PATIENCE, wait_for
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e
@@ -167,5 +167,11 @@ def test_adworker_leaves_tasks_it_does_not_have_to_other_workers(server_factory,
 def test_refused_token_stops_the_worker_with_a_clear_message(server_factory, workers):
     server = server_factory(AD_AUTH="true")
     worker = workers(server, "stranger", "--token", "not-a-real-token")
-    assert worker.wait() == 2
+    assert worker.wait() == 4  # not 2, a usage error's (issue 39)
     assert "refused this worker's token" in worker.log()
+
+
+def test_a_usage_error_exits_2_and_a_refused_token_does_not() -> None:
+    """Issue 39: a script tells a mistyped command (2) from a refused token (4)."""
+    said = refused_at_start([str(ADWORKER), "--function", "my_sim:score"], 2)
+    assert "--function and --task go together" in said

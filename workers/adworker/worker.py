@@ -67,7 +67,8 @@ TELL_PATIENCE = 300.0
 MAX_IDLE_BACKOFF = 30.0
 MESSAGE_LIMIT = 4000
 EXIT_OK = 0
-EXIT_AUTH = 2
+EXIT_AUTH = 4
+"""The server refused the token (not 2: that is a usage error, as every Typer CLI's)."""
 EXIT_SETUP = 3
 """The runner could not be made (a --function that does not import...)."""
 TIMES = ("time_total_s", "time_cpu_s")
