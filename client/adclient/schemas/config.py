@@ -3,7 +3,7 @@ checks them), and the installed tasks and learners they may name."""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, get_args, get_origin
 
 from pydantic import (
     BaseModel,
@@ -104,11 +104,30 @@ def option_problems(
     problems = []
     for item in error.errors():
         message = str(item["msg"]).removeprefix("Value error, ")
+        loc = item["loc"]
         if item["type"] == "extra_forbidden":
             message = f"unknown option of {owner} (its options: {known})"
-        where = ".".join([*filter(None, [prefix]), *(str(part) for part in item["loc"])])
-        problems.append(f"{where}: {message}")
+        elif item["type"] == "missing" and _tuple_item(model, loc, item.get("input")):
+            # `target.2: Field required` for a 2-number target: say what the tuple takes
+            loc, given = loc[:1], len(item["input"])
+            message = f"expected {_tuple_item(model, loc, item['input'])} items, got {given}"
+        where = ".".join([*filter(None, [prefix]), *(str(part) for part in loc)])
+        if f"{where}: {message}" not in problems:  # one line for a tuple short of several
+            problems.append(f"{where}: {message}")
     return problems
+
+
+def _tuple_item(model: type[BaseModel], loc: tuple[Any, ...], given: Any) -> int:
+    """The length of the fixed-length tuple option ``loc[0]`` when ``loc`` is one of its
+    items and ``given`` the list it came as; 0 otherwise."""
+    field = model.model_fields.get(str(loc[0])) if loc else None
+    if field is None or not isinstance(given, list) or len(loc) > 2:
+        return 0
+    for annotation in (field.annotation, *get_args(field.annotation)):
+        items = get_args(annotation)
+        if get_origin(annotation) is tuple and items and Ellipsis not in items:
+            return len(items)
+    return 0
 
 
 class NewTaskConfig(TaskConfig):
