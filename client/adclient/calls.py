@@ -355,9 +355,11 @@ class ServerCalls(Transport):
         ).json()
         return Trial.model_validate(data)
 
-    def workers(self, study_id: int) -> list[WorkerInfo]:
-        """The workers that worked on a study, with their current leases."""
-        data = self._get_json(f"{API}/studies/{int(study_id)}/workers")
+    def workers(self, study_id: int | None = None) -> list[WorkerInfo]:
+        """The workers that worked on a study (every worker the server has seen, when
+        None), newest first, with their current leases and the tasks they serve."""
+        path = "workers" if study_id is None else f"studies/{int(study_id)}/workers"
+        data = self._get_json(f"{API}/{path}")
         return [WorkerInfo.model_validate(item) for item in data]
 
     # -- artifacts -------------------------------------------------------------------

@@ -34,6 +34,7 @@ from adservice.api.routes import (
     study_trials,
     tasks,
     trials,
+    workers,
 )
 from adservice.artifacts import ArtifactStore
 from adservice.auth import Authentication, PrincipalCache
@@ -293,6 +294,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         session,
         tasks,
         learners,
+        workers,
         health,
         metrics,
         docs,

@@ -204,6 +204,8 @@ class WorkerRow(Base):
     current_trial_id: Mapped[int | None] = mapped_column(nullable=True)
     jobs_done: Mapped[int] = mapped_column(default=0)
     jobs_failed: Mapped[int] = mapped_column(default=0)
+    tasks: Mapped[list[str] | None] = mapped_column(sa.JSON(none_as_null=True), nullable=True)
+    """The tasks the worker named at its latest lease (None: any task)."""
 
 
 class TokenRow(Base):

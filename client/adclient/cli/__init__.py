@@ -7,8 +7,8 @@ rich tables, or JSON with ``--json``. Errors end with one line on stderr and exi
 status 1 (2 for bad usage), never a traceback.
 
 The app, its options and what the commands share are in ``common``; the commands in
-``studies`` (submit, studies, status), ``trials`` (trials, best, pareto, ask, tell,
-enqueue) and ``data`` (import, export, delete).
+``studies`` (submit, studies, status), ``workers``, ``trials`` (trials, best, pareto,
+ask, tell, enqueue) and ``data`` (import, export, delete).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ __all__ = ["app", "main"]
 
 # A command module registers its commands on ``app`` when imported, and ``adclient
 # --help`` lists them in that order (which a sorted ``from ... import`` would not keep).
-for _module in ("studies", "trials", "data"):
+for _module in ("studies", "workers", "trials", "data"):
     import_module(f"{__name__}.{_module}")
 
 

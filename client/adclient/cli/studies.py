@@ -3,6 +3,7 @@ the studies and show one."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ from adclient.cli.common import (
     stdout_console,
     study_scope,
 )
+from adclient.cli.workers import serving_note
 from adclient.client import StudyHandle
 from adclient.importing import EXPORT_DEPTH, load_json
 from adclient.schemas import BoxSpace, Study
@@ -196,6 +198,10 @@ def submit(
             print_best(out, best)
 
 
+WORKERS_CHECK_SECONDS = 10.0
+"""How long ``submit --wait`` sees no trial start before it checks for a serving worker."""
+
+
 def _follow(study: StudyHandle, poll: float) -> Study:
     """Poll with a progress bar of finished trials until the study is finished."""
     info = study.cached_info
@@ -209,14 +215,23 @@ def _follow(study: StudyHandle, poll: float) -> Study:
         transient=False,
     ) as progress:
         bar = progress.add_task("trials", total=info.max_trials, completed=0, best="-")
+        started, checked = time.monotonic(), False
 
         def update(current: Study) -> None:
+            nonlocal checked
+            finished = current.n_complete + current.n_failed + current.n_pruned
             progress.update(
                 bar,
-                completed=current.n_complete + current.n_failed + current.n_pruned,
+                completed=finished,
                 total=current.max_trials,
                 best=number_text(current.best_value) or "-",
             )
+            idle = finished == 0 and current.n_running == 0
+            if idle and not checked and time.monotonic() - started >= WORKERS_CHECK_SECONDS:
+                checked = True  # once: say why a study waits at 0 of N, if no worker serves it
+                note = serving_note(study.client, current)
+                if note is not None and note.startswith("none"):
+                    progress.console.print(f"[yellow]no worker:[/yellow] {escape(note)}")
 
         try:
             return study.wait(poll=poll, on_update=update)
@@ -270,7 +285,11 @@ def status(
     with get_settings(ctx).client() as client, study_scope(study_id):
         info = client.study_info(study_id)
         dashboard = client.dashboard_url(study_id)
+        serving = None if as_json else serving_note(client, info)
     if as_json:
         print_json(info)
         return
-    stdout_console().print(_status_table(info, dashboard))
+    table = _status_table(info, dashboard)
+    if serving is not None:
+        table.add_row("workers", escape(serving))
+    stdout_console().print(table)

@@ -104,3 +104,6 @@ class WorkerInfo(BaseModel):
     current_trial_id: int | None
     jobs_done: int
     jobs_failed: int
+    tasks: list[str] | None = Field(
+        default=None, description="the tasks it named at its latest lease; null: any task"
+    )

@@ -7,6 +7,8 @@ Private to the package: it imports no module of it.
 
 from __future__ import annotations
 
+import enum
+from collections.abc import Sequence
 from datetime import datetime
 from typing import Any, cast
 
@@ -24,17 +26,36 @@ def locking(session: Session) -> bool:
     return session.get_bind().dialect.name == "postgresql"
 
 
+class Unset(enum.Enum):
+    """A keyword not given (where None means something)."""
+
+    UNSET = enum.auto()
+
+
+UNSET = Unset.UNSET
+
+
 def touch_worker(
-    session: Session, *, worker_id: str, now: datetime, current_trial_id: int | None
+    session: Session,
+    *,
+    worker_id: str,
+    now: datetime,
+    current_trial_id: int | None,
+    tasks: Sequence[str] | None | Unset = UNSET,
 ) -> None:
     """Record that ``worker_id`` was seen at ``now``, holding ``current_trial_id`` (a
-    worker seen for the first time gets its row)."""
+    worker seen for the first time gets its row); at a lease, the ``tasks`` it serves
+    (None: any)."""
     worker = session.get(WorkerRow, worker_id)
     if worker is None:
         worker = WorkerRow(worker_id=worker_id, jobs_done=0, jobs_failed=0)
         session.add(worker)
     worker.last_seen_at = now
     worker.current_trial_id = current_trial_id
+    if not isinstance(tasks, Unset):
+        served = None if tasks is None else sorted(tasks)
+        if worker.tasks != served:
+            worker.tasks = served
 
 
 def counted_value(outcome: Outcome) -> float | None:

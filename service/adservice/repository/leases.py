@@ -107,7 +107,7 @@ def lease_queued_trial(
         query = query.with_for_update(of=TrialRow, skip_locked=True)
     trial = session.scalars(query).one_or_none()
     if trial is None:
-        touch_worker(session, worker_id=worker_id, now=now, current_trial_id=None)
+        touch_worker(session, worker_id=worker_id, now=now, current_trial_id=None, tasks=tasks)
         return None
     trial.state = TrialState.running
     trial.worker_id = worker_id
@@ -117,7 +117,7 @@ def lease_queued_trial(
     trial.started_at = now
     trial.heartbeat_at = now
     trial.lease_expires_at = now + timedelta(seconds=lease_seconds)
-    touch_worker(session, worker_id=worker_id, now=now, current_trial_id=trial.id)
+    touch_worker(session, worker_id=worker_id, now=now, current_trial_id=trial.id, tasks=tasks)
     return trial
 
 

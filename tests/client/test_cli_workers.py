@@ -1,0 +1,94 @@
+"""Issue 39: a study that no worker can serve does not wait in silence. The server keeps
+the tasks each worker leases for (GET /api/v1/workers); ``adclient workers`` lists
+them, ``adclient status`` of a running managed study says how many recent workers
+serve its task or what to start, and ``submit --wait`` says so when nothing starts.
+A real server; workers are raw leases, as a worker of any language makes them."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from adclient import Client
+from tests.client.test_cli import ok, run, write_study
+from tests.servers import ServerProcess
+
+BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[ServerProcess]:
+    """A server of its own: a worker that serves any task would serve every study."""
+    process = ServerProcess(database_url=f"sqlite:///{tmp_path / 's.db'}", workdir=tmp_path)
+    yield process.start()
+    process.stop()
+
+
+def managed(task: str, name: str) -> dict[str, object]:
+    return {
+        "name": name,
+        "space": BOX,
+        "proposer": {"name": "random"},
+        "task": {"name": task, "external": True},
+        "max_trials": 2,
+    }
+
+
+def words(text: str) -> str:
+    return " ".join(text.replace("│", " ").split())
+
+
+def test_workers_and_status_say_who_serves_a_study(server: ServerProcess) -> None:
+    with Client(server.url) as client:
+        study = client.create_study(managed("reach-point", "reach")).id
+        said = words(ok(run(server.url, "status", str(study))).stdout)
+        assert "workers none serving task 'reach-point' seen in the last 90 s" in said, said
+        assert "adworker --function MODULE:FUNCTION --task reach-point" in said
+
+        assert client.lease("sim-1", tasks=["other-sim"]) is None
+        said = words(ok(run(server.url, "status", str(study))).stdout)
+        assert "none serving task 'reach-point'" in said
+        assert "(1 other workers serve other tasks)" in said
+
+        job = client.lease("sim-2", tasks=["reach-point", "other-sim"])
+        assert job is not None and job.study_id == study
+        said = words(ok(run(server.url, "status", str(study))).stdout)
+        assert "workers 1 serving task 'reach-point', seen in the last 90 s" in said
+
+        listed = {w.worker_id: w.tasks for w in client.workers()}
+        assert listed == {"sim-1": ["other-sim"], "sim-2": ["other-sim", "reach-point"]}
+        client.lease("anything")  # a worker naming no task (it takes the study's 2nd trial)
+        assert {w.worker_id: w.tasks for w in client.workers()}["anything"] is None
+    table = words(ok(run(server.url, "workers")).stdout)
+    assert "workers: 3" in table
+    assert "sim-2" in table and "other-sim, reach-point" in table
+    assert "anything" in table and " any " in table
+    # An unmanaged study has no workers row.
+    with Client(server.url) as client:
+        plain = client.create_study({"name": "plain", "space": BOX}).id
+    assert "workers" not in words(ok(run(server.url, "status", str(plain))).stdout).split()
+
+
+def test_submit_wait_says_when_no_worker_serves_the_study(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """After 10 s with nothing started; then the study is stopped and the wait ends."""
+
+    def stop_later() -> None:
+        with Client(server.url) as client:
+            while not (found := [s for s in client.studies() if s.name == "unserved"]):
+                threading.Event().wait(0.05)
+            threading.Event().wait(12)
+            client.stop_study(found[0].id)
+
+    stopper = threading.Thread(target=stop_later, daemon=True)
+    stopper.start()
+    path = write_study(tmp_path, managed("reach-point", "unserved"))
+    result = ok(run(server.url, "submit", "--wait", "--poll", "0.2", str(path)))
+    stopper.join()
+    said = words(result.stderr)
+    assert "no worker: none serving task 'reach-point' seen in the last 90 s" in said, said
+    assert said.count("no worker:") == 1
