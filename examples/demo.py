@@ -120,7 +120,7 @@ def show_best(client: Client, study_id: int, outdir: Path) -> None:
     print("  searched params (the rest are fixed by the study file):")
     searched = _searched_names(study)
     for key, value in best.params.items():
-        if key in searched or key == "structure" or key.endswith(".joint.axis"):
+        if key in searched:
             print(f"    {key} = {_show(value)}")
     for name, label in (("robot.urdf", "URDF"), ("robot.png", "image"), ("curve.json", "curve")):
         if name in paths:
@@ -129,11 +129,11 @@ def show_best(client: Client, study_id: int, outdir: Path) -> None:
 
 
 def _searched_names(study: Any) -> set[str]:
-    from adclient.decode import spec_layout
+    from adclient.decode import searched_params
     from adclient.design import DesignSpace
 
     if isinstance(study.space, DesignSpace):
-        return set(spec_layout(study.space).names)
+        return searched_params(study.space)
     return {param.name for param in study.space.params}
 
 

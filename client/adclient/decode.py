@@ -452,6 +452,24 @@ def design_params(design: Design) -> dict[str, Any]:
     return params
 
 
+def searched_params(space: DesignSpace) -> set[str]:
+    """The keys of a design trial's ``params`` (``design_params``) that the search
+    chose: each free spec, a catalogue's choice, a free axis, and the structure when
+    there are several. The rest the study file fixed, or a tie or mirror derived."""
+    keys = set()
+    for name in spec_layout(space).names:
+        owner, spec = spec_owner(name)
+        if spec.startswith("choice."):
+            keys.add(f"{owner}.choice")
+        elif spec in ("axis_theta", "axis_phi"):
+            keys.add(f"{owner}.axis")
+        else:
+            keys.add(name)
+    if len(space.tree_structures()) > 1:
+        keys.add("structure")
+    return keys
+
+
 def design_catalogue_totals(space: DesignSpace, design: Design) -> dict[str, float]:
     """The entries of the components a design chose, summed per catalogue
     (``motors.cost``): metrics its study can constrain or optimise."""

@@ -424,3 +424,31 @@ def test_typed_params_in_status_trials_best_and_export(
     exported = json.loads(ok(run(server.url, "export", str(study.id), "--format", "json")).stdout)
     assert [t["params"] for t in exported["trials"]] == [t.params for t in trials]
     assert exported["study"]["space"]["params"][2]["choices"] == ["relu", "tanh"]
+
+
+def test_best_and_trials_show_what_a_design_study_searched(server: ServerProcess) -> None:
+    """Issue 40: the best design by its searched params, the whole one a flag away."""
+    example = yaml.safe_load(
+        (Path(__file__).resolve().parents[2] / "examples" / "stand-up.yaml").read_text()
+    )
+    body = {"name": "searched", "space": example["space"], "proposer": {"name": "random"}}
+    with Client(server.url) as api:
+        study = api.create_study(body)
+        trial = study.ask()
+        study.tell(trial, 0.5)
+    searched = {"a.length", "b.length", "c.length", "b.joint.axis", "c.joint.axis"}
+    fixed = sorted(set(trial.params) - searched)
+    assert "a.radius" in fixed and "b.joint.effort" in fixed
+
+    best = ok(run(server.url, "best", str(study.id))).stdout
+    rows = {line.split("│")[1].strip() for line in best.splitlines() if line.count("│") >= 3}
+    assert rows - {"param"} == searched
+    assert f"{len(fixed)} more are fixed by the study file" in " ".join(best.split())
+    whole = ok(run(server.url, "best", str(study.id), "--all")).stdout
+    rows = {line.split("│")[1].strip() for line in whole.splitlines() if line.count("│") >= 3}
+    assert rows - {"param"} == set(trial.params)
+    assert "more are fixed" not in whole
+
+    listed = ok(run(server.url, "trials", str(study.id))).stdout
+    assert "b.length" in listed and "a.radius" not in listed
+    assert "a.radius" in ok(run(server.url, "trials", str(study.id), "--all")).stdout

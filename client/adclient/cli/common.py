@@ -22,6 +22,7 @@ from rich.table import Table
 
 from adclient import __version__
 from adclient.client import Client
+from adclient.design import DesignSpace
 from adclient.errors import (
     ApiError,
     Conflict,
@@ -213,9 +214,11 @@ def _state_text(trial: Trial) -> str:
     )
 
 
-def trial_table(trials: list[Trial], title: str | None = None) -> Table:
-    """The trials a row each; a ``message`` column (why a trial failed or was pruned)
-    when any of them has one."""
+def trial_table(
+    trials: list[Trial], title: str | None = None, searched: set[str] | None = None
+) -> Table:
+    """The trials a row each (their searched params, all when ``searched`` is None); a
+    ``message`` column (why a trial failed or was pruned) when any of them has one."""
     table = Table(title=title)
     messages = any(trial.message for trial in trials)
     columns = ("#", "id", "state", "value", "worker", "attempts", "params")
@@ -229,7 +232,7 @@ def trial_table(trials: list[Trial], title: str | None = None) -> Table:
             outcome_text(trial),
             escape(trial.worker_id or ""),
             str(trial.attempts),
-            escape(compact_text(trial.params, 100)),
+            escape(compact_text(shown_params(trial, searched), 100)),
         ]
         if messages:
             row.append(escape(compact_text(trial.message or "", 120)))
@@ -262,20 +265,43 @@ def outcome_text(trial: Trial) -> str:
     return f"{text} [red](infeasible)[/red]" if trial.feasible is False else text
 
 
-def print_best(out: Console, trial: Trial) -> None:
+def searched_keys(info: Study) -> set[str] | None:
+    """The params keys a design study searched (``decode.searched_params``); None for a
+    box or template study, whose every param is searched."""
+    if not isinstance(info.space, DesignSpace):
+        return None
+    from adclient.decode import searched_params
+
+    return searched_params(info.space)
+
+
+def shown_params(trial: Trial, searched: set[str] | None) -> dict[str, Any]:
+    """A trial's params, only the searched ones when ``searched`` says which."""
+    if searched is None:
+        return dict(trial.params)
+    return {key: value for key, value in trial.params.items() if key in searched}
+
+
+def print_best(out: Console, trial: Trial, searched: set[str] | None = None) -> None:
+    """The best trial: its searched params (all of them when ``searched`` is None) and
+    metrics, and how many params the study file fixed or a tie derived."""
     out.print(f"best trial #{trial.number} (id {trial.id}): value {number_text(trial.value)}")
-    out.print(_best_table(trial))
-
-
-def _best_table(trial: Trial) -> Table:
+    shown = shown_params(trial, searched)
     table = Table()
     table.add_column("param")
     table.add_column("value", overflow="fold")
-    for name, value in trial.params.items():
+    for name, value in shown.items():
         table.add_row(escape(name), escape(compact_text(value, 200)))
     for name, value in trial.metrics.items():
         table.add_row(f"metric {name}", number_text(value))
-    return table
+    out.print(table)
+    hidden = len(trial.params) - len(shown)
+    if hidden:
+        out.print(
+            f"searched params only: {hidden} more are fixed by the study file or follow "
+            f"from these (ties, mirrors, catalogues); adclient best {trial.study_id} --all "
+            "shows the whole design"
+        )
 
 
 def front_table(info: Study, trials: list[Trial]) -> Table:

@@ -24,6 +24,7 @@ from adclient.cli.common import (
     number_text,
     print_best,
     print_json,
+    searched_keys,
     stderr_console,
     stdout_console,
     study_scope,
@@ -195,7 +196,7 @@ def submit(
         if best is None:
             out.print("no complete trial")
         else:
-            print_best(out, best)
+            print_best(out, best, searched_keys(info))
 
 
 WORKERS_CHECK_SECONDS = 10.0

@@ -18,6 +18,7 @@ from adclient.cli.common import (
     outcome_text,
     print_best,
     print_json,
+    searched_keys,
     stdout_console,
     study_scope,
     trial_scope,
@@ -33,15 +34,20 @@ def trials(
     ctx: typer.Context,
     study_id: int = typer.Argument(..., metavar="ID"),
     state: TrialState | None = typer.Option(None, "--state", help="Only trials in this state."),
+    everything: bool = typer.Option(
+        False, "--all", help="Every param, not only those the study searched."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """List a study's trials."""
+    """List a study's trials (of a design study, the params it searched)."""
     with get_settings(ctx).client() as client, study_scope(study_id):
         items = client.trials(study_id, state)
+        searched = None if as_json or everything else searched_keys(client.study_info(study_id))
     if as_json:
         print_json(items)
         return
-    stdout_console().print(trial_table(items, title=f"study {study_id}: {len(items)} trials"))
+    title = f"study {study_id}: {len(items)} trials"
+    stdout_console().print(trial_table(items, title=title, searched=searched))
 
 
 @app.command()
@@ -49,17 +55,21 @@ def trials(
 def best(
     ctx: typer.Context,
     study_id: int = typer.Argument(..., metavar="ID"),
+    everything: bool = typer.Option(
+        False, "--all", help="The whole design, not only the params the study searched."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
-    """Show a study's best complete trial."""
+    """Show a study's best complete trial (of a design study, the params it searched)."""
     with get_settings(ctx).client() as client, study_scope(study_id):
         trial = client.best_trial(study_id)
+        searched = None if as_json or everything else searched_keys(client.study_info(study_id))
     if trial is None:
         fail(f"study {study_id} has no complete trial yet")
     if as_json:
         print_json(trial)
         return
-    print_best(stdout_console(), trial)
+    print_best(stdout_console(), trial, searched)
 
 
 @app.command()
