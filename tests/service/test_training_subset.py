@@ -37,3 +37,23 @@ def test_a_history_of_one_value_still_subsets() -> None:
     Z = np.random.default_rng(2).random((2000, 2))
     kept = training_subset(Z, np.zeros(2000), limit=64, seed=0, n_issued=2000)
     assert kept is not None and len(kept) == 64
+
+
+def test_with_several_objectives_the_observed_front_is_kept() -> None:
+    from adservice.proposers.multiobjective import observed_front
+
+    rng = np.random.default_rng(4)
+    Z = rng.random((3000, 2))
+    small = observed_front(Z, np.ones(3000, dtype=bool))  # both maximised: a corner
+    assert 3 < len(small) < 64
+    kept = training_subset(Z, Z[:, 0], limit=256, seed=0, n_issued=3000, front=small)
+    assert kept is not None and len(kept) == 256
+    assert set(small) <= set(kept)
+    # A front larger than half the subset: its best half by the first objective.
+    trade_off = np.column_stack([Z[:, 0], 1.0 - Z[:, 0] ** 2 + 0.01 * Z[:, 1]])
+    large = observed_front(trade_off, np.ones(3000, dtype=bool))
+    assert len(large) > 128
+    kept = training_subset(Z, trade_off[:, 0], limit=256, seed=0, n_issued=3000, front=large)
+    assert kept is not None and len(kept) == 256
+    best_half = large[np.argsort(-trade_off[large, 0])][:128]
+    assert set(best_half) <= set(kept)

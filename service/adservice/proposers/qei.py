@@ -393,12 +393,20 @@ class QLogEIProposer:
             )
 
         n_observed = len(y)
+        limit = options.max_train or MAX_TRAIN
+        front = None
+        if request.objectives is not None and n_observed > limit:
+            from adservice.proposers.multiobjective import observed_front
+
+            m = int(request.objectives.shape[1])
+            front = observed_front(outcomes[:, :m], np.all(outcomes[:, m:] <= 0, axis=1))
         kept = training_subset(
             observed_Z,
             outcomes[:, 0],
-            limit=options.max_train or MAX_TRAIN,
+            limit=limit,
             seed=request.seed,
             n_issued=request.n_issued,
+            front=front,
         )
         if kept is not None:
             X, y, outcomes = X[kept], y[kept], outcomes[kept]

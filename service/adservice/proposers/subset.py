@@ -6,7 +6,8 @@ observations an ask would not fit the memory budget, and would take minutes. Pas
 what expected improvement needs (a subset of data, in the manner of TuRBO's local
 models, Eriksson et al. 2019):
 
-- the best quarter by the first outcome (the incumbent's neighbourhood in value),
+- the best quarter by the first outcome (the incumbent's neighbourhood in value; with
+  several objectives, the observed Pareto front first, up to half),
 - the quarter nearest the best point in model inputs (the trust region around it),
 - the rest drawn at random, seeded by the study's seed and ``n_issued`` (the global
   trend, so the acquisition still sees where nothing good was found).
@@ -27,17 +28,29 @@ MAX_TRAIN = 1024
 
 
 def training_subset(
-    Z: np.ndarray, first_outcome: np.ndarray, *, limit: int, seed: int, n_issued: int
+    Z: np.ndarray,
+    first_outcome: np.ndarray,
+    *,
+    limit: int,
+    seed: int,
+    n_issued: int,
+    front: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """Indices (ascending) of at most ``limit`` observations to train on, or None to
-    train on all. ``Z``: model inputs (n x k); ``first_outcome``: to be maximised."""
+    train on all. ``Z``: model inputs (n x k); ``first_outcome``: to be maximised. With
+    several objectives, ``front`` (indices of the observed Pareto front) comes first
+    among the best, so the hypervolume the acquisition improves on is the real one."""
     n = len(Z)
     if n <= limit:
         return None
     quarter = limit // 4
     chosen = np.zeros(n, dtype=bool)
     order = np.argsort(-first_outcome, kind="stable")
-    chosen[order[:quarter]] = True
+    if front is not None and len(front):
+        kept_front = front[np.argsort(-first_outcome[front], kind="stable")][: limit // 2]
+        chosen[kept_front] = True
+        order = np.concatenate([kept_front, order[~np.isin(order, kept_front)]])
+    chosen[order[: max(quarter, int(chosen.sum()))]] = True
     distance = np.linalg.norm(Z - Z[order[0]], axis=1)
     distance[chosen] = np.inf
     chosen[np.argsort(distance, kind="stable")[:quarter]] = True

@@ -41,7 +41,7 @@ def touch_worker(
     worker_id: str,
     now: datetime,
     current_trial_id: int | None,
-    tasks: Sequence[str] | None | Unset = UNSET,
+    tasks: Sequence[str] | Unset | None = UNSET,
 ) -> None:
     """Record that ``worker_id`` was seen at ``now``, holding ``current_trial_id`` (a
     worker seen for the first time gets its row); at a lease, the ``tasks`` it serves
