@@ -23,7 +23,7 @@ def _memory_need(
     n_failed: int = 0,
     outcomes: Outcomes | None = None,
 ) -> Any:
-    """The proposer's estimate of an ask's peak memory (``qei.MemoryNeed``), or None
+    """The proposer's estimate of an ask's peak memory (``proposers.memory.MemoryNeed``), or None
     for proposers whose memory does not grow with their options; a model per objective
     and per constraint of ``outcomes``."""
     estimate = getattr(proposer_class(config.name), "memory_need", None)
