@@ -1,6 +1,6 @@
 """Representation fusion: OSQP against the exact pool-adjacent-violators oracle.
 
-Problems are built the way a study builds them (DESIGN.md section 2): random
+Problems are built the way a study builds them (docs/method.md, "Representations"): random
 candidate trees of 3 to 5 links over five instances of two part types, reference
 designs with uniform random specs in the slots their tree uses (the rest padded),
 D = spec distances, G = structure similarities from adclient.similarity, so the

@@ -1,4 +1,5 @@
-"""Search vector <-> design, per DESIGN.md section 2 (pure numpy: runs in workers too).
+"""Search vector <-> design, per docs/method.md, "Representations" (pure numpy: runs in
+workers too).
 
 The *spec vector* x holds the free specs of a space (``spec_layout``), each
 normalised to [0, 1] by its bounds (a ``log`` spec on the log scale: value =

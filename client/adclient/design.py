@@ -84,11 +84,11 @@ class DesignSpace(StrictModel):
     ``embedding_max_dim``.
 
     ``encoding`` says how a space with several structures is searched:
-    - ``mixed`` (the default, DESIGN.md section 2a): a structure index followed by the
-      normalised spec vector, decoded by identity; the fused geometry places the
+    - ``mixed`` (the default, docs/method.md, "The mixed encoding"): a structure index
+      followed by the normalised spec vector, decoded by identity; the fused geometry places the
       structures, and the proposer relates them through a structure kernel;
-    - ``fused``: the preprint's encoding (DESIGN.md section 2), the MDS embedding of the
-      fused distances decoded by nearest reference and an affine map; kept so the
+    - ``fused``: the preprint's encoding (docs/method.md, "Representations"), the MDS
+      embedding of the fused distances decoded by nearest reference and an affine map; kept so the
       benchmarks can compare it (bench/paper.py);
     - ``onehot``: the plain encoding a user would build without fusion: one [0, 1]
       coordinate per structure (the largest names the structure) followed by the

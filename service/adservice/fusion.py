@@ -1,5 +1,5 @@
-"""Representation fusion (DESIGN.md section 2): spec distances and structure similarities
-fused into one consistent distance.
+"""Representation fusion (docs/method.md, "Representations"): spec distances and
+structure similarities fused into one consistent distance.
 
 ``fuse_distances`` solves
 

@@ -1,8 +1,9 @@
-"""Search representations of design spaces (DESIGN.md section 2): reference designs, their
-fused distances (``adservice.fusion``), MDS, and what the proposer needs to model a vector.
+"""Search representations of design spaces (docs/method.md, "Representations"): reference
+designs, their fused distances (``adservice.fusion``), MDS, and what the proposer needs
+to model a vector.
 
 ``build_representation`` gives a multi-structure space the ``mixed`` representation
-by default (DESIGN.md section 2a): specs are searched in their own normalised
+by default (docs/method.md, "The mixed encoding"): specs are searched in their own normalised
 coordinates beside a structure index, and the fusion only places the structures.
 The structures' distance is the energy distance between their reference designs
 under the fused distances, sqrt(2 E f(a, b) - E f(a, a') - E f(b, b')) (zero only for

@@ -3,7 +3,7 @@
 ``evaluate_job(job, workdir)`` is a pure function of the job (plus the files it
 writes under ``workdir``): the worker loop calls it and reports what it returns,
 tests and the benchmark call it directly. Everything it needs is in the job
-(DESIGN.md section 2: workers stay stateless).
+(docs/method.md, "The loop": workers stay stateless).
 
 Besides the score it reports secondary metrics a study may optimise or constrain:
 ``mass`` and ``link_length`` of the design as built, and ``effort`` and ``energy`` of

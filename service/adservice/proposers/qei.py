@@ -1,7 +1,7 @@
 """Batch log expected improvement on a Gaussian process: the default proposer.
 
-The method of the preprint (section 1 of DESIGN.md), with the model and acquisition
-of DESIGN.md section 2a: the first ``n_initial`` trials of a study are points of its
+The method of the preprint ("The loop" in docs/method.md), with the model and acquisition
+of docs/method.md, "The mixed encoding": the first ``n_initial`` trials of a study are points of its
 seeded scrambled Sobol sequence; after that a BoTorch ``SingleTaskGP`` (outcomes
 standardised, hyperparameters fitted by maximum a posteriori marginal likelihood with
 ``gpmodel.fit_map``)

@@ -2,9 +2,10 @@
 
 The base link stands upright on the ground, fixed (its frame at the origin, the
 chain at rest straight up along +z); two more links hang off it by two revolute
-joints. Score (DESIGN.md section 3): the cosine between the distal link's direction
-(its frame's +z, base to tip) and the diagonal (1, 1, 1)/sqrt(3), averaged over the
-second half of each evaluation episode. The reward is that cosine per step.
+joints. Score (docs/method.md, "Tasks and their scores"): the cosine between the
+distal link's direction (its frame's +z, base to tip) and the diagonal
+(1, 1, 1)/sqrt(3), averaged over the second half of each evaluation episode. The
+reward is that cosine per step.
 
 At rest the cosine is 1/sqrt(3) = 0.577. Two parallel axes keep the distal link in
 one plane through +z, so it reaches the diagonal only when that plane happens to

@@ -1,8 +1,8 @@
 """stand-up: a three-link chain a-b-c lying on the ground lifts its middle link.
 
-Score (DESIGN.md section 3): the height of the centre of link b, averaged over the
-second half of each evaluation episode, counted only while links a and c both touch
-the ground (a step where either is off the ground counts as 0). The reward is the
+Score (docs/method.md, "Tasks and their scores"): the height of the centre of link b,
+averaged over the second half of each evaluation episode, counted only while links a and
+c both touch the ground (a step where either is off the ground counts as 0). The reward is the
 same quantity per step, so every learner optimises what the score measures.
 
 Parallel axes perpendicular to the chain and horizontal (theta = phi = pi/2 in the
