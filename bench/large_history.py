@@ -5,11 +5,12 @@ exact GP, side by side in one run.
 For each test function (Hartmann6, and Ackley in 8 dimensions: their negatives
 maximised, through BoTorch's test functions) and each seed, a history of n uniformly
 random points (the study a cheap simulator or a function worker makes) is given to
-``QLogEIProposer`` in process (no memory budget in the way: the full arm must run), and
+``QLogEIProposer`` in process, and
 ``--asks`` asks of q = 1 follow, each told its true value. The arms:
 
-- ``subset``: the default (``max_train`` 1024);
-- ``subset-4096``: ``max_train`` 4096, where n is larger;
+- ``subset``: the default under the default memory budget (1024 MB: a subset of the
+  most observations it holds, about 2,000 for one objective);
+- ``subset-4096``: ``max_train`` 4096, where n is larger (``subset-N`` with ``--arms``);
 - ``full``: ``max_train = n`` (every observation, as before issue 37, with the memory
   budget it needs: an exact GP of n = 3,000 needs about 1.7 GB by the estimate);
 - ``random``: uniform points, what a fall back to Sobol points gave.
@@ -40,7 +41,10 @@ from adservice.proposers.base import ProposalRequest, empty_history
 from adservice.proposers.qei import QLogEIProposer
 
 BUDGET = 64 * 2**30
-"""No budget in the way: the full arm must run to be compared (the default is 1024 MB)."""
+"""No budget in the way of the full and ``subset-N`` arms: they must run to be compared."""
+DEFAULT_BUDGET = 1024 * 2**20
+"""The server's default ``AD_ASK_MEMORY_MB``: the ``subset`` arm's subset is the most it
+holds (``subset.train_size``)."""
 FUNCTIONS = {"hartmann6": (Hartmann(dim=6), 6), "rosenbrock6": (Rosenbrock(dim=6), 6)}
 LARGER = 4096
 """The ``subset-4096`` arm's ``max_train``: a larger subset, where the full fit is too big."""
@@ -98,15 +102,17 @@ def resident_mb() -> float:
 
 def run(name: str, n: int, seed: int, arm: str, asks: int) -> dict[str, Any]:
     """``asks`` asks of q = 1 after the history, each told its true value; ``arm``:
-    ``subset`` (the default), ``subset-4096``, ``full`` (max_train = n) or ``random``
-    (uniform points: what a fall back to Sobol points gave)."""
+    ``subset`` (the default), ``subset-N`` (max_train = N), ``full`` (max_train = n) or
+    ``random`` (uniform points: what a fall back to Sobol points gave)."""
     X, y = history(name, n, seed)
     dim = X.shape[1]
     best_before = float(y.max())
     gpfit.clear_caches()  # each arm's study starts cold; its later asks warm-start
     methods, seconds, memory = [], [], []
     rng = np.random.default_rng([seed, n, 7])
-    options = {"full": {"max_train": n + asks}, "subset-4096": {"max_train": LARGER}}
+    options = {"full": {"max_train": n + asks}}
+    if arm.startswith("subset-"):
+        options[arm] = {"max_train": int(arm.removeprefix("subset-"))}
     for k in range(asks):
         started = time.perf_counter()
         with PeakMemory() as peak:
@@ -124,7 +130,7 @@ def run(name: str, n: int, seed: int, arm: str, asks: int) -> dict[str, Any]:
                     failed=empty_history(dim),
                     pending=empty_history(dim),
                     options=options.get(arm, {}),
-                    memory_bytes=BUDGET,
+                    memory_bytes=DEFAULT_BUDGET if arm == "subset" else BUDGET,
                 )
                 proposal = QLogEIProposer().propose(request)
                 candidate = proposal.candidates
@@ -156,6 +162,9 @@ def main() -> None:
     parser.add_argument("--asks", type=int, default=5)
     parser.add_argument("--functions", nargs="+", default=list(FUNCTIONS))
     parser.add_argument("--full-up-to", type=int, default=3000, help="skip the full arm past it")
+    parser.add_argument(
+        "--arms", nargs="+", help="only these arms (subset, subset-N, full, random)"
+    )
     args = parser.parse_args()
     print(
         "| function | n | arm | model asks (Sobol: other) | seconds per ask: median / max "
@@ -168,7 +177,7 @@ def main() -> None:
             arms = ["subset"]
             arms += ["subset-4096"] if n > LARGER else []
             arms += ["full"] if n <= args.full_up_to else []
-            for arm in [*arms, "random"]:
+            for arm in args.arms or [*arms, "random"]:
                 runs = [run(name, n, seed, arm, args.asks) for seed in range(args.seeds)]
                 methods = [m for r in runs for m in r["methods"]]
                 model = sum(not m.startswith(("sobol", "random")) for m in methods)

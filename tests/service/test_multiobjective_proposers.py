@@ -18,8 +18,8 @@ from botorch.utils.multi_objective.pareto import is_non_dominated
 from adservice.proposers import available, get_proposer, proposer_class
 from adservice.proposers.base import ProposalRequest, SearchStructure, empty_history
 from adservice.proposers.gpfit import clear_caches
-from adservice.proposers.multiobjective import observed_front, reference_point
 from adservice.proposers.memory import memory_need
+from adservice.proposers.multiobjective import observed_front, reference_point
 from adservice.proposers.qei_shared import QEIOptions
 
 D = 4

@@ -227,6 +227,8 @@ def test_a_study_of_ten_thousand_trials_gets_model_based_proposals(
         for trial in trials:
             info = trial["info"]
             assert not info["method"].startswith("sobol"), info
-            assert (info["n_observed"], info["n_train"]) == (n, 1024), info
+            assert info["n_observed"] == n, info
+            # the most the default budget (1024 MB) holds for one objective: about 2,000
+            assert 1024 <= info["n_train"] <= 4096, info
         answer = http.get(f"/api/v1/studies/{study}").json()
         assert (answer["proposal_fallbacks"], answer["n_trials"]) == (0, n + 2)

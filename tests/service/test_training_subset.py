@@ -57,3 +57,16 @@ def test_with_several_objectives_the_observed_front_is_kept() -> None:
     assert kept is not None and len(kept) == 256
     best_half = large[np.argsort(-trade_off[large, 0])][:128]
     assert set(best_half) <= set(kept)
+
+
+def test_the_subset_is_the_most_the_memory_budget_holds() -> None:
+    from adservice.proposers.subset import MAX_TRAIN, MIN_TRAIN, train_size
+
+    def need(n: int) -> int:
+        return 100 * n * n
+
+    assert train_size(need, None) == MAX_TRAIN
+    assert train_size(need, need(MAX_TRAIN)) == MAX_TRAIN
+    fits = train_size(need, 100 * 2000 * 2000)
+    assert fits == 2000 and need(fits + 1) > 100 * 2000 * 2000
+    assert train_size(need, 1) == MIN_TRAIN  # the ask's memory check then falls back

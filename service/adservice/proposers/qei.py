@@ -88,8 +88,9 @@ Decisions worth knowing:
   says ``"budget": "time"``. ``memory.memory_need`` estimates an ask's peak memory from its
   options and sizes (the service refuses an ask whose count or options exceed the
   memory budget); one that exceeds it through its history alone falls back to Sobol
-  points with the reason. Past ``max_train`` observations (1024) the model trains on a
-  subset (``subset``), so the history alone no longer outgrows the default budget.
+  points with the reason. Past ``max_train`` observations (by default the most the
+  memory budget holds, at most 4096) the model trains on a subset (``subset``), so the
+  history alone no longer outgrows the budget.
 - Acquisition optimisation: as GPSampler, 2048 Sobol points and 10 local searches
   (L-BFGS-B) per candidate (``options`` may override ``num_restarts``,
   ``raw_samples``, ``maxiter``; with only ``raw_samples`` given, the restarts are at
@@ -146,7 +147,7 @@ from adservice.proposers.qei_shared import (
     limit_threads,
 )
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
-from adservice.proposers.subset import MAX_TRAIN, training_subset
+from adservice.proposers.subset import MAX_TRAIN, train_size, training_subset
 
 if TYPE_CHECKING:
     import torch
@@ -299,8 +300,30 @@ class QLogEIProposer:
                 request, bounds, first, q, f"constant observations (all y = {y[0]:.6g})"
             )
 
+        pending = [np.asarray(request.pending, dtype=np.float64).reshape(-1, request.dim)]
+        failed = np.asarray(request.failed, dtype=np.float64).reshape(-1, request.dim)
+        pending.append(failed[-_MAX_FAILED_AS_PENDING:])
+        pending.append(issued_now)
+        X_pending = np.concatenate(pending, axis=0)
+        X_pending = X_pending[np.all(np.isfinite(X_pending), axis=1)]
+        X_pending = np.clip(X_pending, bounds[0], bounds[1])
+        n_objectives = 1 if request.objectives is None else request.objectives.shape[1]
+
+        def need(n_train: int) -> MemoryNeed:
+            return memory_need(
+                options,
+                dim=request.dim,
+                count=q,
+                n_train=n_train,
+                n_pending=len(X_pending),
+                n_objectives=n_objectives,
+                n_constraints=outcomes.shape[1] - n_objectives,
+            )
+
         n_observed = len(y)
-        limit = options.max_train or MAX_TRAIN
+        limit = options.max_train or train_size(
+            lambda n: need(n).bytes, request.memory_bytes, MAX_TRAIN
+        )
         front = None
         if request.objectives is not None and n_observed > limit:
             from adservice.proposers.multiobjective import observed_front
@@ -318,37 +341,18 @@ class QLogEIProposer:
         if kept is not None:
             X, y, outcomes = X[kept], y[kept], outcomes[kept]
 
-        pending = [np.asarray(request.pending, dtype=np.float64).reshape(-1, request.dim)]
-        failed = np.asarray(request.failed, dtype=np.float64).reshape(-1, request.dim)
-        pending.append(failed[-_MAX_FAILED_AS_PENDING:])
-        pending.append(issued_now)
-        X_pending = np.concatenate(pending, axis=0)
-        X_pending = X_pending[np.all(np.isfinite(X_pending), axis=1)]
-        X_pending = np.clip(X_pending, bounds[0], bounds[1])
-
         import botorch  # noqa: F401  (an import error is a broken install, not a fallback)
 
-        if request.memory_bytes is not None:
-            n_objectives = 1 if request.objectives is None else request.objectives.shape[1]
-            need = memory_need(
-                options,
-                dim=request.dim,
-                count=q,
-                n_train=len(y),
-                n_pending=len(X_pending),
-                n_objectives=n_objectives,
-                n_constraints=outcomes.shape[1] - n_objectives,
+        if request.memory_bytes is not None and need(len(y)).bytes > request.memory_bytes:
+            return self._fallback(
+                request,
+                bounds,
+                first,
+                q,
+                f"memory budget: {need(len(y)).describe()}, over the budget of "
+                f"{request.memory_bytes / 2**20:.0f} MB per ask",
+                degraded=True,
             )
-            if need.bytes > request.memory_bytes:
-                return self._fallback(
-                    request,
-                    bounds,
-                    first,
-                    q,
-                    f"memory budget: {need.describe()}, over the budget of "
-                    f"{request.memory_bytes / 2**20:.0f} MB per ask",
-                    degraded=True,
-                )
 
         cpu_started = time.thread_time()
         try:

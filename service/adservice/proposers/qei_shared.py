@@ -77,7 +77,8 @@ class QEIOptions(ProposerOptions):
         ge=16,
         le=100_000,
         description="observations the model trains on at most: past it, the best, those "
-        "nearest the best and a random rest (adservice.proposers.subset). Default: 1024",
+        "nearest the best and a random rest (adservice.proposers.subset). Default: the "
+        "most the ask's memory budget (AD_ASK_MEMORY_MB) holds, at most 4096",
     )
     device: Literal["cpu", "cuda"] | None = Field(
         default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"

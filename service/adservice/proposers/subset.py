@@ -1,10 +1,11 @@
 """Which observations an exact GP trains on when a study has more than it can afford.
 
-An exact GP's fit costs n^3 time and about 16 n^2 floats of memory: past a few thousand
-observations an ask would not fit the memory budget, and would take minutes. Past
-``max_train`` observations the model trains on a subset of that size, chosen to keep
-what expected improvement needs (a subset of data, in the manner of TuRBO's local
-models, Eriksson et al. 2019):
+An exact GP's fit costs n^3 time and n^2 memory: past a few thousand observations an
+ask would not fit the memory budget, and would take minutes. Past ``max_train``
+observations (by default the most the ask's memory budget holds, at most
+``MAX_TRAIN``: ``train_size``) the model trains on a subset of that size, chosen to
+keep what expected improvement needs (a subset of data, in the manner of TuRBO's
+local models, Eriksson et al. 2019):
 
 - the best quarter by the first outcome (the incumbent's neighbourhood in value; with
   several objectives, the observed Pareto front first, up to half),
@@ -19,12 +20,31 @@ thousands of observations") measures the cost in quality against the full fit.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from adservice.proposers.simple import derived_seed
 
-MAX_TRAIN = 1024
-"""Observations an ask's model trains on at most unless ``options.max_train`` says."""
+MAX_TRAIN = 4096
+"""Observations an ask's model trains on at most unless ``options.max_train`` says; fewer
+when the ask's memory budget holds fewer (``train_size``)."""
+MIN_TRAIN = 256
+"""The smallest subset ``train_size`` offers: below it the ask falls back instead."""
+
+
+def train_size(need: Callable[[int], int], budget: int | None, most: int = MAX_TRAIN) -> int:
+    """The most observations (``MIN_TRAIN`` to ``most``) whose ask, by ``need`` (bytes
+    for a number of training observations), fits ``budget`` bytes (None: no budget)."""
+    if budget is None or need(most) <= budget:
+        return most
+    low, high = MIN_TRAIN, most
+    if need(low) > budget:
+        return low  # the ask's memory check falls back to Sobol points, saying why
+    while high - low > 1:
+        middle = (low + high) // 2
+        low, high = (middle, high) if need(middle) <= budget else (low, middle)
+    return low
 
 
 def training_subset(
