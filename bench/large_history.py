@@ -9,7 +9,7 @@ random points (the study a cheap simulator or a function worker makes) is given 
 ``--asks`` asks of q = 1 follow, each told its true value. The arms:
 
 - ``subset``: the default under the default memory budget (1024 MB: a subset of the
-  most observations it holds, about 2,000 for one objective);
+  most observations it holds, about 2,200 for one objective);
 - ``subset-4096``: ``max_train`` 4096, where n is larger (``subset-N`` with ``--arms``);
 - ``full``: ``max_train = n`` (every observation, as before issue 37, with the memory
   budget it needs: an exact GP of n = 3,000 needs about 1.7 GB by the estimate);
