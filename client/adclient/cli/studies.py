@@ -29,7 +29,7 @@ from adclient.cli.common import (
     stdout_console,
     study_scope,
 )
-from adclient.cli.workers import serving_note
+from adclient.cli.workers import serving
 from adclient.client import StudyHandle
 from adclient.importing import EXPORT_DEPTH, load_json
 from adclient.schemas import BoxSpace, Study
@@ -230,9 +230,9 @@ def _follow(study: StudyHandle, poll: float) -> Study:
             idle = finished == 0 and current.n_running == 0
             if idle and not checked and time.monotonic() - started >= WORKERS_CHECK_SECONDS:
                 checked = True  # once: say why a study waits at 0 of N, if no worker serves it
-                note = serving_note(study.client, current)
-                if note is not None and note.startswith("none"):
-                    progress.console.print(f"[yellow]no worker:[/yellow] {escape(note)}")
+                workers = serving(study.client, current)
+                if workers is not None and workers.count == 0:
+                    progress.console.print(f"[yellow]no worker:[/yellow] {escape(workers.text)}")
 
         try:
             return study.wait(poll=poll, on_update=update)
@@ -286,11 +286,11 @@ def status(
     with get_settings(ctx).client() as client, study_scope(study_id):
         info = client.study_info(study_id)
         dashboard = client.dashboard_url(study_id)
-        serving = None if as_json else serving_note(client, info)
+        workers = None if as_json else serving(client, info)
     if as_json:
         print_json(info)
         return
     table = _status_table(info, dashboard)
-    if serving is not None:
-        table.add_row("workers", escape(serving))
+    if workers is not None:
+        table.add_row("workers", escape(workers.text))
     stdout_console().print(table)

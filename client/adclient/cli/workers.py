@@ -4,6 +4,7 @@ the workers' path is the likeliest reason a study waits at 0 of N)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from datetime import UTC, datetime
 
 import typer
@@ -29,27 +30,37 @@ def serves(worker: WorkerInfo, task: str) -> bool:
     return worker.tasks is None or task in worker.tasks
 
 
-def serving_note(client: ServerCalls, info: Study) -> str | None:
+@dataclass(frozen=True)
+class Serving:
+    """How many recently seen workers serve a study's task, and that said for a person."""
+
+    count: int
+    text: str
+
+
+def serving(client: ServerCalls, info: Study) -> Serving | None:
     """For a running managed study: how many recently seen workers serve its task, or,
-    when none does, what to do; None for a study no worker runs."""
+    when none does, what to start; None for a study no worker runs."""
     if info.task is None or info.state.value != "running":
         return None
     now = datetime.now(UTC)
     recent = [w for w in client.workers() if _age(w, now) <= RECENT_SECONDS]
     task = info.task.name
-    serving = [w for w in recent if serves(w, task)]
-    if serving:
-        return f"{len(serving)} serving task {task!r}, seen in the last {RECENT_SECONDS:g} s"
+    count = sum(serves(w, task) for w in recent)
+    if count:
+        text = f"{count} serving task {task!r}, seen in the last {RECENT_SECONDS:g} s"
+        return Serving(count, text)
     others = f" ({len(recent)} other workers serve other tasks)" if recent else ""
     how = (
         f"adworker --function MODULE:FUNCTION --task {task}"
         if info.task.external
         else "adworker (with the task's plugin importable)"
     )
-    return (
+    text = (
         f"none serving task {task!r} seen in the last {RECENT_SECONDS:g} s{others}: "
         f"the study waits for one; start {how}, and see `adclient workers`"
     )
+    return Serving(0, text)
 
 
 @app.command()
