@@ -170,6 +170,7 @@ def score(vector: list[float]) -> float:
     ],
     ids=["box", "box-mc", "typed-box", "design", "two-objectives", "constrained"],
 )
+@pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True)  # the model's alone
 def test_common_studies_fit_their_model_without_a_fall_back(
     shared_server: ServerProcess, study: dict[str, Any]
 ) -> None:

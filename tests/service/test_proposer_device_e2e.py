@@ -44,6 +44,7 @@ def test_a_server_asked_for_cuda_without_a_gpu_exits_saying_why(tmp_path: Path) 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA GPU")
 @pytest.mark.parametrize("objectives", [1, 2])
+@pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True)  # refused before storing
 def test_a_study_asking_for_cuda_on_a_server_without_it_is_refused_at_creation(
     shared_server: ServerProcess, objectives: int
 ) -> None:
