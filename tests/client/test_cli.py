@@ -6,7 +6,7 @@ import csv
 import io
 import json
 import threading
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 import pytest
@@ -15,6 +15,7 @@ from typer.testing import CliRunner, Result
 
 from adclient import Client, Conflict
 from adclient.cli import app
+from adclient.client import StudyHandle
 from tests.client.scripted_server import Reply, ScriptedServer, refused_url
 from tests.servers import ServerProcess
 
@@ -92,6 +93,36 @@ def test_submit_json_quiet_prints_only_the_id(
     assert client.study_info(study_id).name == "from-json"
 
 
+def submit_wait_driven(
+    server: ServerProcess,
+    tmp_path: Path,
+    body: Mapping[str, object],
+    drive: Callable[[StudyHandle, threading.Event], None],
+) -> Result:
+    """``adclient submit --wait`` of ``body`` while a thread drives the study (ask and
+    tell) once it exists, until ``drive`` returns or the wait ends."""
+    stop = threading.Event()
+
+    def driver() -> None:
+        with Client(server.url) as api:
+            while not stop.is_set():
+                study = next((s for s in api.studies() if s.name == body["name"]), None)
+                if study is not None:
+                    drive(api.get_study(study.id), stop)
+                    return
+                stop.wait(0.02)
+
+    thread = threading.Thread(target=driver, daemon=True)
+    thread.start()
+    try:
+        return run(
+            server.url, "submit", "--wait", "--poll", "0.05", str(write_study(tmp_path, body))
+        )
+    finally:
+        stop.set()
+        thread.join()
+
+
 def test_submit_wait_follows_until_the_budget_is_spent(
     server: ServerProcess, tmp_path: Path
 ) -> None:
@@ -103,37 +134,20 @@ def test_submit_wait_follows_until_the_budget_is_spent(
         "proposer": {"name": "random", "seed": 1},
         "max_trials": 6,
     }
-    stop = threading.Event()
     told: list[float] = []
 
-    def drive() -> None:
-        with Client(server.url) as api:
-            while not stop.is_set():
-                study = next((s for s in api.studies() if s.name == "waited"), None)
-                if study is None:
-                    stop.wait(0.02)
-                    continue
-                handle = api.get_study(study.id)
-                while not stop.is_set():
-                    try:
-                        trial = handle.ask()
-                    except Conflict:  # budget spent: the study is complete
-                        return
-                    value = (trial.params["x"] - 0.5) ** 2
-                    handle.tell(trial, value)
-                    told.append(value)
-                    stop.wait(0.02)
+    def drive(handle: StudyHandle, stop: threading.Event) -> None:
+        while not stop.is_set():
+            try:
+                trial = handle.ask()
+            except Conflict:  # budget spent: the study is complete
+                return
+            value = (trial.params["x"] - 0.5) ** 2
+            handle.tell(trial, value)
+            told.append(value)
+            stop.wait(0.02)
 
-    driver = threading.Thread(target=drive, daemon=True)
-    driver.start()
-    try:
-        result = run(
-            server.url, "submit", "--wait", "--poll", "0.05", str(write_study(tmp_path, body))
-        )
-    finally:
-        stop.set()
-        driver.join()
-    ok(result)
+    result = ok(submit_wait_driven(server, tmp_path, body, drive))
     assert len(told) == 6
     assert "6 complete, 0 failed" in result.stdout
     assert f"value {min(told):.6g}" in result.stdout
@@ -147,30 +161,12 @@ def test_submit_wait_and_trials_say_why_trials_failed(
     """Issue 39: the reasons, commonest first, where people look (not only in --json)."""
     body = {"name": "all-failing", "space": BOX, "proposer": {"name": "random"}, "max_trials": 4}
     messages = ["the function returned value = nan"] * 3 + ["[bold]target out of reach[/bold]"]
-    stop = threading.Event()
 
-    def drive() -> None:
-        with Client(server.url) as api:
-            while not stop.is_set():
-                study = next((s for s in api.studies() if s.name == "all-failing"), None)
-                if study is None:
-                    stop.wait(0.02)
-                    continue
-                handle = api.get_study(study.id)
-                for message in messages:
-                    handle.tell(handle.ask(), state="failed", message=message)
-                return
+    def drive(handle: StudyHandle, _: threading.Event) -> None:
+        for message in messages:
+            handle.tell(handle.ask(), state="failed", message=message)
 
-    driver = threading.Thread(target=drive, daemon=True)
-    driver.start()
-    try:
-        result = run(
-            server.url, "submit", "--wait", "--poll", "0.05", str(write_study(tmp_path, body))
-        )
-    finally:
-        stop.set()
-        driver.join()
-    ok(result)
+    result = ok(submit_wait_driven(server, tmp_path, body, drive))
     lines = [line.strip() for line in result.stdout.splitlines()]
     at = lines.index("why trials failed:")
     assert "0 complete, 4 failed" in lines[at - 1]
