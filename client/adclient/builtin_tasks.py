@@ -52,6 +52,7 @@ DIAGONAL_GESTURE = TaskSpec(
     "(1, 1, 1): the cosine between the two directions.",
     factory="adworker.tasks.diagonal_gesture:DiagonalGesture.make_env",
     templates=True,
+    fixed_base=True,
 )
 LIFT_HIGHEST = TaskSpec(
     name="lift-highest",

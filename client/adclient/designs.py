@@ -3,6 +3,7 @@ representation that maps search vectors to designs (``adclient.decode``)."""
 
 from __future__ import annotations
 
+import math
 from typing import Any, Literal
 
 from pydantic import (
@@ -63,6 +64,14 @@ class Joint(BaseModel):
     def offset(self) -> tuple[float, float, float]:
         """(roll, pitch, yaw), 0 where not set."""
         return (self.offset_roll or 0.0, self.offset_pitch or 0.0, self.offset_yaw or 0.0)
+
+    @property
+    def limits(self) -> tuple[float, float]:
+        """(lower, upper) as a simulator drives it: a revolute or continuous joint with
+        an empty range (lower = upper) turns all round, -pi to pi."""
+        if self.kind in ("revolute", "continuous") and not self.lower < self.upper:
+            return -math.pi, math.pi
+        return self.lower, self.upper
 
     @model_serializer(mode="wrap")
     def _set_fields_only(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:

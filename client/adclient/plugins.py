@@ -117,6 +117,10 @@ class TaskSpec:
     templates: bool = False
     """It builds its robot from the URDF alone (``design=None``), so template studies
     may use it; a task that needs the decoded design leaves it False."""
+    fixed_base: bool = False
+    """Its robot's root is fixed where its URDF puts it; False: the robot is free, set
+    down on the ground (``adclient.spawn``: where the server says the robot starts, so
+    it must be what adworker's task class says, ``Task.fixed_base``)."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.options, type) and issubclass(self.options, TaskOptions)):

@@ -53,6 +53,8 @@ class UrdfLink:
     mass: float
     """Its ``<inertial><mass>``; without ``<inertial>``, PyBullet's default (1 kg)."""
     shapes: tuple[Shape, ...]
+    inertial: Origin = field(default_factory=Origin)
+    """Its ``<inertial><origin>``: where its centre of mass is in the link frame."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,9 @@ class UrdfJoint:
     upper: float
     effort: float
     velocity: float
+    origin: Origin = field(default_factory=Origin)
+    """The child's frame on its parent's at position 0 (its ``<origin>``); ``axis`` is
+    in the child's frame."""
 
 
 @dataclass(frozen=True)
@@ -128,8 +133,12 @@ def read_urdf(text: str, *, lines_from: str | None = None) -> UrdfModel:
             raise URDFModelError("a <link> has no name")
         if name in links:
             raise URDFModelError(f"{where('link', name)}: two links of that name")
+        inertial = element.find("inertial")
         links[name] = UrdfLink(
-            name, _mass(element, where("link", name)), _shapes(element, where("link", name))
+            name,
+            _mass(element, where("link", name)),
+            _shapes(element, where("link", name)),
+            Origin() if inertial is None else _origin(inertial, where("link", name)),
         )
     if not links:
         raise URDFModelError("the robot has no <link>")
@@ -300,4 +309,5 @@ def _joint(element: ET.Element, what: str) -> UrdfJoint:
         upper=upper,
         effort=effort,
         velocity=velocity,
+        origin=_origin(element, what),
     )

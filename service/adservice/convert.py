@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import functools
+import json
+from typing import Any
+
+from adclient.design import DesignSpace
 from adclient.objectives import stored_outcomes
-from adclient.schemas import ArtifactInfo, Study, Trial, WorkerInfo
+from adclient.schemas import ArtifactInfo, Space, Study, Trial, WorkerInfo
 from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow
 
 
@@ -15,7 +20,7 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             {"metric": metric, "direction": direction}
             for metric, direction in zip(outcomes.metrics, outcomes.directions, strict=True)
         ]
-    return Study.model_validate(
+    study = Study.model_validate(
         {
             "id": row.id,
             "name": row.name,
@@ -54,6 +59,23 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             "proposal_fallback_reason": row.proposal_fallback_reason,
         }
     )
+    study.searched_params = searched_keys(study.space, row.space)
+    return study
+
+
+def searched_keys(space: Space, stored: dict[str, Any]) -> list[str]:
+    """The params keys a study searches (``Study.searched_params``); a design space's
+    (``stored`` as JSON) worked out once per space, not at every read of the study."""
+    if isinstance(space, DesignSpace):
+        return list(_design_searched(json.dumps(stored, sort_keys=True)))
+    return [param.name for param in space.params]
+
+
+@functools.lru_cache(maxsize=256)
+def _design_searched(space: str) -> tuple[str, ...]:
+    from adclient.decode import searched_params
+
+    return tuple(sorted(searched_params(DesignSpace.model_validate_json(space))))
 
 
 def trial_schema(row: TrialRow) -> Trial:

@@ -1,14 +1,17 @@
-"""The robot behind a trial: its decoded design and URDF."""
+"""The robot behind a trial: its decoded design, its URDF, and where adworker's simulator
+starts it."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
 from starlette.concurrency import run_in_threadpool
 
 from adclient.design import DesignSpace
-from adclient.designs import Representation
+from adclient.designs import Design, Representation
+from adclient.schemas import Spawn, TaskConfig
 from adservice.db import Database
 from adservice.errors import InvalidError
 from adservice.expansions import Expansion, ExpansionPool, expand_each
@@ -17,42 +20,98 @@ from adservice.repository import trials as trial_repo
 from adservice.repository import urdfs as urdf_repo
 
 
+@dataclass(frozen=True)
+class _Found:
+    """A trial's robot as stored: a design (with its URDF's name), a template trial's
+    stored expansion, or, for one with none, the template and the params to expand."""
+
+    trial_id: int
+    task: dict[str, Any] | None
+    design: Design | None = None
+    robot_name: str = "robot"
+    expansion: Expansion | None = None
+    template: tuple[str, dict[str, Any]] | None = None
+
+
 async def trial_urdf(db: Database, expansions: ExpansionPool, *, trial_id: int) -> str:
     """A design study's trial's URDF, written from its decoded design; a template
     study's, as stored when its params were fixed. A template trial stored before
     URDFs were is expanded once, in the expansion pool (BusyError when it is full), and
     stored; one whose params do not expand is an InvalidError with the template's
     message, stored as well."""
-    found = await run_in_threadpool(_stored_or_written, db, trial_id)
-    if isinstance(found, str):
-        return found
-    if isinstance(found, Expansion):
-        return found.text()
-    template, params = found
+    found = await run_in_threadpool(_find, db, trial_id)
+    if found.design is not None:
+        from adclient.urdf import design_to_urdf
+
+        return design_to_urdf(found.design, robot_name=found.robot_name)
+    return await _template_urdf(db, expansions, found)
+
+
+async def trial_spawn(db: Database, expansions: ExpansionPool, *, trial_id: int) -> Spawn:
+    """Where adworker's simulator starts the trial's robot before every episode
+    (``adclient.spawn``), its study's task saying whether the base is fixed
+    (``TaskSpec.fixed_base``). InvalidError for a box study's trial, and for a study
+    with no task or an external one: no adworker places its robot."""
+    from adclient.spawn import robot_spawn
+    from adclient.urdf_model import URDFModelError
+
+    found = await run_in_threadpool(_find, db, trial_id)
+    fixed_base = _fixed_base(found)
+    if found.design is not None:
+        return robot_spawn(found.design, None, fixed_base=fixed_base)
+    urdf = await _template_urdf(db, expansions, found)
+    try:
+        return robot_spawn(None, urdf, fixed_base=fixed_base)
+    except URDFModelError as error:
+        raise InvalidError(f"trial {trial_id}'s URDF builds no robot: {error}") from None
+
+
+def _fixed_base(found: _Found) -> bool:
+    from adclient.plugins import PluginError, catalogue
+
+    task = None if found.task is None else TaskConfig.model_validate(found.task)
+    if task is None or task.external:
+        kind = "no task" if task is None else f"an external task ({task.name})"
+        raise InvalidError(
+            f"trial {found.trial_id}'s study has {kind}: no adworker simulator places its "
+            "robot, so it has no spawn pose"
+        )
+    try:
+        return catalogue().task(task.name).fixed_base
+    except PluginError as error:
+        raise InvalidError(f"trial {found.trial_id}'s task: {error}") from None
+
+
+async def _template_urdf(db: Database, expansions: ExpansionPool, found: _Found) -> str:
+    if found.expansion is not None:
+        return found.expansion.text()
+    assert found.template is not None
+    template, params = found.template
     (expansion,) = await expansions.run(partial(expand_each, template, [params]))
 
     def store() -> None:
         with db.write() as session:
-            urdf_repo.store_urdfs(session, expansions={trial_id: expansion})
+            urdf_repo.store_urdfs(session, expansions={found.trial_id: expansion})
 
     await db.run(store)
     return expansion.text()
 
 
-def _stored_or_written(db: Database, trial_id: int) -> str | Expansion | tuple[str, dict[str, Any]]:
-    """A design's URDF; a template trial's stored expansion; or, for a template trial
-    with none, the template and the params to expand it at."""
+def _find(db: Database, trial_id: int) -> _Found:
     from adclient.decode import decode
-    from adclient.urdf import design_to_urdf
 
     with db.read() as session:
         trial = trial_repo.get_trial(session, trial_id=trial_id)
         study = study_repo.get_study(session, study_id=trial.study_id)
         if study.space.get("type") == "template":
             stored = urdf_repo.stored_urdfs(session, trial_ids=[trial_id]).get(trial_id)
-            return stored or (study.space["template"], trial.params)
+            if stored is not None:
+                return _Found(trial_id, study.task, expansion=stored)
+            return _Found(trial_id, study.task, template=(study.space["template"], trial.params))
     if study.representation is None:
         raise InvalidError(f"trial {trial_id} belongs to a box study: it has no robot design")
     space = DesignSpace.model_validate(study.space)
     design = decode(space, Representation.model_validate(study.representation), trial.vector)
-    return design_to_urdf(design, robot_name=f"study{study.id}_trial{trial.number}")
+    return _Found(
+        trial_id, study.task, design=design, robot_name=f"study{study.id}_trial{trial.number}"
+    )

@@ -8,9 +8,10 @@ import pybullet
 import pytest
 
 from adclient.designs import Link
+from adclient.spawn import CLEARANCE, design_model
 from adworker import designs
 from adworker.tasks.model import model_of_design
-from adworker.tasks.robot import Robot, unit_axis
+from adworker.tasks.robot import Robot
 from adworker.tasks.simulator import CONTACT_DISTANCE, CONTACT_LINK_A, JointInfo, Simulator
 from tests.workers.robots import write_urdf
 
@@ -46,6 +47,7 @@ def test_the_robot_is_its_design(sim, tmp_path) -> None:
     assert robot.link_names[0] == STAR.root
     assert sorted(robot.link_names) == sorted(link.name for link in STAR.links)
     by_name = {joint.name: joint for joint in STAR.joints}
+    unit_axes = {joint.name: joint.axis for joint in design_model(STAR).joints}
     assert sorted(joint.name for joint in robot.joints) == sorted(by_name)
     for joint in robot.joints:
         designed = by_name[joint.name]
@@ -57,7 +59,7 @@ def test_the_robot_is_its_design(sim, tmp_path) -> None:
         assert (
             STAR.root if parent == -1 else sim.joint_info(robot.body, parent).link_name.decode()
         ) == designed.parent
-        assert info.axis == pytest.approx(unit_axis(designed.axis), abs=1e-12)
+        assert info.axis == pytest.approx(unit_axes[joint.name], abs=1e-12)
         assert (
             (joint.lower, joint.upper)
             == (designed.lower, designed.upper)
@@ -70,6 +72,28 @@ def test_the_robot_is_its_design(sim, tmp_path) -> None:
         # The URDF's inertial frame sits at the shape's centre: the ends lie at +-length/2.
         assert g.points[:, 2] == pytest.approx([-g.length / 2, g.length / 2])
         assert g.centre == pytest.approx([0.0, 0.0, 0.0])
+
+
+def test_joints_whose_range_leaves_out_zero_start_at_their_nearest_limit(sim, tmp_path) -> None:
+    """An episode starts each joint at 0 clipped to its range, plus noise: the robot is
+    set down in that pose (``adclient.spawn``), its lowest point just off the ground."""
+    bent = designs.arch_chain()
+    bent = bent.model_copy(
+        update={
+            "joints": [
+                bent.joints[0].model_copy(update={"lower": 0.4, "upper": 1.2}),
+                bent.joints[1].model_copy(update={"lower": -1.0, "upper": -0.3}),
+            ]
+        }
+    )
+    robot = _robot(sim, bent, tmp_path / "bent.urdf")
+    assert robot.spawn.joints == {bent.joints[0].name: 0.4, bent.joints[1].name: -0.3}
+    states = pybullet.getJointStates(robot.body, robot.joint_indices, physicsClientId=sim.client)
+    assert [state[0] for state in states] == [0.4, -0.3]
+    assert min(robot.read().bottom) == pytest.approx(CLEARANCE, abs=1e-7)
+    reset = robot.reset(np.zeros(2))
+    assert reset.q == pytest.approx([0.4, -0.3])
+    assert min(reset.bottom) == pytest.approx(CLEARANCE, abs=1e-7)
 
 
 def test_joint_info_names_every_position_pybullet_answers(sim, tmp_path) -> None:

@@ -28,6 +28,23 @@ def test_env_checker_passes(task: str, env_of) -> None:
         env.close()
 
 
+def test_a_task_class_whose_base_its_declaration_contradicts_builds_no_env(tmp_path) -> None:
+    """The server says where a robot starts by the task's declaration
+    (``TaskSpec.fixed_base``): a class that would put it elsewhere is refused."""
+    from adclient.builtin_tasks import DIAGONAL_GESTURE, DiagonalGestureOptions
+    from adworker.tasks.diagonal_gesture import DiagonalGesture
+    from tests.workers.robots import write_urdf
+
+    class Unfixed(DiagonalGesture):
+        fixed_base = False
+
+    assert DIAGONAL_GESTURE.fixed_base is DiagonalGesture.fixed_base is True
+    design = designs.crossed_chain()
+    urdf_path = write_urdf(design, tmp_path / "robot.urdf")
+    with pytest.raises(ValueError, match="its class has fixed_base = False, its declaration"):
+        Unfixed.make_env(design=design, urdf_path=urdf_path, options=DiagonalGestureOptions())
+
+
 def test_close_disconnects_and_envs_do_not_share_a_client(env_of) -> None:
     import pybullet
 

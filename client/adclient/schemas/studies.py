@@ -221,6 +221,14 @@ class Study(BaseModel):
     state: StudyState
     managed: bool
     space: Space
+    searched_params: list[str] | None = Field(
+        default=None,
+        description="the keys of its trials' params that the study searches: a box's or "
+        "template's every param; a design study's free specs, catalogue choices, free "
+        "axes and, of several structures, the structure (adclient.decode.searched_params), "
+        "the rest being fixed by its study file or following from these (ties, mirrors, "
+        "catalogues). Null in answers of old servers",
+    )
     proposer: ProposerConfig
     pruner: PrunerConfig = Field(default_factory=PrunerConfig)
     task: TaskConfig | None

@@ -130,6 +130,25 @@ class AskResponse(BaseModel):
     trials: list[Trial]
 
 
+class Spawn(BaseModel):
+    """Where adworker's simulator puts a trial's robot before every episode
+    (``adclient.spawn``): its root link's frame in the world (metres, z up, the ground
+    at z = 0) and each driven joint's position (radians; metres for a prismatic joint)."""
+
+    fixed_base: bool = Field(
+        description="the study's task fixes the root where its URDF puts it; else the "
+        "robot is free and set down on the ground"
+    )
+    position: tuple[float, float, float] = Field(description="the root frame's origin")
+    orientation: tuple[float, float, float, float] = Field(
+        description="the root frame's orientation, a unit quaternion (x, y, z, w)"
+    )
+    joints: dict[str, float] = Field(
+        description="each driven joint by name: 0, or the limit nearest it; an episode "
+        "starts here plus its random noise (task.options.init_noise)"
+    )
+
+
 class TellRequest(Strict):
     """``{"value": v}`` completes a trial; ``{"state": "failed", "message": m}`` fails it;
     ``{"state": "pruned"}`` (optionally with its last ``value``) ends it early, as its

@@ -32,4 +32,5 @@ MUJOCO_REACH = TaskSpec(
     description="MuJoCo: an arm on a fixed base brings the far end of its tip link to a "
     "target point: minus the distance (m), averaged over the episode's second half.",
     factory="adplugin_mujoco.env:MujocoReach",
+    fixed_base=True,
 )

@@ -32,7 +32,7 @@ import gymnasium as gym
 import numpy as np
 
 from adclient.designs import Design
-from adclient.plugins import SimulatorOptions
+from adclient.plugins import SimulatorOptions, catalogue
 from adclient.urdf_model import read_urdf
 from adworker.tasks.model import RobotModel, model_of_design, model_of_urdf
 from adworker.tasks.robot import MotorMeter, Robot
@@ -72,6 +72,8 @@ class Task(Generic[OptionsT]):
 
     name: ClassVar[str]
     fixed_base: ClassVar[bool] = False
+    """The robot's root is fixed where its URDF puts it, as the task's declaration says
+    (``TaskSpec.fixed_base``); else it is set down free (``adclient.spawn``)."""
     reads_contacts: ClassVar[bool] = True
     """Whether each step reads ground contacts (observed as one flag per link)."""
     default_episode_steps: ClassVar[int] = DEFAULT_EPISODE_STEPS
@@ -161,6 +163,13 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.init_noise = options.init_noise
         if self.episode_steps < 2:
             raise ValueError("episode_steps >= 2 required")
+        declared = catalogue().tasks.get(task.name)
+        if declared is not None and declared.fixed_base != task.fixed_base:
+            raise ValueError(
+                f"task {task.name!r}: its class has fixed_base = {task.fixed_base}, its "
+                f"declaration (TaskSpec) {declared.fixed_base}: the server would say the "
+                "robot starts where the worker does not put it"
+            )
         self.sim = Simulator(time_step=options.time_step, frame_skip=options.frame_skip)
         try:
             self.robot = Robot(

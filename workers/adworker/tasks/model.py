@@ -10,13 +10,13 @@ a sphere's or capsule's all round.
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 from itertools import product
 
 import numpy as np
 
-from adclient.designs import Design, Joint
+from adclient.designs import Design
+from adclient.spawn import design_model, rpy_rotation
 from adclient.urdf_model import DRIVEN_KINDS, Shape, UrdfModel
 
 _Z = np.array([0.0, 0.0, 1.0])
@@ -57,6 +57,9 @@ class JointModel:
         return self.kind in DRIVEN_KINDS
 
 
+JOINT_FIELDS = tuple(field.name for field in fields(JointModel))
+
+
 @dataclass(frozen=True)
 class RobotModel:
     root: str
@@ -66,6 +69,9 @@ class RobotModel:
     """Each link's mass as the design gives it; None: as the engine loaded it."""
     lay_down: bool
     """A free robot starts on its side along +x (a design's chain) or as built (a URDF)."""
+    kinematics: UrdfModel
+    """The links' shapes and the joints' frames as its URDF gives them: what its spawn
+    pose is computed from (``adclient.spawn``)."""
 
 
 def design_link_shape(shape: str, length: float, radius: float) -> LinkShape:
@@ -97,9 +103,8 @@ def model_of_design(design: Design) -> RobotModel:
                 parent=joint.parent,
                 child=joint.child,
                 axis=_turned(joint.offset, joint.axis),
-                # an empty range (lower = upper) leaves a revolute joint free all round
-                lower=-math.pi if _all_round(joint) else joint.lower,
-                upper=math.pi if _all_round(joint) else joint.upper,
+                lower=joint.limits[0],
+                upper=joint.limits[1],
                 effort=joint.effort,
                 velocity=joint.velocity,
             )
@@ -107,20 +112,21 @@ def model_of_design(design: Design) -> RobotModel:
         ),
         masses={link.name: link.mass for link in design.links},
         lay_down=True,
+        kinematics=design_model(design),
     )
-
-
-def _all_round(joint: Joint) -> bool:
-    return joint.kind in ("revolute", "continuous") and not joint.lower < joint.upper
 
 
 def model_of_urdf(model: UrdfModel) -> RobotModel:
     return RobotModel(
         root=model.root,
         shapes={name: _urdf_link_shape(link.shapes) for name, link in model.links.items()},
-        joints=tuple(JointModel(**asdict(joint)) for joint in model.joints),  # alike
+        joints=tuple(
+            JointModel(**{key: getattr(joint, key) for key in JOINT_FIELDS})
+            for joint in model.joints
+        ),
         masses=None,
         lay_down=False,
+        kinematics=model,
     )
 
 
@@ -129,29 +135,12 @@ def _turned(
 ) -> tuple[float, float, float]:
     if not any(rpy):
         return axis
-    x, y, z = _rotation(rpy) @ np.array(axis)
+    x, y, z = rpy_rotation(rpy) @ np.array(axis)
     return (float(x), float(y), float(z))
 
 
-def _rotation(rpy: tuple[float, float, float]) -> np.ndarray:
-    """URDF's rpy: fixed-axis roll about x, then pitch about y, then yaw about z."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(r),
-        math.sin(r),
-        math.cos(p),
-        math.sin(p),
-        math.cos(y),
-        math.sin(y),
-    )
-    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    return rz @ ry @ rx
-
-
 def _one_shape(shape: Shape) -> LinkShape:
-    rotation = _rotation(shape.origin.rpy)
+    rotation = rpy_rotation(shape.origin.rpy)
     centre = np.array(shape.origin.xyz)
     if shape.kind == "sphere":
         (radius,) = shape.size

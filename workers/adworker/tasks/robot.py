@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
+from adclient.spawn import spawn_pose
 from adworker.tasks.model import LinkShape, RobotModel
 from adworker.tasks.simulator import (
     BODY_BASE_NAME,
@@ -125,12 +126,6 @@ def _to_inertial(
     return (points - np.asarray(position)) @ rotation
 
 
-def unit_axis(axis: tuple[float, float, float]) -> tuple[float, float, float]:
-    """A joint axis scaled to length 1, as the URDF writer writes it."""
-    norm = math.sqrt(sum(float(component) ** 2 for component in axis))
-    return (axis[0] / norm, axis[1] / norm, axis[2] / norm)
-
-
 _ENGINE_KIND = {
     "revolute": pybullet.JOINT_REVOLUTE,
     "continuous": pybullet.JOINT_REVOLUTE,
@@ -220,6 +215,8 @@ class Robot:
         self.efforts = [joint.effort for joint in self.joints]
         self._constants = [g.constants() for g in self.geometry]
         self._link_slot = {g.index: k for k, g in enumerate(self.geometry)}
+        self.spawn = spawn_pose(model.kinematics, lay_down=model.lay_down, fixed_base=fixed_base)
+        """Where every episode starts, before its noise (``adclient.spawn``)."""
         self._place()
         self._saved_state = sim.save_state()
 
@@ -268,49 +265,21 @@ class Robot:
         )
 
     def _place(self) -> None:
-        """Lay a free robot on its side along world +x, its lowest point just touching.
-
-        The chain at rest (the root frame's +z) runs along world +x. Lying on round
-        links, the robot could rest at any roll about that line; it is laid with the
-        axis of the root's first joint horizontal, so bending that joint lifts links
-        off the ground (as anyone setting the robot down would place it). What the
-        design then decides is how the other axes sit relative to that one: parallel
-        ones fold the chain in a vertical plane, others twist it out of that plane.
-        A fixed-base robot stays where its URDF puts it: root frame at the origin. A free
-        robot of the user's own URDF is set down as built, its lowest point touching.
-        """
-        if self.fixed_base:
-            return
+        """Put the robot where ``adclient.spawn`` says (``self.spawn``): the engine poses
+        a base by its inertial frame, so the root frame's pose is turned into that."""
         cid = self.sim.client
-        if not self.model.lay_down:
-            # The engine poses a base by its inertial frame: turned as its URDF turns it,
-            # the link frame is upright.
-            orientation = self.sim.dynamics_info(self.body, -1).inertial_orientation
-            pybullet.resetBasePositionAndOrientation(self.body, [0, 0, 1.0], orientation, cid)
-            bottom = min(self.read().bottom)
-            pybullet.resetBasePositionAndOrientation(
-                self.body, [0, 0, 1.0 - bottom + 1e-4], orientation, cid
+        spawn = self.spawn
+        if not self.fixed_base:
+            dynamics = self.sim.dynamics_info(self.body, -1)
+            position, orientation = pybullet.multiplyTransforms(
+                spawn.position,
+                spawn.orientation,
+                dynamics.inertial_position,
+                dynamics.inertial_orientation,
             )
-            return
-        roll = 0.0
-        first = next(joint for joint in self.model.joints if joint.parent == self.model.root)
-        ux, uy, _ = unit_axis(first.axis)
-        if math.hypot(ux, uy) > 1e-6:
-            # Root +x, +y, +z land on world -z, +y, +x; rolling by atan2(ux, uy) about
-            # world x brings the axis into the horizontal plane.
-            roll = math.atan2(ux, uy)
-        _, orientation = pybullet.multiplyTransforms(
-            [0, 0, 0],
-            pybullet.getQuaternionFromEuler([roll, 0.0, 0.0]),
-            [0, 0, 0],
-            pybullet.getQuaternionFromEuler([0.0, math.pi / 2, 0.0]),
-        )
-        pybullet.resetBasePositionAndOrientation(self.body, [0, 0, 1.0], orientation, cid)
+            pybullet.resetBasePositionAndOrientation(self.body, position, orientation, cid)
         for joint in self.joints:
-            pybullet.resetJointState(self.body, joint.index, 0.0, 0.0, cid)
-        bottom = min(self.read().bottom)
-        height = 1.0 - bottom + 1e-4
-        pybullet.resetBasePositionAndOrientation(self.body, [0, 0, height], orientation, cid)
+            pybullet.resetJointState(self.body, joint.index, spawn.joints[joint.name], 0.0, cid)
 
     # ---------------------------------------------------------------- stepping
 

@@ -6,7 +6,7 @@ c both touch the ground (a step where either is off the ground counts as 0). The
 same quantity per step, so every learner optimises what the score measures.
 
 Parallel axes perpendicular to the chain and horizontal (theta = phi = pi/2 in the
-initial pose, see ``Robot._place``) fold the chain into an arch standing on
+initial pose, see ``adclient.spawn``) fold the chain into an arch standing on
 a and c; axes along the links only roll the cylinders, and b stays at its radius.
 """
 

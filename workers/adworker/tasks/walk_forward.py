@@ -5,7 +5,7 @@ shared simulator and robot, declared (name, options model, factory) in
 ``adclient.builtin_tasks`` and registered through the ``activedesign.tasks`` entry
 point like any third-party task.
 
-The robot starts lying on the ground along +x (see ``Robot._place``), so forward is
+The robot starts lying on the ground along +x (see ``adclient.spawn``), so forward is
 the way its chain points. Metric: how far its centre of mass has moved along +x since
 the episode began (m); score: that distance at the episode's end; reward: the progress
 of each step, so an episode's return is its score. Sideways drift neither counts nor

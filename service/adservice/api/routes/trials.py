@@ -1,5 +1,5 @@
-"""Trials: read, tell, heartbeat, release, user attributes, and the URDF of a trial's
-design."""
+"""Trials: read, tell, heartbeat, release, user attributes, and a trial's robot: its
+URDF and where the simulator starts it."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from adclient.schemas import (
     HeartbeatRequest,
     HeartbeatResponse,
     ReleaseRequest,
+    Spawn,
     TellRequest,
     Trial,
     TrialUpdate,
@@ -121,3 +122,11 @@ async def trial_urdf(trial_id: TrialId, proposing: ProposingDep, _: ReaderDep) -
         media_type="application/xml",
         headers={"Content-Disposition": f'attachment; filename="trial-{trial_id}.urdf"'},
     )
+
+
+@router.get("/{trial_id}/spawn")
+async def trial_spawn(trial_id: TrialId, proposing: ProposingDep, _: ReaderDep) -> Spawn:
+    """Where adworker's simulator starts the trial's robot before every episode: its root
+    frame's pose and its joints' positions (``adclient.spawn``), as the worker computes
+    them. 422 for a box study's trial, or a study with no task or an external one."""
+    return await robots.trial_spawn(proposing.db, proposing.expansions, trial_id=trial_id)

@@ -29,18 +29,21 @@ REACH_UP = TaskSpec(
     options=ReachUpOptions,
     description="An arm on a fixed base raises the top of its tip link as high as it can.",
     factory="adplugin_reach.env:ReachUp.make_env",
+    fixed_base=True,
 )
 REACH_ELSEWHERE = TaskSpec(
     name="reach-elsewhere",
     options=ReachUpOptions,
     description="reach-up on a simulator this machine does not have.",
     factory="adplugin_reach.elsewhere:make_env",
+    fixed_base=True,
 )
 ARM_LENGTH = TaskSpec(
     name="arm-length",
     options=ArmLengthOptions,
     description="An arm on a fixed base scored by its links' total length, whatever it does.",
     factory="adplugin_reach.env:ArmLength.make_env",
+    fixed_base=True,
 )
 HOLD = LearnerSpec(
     name="hold",
