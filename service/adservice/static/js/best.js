@@ -1,28 +1,34 @@
-// The best-design card: the best trial's score, link, params and URDF, its robot in 3D
-// (when it has a URDF) and the image its worker rendered (when it uploaded one). A study
+// The best-design card: the best trial's score, link, the params its study searched (the
+// whole design a click away) and URDF, its robot in 3D where the simulator starts it (when
+// it has a URDF) and the image its worker rendered (when it uploaded one). A study
 // of several objectives has no one best: the card counts its Pareto front instead and
 // lists the designs on it (the Pareto panel draws them).
 
 import { artifactNames, getJSON } from './api.js';
 import { formatNumber } from './charts.js';
-import { element, esc, finder, paramsTable, urdfLink, urdfUrl } from './html.js';
+import { element, esc, finder, paramsTable, spawnUrl, urdfLink, urdfUrl } from './html.js';
 import { objectiveNames } from './pareto.js';
 import { RobotView } from './robot-view.js';
 
-/** The params that vary across the study (and text ones like the structure) first; the
- * fixed ones folded away. */
-function bestParams(params, searched) {
+/** The best trial's params: by default those the study searched (its `searched_params`,
+ * the server's rule), the whole design after "Show all"; with a line saying how many
+ * the study file fixed or the searched ones derive, and the toggle between the two. */
+function bestParams(study, params, showAll) {
   const entries = Object.entries(params ?? {});
-  const shown = entries.filter(([k, v]) => searched.has(k) || typeof v === 'string');
-  const folded = entries.filter(([k, v]) => !(searched.has(k) || typeof v === 'string'));
-  if (shown.length === 0) return `<div class="params-scroll">${paramsTable(params)}</div>`;
-  const more = folded.length
-    ? `<details><summary>${folded.length} more (fixed) params</summary>
-        ${paramsTable(Object.fromEntries(folded))}</details>`
-    : '';
-  return `<div class="params-scroll">${paramsTable(Object.fromEntries(shown))}${more}</div>`;
+  const searched = study.searched_params ? new Set(study.searched_params) : null;
+  const chosen = searched ? entries.filter(([k]) => searched.has(k)) : entries;
+  const hidden = entries.length - chosen.length;
+  const shown = showAll ? entries : chosen;
+  const table = `<div class="params-scroll" data-best-params>${paramsTable(Object.fromEntries(shown))}</div>`;
+  if (!hidden) return table;
+  const note = showAll
+    ? `the whole design: ${entries.length} params, ${chosen.length} of them searched`
+    : `the ${chosen.length} searched params; ${hidden} more are fixed by the study file or ` +
+      'follow from these (ties, mirrors, catalogues)';
+  const toggle = showAll ? 'Searched only' : `Show all ${entries.length}`;
+  return `${table}<p class="meta" data-best-note>${note}
+    <button type="button" class="link" data-best-all aria-pressed="${showAll}">${toggle}</button></p>`;
 }
-
 export class BestCard {
   constructor(page) {
     this.page = page;
@@ -30,6 +36,7 @@ export class BestCard {
     this.artifacts = [];
     this.key = null;
     this.model = null;
+    this.showAll = false;
     this.root = element(`<section class="card best" data-best-card>
       <h2 data-best-title>Best design</h2>
       <div class="best-body">
@@ -42,6 +49,12 @@ export class BestCard {
       </div>
     </section>`);
     this.$ = finder(this.root);
+    this.root.addEventListener('click', (event) => {
+      if (!event.target.closest('[data-best-all]')) return;
+      this.showAll = !this.showAll;
+      this.key = null;
+      this.render();
+    });
   }
 
   /** Whether the best trial may still get its image (uploads do not touch the study). */
@@ -73,9 +86,9 @@ export class BestCard {
       this.renderFront();
       return;
     }
-    const { study, searched } = this.page;
+    const { study } = this.page;
     const trial = this.trial;
-    const key = trial ? `${trial.id}|${this.artifacts.join(',')}|${searched.size}` : '';
+    const key = trial ? `${trial.id}|${this.artifacts.join(',')}|${this.showAll}` : '';
     if (key === this.key) return;
     this.key = key;
     // A plain URL (the sign-in cookie authenticates it): the server serves an artifact
@@ -83,13 +96,14 @@ export class BestCard {
     const imageUrl =
       trial && this.artifacts.includes('robot.png') ? `/api/v1/trials/${trial.id}/artifacts/robot.png` : null;
     const modelUrl = trial && urdfUrl(study, trial, this.artifacts);
+    const startUrl = trial && spawnUrl(study, trial);
     this.$('best-placeholder').hidden = trial !== null;
     this.$('best-figure').hidden = !imageUrl && !modelUrl;
     const image = this.$('best-image');
     image.hidden = !imageUrl;
     if (!imageUrl) image.removeAttribute('src');
     else if (image.getAttribute('src') !== imageUrl) image.src = imageUrl;
-    this.showModel(modelUrl);
+    this.showModel(modelUrl, startUrl);
     if (!trial) {
       this.$('best').innerHTML = '';
       return;
@@ -99,7 +113,7 @@ export class BestCard {
       <p class="best-value">${formatNumber(trial.value)}</p>
       <p>trial <a href="#" data-open-trial="${trial.id}">#${trial.number}</a>
         ${trial.worker_id ? `· by ${esc(trial.worker_id)}` : ''} ${urdf ? `· ${urdf}` : ''}</p>
-      ${bestParams(trial.params, searched)}`;
+      ${bestParams(study, trial.params, this.showAll)}`;
   }
 
   /** Several objectives: how many designs are on the Pareto front, and the first of them
@@ -131,7 +145,7 @@ export class BestCard {
       : '';
   }
 
-  showModel(url) {
+  showModel(url, startUrl) {
     const holder = this.$('best-model');
     holder.hidden = !url;
     if (!url) return;
@@ -139,7 +153,7 @@ export class BestCard {
       this.model = new RobotView();
       holder.append(this.model.root);
     }
-    this.model.show(url);
+    this.model.show(url, startUrl);
   }
 
   imageLoaded() {

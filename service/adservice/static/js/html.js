@@ -93,6 +93,13 @@ export function urdfUrl(study, trial, artifacts) {
   return null;
 }
 
+/** Where the simulator starts a trial's robot (`GET /api/v1/trials/{id}/spawn`): for a
+ * design or template study run by one of the server's tasks (null for any other). */
+export function spawnUrl(study, trial) {
+  const robot = study.space?.type === 'design' || study.space?.type === 'template';
+  return robot && study.task && !study.task.external ? `/api/v1/trials/${trial.id}/spawn` : null;
+}
+
 export function urdfLink(study, trial, artifacts, label = 'URDF') {
   const url = urdfUrl(study, trial, artifacts);
   if (!url) return '';

@@ -1,11 +1,13 @@
-// An interactive 3D view of a robot from its URDF: drag to orbit, scroll to zoom,
-// right-drag to pan, one slider per movable joint. three and urdf-loader come from one
+// An interactive 3D view of a robot from its URDF, posed where the simulator starts it
+// when the server says where that is (GET /api/v1/trials/{id}/spawn: the root frame's
+// pose, the joints' positions), else in the URDF's own frame with its joints at zero:
+// drag to orbit, scroll to zoom, right-drag to pan, one slider per movable joint. three and urdf-loader come from one
 // vendored ES module (../vendor/three-urdf.js, see vendor/README.md), loaded the first
 // time a view shows a robot. It draws primitive shapes (box, cylinder, sphere) and fetches
 // nothing but the URDF: the mesh files a URDF names are left out (the view says how many),
 // and its textures (colours stay). It renders on demand (a move, a slider, a resize).
 
-import { getText } from './api.js';
+import { getJSON, getText } from './api.js';
 import { formatNumber } from './charts.js';
 import { element, esc, finder } from './html.js';
 
@@ -41,7 +43,7 @@ export class RobotView {
         <canvas data-robot-canvas
           aria-label="The robot in 3D: drag to turn it, scroll to zoom, right-drag to move"></canvas>
         <button type="button" class="robot-reset" data-robot-reset
-          title="Joints back to zero, camera back to the whole robot">Reset</button>
+          title="Joints back to where they start, camera back to the whole robot">Reset</button>
       </div>
       <p class="meta" data-robot-note hidden></p>
       <div class="joints" data-sliders></div>
@@ -57,18 +59,23 @@ export class RobotView {
     $('robot-reset').addEventListener('click', () => this.reset());
   }
 
-  /** Show the robot whose URDF is at `url`; a later call wins over one still loading. */
-  async show(url) {
+  /** Show the robot whose URDF is at `url`, where the spawn pose at `spawnUrl` puts it
+   * (none: in its URDF frame); a later call wins over one still loading. */
+  async show(url, spawnUrl = null) {
     if (url === this.url) return;
     this.url = url;
     const request = ++this.requests;
     this.root.dataset.url = url;
     delete this.canvas.dataset.ready;
     try {
-      const [three, urdf] = await Promise.all([loadVendor(), getText(url)]);
+      const [three, urdf, spawn] = await Promise.all([
+        loadVendor(),
+        getText(url),
+        spawnUrl ? getJSON(spawnUrl).catch((error) => ({ error })) : null,
+      ]);
       if (request !== this.requests) return;
       this.setUp(three);
-      this.setRobot(urdf);
+      this.setRobot(urdf, spawn);
     } catch (error) {
       if (request !== this.requests) return;
       this.url = null;
@@ -99,7 +106,10 @@ export class RobotView {
     this.resizer.observe(this.canvas);
   }
 
-  setRobot(urdf) {
+  /** Draw the URDF's robot at `spawn` ({position, orientation, joints}; null: in its
+   * URDF frame; {error}: the same, saying why). */
+  setRobot(urdf, found) {
+    const spawn = found?.error ? null : found;
     const three = this.three;
     const xml = new DOMParser().parseFromString(urdf, 'text/xml');
     if (xml.documentElement.nodeName !== 'robot') throw new Error('not a URDF (no <robot> element)');
@@ -119,7 +129,12 @@ export class RobotView {
     this.robot.traverse((part) => {
       if (part.material?.map) part.material.map = null; // its file was not fetched: colour only
     });
-    this.robot.rotation.x = -Math.PI / 2; // URDF is z-up, three is y-up
+    // URDF and the simulator are z-up, three is y-up: the z-up world turned onto three's.
+    const xAxis = new three.Vector3(1, 0, 0);
+    this.upright = this.robot.quaternion.clone().setFromAxisAngle(xAxis, -Math.PI / 2);
+    this.robot.position.set(...(spawn?.position ?? [0, 0, 0])).applyQuaternion(this.upright);
+    this.robot.quaternion.set(...(spawn?.orientation ?? [0, 0, 0, 1])).premultiply(this.upright);
+    this.start = spawn?.joints ?? {};
     this.scene.add(this.robot);
 
     const movable = Object.values(this.robot.joints)
@@ -136,10 +151,13 @@ export class RobotView {
       .join('');
     this.canvas.dataset.links = String(Object.keys(this.robot.links).length);
     this.canvas.dataset.joints = String(movable.length);
-    this.zeroJoints();
+    this.startJoints();
+    this.canvas.dataset.spawn = spawn ? 'true' : 'false';
+    this.canvas.dataset.base = JSON.stringify(this.basePose());
     this.resize();
     const shapes = this.fit();
     const notes = [];
+    if (found?.error) notes.push(`Drawn in its URDF frame: no spawn pose (${found.error.message}).`);
     if (meshes.length) {
       notes.push(`${meshes.length} mesh file(s) not drawn: this view draws boxes, cylinders and spheres.`);
     }
@@ -149,12 +167,24 @@ export class RobotView {
     this.canvas.dataset.ready = 'true';
   }
 
-  /** Every joint at zero, or at the limit nearest zero. */
-  zeroJoints() {
+  /** Every joint where the simulator starts it, or, not told, at zero or the limit
+   * nearest zero (where the simulator starts a joint too). */
+  startJoints() {
     for (const input of this.sliders.querySelectorAll('input[data-joint]')) {
-      input.value = String(Math.min(Number(input.max), Math.max(Number(input.min), 0)));
+      const start = this.start[input.dataset.joint] ?? 0;
+      input.value = String(Math.min(Number(input.max), Math.max(Number(input.min), start)));
       this.setJoint(input);
     }
+  }
+
+  /** The root frame's pose as drawn, in the z-up world the URDF and the simulator use:
+   * {position, orientation (x, y, z, w)}. */
+  basePose() {
+    const back = this.upright.clone().invert();
+    return {
+      position: this.robot.position.clone().applyQuaternion(back).toArray(),
+      orientation: this.robot.quaternion.clone().premultiply(back).toArray(),
+    };
   }
 
   setJoint(input) {
@@ -181,7 +211,10 @@ export class RobotView {
     const box = new Box3().setFromObject(this.robot);
     const empty = box.isEmpty();
     const center = empty ? new Vector3() : box.getCenter(new Vector3());
-    const radius = empty ? 0.5 : Math.max(box.getSize(new Vector3()).length() / 2, 0.05);
+    const extent = box.getSize(new Vector3());
+    const radius = empty ? 0.5 : Math.max(extent.length() / 2, 0.05);
+    // How far the robot fitted reaches along the z-up world's x, y and z (three's x, z, y).
+    this.canvas.dataset.extent = JSON.stringify(empty ? [0, 0, 0] : [extent.x, extent.z, extent.y]);
     const halfFov = (this.camera.fov * Math.PI) / 360;
     const halfWidth = Math.atan(Math.tan(halfFov) * this.camera.aspect);
     const distance = (radius / Math.sin(Math.min(halfFov, halfWidth))) * 1.2;
@@ -201,7 +234,7 @@ export class RobotView {
 
   reset() {
     if (!this.robot) return;
-    this.zeroJoints();
+    this.startJoints();
     this.fit();
     this.render();
   }

@@ -4,7 +4,7 @@
 
 import { getJSON } from './api.js';
 import { drawCurve, formatNumber } from './charts.js';
-import { attrsTable, badge, duration, esc, paramsTable, urdfLink, urdfUrl, when } from './html.js';
+import { attrsTable, badge, duration, esc, paramsTable, spawnUrl, urdfLink, urdfUrl, when } from './html.js';
 import { objectiveNames } from './pareto.js';
 import { RobotView } from './robot-view.js';
 
@@ -87,7 +87,7 @@ export async function openTrialDialog(study, trialId) {
   if (modelUrl) {
     model = new RobotView();
     dialog.querySelector('[data-trial-model]').append(model.root);
-    model.show(modelUrl);
+    model.show(modelUrl, spawnUrl(study, trial));
   }
   const image = dialog.querySelector('[data-trial-image]');
   if (image) image.src = `/api/v1/trials/${trial.id}/artifacts/robot.png`;
