@@ -35,6 +35,12 @@ def pip_install_target(source: Path, work: Path) -> Path:
     return site
 
 
+def plugin_path(site: Path) -> str:
+    """A PYTHONPATH with ``site`` (a plugin ``pip_install_target`` made) before the one
+    these tests run with (a worktree's code), so a process sees the plugin and that code."""
+    return os.pathsep.join(filter(None, [str(site), os.getenv("PYTHONPATH")]))
+
+
 class WorkerProcess:
     """One ``adworker`` process with its log file; ``env`` adds to the environment."""
 

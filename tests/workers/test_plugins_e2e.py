@@ -21,7 +21,7 @@ import yaml
 from adclient import Client
 from adclient.plugins import catalogue
 from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess
+from tests.workers.processes import PATIENCE, WorkerProcess, plugin_path
 
 pytestmark = pytest.mark.e2e
 
@@ -86,7 +86,7 @@ def test_a_study_of_the_plugin_is_checked_with_its_declarations(
 
 
 def test_the_command_lines_list_the_plugin_and_what_does_not_load_here(plugin_site: Path) -> None:
-    env = {**os.environ, "PYTHONPATH": str(plugin_site)}
+    env = {**os.environ, "PYTHONPATH": plugin_path(plugin_site)}
     bin_dir = Path(sys.executable).parent
     listed = {}
     for command in ("adserver", "adworker"):
@@ -117,7 +117,7 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
             assert "reach-up" not in without.log().split("tasks", 1)[1].splitlines()[0]
             assert client.study_info(study.id).n_trials == 0, "leased by a worker without it"
 
-            env = {"PYTHONPATH": str(plugin_site)}
+            env = {"PYTHONPATH": plugin_path(plugin_site)}
             with_it = WorkerProcess(server, tmp_path, "with", "--max-jobs", "3", env=env)
             started.append(with_it)
             assert with_it.wait() == 0, with_it.log()
