@@ -324,7 +324,7 @@ class DesignSpace(StrictModel):
 
     def check_at_creation(self) -> None:
         """Rules a new space meets that a stored one need not: they came after studies
-        were stored under looser ones (issue 36), and a stored study must still load
+        were stored under looser ones, and a stored study must still load
         (read, listed, proposed for), so the server checks them when it creates a study,
         not whenever a space is read. ValueError naming what breaks one."""
         for index, instance in enumerate(self.instances):

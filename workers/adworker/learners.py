@@ -448,7 +448,7 @@ class StableBaselinesLearner(Learner):
 def _without_log_folder(model: Any) -> Any:
     """``model`` with a logger that writes nothing: without one, SB3's ``learn`` makes
     its default, which creates a folder ``SB3-<date-time>`` in the system temporary
-    folder and leaves it there, one per training (issue 29). A ``tensorboard_log`` the
+    folder and leaves it there, one per training. A ``tensorboard_log`` the
     study's options ask for keeps SB3's logger: its folder is theirs."""
     from stable_baselines3.common.logger import Logger
 
