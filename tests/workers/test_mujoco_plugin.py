@@ -24,7 +24,7 @@ from adclient.urdf import design_to_urdf, link_inertia
 from adworker import designs
 from adworker.learners import ConstantTargetSearch, evaluate_policy
 from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, pip_install_target
+from tests.workers.processes import PATIENCE, WorkerProcess, pip_install_target, plugin_path
 
 # Off-screen rendering through EGL, chosen before MuJoCo is first imported (the
 # plugin does the same in the worker).
@@ -224,7 +224,7 @@ def reach_study() -> dict[str, Any]:
 def test_a_mujoco_study_runs_end_to_end_and_only_workers_with_the_plugin_lease_it(
     plugin_site: Path, tmp_path: Path
 ) -> None:
-    env = {"PYTHONPATH": os.pathsep.join(filter(None, [str(plugin_site), os.getenv("PYTHONPATH")]))}
+    env = plugin_path(plugin_site)
     server = ServerProcess(
         database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path, env=env
     ).start()
