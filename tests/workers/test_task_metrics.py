@@ -16,7 +16,7 @@ from adworker import designs
 from adworker.learners import evaluate_policy
 from adworker.task_metrics import MAX_TASK_METRICS, checked_task_metrics, merge_task_metrics
 from adworker.tasks.base import RobotEnv, Task
-from adworker.tasks.markers import MAX_MARKERS, Marker, draw_markers
+from adworker.tasks.markers import MAX_MARKERS, Marker, checked_markers, draw_markers
 from adworker.tasks.snapshot import Snapshot
 from tests.workers.robots import write_urdf
 
@@ -199,3 +199,44 @@ def test_diagonal_gesture_reports_its_angle_and_marks_its_target(env_of) -> None
     assert target.position == pytest.approx(tuple(expected), abs=0.01)
     u, v = (round(value) for value in camera.pixel(target.position))
     assert tuple(image[v, u]) == target.rgb() != tuple(plain[v, u])
+
+
+def test_what_docs_plugins_md_says_of_a_tasks_hooks_and_markers_is_so() -> None:
+    """Every hook the hook table of docs/plugins.md names is a Task method, and the
+    limits its task metrics and markers table states are the code's."""
+    import dataclasses
+    import re
+    from pathlib import Path
+
+    from adworker import task_metrics
+
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "plugins.md").read_text()
+    hooks_table = docs[docs.index("| hook | default |") :]
+    hooks_table = hooks_table[: hooks_table.index("\n\n")]
+    hooks = set(re.findall(r"^\| `(\w+)\(", hooks_table, re.MULTILINE))
+    assert {"metric", "reward", "score", "metrics", "markers"} <= hooks
+    for hook in hooks:
+        assert callable(getattr(Task, hook, None)), hook
+
+    own = docs[docs.index("**Metrics and marks of its own.**") :]
+    own = own[: own.index("An environment of another")]
+    assert f"`{task_metrics.TASK_METRIC_NAME.pattern}`" in own
+    assert f"at most {MAX_TASK_METRICS} names" in own
+    assert f"At most {MAX_MARKERS};" in own
+    assert "`task.<name>`" in own and task_metrics.TASK_METRIC_PREFIX == "task."
+    fields = re.search(r"`Marker\((\w+), (\w+), (\w+)\)`", own)
+    assert fields is not None
+    assert list(fields.groups()) == [field.name for field in dataclasses.fields(Marker)]
+    # The messages it quotes are the code's.
+    for values, quoted in [
+        ({"tip distance": 1.0}, "task metric name 'tip distance' must match"),
+        ({"tip_distance": math.nan}, "task metric 'tip_distance' must be finite, got nan"),
+    ]:
+        assert f"`{quoted}" in own
+        with pytest.raises(ValueError) as raised:
+            checked_task_metrics(values)
+        assert str(raised.value).startswith(quoted)
+    quoted = "marker 1.position: numbers must be finite, got nan"
+    assert f"`{quoted}`" in own
+    with pytest.raises(ValueError, match=f"^{re.escape(quoted)}$"):
+        checked_markers([Marker((0, 0, 1)), Marker((0, math.nan, 1))])

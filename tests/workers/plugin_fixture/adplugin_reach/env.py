@@ -50,7 +50,7 @@ class ReachPoint(Task[ReachPointOptions]):
         return -float(np.linalg.norm(self._tip(snapshot) - self.target))
 
     def metrics(self, snapshot: Snapshot) -> Mapping[str, float]:
-        return {"tip_distance": -self.metric(snapshot)}
+        return {"tip_distance": float(np.linalg.norm(self._tip(snapshot) - self.target))}
 
     def markers(self, snapshot: Snapshot) -> Sequence[Marker]:
         x, y, z = self._tip(snapshot).tolist()
