@@ -10,7 +10,7 @@ from adclient.designs import Design
 from adclient.plugins import catalogue
 from adworker import designs
 from tests.servers import ServerProcess
-from tests.workers.processes import WorkerProcess, pip_install_target
+from tests.workers.processes import WorkerProcess, pip_install_target, plugin_path
 from tests.workers.robots import write_urdf
 
 PLUGIN_FIXTURE = Path(__file__).resolve().parent / "plugin_fixture"
@@ -42,7 +42,7 @@ def plugin_server(plugin_site: Path, tmp_path: Path) -> Iterator[ServerProcess]:
     process = ServerProcess(
         database_url=f"sqlite:///{tmp_path / 'studies.db'}",
         workdir=tmp_path,
-        env={"PYTHONPATH": str(plugin_site)},
+        env=plugin_path(plugin_site),
     ).start()
     yield process
     process.stop()

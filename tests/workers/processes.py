@@ -35,6 +35,12 @@ def pip_install_target(source: Path, work: Path) -> Path:
     return site
 
 
+def plugin_path(site: Path) -> dict[str, str]:
+    """The environment of a process that sees the package installed in ``site``: it first
+    on the PYTHONPATH, then what this process has there (a worktree's code)."""
+    return {"PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.getenv("PYTHONPATH")]))}
+
+
 class WorkerProcess:
     """One ``adworker`` process with its log file; ``env`` adds to the environment."""
 

@@ -22,7 +22,7 @@ from adclient import Client
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Trial
 from tests.servers import SDK_HEADERS, ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
+from tests.workers.processes import PATIENCE, WorkerProcess, plugin_path, wait_for
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -226,7 +226,7 @@ def test_warm_started_trials_pause_at_asha_rungs_and_resume_with_their_warm_budg
     with Client(plugin_server.url) as client:
         study = client.create_study(body)
         client.add_trials(study.id, [{"params": arm(length)} for length in LENGTHS])
-        env = {"PYTHONPATH": str(plugin_site)}
+        env = plugin_path(plugin_site)
         worker = WorkerProcess(
             plugin_server, tmp_path, "asha", "--no-render", "--idle-exit", "5", env=env
         )

@@ -20,6 +20,7 @@ physics step.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -424,10 +425,15 @@ class Robot:
         except ValueError:
             raise KeyError(f"the robot has no link named {name!r}") from None
 
-    def camera(self, snapshot: Snapshot) -> tuple[np.ndarray, float]:
-        """Where a camera should look to frame the whole robot, and from how far."""
-        centres = np.array([snapshot.centre(k) for k in range(len(self.geometry))])
-        extent = float(np.ptp(centres, axis=0).max()) + max(
+    def camera(
+        self, snapshot: Snapshot, also: Sequence[Sequence[float]] = ()
+    ) -> tuple[np.ndarray, float]:
+        """Where a camera should look to frame the whole robot and the points ``also``,
+        and from how far."""
+        points = np.array(
+            [snapshot.centre(k) for k in range(len(self.geometry))] + [list(p) for p in also]
+        )
+        extent = float(np.ptp(points, axis=0).max()) + max(
             (g.length for g in self.geometry), default=0.4
         )
-        return centres.mean(axis=0), max(1.0, 1.6 * extent)
+        return points.mean(axis=0), max(1.0, 1.6 * extent)
