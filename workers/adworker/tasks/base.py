@@ -68,7 +68,7 @@ class Task(Generic[OptionsT]):
     """What the robot is asked to do; subclasses override the hooks they need.
 
     A task is built after the robot, so it can look links up by name
-    (``robot.link_position``) and keep what it needs from ``options`` (its options
+    (``robot.link_index``) and keep what it needs from ``options`` (its options
     model, validated: the one place its defaults live).
     """
 

@@ -49,7 +49,7 @@ class DiagonalGesture(Task[DiagonalGestureOptions]):
             # The deepest link: the child of the last joint in the engine's (depth-first)
             # order.
             distal = "c" if "c" in robot.link_names else robot.joints[-1].child
-        self.distal = robot.link_position(distal)
+        self.distal = robot.link_index(distal)
 
     def observation_size(self) -> int:
         return 3

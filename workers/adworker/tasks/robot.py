@@ -20,6 +20,7 @@ physics step.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -418,12 +419,23 @@ class Robot:
             values += snapshot.touching
         return values
 
-    def link_position(self, name: str) -> int:
-        """Position of a link (by instance name) in the snapshot arrays."""
+    def link_index(self, name: str) -> int:
+        """The index ``k`` of a link (a design's instance name, or a URDF's link name) in
+        the snapshot's arrays and ``geometry``; KeyError naming it if there is none."""
         try:
             return self.link_names.index(name)
         except ValueError:
             raise KeyError(f"the robot has no link named {name!r}") from None
+
+    def link_position(self, name: str) -> int:
+        """Deprecated alias of :meth:`link_index` (it returns an index, not a position),
+        kept for one release."""
+        warnings.warn(
+            "Robot.link_position is deprecated: it returns an index, use Robot.link_index",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.link_index(name)
 
     def camera(
         self, snapshot: Snapshot, also: Sequence[Sequence[float]] = ()

@@ -22,7 +22,7 @@ class ReachUp(Task[ReachUpOptions]):
 
     def __init__(self, robot: Robot, sim: Simulator, options: ReachUpOptions) -> None:
         super().__init__(robot, sim, options)
-        self.tip = robot.link_position(options.tip_link)
+        self.tip = robot.link_index(options.tip_link)
 
     def metric(self, snapshot: Snapshot) -> float:
         return snapshot.top[self.tip]
@@ -39,7 +39,7 @@ class ReachPoint(Task[ReachPointOptions]):
 
     def __init__(self, robot: Robot, sim: Simulator, options: ReachPointOptions) -> None:
         super().__init__(robot, sim, options)
-        self.tip = robot.link_position(options.tip_link)
+        self.tip = robot.link_index(options.tip_link)
         self.target = np.array(options.target)
 
     def _tip(self, snapshot: Snapshot) -> np.ndarray:
