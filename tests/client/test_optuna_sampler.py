@@ -3,10 +3,15 @@
 
 from __future__ import annotations
 
+import ast
 import math
+import re
+import subprocess
+import sys
 import threading
 import warnings
 from collections.abc import Iterator
+from pathlib import Path
 
 import optuna
 import pytest
@@ -21,6 +26,7 @@ from adclient.schemas import BoxParam, Study, Trial
 from tests.servers import ServerProcess
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
+GUIDE = Path(__file__).resolve().parents[2] / "docs" / "optuna.md"
 RANDOM = {"name": "random", "seed": 5}
 CHEAP_QEI = {"num_restarts": 2, "raw_samples": 64, "maxiter": 20}
 KINDS = {"a": 1.0, "b": 0.0, "c": 2.0}
@@ -317,3 +323,15 @@ def test_a_space_that_changes_gets_a_service_study_of_its_own(client: Client) ->
     assert after.info.n_complete == 6
     assert study.trials[3].system_attrs[TRIAL_ATTR]["study"] == before.id
     assert study.trials[5].system_attrs[TRIAL_ATTR]["study"] == after.id
+
+
+def test_the_guides_script_runs_as_written(server: ServerProcess, client: Client) -> None:
+    code = re.search(r"```python\n(.*?)```", GUIDE.read_text(), re.S).group(1)  # type: ignore[union-attr]
+    code = code.replace("http://127.0.0.1:8000", server.url)
+    code = code.replace('study_name="quadratic"', 'study_name="guide"')  # a study of its own
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    best = ast.literal_eval(done.stdout.strip().splitlines()[-1])
+    assert set(best) == {"x", "n", "lr", "kind"}
+    (held,) = studies_named(client, "guide")
+    assert held.n_complete == 30 and held.proposer.name == "tpe"
