@@ -10,7 +10,7 @@ import subprocess
 import sys
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import optuna
@@ -253,6 +253,41 @@ def test_threads_and_processes_share_one_service_study(client: Client) -> None:
     assert len(shared) == 1
     assert {s.service_study.id for s in samplers if s.service_study} == {shared[0].id}
     assert shared[0].n_complete == 12
+
+
+class StoringLate(optuna.storages.InMemoryStorage):
+    """Optuna's in-memory storage that runs ``meanwhile`` as it stores a trial's end: after
+    the sampler's ``after_trial``, as another thread may run between the two."""
+
+    meanwhile: Callable[[], object] | None = None
+
+    def set_trial_state_values(
+        self, trial_id: int, state: optuna.trial.TrialState, values: Sequence[float] | None = None
+    ) -> bool:
+        hook, self.meanwhile = self.meanwhile, None
+        if hook is not None:
+            hook()
+        return super().set_trial_state_values(trial_id, state, values)
+
+
+def test_a_trial_that_ends_while_the_study_is_attached_is_added(client: Client) -> None:
+    storage = StoringLate()
+    sampler = ServiceSampler(client, proposer=RANDOM)
+    study = optuna.create_study(study_name="late", storage=storage, sampler=sampler)
+    first, second = study.ask(), study.ask()
+    for trial in (first, second):
+        trial.suggest_float("x", 0.0, 1.0)  # no trial has finished: both independent
+    study.tell(second, 1.0)
+    third = study.ask()
+    # the third trial asks (and attaches the study) after the first's after_trial, before
+    # its end is stored: the first is neither finished in storage nor told by then
+    storage.meanwhile = lambda: third.suggest_float("x", 0.0, 1.0)
+    study.tell(first, 0.5)
+    study.tell(third, 0.25)
+
+    held = service_trials(sampler)
+    assert sorted(t.value for t in held) == [0.25, 0.5, 1.0]  # type: ignore[type-var]
+    assert {t.params["x"] for t in held} == {t.params["x"] for t in study.trials}
 
 
 def test_pending_trials_are_the_services_own(client: Client) -> None:
