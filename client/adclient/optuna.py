@@ -109,7 +109,7 @@ class ServiceSampler(BaseSampler):
 
     @property
     def service_study(self) -> StudyHandle | None:
-        """The service study the latest ask went to (None before the first)."""
+        """The service study of the latest relative space (None before the first ask)."""
         return None if self._current is None else self._current[1]
 
     # -- Optuna's sampler interface --------------------------------------------------
@@ -118,7 +118,7 @@ class ServiceSampler(BaseSampler):
         self._independent.reseed_rng()
 
     def before_trial(self, study: OptunaStudy, trial: FrozenTrial) -> None:
-        _directions(study)  # several objectives past the service's: refused before a trial
+        _directions(study)  # more objectives than a service study takes: refused here
         self._independent.before_trial(study, trial)
 
     def infer_relative_search_space(
