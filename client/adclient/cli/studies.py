@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from adclient.cli.common import (
+    EXIT_INTERRUPTED,
     app,
     compact_text,
     fail,
@@ -239,7 +240,7 @@ def _follow(study: StudyHandle, poll: float) -> Study:
         except KeyboardInterrupt:
             progress.stop()
             stderr_console().print(f"stopped waiting; study {study.id} keeps running")
-            raise typer.Exit(130) from None
+            raise typer.Exit(EXIT_INTERRUPTED) from None
 
 
 @app.command()
