@@ -36,7 +36,8 @@ export class SpreadCard {
       )
       .join('');
     this.root.querySelector('[data-spread]').innerHTML =
-      `<table class="spread"><thead><tr><th>Objective</th><th>Repeats</th>` +
-      `${NUMBERS.map((name) => `<th>${name}</th>`).join('')}</tr></thead><tbody>${rows}</tbody></table>`;
+      `<table class="spread"><thead><tr><th>Objective</th><th class="num">Repeats</th>` +
+      `${NUMBERS.map((name) => `<th class="num">${name}</th>`).join('')}</tr></thead>` +
+      `<tbody>${rows}</tbody></table>`;
   }
 }
