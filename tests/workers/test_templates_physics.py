@@ -73,9 +73,7 @@ def test_the_arm_template_is_built_from_its_urdf(tmp_path) -> None:
         assert snapshot.top[hand] == pytest.approx(snapshot.position(hand)[2] + 0.03, abs=1e-9)
         assert snapshot.position(hand)[0] == pytest.approx(0.08 + 0.2 + 0.15, abs=1e-3)
         # a rod along x: its long axis is the cylinder's, not its frame's z
-        assert abs(snapshot.axis(robot.link_index("upper_arm"))[0]) == pytest.approx(
-            1.0, abs=1e-3
-        )
+        assert abs(snapshot.axis(robot.link_index("upper_arm"))[0]) == pytest.approx(1.0, abs=1e-3)
         rest = max(snapshot.top)
         for _ in range(60):  # shoulder up: the arm lifts what its motor can
             env.step(np.array([1.0, 0.0], dtype=np.float32))
