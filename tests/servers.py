@@ -73,15 +73,16 @@ class ServerProcess:
             stderr=subprocess.STDOUT,
         )
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"adserver exited early:\n{self.log_path.read_text()}")
-            try:
-                if httpx.get(f"{self.url}/healthz", timeout=1.0).status_code == 200:
-                    return self
-            except httpx.TransportError:
-                pass
-            time.sleep(0.1)
+        with httpx.Client(verify=False) as poll:  # plain http: no CA bundle to load per poll
+            while time.monotonic() < deadline:
+                if self.process.poll() is not None:
+                    raise RuntimeError(f"adserver exited early:\n{self.log_path.read_text()}")
+                try:
+                    if poll.get(f"{self.url}/healthz", timeout=1.0).status_code == 200:
+                        return self
+                except httpx.TransportError:
+                    pass
+                time.sleep(0.1)
         self.kill()  # not left running behind a fixture that never got it
         raise RuntimeError(
             f"adserver did not answer within {timeout}s:\n{self.log_path.read_text()}"

@@ -13,12 +13,16 @@ SOURCES = [
     *(ROOT / "service").rglob("*.py"),
     *(ROOT / "workers").rglob("*.py"),
     *(ROOT / "bench").rglob("*.py"),
+    *(ROOT / "tests").rglob("*.py"),
+    *(ROOT / "examples").rglob("*.yaml"),
+    *(ROOT / "examples").rglob("*.py"),
+    *(ROOT / "service" / "adservice" / "static" / "js").glob("*.js"),
     *(ROOT / "docs").glob("*.md"),
     ROOT / "bench" / "RESULTS.md",
     ROOT / "README.md",
 ]
 FILE = re.compile(r"(?<![\w/.])((?:docs|bench|examples)/[\w/.-]+\.(?:md|py|yaml))")
-SECTION = re.compile(r'docs/method\.md, "([^"]+)"|"([^"]+)" in docs/method\.md')
+SECTION = re.compile(r'docs/method\.md,\s+#?\s*"([^"]+)"|"([^"]+)" in docs/method\.md')
 
 
 def test_files_named_in_the_code_and_docs_exist() -> None:
@@ -29,7 +33,7 @@ def test_files_named_in_the_code_and_docs_exist() -> None:
         if not (ROOT / name).exists()
     }
     assert missing == set()
-    assert not [s for s in SOURCES if "DESIGN" + ".md" in s.read_text()]
+    assert not [s for s in SOURCES if "DESIGN" + ".md" in s.read_text() and s != Path(__file__)]
 
 
 def test_sections_of_the_method_named_in_the_code_are_its_headings() -> None:

@@ -53,3 +53,28 @@ def test_the_python_quick_start_runs_as_written(live_server: ServerProcess) -> N
     )
     best = ast.literal_eval(done.stdout.strip())  # the snippet prints best_params
     assert set(best) == {"x"} and -5 <= best["x"] <= 5
+
+
+def test_the_exit_status_table_is_what_the_programs_use() -> None:
+    """Each status the README gives a program is the constant that program exits with
+    (the behaviour itself: tests/client/test_cli.py and the worker's tests)."""
+    from adclient.cli import common
+    from adworker import worker
+
+    rows = [
+        [cell.strip() for cell in line.strip("|").split("|")]
+        for line in README.read_text().splitlines()
+        if re.match(r"\| \d+ \|", line)
+    ]
+    table = {int(status): (client, work, server) for status, client, work, server in rows}
+    assert table[common.EXIT_REFUSED][0].startswith("the server refused the request")
+    assert table[common.EXIT_USAGE][0].startswith("a usage error")
+    assert table[common.EXIT_NO_SERVER][0].startswith("no server")
+    assert table[common.EXIT_TOKEN][0].startswith("the server refused the token")
+    assert table[common.EXIT_INTERRUPTED][0].startswith("interrupted")
+    assert table[worker.EXIT_OK][1].startswith("stopped as asked")
+    assert table[worker.EXIT_SETUP][1].startswith("the worker could not start")
+    assert table[worker.EXIT_AUTH][1].startswith("the server refused the token")
+    assert (
+        len({common.EXIT_REFUSED, common.EXIT_USAGE, common.EXIT_NO_SERVER, common.EXIT_TOKEN}) == 4
+    )

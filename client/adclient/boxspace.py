@@ -47,7 +47,10 @@ class BoxEncoding:
     @classmethod
     def of(cls, space: dict[str, Any]) -> BoxEncoding:
         """From a box or template space as JSON, as stored (old float-only spaces
-        included): a template's params are searched as a box's."""
+        included): a template's params are searched as a box's (none: a zero-length
+        vector, its one design)."""
+        if not space.get("params"):
+            return cls(())
         return cls(
             tuple(BoxSpace.model_validate({"type": "box", "params": space["params"]}).params)
         )

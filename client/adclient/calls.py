@@ -29,6 +29,7 @@ from adclient.schemas import (
     Job,
     LearnerInfo,
     Study,
+    StudySpread,
     TaskInfo,
     TellRequest,
     Trial,
@@ -320,6 +321,12 @@ class ServerCalls(Transport):
         except NotFound:
             self.study_info(study_id)  # raises NotFound for an unknown study
             return None
+
+    def spread(self, study_id: int) -> StudySpread:
+        """Each objective's n, mean, standard deviation, min, median and max over the
+        study's complete trials: for a study of one design, the spread of its repeats."""
+        data = self._get_json(f"{API}/studies/{int(study_id)}/spread")
+        return StudySpread.model_validate(data)
 
     # -- workers ---------------------------------------------------------------------
 

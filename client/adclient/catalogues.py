@@ -1,4 +1,4 @@
-"""Catalogues of components (issue 28): a part or a joint that says ``choose: motors``
+"""Catalogues of components: a part or a joint that says ``choose: motors``
 is one of the catalogue's components, whose entries set its specs (a motor's
 ``effort`` and ``velocity``) and carry the rest along (``mass``, ``cost``).
 

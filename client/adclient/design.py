@@ -201,11 +201,6 @@ class DesignSpace(StrictModel):
             self._check_structures(self.structures)
         for number, constraint in enumerate(self.spec_constraints):
             self._check_spec_constraint(constraint, f"spec_constraints[{number}]")
-        if not self.spec_slots()[0] and len(self.tree_structures()) == 1:
-            raise ValueError(
-                "nothing to search: no spec used by the structure is given as "
-                "{low, high}, and there is a single structure"
-            )
         return self
 
     def _tie_instances(self) -> None:
@@ -324,7 +319,7 @@ class DesignSpace(StrictModel):
 
     def check_at_creation(self) -> None:
         """Rules a new space meets that a stored one need not: they came after studies
-        were stored under looser ones (issue 36), and a stored study must still load
+        were stored under looser ones, and a stored study must still load
         (read, listed, proposed for), so the server checks them when it creates a study,
         not whenever a space is read. ValueError naming what breaks one."""
         for index, instance in enumerate(self.instances):
@@ -564,6 +559,13 @@ class DesignSpace(StrictModel):
             (f"{owner}.choice.{slot.key}", Bound(low=slot.low, high=slot.high, log=slot.log))
             for slot in choice_slots(self.catalogues[chosen])
         ]
+
+    @property
+    def searches_nothing(self) -> bool:
+        """Whether the space is one design: a single structure and no searched spec. A
+        study of it evaluates that design again and again, each trial with its own seed
+        (docs/study-file.md, "Evaluating one design")."""
+        return len(self.tree_structures()) == 1 and not self.free_specs()
 
     def spec_slots(self) -> tuple[list[str], list[tuple[float, float]]]:
         """Free spec keys in spec-vector order, and their physical (low, high).

@@ -16,7 +16,7 @@ from adclient.errors import Conflict
 from adclient.export import ExportFormat
 from adclient.objectives import as_values
 from adclient.pruning import TrialPruned
-from adclient.schemas import Study, StudyState, Trial, TrialState, WorkerInfo
+from adclient.schemas import Study, StudySpread, StudyState, Trial, TrialState, WorkerInfo
 
 if TYPE_CHECKING:
     from adclient.calls import ServerCalls, TrialRef
@@ -198,6 +198,12 @@ class StudyHandle:
     def best_trials(self) -> list[Trial]:
         """The Pareto front: complete, feasible trials no other one dominates."""
         return self.client.pareto(self.id)
+
+    @property
+    def spread(self) -> StudySpread:
+        """How the complete trials' values spread, per objective (for a study of one
+        design, its repeats): see :meth:`Client.spread`."""
+        return self.client.spread(self.id)
 
     @property
     def best_value(self) -> float | None:

@@ -314,7 +314,10 @@ def _child_path() -> str:
 
 def check_points(params: Sequence[Any]) -> list[tuple[str, dict[str, Any]]]:
     """Where a template space is checked: every param at its low, at its middle and at
-    its high end (a categorical's first, middle and last choice)."""
+    its high end (a categorical's first, middle and last choice); a template without
+    params at its one design."""
+    if not params:
+        return [("its one design (no params)", {})]
     points: list[tuple[str, dict[str, Any]]] = []
     for where in ("low", "middle", "high"):
         point: dict[str, Any] = {}

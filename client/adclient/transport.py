@@ -12,8 +12,11 @@ identical tell). ``create_study``, ``ask`` and ``lease`` are not repeated in tha
 
 from __future__ import annotations
 
+import functools
 import math
+import os
 import random
+import ssl
 import time
 from collections.abc import Mapping
 from typing import Any, Self
@@ -30,6 +33,22 @@ DEFAULT_BACKOFF = 0.2
 DEFAULT_MAX_BACKOFF = 5.0
 
 CLIENT_HEADER = "X-Activedesign-Client"
+
+
+def tls_context(verify: bool | str) -> ssl.SSLContext:
+    """The certificate check for ``verify`` (as :class:`Transport` takes it), one per
+    process: loading a CA bundle costs about 30 ms of CPU, which a process that makes
+    many clients (a worker pool, a script per trial, the tests) paid for each one."""
+    return _tls_context(verify, os.environ.get("SSL_CERT_FILE"), os.environ.get("SSL_CERT_DIR"))
+
+
+@functools.cache
+def _tls_context(verify: bool | str, cert_file: str | None, cert_dir: str | None) -> ssl.SSLContext:
+    if isinstance(verify, str):
+        return ssl.create_default_context(cafile=verify)
+    return httpx.create_ssl_context(verify=verify)  # SSL_CERT_FILE and _DIR, else certifi
+
+
 """Sent with every request: a header a cross-site page cannot set without the server's
 leave, so the server accepts state changes only from clients that send it (or JSON)."""
 
@@ -73,17 +92,11 @@ class Transport:
         }
         if token:
             headers["Authorization"] = f"Bearer {token}"
-        if isinstance(verify, str):  # httpx deprecates a path: it wants a context
-            import ssl
-
-            tls: bool | ssl.SSLContext = ssl.create_default_context(cafile=verify)
-        else:
-            tls = verify
         self._http = httpx.Client(
             base_url=self.url,
             headers=headers,
             timeout=httpx.Timeout(timeout, connect=min(timeout, 10.0)),
-            verify=tls,
+            verify=tls_context(verify),
         )
 
     # -- lifecycle -------------------------------------------------------------------

@@ -57,6 +57,7 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             "proposal_retry_at": row.proposal_retry_at,
             "proposal_fallbacks": row.proposal_fallbacks or 0,
             "proposal_fallback_reason": row.proposal_fallback_reason,
+            "fixed": searches_nothing(row),
         }
     )
     study.searched_params = searched_keys(study.space, row.space)
@@ -76,6 +77,14 @@ def _design_searched(space: str) -> tuple[str, ...]:
     from adclient.decode import searched_params
 
     return tuple(sorted(searched_params(DesignSpace.model_validate_json(space))))
+
+
+def searches_nothing(row: StudyRow) -> bool:
+    """Whether a study's space is one design, from what is stored (no space parsed): a
+    design space whose search box has no coordinate, or a template without params."""
+    if row.representation is not None:
+        return not row.representation["bounds"][0]
+    return row.space.get("type") == "template" and not row.space.get("params")
 
 
 def trial_schema(row: TrialRow) -> Trial:

@@ -4,7 +4,7 @@
 httptools (uvicorn's fastest parser) has no cap on header size: it joins a header's
 pieces with ``bytes +=``, so one connection sending a 100 MB header kept the event loop
 busy for 12 to 30 s. Nor does uvicorn time out a request whose headers never finish. h11
-has a cap but costs about 19% more server CPU per ask/tell (bench/RESULTS.md, issue 13:
+has a cap but costs about 19% more server CPU per ask/tell (bench/RESULTS.md,
 request limits), so we keep httptools and count the bytes ourselves.
 """
 
@@ -38,7 +38,7 @@ class _OneWritePerResponse:
     uvicorn writes them apart, and on loopback each write wakes the client, which then
     reads the head and the body in two system calls. One write per answer: half the
     server's context switches and 2 to 3% less client CPU per ask/tell cycle
-    (bench/RESULTS.md, issue 13: throughput).
+    (bench/RESULTS.md: throughput).
 
     A head written while the request's body is still arriving says ``connection: close``
     (``closes_after`` is asked then): the server closes such a connection after the

@@ -1,6 +1,6 @@
 """Read-side queries for charts and the dashboard: trials as columns, a page at a time
 and optionally only those that changed since a page last looked, and which artifacts a
-page of trials has, and the learning curves trials reported.
+page of trials has, the learning curves trials reported, and how the values spread.
 
 A complete or failed trial never changes again, so a page that holds a study's trials
 only needs the new ones and those it last saw queued or running.
@@ -16,7 +16,15 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from adclient.objectives import stored_outcomes
-from adclient.schemas import StudyCurves, TrialColumns, TrialCurve, TrialState
+from adclient.schemas import (
+    ObjectiveSpread,
+    StudyCurves,
+    StudySpread,
+    TrialColumns,
+    TrialCurve,
+    TrialState,
+)
+from adservice.convert import searches_nothing
 from adservice.models import ArtifactRow, TrialReportRow, TrialRow
 from adservice.repository import studies as study_repo
 
@@ -109,6 +117,32 @@ def trial_columns(
         values=[row[4] for row in rows] if outcomes.multi else None,
         feasible=[row[5] for row in rows] if outcomes.constraints else None,
         next=last + 1 if more else None,
+    )
+
+
+def value_spread(session: Session, *, study_id: int) -> StudySpread:
+    """Each objective's spread over the study's complete trials (``StudySpread``): for a
+    study of one design, its repeats. One query of their values."""
+    study = study_repo.get_study(session, study_id=study_id)
+    outcomes = stored_outcomes(study.outcomes, direction=study.direction)
+    rows = session.execute(
+        sa.select(TrialRow.value, TrialRow.values).where(
+            TrialRow.study_id == study_id, TrialRow.state == TrialState.complete.value
+        )
+    ).all()
+    columns: list[list[float]] = [[] for _ in outcomes.names]
+    for value, values in rows:
+        told = values if outcomes.multi else [value]
+        for column, item in zip(columns, told or [], strict=False):
+            if item is not None:
+                column.append(float(item))
+    return StudySpread(
+        study_id=study_id,
+        fixed=searches_nothing(study),
+        objectives=[
+            ObjectiveSpread.of(name, column)
+            for name, column in zip(outcomes.names, columns, strict=True)
+        ],
     )
 
 

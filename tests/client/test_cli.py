@@ -357,10 +357,11 @@ def test_unknown_trial_is_named(server: ServerProcess) -> None:
 
 
 def test_unreachable_server(tmp_path: Path) -> None:
+    """Exit status 3: no server to talk to (a script may retry later)."""
     url = refused_url()
-    failed_with(run(url, "studies"), f"cannot reach server at {url}")
+    failed_with(run(url, "studies"), f"cannot reach server at {url}", code=3)
     study = write_study(tmp_path, {"name": "nowhere", "space": BOX})
-    failed_with(run(url, "submit", str(study)), f"cannot reach server at {url}")
+    failed_with(run(url, "submit", str(study)), f"cannot reach server at {url}", code=3)
 
 
 def test_server_and_token_come_from_the_environment() -> None:
@@ -368,12 +369,16 @@ def test_server_and_token_come_from_the_environment() -> None:
     try:
         scripted.play(Reply(401, {"error": "unauthorized", "detail": "missing bearer token"}))
         result = run("", "studies", env={"AD_SERVER_URL": scripted.url, "AD_TOKEN": "t0k"})
-        failed_with(result, "unauthorized: missing bearer token")
+        failed_with(result, "unauthorized: missing bearer token", code=4)
         assert scripted.seen[0].headers["Authorization"] == "Bearer t0k"
         scripted.play(Reply(403, {"error": "forbidden", "detail": "reader may not ask"}))
-        failed_with(run(scripted.url, "--token", "r", "ask", "1"), "forbidden: reader may not ask")
+        failed_with(
+            run(scripted.url, "--token", "r", "ask", "1"), "forbidden: reader may not ask", code=4
+        )
         scripted.play(Reply(503, {"error": "unavailable", "detail": "draining"}))
-        failed_with(run(scripted.url, "studies"), "unavailable: draining (HTTP 503)")
+        failed_with(run(scripted.url, "studies"), "unavailable: draining (HTTP 503)", code=3)
+        scripted.play(Reply(422, {"error": "invalid", "detail": "count: too many"}))
+        failed_with(run(scripted.url, "ask", "1"), "invalid request: count: too many", code=1)
     finally:
         scripted.stop()
 

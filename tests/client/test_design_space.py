@@ -164,12 +164,15 @@ def test_too_many_structures() -> None:
     )
 
 
-def test_no_free_spec() -> None:
+def test_no_free_spec_is_one_design() -> None:
+    """Issue 39: a space with every spec given and one structure is one design (it was
+    refused as nothing to search); several structures are searched even then."""
     body = space_with(parts={"link": {"length": 0.4}}, joint={"axis_theta": 0.0, "axis_phi": 0.0})
-    assert "nothing to search" in error_of(body)
-    # several structures are something to search even with every spec fixed
+    space = DesignSpace.model_validate(body)
+    assert space.searches_nothing and space.spec_slots() == ([], [])
     body["structures"] = [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"]]]
-    assert len(DesignSpace.model_validate(body).tree_structures()) == 2
+    space = DesignSpace.model_validate(body)
+    assert len(space.tree_structures()) == 2 and not space.searches_nothing
 
 
 def test_a_searched_spec_may_be_log_scaled() -> None:

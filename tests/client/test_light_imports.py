@@ -18,6 +18,7 @@ HEAVY = (
     "pybullet",
     "gymnasium",
     "stable_baselines3",
+    "optuna",  # adclient.optuna imports it: only those who use that module have it
     "adservice",
     "adworker",
 )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import pickle
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -304,3 +305,29 @@ def test_trial_urdf_is_text(scripted: ScriptedServer, client: Client) -> None:
     scripted.play(Reply(200, raw=urdf.encode(), headers={"Content-Type": "application/xml"}))
     assert client.trial_urdf(9) == urdf
     assert (scripted.seen[0].method, scripted.seen[0].path) == ("GET", "/api/v1/trials/9/urdf")
+
+
+def _certificate_check(client: Client) -> Any:
+    return client._http._transport._pool._ssl_context
+
+
+def test_clients_of_one_process_share_one_certificate_check(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Loading a CA bundle costs about 30 ms of CPU: a process that makes many clients
+    loads it once per ``verify`` setting and CA environment, and each check still
+    verifies."""
+    import ssl
+
+    with Client("http://127.0.0.1:1") as first, Client("https://example.invalid") as second:
+        shared = _certificate_check(first)
+        assert shared is _certificate_check(second)
+    assert isinstance(shared, ssl.SSLContext) and shared.verify_mode == ssl.CERT_REQUIRED
+    with Client("http://127.0.0.1:1", verify=False) as unverified:
+        assert _certificate_check(unverified) is not shared
+        assert _certificate_check(unverified).verify_mode == ssl.CERT_NONE
+    import certifi
+
+    monkeypatch.setenv("SSL_CERT_FILE", certifi.where())  # another CA setting: its own check
+    with Client("http://127.0.0.1:1") as other:
+        assert _certificate_check(other) is not shared

@@ -22,8 +22,9 @@ from typing import Any
 
 import pybullet
 import pytest
+import yaml
 from fastapi.testclient import TestClient
-from hypothesis import HealthCheck, Phase, event, given, settings
+from hypothesis import HealthCheck, Phase, event, example, given, settings
 
 from adclient.design import DesignSpace
 from adclient.schemas import Job
@@ -64,6 +65,11 @@ def physics() -> Iterator[int]:
     pybullet.disconnect(client)
 
 
+ONE_DESIGN = yaml.safe_load(
+    (Path(__file__).resolve().parents[2] / "examples" / "one-design.yaml").read_text()
+)["space"]
+
+
 def test_every_proposer_is_tried() -> None:
     assert sorted(PROPOSERS) == available()
 
@@ -75,6 +81,7 @@ def test_every_proposer_is_tried() -> None:
     phases=[Phase.explicit, Phase.reuse, Phase.generate],  # shrinking one takes minutes
 )
 @given(space=any_spaces())
+@example(space=ONE_DESIGN)  # a space that searches nothing is one design (issue 39)
 def test_every_space_the_server_accepts_asks_enqueues_decodes_and_leases(
     app: TestClient, physics: int, space: dict[str, Any]
 ) -> None:

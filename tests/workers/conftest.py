@@ -42,7 +42,7 @@ def plugin_server(plugin_site: Path, tmp_path: Path) -> Iterator[ServerProcess]:
     process = ServerProcess(
         database_url=f"sqlite:///{tmp_path / 'studies.db'}",
         workdir=tmp_path,
-        env={"PYTHONPATH": plugin_path(plugin_site)},
+        env=plugin_path(plugin_site),
     ).start()
     yield process
     process.stop()

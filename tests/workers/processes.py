@@ -35,10 +35,10 @@ def pip_install_target(source: Path, work: Path) -> Path:
     return site
 
 
-def plugin_path(site: Path) -> str:
-    """A PYTHONPATH with ``site`` (a plugin ``pip_install_target`` made) before the one
-    these tests run with (a worktree's code), so a process sees the plugin and that code."""
-    return os.pathsep.join(filter(None, [str(site), os.getenv("PYTHONPATH")]))
+def plugin_path(site: Path) -> dict[str, str]:
+    """The environment of a process that sees the package installed in ``site``: it first
+    on the PYTHONPATH, then what this process has there (a worktree's code)."""
+    return {"PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.getenv("PYTHONPATH")]))}
 
 
 class WorkerProcess:

@@ -69,7 +69,7 @@ def test_prismatic_continuous_and_fixed_joints_of_a_design(tmp_path) -> None:
         assert [g.kind for g in robot.geometry] == ["box", "capsule", "capsule", "capsule"]
         env.reset(seed=0)
         start = env.snapshot()
-        b, d = robot.link_position("b"), robot.link_position("d")
+        b, d = robot.link_index("b"), robot.link_index("d")
         # a capsule's ball reaches its radius past its ends: b starts at the post's top
         assert start.bottom[b] == pytest.approx(0.2 - 0.02, abs=1e-6)
         assert start.top[d] == pytest.approx(0.2 + 3 * 0.2 + 0.02, abs=1e-6)
@@ -80,7 +80,7 @@ def test_prismatic_continuous_and_fixed_joints_of_a_design(tmp_path) -> None:
         assert end.position(b)[2] - start.position(b)[2] == pytest.approx(0.15, abs=0.005)
         assert end.q[1] == pytest.approx(0.75 * math.pi, abs=0.05)  # past a revolute's pi/2
         # d is held to c: it turned with it, rigidly
-        assert end.axis(d) == pytest.approx(end.axis(robot.link_position("c")), abs=1e-6)
+        assert end.axis(d) == pytest.approx(end.axis(robot.link_index("c")), abs=1e-6)
     finally:
         env.close()
 
@@ -101,8 +101,8 @@ def test_an_offset_turns_the_child_at_rest(tmp_path) -> None:
     try:
         env.reset(seed=0)
         snapshot = env.snapshot()
-        b = env.robot.link_position("b")
+        b = env.robot.link_index("b")
         assert snapshot.axis(b) == pytest.approx((0.0, 1.0, 0.0), abs=1e-6)
-        assert snapshot.axis(env.robot.link_position("a")) == pytest.approx((0.0, 0.0, 1.0))
+        assert snapshot.axis(env.robot.link_index("a")) == pytest.approx((0.0, 0.0, 1.0))
     finally:
         env.close()

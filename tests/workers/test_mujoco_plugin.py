@@ -5,6 +5,7 @@ adworker while a worker without it leaves its trials alone."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
@@ -224,7 +225,7 @@ def reach_study() -> dict[str, Any]:
 def test_a_mujoco_study_runs_end_to_end_and_only_workers_with_the_plugin_lease_it(
     plugin_site: Path, tmp_path: Path
 ) -> None:
-    env = {"PYTHONPATH": plugin_path(plugin_site)}
+    env = plugin_path(plugin_site)
     server = ServerProcess(
         database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path, env=env
     ).start()
@@ -262,6 +263,11 @@ def test_a_mujoco_study_runs_end_to_end_and_only_workers_with_the_plugin_lease_i
                 assert trial.metrics["sim_steps"] > 0
                 names = {artifact.name for artifact in client.artifacts(trial)}
                 assert names == {"robot.urdf", "robot.png", "curve.json"}
+                # The env's own metric: the distance at the episode's last step.
+                [episode] = json.loads(client.get_artifact(trial, "curve.json"))["evaluation"]
+                distance = trial.metrics["task.tip_distance"]
+                assert episode["task_metrics"] == {"tip_distance": distance}
+                assert distance == pytest.approx(-episode["metric"][-1], abs=1e-6)
             assert len({round(value, 6) for value in values}) == 3, values
     finally:
         for worker in started:

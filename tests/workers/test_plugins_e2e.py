@@ -8,20 +8,29 @@ only the spawned server and worker processes see (PYTHONPATH: conftest's
 
 from __future__ import annotations
 
+import csv
+import io
+import json
+import math
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 import yaml
+from PIL import Image
 
 from adclient import Client
 from adclient.plugins import catalogue
 from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, plugin_path
+from tests.service.chromium import Chromium, find_chromium
+from tests.service.dashboard_pages import STUDY_PAGE_READY
+from tests.workers.processes import PATIENCE, WorkerProcess, completed_trials, plugin_path
 
 pytestmark = pytest.mark.e2e
 
@@ -50,7 +59,7 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerPr
         tasks = {task.name: task for task in client.tasks()}
         learners = {learner.name: learner for learner in client.learners()}
     assert sorted(tasks) == sorted(
-        [*catalogue().tasks, "reach-up", "arm-length", "reach-elsewhere"]
+        [*catalogue().tasks, "reach-up", "reach-point", "arm-length", "reach-elsewhere"]
     )
     reach = tasks["reach-up"]
     assert "fixed base" in reach.description
@@ -86,7 +95,7 @@ def test_a_study_of_the_plugin_is_checked_with_its_declarations(
 
 
 def test_the_command_lines_list_the_plugin_and_what_does_not_load_here(plugin_site: Path) -> None:
-    env = {**os.environ, "PYTHONPATH": plugin_path(plugin_site)}
+    env = {**os.environ, **plugin_path(plugin_site)}
     bin_dir = Path(sys.executable).parent
     listed = {}
     for command in ("adserver", "adworker"):
@@ -117,7 +126,7 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
             assert "reach-up" not in without.log().split("tasks", 1)[1].splitlines()[0]
             assert client.study_info(study.id).n_trials == 0, "leased by a worker without it"
 
-            env = {"PYTHONPATH": plugin_path(plugin_site)}
+            env = plugin_path(plugin_site)
             with_it = WorkerProcess(server, tmp_path, "with", "--max-jobs", "3", env=env)
             started.append(with_it)
             assert with_it.wait() == 0, with_it.log()
@@ -138,3 +147,92 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
     finally:
         for worker in started:
             worker.stop()
+
+
+REACH_TARGET = (0.4, 0.3, 0.5)
+
+
+@pytest.fixture(scope="module")
+def reach_point_run(
+    plugin_site: Path, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[tuple[ServerProcess, int, list[Any]]]:
+    """A real server and worker that have the plugin ran a study of reach-point that
+    minimises, and constrains, the task's own task.tip_distance: (server, study id, its
+    two complete trials)."""
+    work = tmp_path_factory.mktemp("reach-point")
+    server = ServerProcess(
+        database_url=f"sqlite:///{work / 'studies.db'}", workdir=work, env=plugin_path(plugin_site)
+    ).start()
+    body = reach_up_study(name="reach-point", options={"target": list(REACH_TARGET)})
+    del body["direction"]
+    body["objectives"] = [{"metric": "task.tip_distance", "direction": "minimize"}]
+    body["constraints"] = [{"metric": "task.tip_distance", "op": "<=", "bound": 1.0}]
+    body["max_trials"] = 2
+    worker = WorkerProcess(server, work, "with", "--max-jobs", "2", env=plugin_path(plugin_site))
+    try:
+        with Client(server.url) as client:
+            study = client.create_study(body)
+            assert worker.wait() == 0, worker.log()
+            trials = completed_trials(study, 2)
+        yield server, study.id, trials
+    finally:
+        worker.stop()
+        server.stop()
+
+
+def test_a_plugin_tasks_own_metric_and_markers_reach_the_trial_and_its_exports(
+    reach_point_run: tuple[ServerProcess, int, list[Any]],
+) -> None:
+    """reach-point reports its final tip distance and marks its target and tip (issue
+    39): the worker reports it as task.tip_distance, the study minimises and constrains
+    on it, the exports have it, and robot.png has the markers' colours."""
+    server, study_id, trials = reach_point_run
+    with Client(server.url) as client:
+        for trial in trials:
+            # Held straight up on its fixed base: the tip is at the arm's length.
+            length = sum(trial.params[f"{link}.length"] for link in "abc")
+            distance = math.dist((0.0, 0.0, length), REACH_TARGET)
+            assert trial.metrics["task.tip_distance"] == pytest.approx(distance, abs=0.01)
+            assert trial.value == trial.metrics["task.tip_distance"]  # the objective
+            assert trial.feasible is (trial.value <= 1.0)
+            png = client.get_artifact(trial, "robot.png")
+            colours = {
+                tuple(pixel)
+                for pixel in np.asarray(Image.open(io.BytesIO(png)))[..., :3]
+                .reshape(-1, 3)
+                .tolist()
+            }
+            assert {(0, 204, 0), (0, 0, 255)} <= colours  # target and tip
+        exported = json.loads(client.export(study_id, "json"))
+        rows = list(csv.DictReader(io.StringIO(client.export(study_id, "csv"))))
+    by_id = {trial.id: trial.metrics["task.tip_distance"] for trial in trials}
+    assert {t["id"]: t["metrics"]["task.tip_distance"] for t in exported["trials"]} == by_id
+    assert {int(row["id"]): float(row["metrics_task.tip_distance"]) for row in rows} == by_id
+
+
+@pytest.mark.browser
+@pytest.mark.xdist_group("browser")
+def test_the_dashboards_trial_view_shows_a_plugin_tasks_own_metric(
+    reach_point_run: tuple[ServerProcess, int, list[Any]], tmp_path: Path
+) -> None:
+    server, study_id, trials = reach_point_run
+    first = trials[0]
+    row = f"document.querySelector('tr[data-trial-id=\"{first.id}\"]')"
+    profile = tmp_path / "chromium-profile"
+    profile.mkdir()
+    browser = Chromium(find_chromium(), profile)
+    try:
+        browser.navigate(f"{server.url}/#/studies/{study_id}")
+        browser.wait_for(STUDY_PAGE_READY)
+        browser.wait_for(f"!!{row}")
+        browser.evaluate(f"{row}.click()")
+        browser.wait_for("document.querySelector('[data-trial-dialog]').open")
+        shown = browser.evaluate(
+            "[...document.querySelectorAll('[data-trial-dialog] th')]"
+            ".find(th => th.textContent === 'task.tip_distance')?.nextElementSibling.textContent"
+        )
+        assert shown is not None
+        assert float(shown) == pytest.approx(first.metrics["task.tip_distance"], rel=1e-3)
+        assert browser.errors == []
+    finally:
+        browser.close()

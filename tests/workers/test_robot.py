@@ -54,7 +54,7 @@ def test_the_robot_is_its_design(sim, tmp_path) -> None:
         info = sim.joint_info(robot.body, joint.index)
         assert info.name.decode() == joint.name
         assert info.link_name.decode() == joint.child == designed.child
-        assert robot.link_names[robot.link_position(joint.child)] == joint.child
+        assert robot.link_names[robot.link_index(joint.child)] == joint.child
         parent = info.parent_index
         assert (
             STAR.root if parent == -1 else sim.joint_info(robot.body, parent).link_name.decode()
@@ -141,7 +141,7 @@ def test_box_links_take_their_shape_from_the_design(sim, tmp_path) -> None:
     design = designs.arch_chain()
     design.links[1] = Link(name="b", shape="box", length=0.4, radius=0.05, mass=1.0)
     robot = _robot(sim, design, tmp_path / "box.urdf")
-    b = robot.link_position("b")
+    b = robot.link_index("b")
     assert robot.geometry[b].kind == "box"
     assert len(robot.geometry[b].points) == 8
     snapshot = robot.read()
@@ -245,7 +245,7 @@ def test_what_docs_plugins_md_says_a_task_reads_is_so(sim, tmp_path) -> None:
 
     cid = sim.client
     for link in ("b", "c", "d"):
-        k = robot.link_position(link)
+        k = robot.link_index(link)
         index = robot.geometry[k].index
         state = pybullet.getLinkState(
             robot.body, index, computeForwardKinematics=1, physicsClientId=cid
@@ -264,4 +264,12 @@ def test_what_docs_plugins_md_says_a_task_reads_is_so(sim, tmp_path) -> None:
         assert snapshot.top[k] >= max(tip[2], parent_end[2]) - 1e-9
         assert snapshot.bottom[k] <= min(tip[2], parent_end[2]) + 1e-9
     with pytest.raises(KeyError, match="no link named 'nope'"):
-        robot.link_position("nope")
+        robot.link_index("nope")
+
+
+def test_link_position_is_a_deprecated_alias_of_link_index(sim, tmp_path) -> None:
+    """The old name returned an index, not a position: it still works for one release,
+    with a DeprecationWarning naming the new one."""
+    robot = _robot(sim, designs.arch_chain(), tmp_path / "arch.urdf")
+    with pytest.warns(DeprecationWarning, match="use Robot.link_index"):
+        assert robot.link_position("b") == robot.link_index("b") == 1

@@ -89,7 +89,7 @@ def test_stand_up_arch_lifts_b_and_along_links_cannot(env_of) -> None:
         _trace(arch, action, seed=0)
         arch_score = arch.record.score()
         snapshot = arch.snapshot()
-        a, c = arch.robot.link_position("a"), arch.robot.link_position("c")
+        a, c = arch.robot.link_index("a"), arch.robot.link_index("c")
         assert snapshot.touching[a] and snapshot.touching[c]
         along_scores = []
         for candidate in ([0.7, 0.7], [-0.7, -0.7], [1.0, -1.0], [0.0, 0.0]):

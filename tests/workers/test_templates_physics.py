@@ -69,13 +69,11 @@ def test_the_arm_template_is_built_from_its_urdf(tmp_path) -> None:
         snapshot = env.snapshot()
         # set down as built, lying along +x, its lowest point on the ground
         assert min(snapshot.bottom) == pytest.approx(1e-4, abs=1e-6)
-        hand = robot.link_position("hand")
+        hand = robot.link_index("hand")
         assert snapshot.top[hand] == pytest.approx(snapshot.position(hand)[2] + 0.03, abs=1e-9)
         assert snapshot.position(hand)[0] == pytest.approx(0.08 + 0.2 + 0.15, abs=1e-3)
         # a rod along x: its long axis is the cylinder's, not its frame's z
-        assert abs(snapshot.axis(robot.link_position("upper_arm"))[0]) == pytest.approx(
-            1.0, abs=1e-3
-        )
+        assert abs(snapshot.axis(robot.link_index("upper_arm"))[0]) == pytest.approx(1.0, abs=1e-3)
         rest = max(snapshot.top)
         for _ in range(60):  # shoulder up: the arm lifts what its motor can
             env.step(np.array([1.0, 0.0], dtype=np.float32))
@@ -90,7 +88,7 @@ def test_a_link_without_inertial_weighs_what_pybullet_simulates(tmp_path) -> Non
     assert read_urdf(SLIDER).links["post"].mass == 1.0
     env = _env(LiftHighest, SLIDER, tmp_path, SimulatorOptions())
     try:
-        assert env.robot.geometry[env.robot.link_position("post")].mass == 1.0
+        assert env.robot.geometry[env.robot.link_index("post")].mass == 1.0
     finally:
         env.close()
 
@@ -107,7 +105,7 @@ def test_prismatic_continuous_capsule_and_several_shapes(tmp_path) -> None:
 
         env.reset(seed=0)
         start = env.snapshot()
-        carriage, wheel = robot.link_position("carriage"), robot.link_position("wheel")
+        carriage, wheel = robot.link_index("carriage"), robot.link_index("wheel")
         # the carriage's box and sphere: its top is the sphere's (0.1 + 0.03 above it)
         assert start.top[carriage] == pytest.approx(start.position(carriage)[2] + 0.13, abs=1e-6)
         # the capsule lies along y (turned by its origin): its ball reaches 0.02 below

@@ -226,7 +226,7 @@ def test_warm_started_trials_pause_at_asha_rungs_and_resume_with_their_warm_budg
     with Client(plugin_server.url) as client:
         study = client.create_study(body)
         client.add_trials(study.id, [{"params": arm(length)} for length in LENGTHS])
-        env = {"PYTHONPATH": plugin_path(plugin_site)}
+        env = plugin_path(plugin_site)
         worker = WorkerProcess(
             plugin_server, tmp_path, "asha", "--no-render", "--idle-exit", "5", env=env
         )

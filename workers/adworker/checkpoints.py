@@ -2,7 +2,7 @@
 
 SB3's own ``model.save`` cloudpickles part of its data and ``save_replay_buffer``
 pickles the buffer: loading either runs whatever the file says, so a checkpoint
-anyone could upload would run code on every worker that loads it (issue 36). This
+anyone could upload would run code on every worker that loads it. This
 format holds numbers only, in one zip (``checkpoint.zip``):
 
 - ``checkpoint.json``: the format, the algorithm, the steps trained, the updates made,

@@ -10,10 +10,11 @@
 Each worker process leases a job of a task it has, trains and evaluates the design
 in PyBullet (or calls the function), and reports the score with its metrics and
 artifacts (URDF, picture, curve). SIGTERM or Ctrl-C: finish the current job and exit;
-a second one: abandon it and exit now. Exit status 0 when stopped, 2 when the server
-refused the token, 3 when the worker could not start (a function that does not
-import, ``--learner-device cuda`` without a GPU). An https server with a private or
-self-signed certificate needs ``--ca-bundle`` (env ``AD_CA_BUNDLE``).
+a second one: abandon it and exit now. Exit status 0 when stopped, 2 on a usage
+error, 3 when the worker could not start (a function that does not import,
+``--learner-device cuda`` without a GPU), 4 when the server refused the token. An https
+server with a private or self-signed certificate needs ``--ca-bundle`` (env
+``AD_CA_BUNDLE``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ tests and the benchmark call it directly. Everything it needs is in the job
 Besides the score it reports secondary metrics a study may optimise or constrain:
 ``mass`` and ``link_length`` of the design as built, and ``effort`` and ``energy`` of
 its motors over the evaluation episodes (:class:`adworker.tasks.robot.MotorMeter`;
-docs/worker.md, "Metrics a task reports").
+docs/worker.md, "Metrics a task reports"), and the task's own as ``task.<name>``
+(:mod:`adworker.task_metrics`).
 
 The score is the mean over ``eval_episodes`` deterministic episodes whose seeds
 derive from the task's seed, so re-running a job reproduces its score, and
@@ -55,6 +56,7 @@ from adworker.runner import (
     factory_problem,
     no_report,
 )
+from adworker.task_metrics import merge_task_metrics
 
 log = logging.getLogger("adworker")
 
@@ -249,6 +251,7 @@ def evaluate_job(
         metrics["effort"] = float(meter.effort)
         metrics["energy"] = float(meter.energy)
     metrics.update({f"time_{stage}_s": timings[stage] for stage in STAGES if stage in timings})
+    metrics = merge_task_metrics(metrics, [episode.task_metrics for episode in episodes])
     for key, value in metrics.items():
         if not math.isfinite(value):
             raise ValueError(f"metric {key} is not finite ({value})")
@@ -341,6 +344,7 @@ def _curve_json(job: Job, trained: TrainResult, episodes: list[EpisodeResult]) -
                 "score": episode.score,
                 "return": episode.episode_return,
                 "metric": [round(value, 6) for value in episode.metric],
+                **({"task_metrics": episode.task_metrics} if episode.task_metrics else {}),
             }
             for episode in episodes
         ],

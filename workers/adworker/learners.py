@@ -40,6 +40,7 @@ from pydantic import BaseModel
 from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adworker import checkpoints
 from adworker.runner import Pruned
+from adworker.task_metrics import checked_task_metrics
 from adworker.tasks.base import RobotEnv
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -74,6 +75,8 @@ class EpisodeResult:
     score: float
     episode_return: float
     metric: list[float]
+    task_metrics: dict[str, float] = field(default_factory=dict)
+    """The task's own metrics of the episode (:mod:`adworker.task_metrics`), checked."""
 
 
 def _no_check() -> None:
@@ -108,10 +111,13 @@ class Reporting:
 def evaluate_policy(
     env: RobotEnv, policy: Policy, seeds: list[int], check: Callable[[], None] = _no_check
 ) -> list[EpisodeResult]:
-    """Run one deterministic episode per seed; the score is the task's episode score.
+    """Run one deterministic episode per seed; the score is the task's episode score,
+    and an env that offers ``task_metrics()`` is asked for its task's own metrics once
+    each episode has ended (ValueError naming one that is not allowed).
 
     ``check`` runs before each episode and may raise to cancel the evaluation.
     """
+    task_metrics = getattr(env, "task_metrics", None)
     results = []
     for seed in seeds:
         check()
@@ -121,7 +127,8 @@ def evaluate_policy(
         while not (terminated or truncated):
             observation, reward, terminated, truncated, _ = env.step(policy(observation))
             total += reward
-        results.append(EpisodeResult(seed, env.record.score(), total, list(env.record.metric)))
+        own = checked_task_metrics(task_metrics()) if callable(task_metrics) else {}
+        results.append(EpisodeResult(seed, env.record.score(), total, list(env.record.metric), own))
     return results
 
 
@@ -448,7 +455,7 @@ class StableBaselinesLearner(Learner):
 def _without_log_folder(model: Any) -> Any:
     """``model`` with a logger that writes nothing: without one, SB3's ``learn`` makes
     its default, which creates a folder ``SB3-<date-time>`` in the system temporary
-    folder and leaves it there, one per training (issue 29). A ``tensorboard_log`` the
+    folder and leaves it there, one per training. A ``tensorboard_log`` the
     study's options ask for keeps SB3's logger: its folder is theirs."""
     from stable_baselines3.common.logger import Logger
 

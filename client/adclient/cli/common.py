@@ -86,7 +86,30 @@ def stderr_console() -> Console:
     return Console(stderr=True, highlight=False)
 
 
-def fail(message: str, code: int = 1) -> NoReturn:
+EXIT_REFUSED = 1
+"""The server refused the request (invalid, not found, conflict, too large), or the
+command failed otherwise."""
+EXIT_USAGE = 2
+"""A usage error: an unknown option or a missing argument (Click's own status)."""
+EXIT_NO_SERVER = 3
+"""The server could not be reached, did not answer, or answered that it is unavailable:
+worth retrying later."""
+EXIT_TOKEN = 4
+"""The server refused the token (none, unknown or revoked: 401) or its role (403), as
+adworker's refused token."""
+EXIT_INTERRUPTED = 130
+
+
+def exit_status(exc: ApiError) -> int:
+    """The exit status of a command that ended in ``exc`` (docs/server.md, "Exit statuses")."""
+    if isinstance(exc, Unavailable):
+        return EXIT_NO_SERVER
+    if isinstance(exc, Unauthorized | Forbidden):
+        return EXIT_TOKEN
+    return EXIT_REFUSED
+
+
+def fail(message: str, code: int = EXIT_REFUSED) -> NoReturn:
     """End the command with one line on stderr."""
     stderr_console().print(f"[bold red]error:[/] {escape(message)}", markup=True, highlight=False)
     raise typer.Exit(code)
@@ -115,7 +138,7 @@ def api_error_message(exc: ApiError, server: str) -> str:
 
 
 def friendly(func: F) -> F:
-    """Turn SDK errors into a one-line message and exit status 1.
+    """Turn SDK errors into a one-line message and an exit status (``exit_status``).
 
     The wrapped command takes the ``typer.Context`` (for the server URL in messages).
     """
@@ -127,10 +150,10 @@ def friendly(func: F) -> F:
         try:
             return func(*args, **kwargs)
         except ApiError as exc:
-            fail(api_error_message(exc, server))
+            fail(api_error_message(exc, server), exit_status(exc))
         except KeyboardInterrupt:
             stderr_console().print("interrupted")
-            raise typer.Exit(130) from None
+            raise typer.Exit(EXIT_INTERRUPTED) from None
 
     return wrapper  # type: ignore[return-value]
 

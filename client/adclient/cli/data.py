@@ -13,6 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from adclient.cli.common import (
     api_error_message,
     app,
+    exit_status,
     fail,
     friendly,
     get_settings,
@@ -84,7 +85,8 @@ def import_trials(
                 except ApiError as exc:
                     fail(
                         f"stopped after {added} of {len(plan.trials)} trials: "
-                        f"{api_error_message(exc, client.url)}"
+                        f"{api_error_message(exc, client.url)}",
+                        exit_status(exc),
                     )
                 added += len(batch)
                 progress.update(task, completed=added)

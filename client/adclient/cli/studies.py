@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from adclient.cli.common import (
+    EXIT_INTERRUPTED,
     app,
     compact_text,
     fail,
@@ -32,7 +33,10 @@ from adclient.cli.common import (
 from adclient.cli.workers import serving
 from adclient.client import StudyHandle
 from adclient.importing import EXPORT_DEPTH, load_json
-from adclient.schemas import BoxSpace, Study
+from adclient.schemas import BoxSpace, Study, StudySpread
+
+ONE_DESIGN = "one design: nothing searched, each trial a repeat on its own seed"
+"""How ``status`` and ``submit --wait`` name a study whose space searches nothing."""
 
 
 def _when(value: Any) -> str:
@@ -42,7 +46,7 @@ def _when(value: Any) -> str:
 def _space_text(space: Any) -> str:
     """A box's params with their types and ranges (``n int [1, 64] log``, ``act in relu,
     tanh``), a template's the same; a design space by its type alone."""
-    if not isinstance(space, BoxSpace):
+    if not isinstance(space, BoxSpace) or not space.params:
         return str(space.type)
     parts = []
     for param in space.params:
@@ -82,7 +86,22 @@ def _proposal_rows(info: Study) -> list[tuple[str, str]]:
     return rows
 
 
-def _status_table(info: Study, dashboard: str) -> Table:
+def spread_rows(spread: StudySpread) -> list[tuple[str, str]]:
+    """Each objective's spread over the complete trials (a study of one design: its
+    repeats), a row each: ``spread of value``, ``5 repeats: mean 0.41, std 0.03, ...``."""
+    rows = []
+    for objective in spread.objectives:
+        text = "no complete repeat yet"
+        if objective.n:
+            numbers = ("mean", "std", "min", "median", "max")
+            text = f"{objective.n} repeat{'' if objective.n == 1 else 's'}: " + ", ".join(
+                f"{name} {number_text(getattr(objective, name)) or '-'}" for name in numbers
+            )
+        rows.append((f"spread of {objective.name}", text))
+    return rows
+
+
+def _status_table(info: Study, dashboard: str, spread: StudySpread | None) -> Table:
     table = Table(title=f"study {info.id}: {escape(info.name)}", show_header=False)
     table.add_column("field", style="bold")
     table.add_column("value", overflow="fold")
@@ -91,8 +110,8 @@ def _status_table(info: Study, dashboard: str) -> Table:
         ("state", info.state.value),
         ("direction", info.direction.value),
         ("managed", "yes" if info.managed else "no"),
-        ("space", _space_text(info.space)),
-        ("proposer", info.proposer.name),
+        ("space", _space_text(info.space) + (f" ({ONE_DESIGN})" if info.fixed else "")),
+        ("proposer", "none (one design)" if info.fixed else info.proposer.name),
         ("pruner", info.pruner.name),
         ("task", info.task.name if info.task is not None else ""),
         ("trials", f"{info.n_trials}{budget}"),
@@ -104,6 +123,7 @@ def _status_table(info: Study, dashboard: str) -> Table:
         ("paused", str(info.n_paused)),
         ("best value", number_text(info.best_value)),
         ("best trial", "" if info.best_trial_id is None else str(info.best_trial_id)),
+        *(spread_rows(spread) if spread is not None else ()),
         ("created", _when(info.created_at)),
         ("updated", _when(info.updated_at)),
         ("dashboard", dashboard),
@@ -188,6 +208,11 @@ def submit(
             out.print("why trials failed:")
             for line in failure_lines(study.get_trials("failed")):
                 out.print(f"  {escape(line)}")
+        if info.fixed:  # no best of repeats of one design: how they spread
+            out.print(f"{ONE_DESIGN}:")
+            for field, text in spread_rows(study.spread):
+                out.print(f"  {escape(field)}: {text}")
+            return
         if len(info.directions) > 1:  # no single best trial: the front, as `pareto` shows it
             front = study.best_trials
             out.print(front_table(info, front) if front else "no complete trial")
@@ -239,7 +264,7 @@ def _follow(study: StudyHandle, poll: float) -> Study:
         except KeyboardInterrupt:
             progress.stop()
             stderr_console().print(f"stopped waiting; study {study.id} keeps running")
-            raise typer.Exit(130) from None
+            raise typer.Exit(EXIT_INTERRUPTED) from None
 
 
 @app.command()
@@ -287,10 +312,11 @@ def status(
         info = client.study_info(study_id)
         dashboard = client.dashboard_url(study_id)
         workers = None if as_json else serving(client, info)
+        spread = client.spread(study_id) if info.fixed and not as_json else None
     if as_json:
         print_json(info)
         return
-    table = _status_table(info, dashboard)
+    table = _status_table(info, dashboard, spread)
     if workers is not None:
         table.add_row("workers", escape(workers.text))
     stdout_console().print(table)

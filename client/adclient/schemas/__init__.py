@@ -65,7 +65,15 @@ from adclient.schemas.space import (
     Space,
     TemplateSpace,
 )
-from adclient.schemas.studies import ObjectiveName, Study, StudyCreate, StudyUpdate
+from adclient.schemas.studies import (
+    ONE_DESIGN_REPEATS,
+    ObjectiveName,
+    ObjectiveSpread,
+    Study,
+    StudyCreate,
+    StudySpread,
+    StudyUpdate,
+)
 from adclient.schemas.trials import (
     MAX_TRIALS_ADDED,
     AskRequest,
@@ -108,6 +116,7 @@ __all__ = [
     "MAX_USER_ATTR_KEY",
     "NAME_PATTERN",
     "NO_NUL_PATTERN",
+    "ONE_DESIGN_REPEATS",
     "ArtifactInfo",
     "AskRequest",
     "AskResponse",
@@ -129,6 +138,7 @@ __all__ = [
     "NewTaskConfig",
     "Objective",
     "ObjectiveName",
+    "ObjectiveSpread",
     "Outcomes",
     "PluginError",
     "ProposerConfig",
@@ -144,6 +154,7 @@ __all__ = [
     "StudyCreate",
     "StudyCurves",
     "StudyName",
+    "StudySpread",
     "StudyState",
     "StudyUpdate",
     "TaskConfig",

@@ -148,15 +148,28 @@ class BoxSpace(Strict):
             seen.add(param.name)
         return params
 
+    @property
+    def searches_nothing(self) -> bool:
+        """Whether the space is one design (a template without params; a box always has
+        params): a study of it repeats that design's evaluation."""
+        return not self.params
+
 
 class TemplateSpace(BoxSpace):
     """Your own robot: a URDF or xacro text (``adclient.templates``) whose args or
     properties are the params, searched as a box's are. A box space in every way but
-    the robot: a worker expands the template at a trial's params and builds that. The
+    the robot (and that it may have no params: then it is one design): a worker
+    expands the template at a trial's params and builds that. The
     server checks the template when a study is created (``adclient.templates``), not
     each time a stored space is read."""
 
     type: Literal["template"]  # type: ignore[assignment]
+    params: list[BoxParam] = Field(
+        default_factory=list,
+        max_length=256,
+        description="the searched args and properties; none: the robot as written, one "
+        "design whose evaluation the study repeats",
+    )
     template: str = Field(
         min_length=1,
         max_length=MAX_TEMPLATE_CHARS,

@@ -4,6 +4,7 @@ of its user attributes."""
 from __future__ import annotations
 
 import math
+import statistics
 from datetime import datetime
 from typing import Annotated, Any
 
@@ -39,6 +40,9 @@ from adclient.schemas.config import NewProposerConfig, NewTaskConfig, ProposerCo
 from adclient.schemas.space import BoxSpace, Space, TemplateSpace
 
 ObjectiveName = Annotated[str, Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)]
+
+ONE_DESIGN_REPEATS = 5
+"""``max_trials`` of a study of one design (a space that searches nothing) left unset."""
 
 
 class StudyCreate(Strict):
@@ -176,6 +180,8 @@ class StudyCreate(Strict):
 
     @model_validator(mode="after")
     def _managed_study(self) -> StudyCreate:
+        if self.space.searches_nothing:
+            self._one_design()
         if self.task is None:
             return self
         if self.max_trials is None:
@@ -203,6 +209,26 @@ class StudyCreate(Strict):
                     f"instances accordingly or set task.options.{option}"
                 )
         return self
+
+    def _one_design(self) -> None:
+        """A space that searches nothing is one design, evaluated ``max_trials`` times
+        (``ONE_DESIGN_REPEATS`` unset), each repeat on its own seed: independent
+        repeats, so nothing that carries one repeat into another (a pruner stopping
+        some by the others, a controller transferred from another)."""
+        if self.max_trials is None:
+            self.max_trials = ONE_DESIGN_REPEATS
+        if self.pruner.name != "none":
+            raise ValueError(
+                f"pruner: {self.pruner.name!r} stops trials by the others' values, but the "
+                "space searches nothing: each trial repeats its one design, and the spread "
+                "of the repeats needs them all; use pruner none"
+            )
+        if self.task is not None and self.task.transfer != "none":
+            raise ValueError(
+                f"task.transfer: {self.task.transfer!r} starts a trial from another's "
+                "controller, but the space searches nothing: each trial repeats its one "
+                "design from scratch on its own seed; use transfer none"
+            )
 
 
 class Study(BaseModel):
@@ -275,6 +301,48 @@ class Study(BaseModel):
         description="why the latest model-based ask fell back to Sobol points; null when "
         "it did not",
     )
+    fixed: bool = Field(
+        default=False,
+        description="the space searches nothing: every trial repeats its one design on "
+        "its own seed, and GET /studies/{id}/spread gives the spread of the values",
+    )
+
+
+class ObjectiveSpread(BaseModel):
+    """How one objective's values spread over a study's complete trials."""
+
+    name: str
+    n: int = Field(description="complete trials with a value")
+    mean: float | None
+    std: float | None = Field(description="sample standard deviation (n - 1); null below 2")
+    min: float | None
+    median: float | None
+    max: float | None
+
+    @classmethod
+    def of(cls, name: str, values: list[float]) -> ObjectiveSpread:
+        """The spread of ``values`` (finite numbers); every number null for none."""
+        if not values:
+            return cls(name=name, n=0, mean=None, std=None, min=None, median=None, max=None)
+        return cls(
+            name=name,
+            n=len(values),
+            mean=statistics.fmean(values),
+            std=statistics.stdev(values) if len(values) > 1 else None,
+            min=min(values),
+            median=statistics.median(values),
+            max=max(values),
+        )
+
+
+class StudySpread(BaseModel):
+    """``GET /studies/{id}/spread``: each objective's spread over the study's complete
+    trials (feasible or not). For a study of one design (``Study.fixed``) that is the
+    spread of its repeats, what such a study is for."""
+
+    study_id: int
+    fixed: bool
+    objectives: list[ObjectiveSpread]
 
 
 class StudyUpdate(Strict):

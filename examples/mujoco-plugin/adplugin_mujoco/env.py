@@ -3,10 +3,12 @@
 adworker calls ``MujocoReach(design=, urdf_path=, options=)`` (the factory the
 declaration names) and uses, besides Gymnasium's ``reset`` and ``step``:
 ``joint_count``; ``episode_steps``; ``gait_period`` (None: no gait clock); ``record``,
-the episode's per-step ``metric`` and its ``score()``; ``sim_steps``; and
-``render_image()`` for the trial's picture. Actions are in [-1, 1] per joint and the
-observation starts with the joints' positions on the same scale, so the ``fast``
-learner's pose search and the stable-baselines3 learners all work on it.
+the episode's per-step ``metric`` and its ``score()``; ``sim_steps``;
+``task_metrics()``, the task's own metrics of the episode just ended (the trial's
+``task.tip_distance``); and ``render_image()`` for the trial's picture. Actions are
+in [-1, 1] per joint and the observation starts with the joints' positions on the
+same scale, so the ``fast`` learner's pose search and the stable-baselines3 learners
+all work on it.
 """
 
 from __future__ import annotations
@@ -116,6 +118,10 @@ class MujocoReach(gym.Env[np.ndarray, np.ndarray]):
         truncated = self._steps >= self.episode_steps
         info = {"score": self.record.score()} if truncated else {}
         return self._observe(), metric, False, truncated, info
+
+    def task_metrics(self) -> dict[str, float]:
+        """The tip's distance to the target (m) at the end of the episode."""
+        return {"tip_distance": float(np.linalg.norm(self.tip.xpos - self.target))}
 
     def render(self) -> np.ndarray | None:
         return self.render_image() if self.render_mode == "rgb_array" else None

@@ -170,7 +170,7 @@ class ProposalRequest:
     proposer that models stops at the time budget and keeps within the memory one,
     recording in the info what it gave up (see ``qei``).
 
-    Several objectives and outcome constraints (issue 17; only for a proposer whose
+    Several objectives and outcome constraints (only for a proposer whose
     ``multi_objective`` / ``constrained`` is true, the service refuses a study whose
     proposer lacks what it needs):
     objectives: (n, m) the objective values of X's trials, m >= 2, each column

@@ -31,7 +31,7 @@ WARM_MAXITER = 50
 has 200): one new observation moves the optimum little, and the next ask goes on from
 where this one stopped. On the 8-tree suite space at n = 30 a warm fit took 50 to 210
 likelihood evaluations to converge, the same candidates' acquisition values within
-0.03 in log space with this cap (issue 26)."""
+0.03 in log space with this cap."""
 FIT_POINTS = 300
 """The most observations a GP's hyperparameters are fitted on (``fit_subset``)."""
 FIT_BEST = 75
@@ -191,7 +191,7 @@ def fit_subset(y: np.ndarray, seed: int) -> np.ndarray | None:
     Each likelihood evaluation of the fit factors an n x n matrix, a few hundred times
     a fit; the posterior the acquisition uses still conditions on every observation
     with those hyperparameters, so only their estimate loses data (bench/RESULTS.md,
-    issue 26, measures what that costs)."""
+    bench/RESULTS.md measures what that costs)."""
     if len(y) <= FIT_POINTS:
         return None
     order = np.argsort(-y, kind="stable")

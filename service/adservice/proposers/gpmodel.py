@@ -59,13 +59,13 @@ there, alike whenever the response is symmetric about the centre, then fit lengt
 scales long enough to call the other inputs irrelevant. On DTLZ2 (d = 6) qei kept
 sampling the corners: median hypervolume after 40 evaluations 0.087 over 10 seeds,
 3 of them 0; with this prior 0.150 (one 0), and ZDT1 120.63 and 120.62
-(bench/RESULTS.md, issue 17). One objective keeps the dimension-scaled prior, with
+(bench/RESULTS.md). One objective keeps the dimension-scaled prior, with
 which its benchmarks were measured."""
 FIT_GTOL = 1e-2
 """The fit stops when no gradient of the log posterior (summed over the observations)
 exceeds this: Optuna's GPSampler's tolerance. BoTorch's scipy default (1e-5 here on the
 mean per observation) cost 100 to 220 likelihood evaluations a fit on the 8-tree suite
-space at n = 30, with the same candidates (issue 26)."""
+space at n = 30, with the same candidates."""
 WEIGHT_PRIOR = (math.log(1.0 / 3.0), 1.0)
 """(loc, scale) of each component weight's log-normal prior (outcomes are standardised)."""
 
@@ -393,7 +393,7 @@ def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) ->
     straight from ``DesignKernel.forward`` and one Cholesky factor, without
     gpytorch's lazy kernel and distribution objects. Same optimum (tested); the
     median fit of ``bench/asklatency.py`` at n = 50, d = 6 fell from 0.087 s to
-    0.069 s (bench/RESULTS.md, issue 12). Past ``deadline`` (``time.monotonic()``) it
+    0.069 s (bench/RESULTS.md). Past ``deadline`` (``time.monotonic()``) it
     stops with the best parameters evaluated so far (the ask's time budget).
     Returns the number of likelihood evaluations."""
     from botorch.optim.utils import get_parameters_and_bounds

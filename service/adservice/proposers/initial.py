@@ -31,8 +31,8 @@ def initial_count(request: ProposalRequest) -> int:
     param and every structure of a design space (up to ``COVERED_CHOICES`` of each):
     the model knows nothing of a choice it never saw and, with the one-hot kernel,
     expects it to be average, so a study started on two choices of four kept to them
-    (bench/RESULTS.md, issue 16); a design study started on two trees of eight kept
-    to the first good one (issue 26)."""
+    (bench/RESULTS.md); a design study started on two trees of eight kept
+    to the first good one."""
     most = 0
     if request.box is not None and request.box.categorical:
         most = max(request.box.categorical.values())

@@ -44,7 +44,7 @@ def memory_need(
     samples, one batch of them scored (against every point the last believer
     conditions on, or, for ``mc``, ``mc_samples`` joint draws of the candidate with the
     pending points), the kernel matrices of the fit and of the posterior. The factors
-    are measured peaks over those sizes, rounded up (bench/RESULTS.md, issue 13: the
+    are measured peaks over those sizes, rounded up (bench/RESULTS.md: the
     estimate against the growth of a fresh process's peak memory)."""
     n_train = min(n_train, options.max_train or MAX_TRAIN)  # a subset past it (subset.py)
     restarts = options.num_restarts or min(DEFAULT_RESTARTS, options.raw_samples or 10**9)
@@ -63,7 +63,7 @@ def memory_need(
         sizes += f", {mc} MC samples of {joint} points jointly"
     outcomes = n_objectives + n_constraints
     if outcomes > 1 and options.acquisition == "mc":
-        # issue 17's Monte Carlo acquisitions (``multiobjective``): the raw samples are
+        # the Monte Carlo acquisitions (``multiobjective``): the raw samples are
         # scored with MO_SCREEN_DRAWS draws of each outcome jointly with the baseline (at
         # most _MO_BASELINE of the observations assumed) and the pending points, against
         # every observation, and a draw's hypervolume cells: an upper estimate from the

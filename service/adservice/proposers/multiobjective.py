@@ -1,4 +1,4 @@
-"""qei's model phase for several objectives and for outcome constraints (issue 17).
+"""qei's model phase for several objectives and for outcome constraints.
 
 Imported only when such a proposal is computed (it imports torch and BoTorch). The
 entry point is ``optimise_outcomes``, called by ``qei`` where its single-objective

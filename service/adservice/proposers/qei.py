@@ -1,124 +1,57 @@
 """Batch log expected improvement on a Gaussian process: the default proposer.
 
-The method of the preprint ("The loop" in docs/method.md), with the model and acquisition
-of docs/method.md, "The mixed encoding": the first ``n_initial`` trials of a study are points of its
-seeded scrambled Sobol sequence; after that a BoTorch ``SingleTaskGP`` (outcomes
-standardised, hyperparameters fitted by maximum a posteriori marginal likelihood with
-``gpmodel.fit_map``)
-with the covariance of ``gpmodel.design_kernel`` scores candidates with analytic
-LogEI, and ``acquisition.maximise`` finds the best one with the structure held
-discrete. A batch of ``count`` is chosen greedily: each candidate joins the pending
-points of the next.
+``propose(request)`` returns ``request.count`` candidates in the search box, each with
+an info dict saying how it was chosen (``method``: ``sobol``, ``model`` or
+``sobol-fallback`` with its ``reason``). The method and why each choice was made:
+docs/method.md ("The loop", "The mixed encoding", "The model's choices").
 
-The model's input is ``[structure index, specs]`` (``base.model_inputs``): a box's
-coordinates scaled to the unit box, a design space's normalised specs with the
-slots a structure does not use at the pad value. With several structures (the
-``mixed`` representation) the kernel relates them through their places in the fused
-geometry; joint axes enter as unit vectors. The preprint's ``fused`` and the
-``onehot`` representations are searched as plain boxes.
+What a caller can rely on:
 
-Decisions worth knowing:
+- **Start.** The first ``n_initial`` candidates of a study are points of its seeded,
+  scrambled Sobol sequence (``initial``); a design space's start covers its structures,
+  one per structure up to ``initial.COVERED_CHOICES``, as a typed box's categorical
+  choices are covered.
+- **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
+  (structure index and normalised specs, or a box scaled to the unit box), outcomes
+  standardised, hyperparameters by maximum a posteriori (``gpmodel.fit_map``), the
+  covariance ``gpmodel.design_kernel``. Several objectives or outcome constraints
+  (``request.objectives``, ``slacks``): one GP per outcome and LogEHVI or constrained
+  LogEI (``multiobjective``).
+- **Acquisition.** Analytic LogEI (``options["acquisition"] = "analytic"``, the default)
+  with pending points as Kriging believers, or BoTorch's Monte Carlo qLogEI / qLogNEI
+  (``"mc"``), maximised by ``acquisition.maximise`` with the structure, ints, steps and
+  choices held discrete. A batch is chosen greedily: each candidate joins the pending
+  points of the next.
+- **Pending and failed trials** enter as pending points (failed ones are excluded from
+  the GP), so a design that failed or is running is not proposed again.
+- **Every candidate is snapped** (``adclient.boxspace``) before it is compared; a
+  noise-free study never gets a candidate equal to an observed or pending point while
+  another remains.
+- **Fallbacks.** Fewer than two distinct usable points, constant observations, or a
+  numerical failure of the fit or the search (``model_errors``; any other exception is
+  a bug and fails the ask) give the study's Sobol point at ``n_issued + i`` with
+  ``method: sobol-fallback`` and the reason; one that a budget or a failed model forced
+  also says ``degraded: true`` (counted on the study, shown on the dashboard, by
+  ``adclient status`` and on /metrics).
+- **Budgets.** Past ``request.seconds`` the fit and the search stop at their best so
+  far and the rest of the batch are fallbacks (``budget: time``).
+  ``memory.memory_need`` estimates an ask's peak memory; the service refuses an ask
+  whose count or options exceed ``request.memory_bytes``; past ``max_train``
+  observations (by default the most that budget holds) the model trains on a subset
+  (``subset``), and the ask's info gives ``n_train`` of ``n_observed``.
+- **Determinism.** Every random stream is seeded from ``(seed, n_issued)``; nothing
+  draws from torch's global generator. An identical request reuses the exact fit and
+  gives bit-identical candidates; the next ask of a study warm-starts its fit from the
+  previous optimum (``options["warm_start"] = False`` turns that off, for candidates
+  independent of the process's history).
+- **Concurrency.** Asks of different studies run side by side; only ``mc`` acquisitions
+  take turns on one lock (BoTorch's Monte Carlo posterior sets gpytorch's
+  process-wide settings). Torch's intra-op pool is one thread (``AD_TORCH_THREADS``).
+- **Device.** The server's ``AD_PROPOSER_DEVICE``, or ``options["device"]`` for one
+  study; float64 throughout.
 
-- Acquisition (``options["acquisition"]``): ``analytic`` (default) is LogEI on the
-  posterior computed directly (``posterior.Posterior``), with pending points as
-  Kriging believers (the model conditioned on its own mean there) and, for a noisy
-  study, the best posterior mean at the observed points as the incumbent. ``mc`` is
-  BoTorch's Monte Carlo qLogEI (qLogNEI when noisy) with the pending points, also
-  greedy; it costs several times more per ask.
-- Noise: a noisy study gets BoTorch's default inferred noise (LogNormal prior,
-  floor 1e-4 of the standardised variance). A noise-free study still
-  infers its noise, but with no prior and a floor of 1e-6: with the 1e-4 floor
-  the GP cannot resolve the last per-cent of a function with a wide range (on
-  Branin qei then missed the 1% target in 2 of 3 runs; with the low floor it
-  reached it in 23-28 evaluations). ``options["noise"]`` may choose ``"inferred"``,
-  ``"floor"`` or ``"fixed"`` (1e-6, as Optuna's deterministic GP);
-  ``options["kernel"]`` ``"matern"`` (Matern-5/2, the default: on Hartmann6 it
-  reached the 1% target in 6 of 10 seeds where the RBF reached it in 4 of 9) or
-  ``"rbf"``, both with BoTorch's dimension-scaled length-scale prior.
-
-- The start covers the structures (issue 26): a design space's initial Sobol points
-  are dealt one per structure, up to ``initial.COVERED_CHOICES`` (``structure_order``:
-  farthest-first in the fused geometry from a seeded first one), as a typed box's
-  categorical choices are. A GP cannot rank a structure it never saw: from the
-  preprint's two-design start the model kept to the first good tree on every objective
-  where a wrong tree improves with its specs (bench/RESULTS.md, issue 26).
-- Fit and search tolerances: the MAP fit stops at GPSampler's gradient tolerance
-  (``gpmodel.FIT_GTOL``), a warm-started fit after ``gpfit.WARM_MAXITER`` iterations,
-  a local search of the acquisition at ``acquisition.LOCAL_GTOL``; a history longer than
-  ``gpfit.FIT_POINTS`` has its hyperparameters fitted on a subset (``gpfit.fit_subset``)
-  and its posterior on every observation.
-- Failed trials are *excluded* from the GP (a crashed simulation says nothing
-  about the score surface), and enter the acquisition as pending points, so that
-  the exact design that failed is not proposed again and its neighbourhood is
-  discounted the way a pending point's is. No feasibility classifier.
-- Pending (queued/running) trials enter as ``X_pending``; so do the Sobol points
-  issued earlier in the same batch.
-- Typed box params (``request.box``, see ``adclient.boxspace``): a log scale is in the
-  encoding (the model and the acquisition see ln x, linearly), ints and stepped floats
-  are ordered specs the acquisition keeps on their grid, categoricals enter the kernel
-  as one-hot vectors (``gpmodel``), and ``acquisition.maximise`` alternates a
-  continuous step with a discrete neighbour step (BoTorch's mixed-alternating
-  scheme). Every candidate, Sobol points included, is snapped before it is compared
-  with observed and pending points, and a noise-free study's model candidate is the
-  best point found that is neither, while one remains.
-- Fallbacks: with fewer than two distinct usable points, constant observations, or a
-  fit or acquisition optimisation that fails numerically (``model_errors``; any other
-  exception is a bug and fails the ask), the candidate is the study's Sobol point at
-  position ``n_issued + i`` and its info dict says ``"method": "sobol-fallback"`` with
-  the ``"reason"``; one a budget or a failed model forced says ``"degraded": true``
-  (counted on the study, shown by the dashboard, ``adclient status`` and /metrics). A
-  model candidate that duplicates another candidate of the batch (or, for noise-free
-  studies, an already observed or pending point) is replaced the same way.
-- Seeding: the acquisition's quasi-Monte-Carlo samplers (the noisy baseline's
-  pruning included) and the raw samples of the restarts have generators of their
-  own, seeded from ``(seed, n_issued)``; nothing draws from torch's global generator,
-  so concurrent asks cannot disturb each other's random streams.
-- Concurrency: asks of different studies run side by side (issue 13: one lock for
-  every fit let a 35 s ask hold up every other study). The fit caches have a lock of
-  their own held only to read or store an entry; warnings are not filtered with
-  ``warnings.catch_warnings`` (it swaps the process's filter list); torch's and the
-  BLAS's thread counts are set once per thread and never restored. Only ``mc``
-  acquisitions take turns on one lock (their fits do not): BoTorch's Monte Carlo
-  posterior sets and restores gpytorch's process-wide settings at every call, and
-  side by side they changed each other's candidates (by up to 5e-4).
-- Budgets (``ProposalRequest.seconds``, ``memory_bytes``; the server's
-  ``AD_ASK_SECONDS``, ``AD_ASK_MEMORY_MB``): past the time budget the fit and the
-  acquisition search stop at their best so far, the candidate being searched is
-  kept and the rest of the batch are Sobol fallbacks; every model trial of the ask
-  says ``"budget": "time"``. ``memory.memory_need`` estimates an ask's peak memory from its
-  options and sizes (the service refuses an ask whose count or options exceed the
-  memory budget); one that exceeds it through its history alone falls back to Sobol
-  points with the reason. Past ``max_train`` observations (by default the most the
-  memory budget holds, at most 4096) the model trains on a subset (``subset``), so the
-  history alone no longer outgrows the budget.
-- Acquisition optimisation: as GPSampler, 2048 Sobol points and 10 local searches
-  (L-BFGS-B) per candidate (``options`` may override ``num_restarts``,
-  ``raw_samples``, ``maxiter``; with only ``raw_samples`` given, the restarts are at
-  most that many); see ``acquisition``. Fitted hyperparameters (``gpfit``) are kept
-  in two small in-process LRU caches: by a digest of the exact training data (an
-  identical request re-uses the exact fit, so it gives bit-identical candidates),
-  and by the study's identity (bounds, layout, seed, n_initial, noise, kernel and its
-  first two observations: the next ask of the same study warm-starts its fit from the
-  previous optimum, and another study of the same box never does, since a fit
-  started from another function's optimum can stop in a worse local optimum). A server that
-  restarts loses the caches; its next fit starts cold and converges to the same
-  optimum up to the optimiser's tolerance, so candidates agree closely but are
-  not guaranteed bit-identical to those of the server that warm-started. Set
-  ``options["warm_start"] = False`` for strict restart-independence.
-- The device is the server's ``ADPROPOSER_DEVICE`` (``cpu`` unless set to ``cuda``);
-  ``options["device"]`` overrides it for one study. Everything runs in float64.
-- Threads: torch's intra-op pool is set to one thread (``AD_TORCH_THREADS``
-  overrides). These are small matrices; on a shared two-core machine two torch
-  threads competing with other processes made asks 5 to 20 times slower, and the
-  server already runs each ask in its own thread.
-- Several objectives (``ProposalRequest.objectives``) and outcome constraints
-  (``slacks``), issue 17: after the same Sobol start, one GP per outcome and LogEHVI
-  (several objectives: analytic by default, Monte Carlo qLogNEHVI with ``mc``) or a
-  constrained LogEI (one), with the same kernels, domains, pending points, fallbacks
-  and budgets; the reference point, and how failed and infeasible trials are
-  treated, are in ``multiobjective``.
-- ``QEIOptions`` lists every option. Importing this module does not import torch
-  (the service checks a new study's options with it); ``propose`` does.
+``QEIOptions`` lists every option. Importing this module does not import torch (the
+service checks a new study's options with it); ``propose`` does.
 """
 
 from __future__ import annotations

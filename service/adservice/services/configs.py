@@ -4,6 +4,7 @@ created, so each server process keeps it parsed in memory (:class:`StudyConfigs`
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from dataclasses import dataclass, field
 from typing import Any
@@ -121,6 +122,19 @@ class StudyConfig:
     def dim(self) -> int:
         return int(self.bounds.shape[1])
 
+    @property
+    def fixed(self) -> bool:
+        """Whether the space searches nothing (a zero-length search vector): every trial
+        repeats its one design, and no proposer runs."""
+        return self.dim == 0
+
+    def repeat_seed(self, number: int) -> int:
+        """The seed of trial ``number`` of a study of one design: the study's seed (its
+        task's, else its proposer's) plus the number, so each repeat trains and evaluates
+        on its own seed and a trial run again reproduces itself."""
+        base = self.task.seed if self.task is not None else self.proposer.seed
+        return (base + number) % 2**31
+
     def canonical(self, candidates: np.ndarray) -> np.ndarray:
         """Proposed vectors as stored: in the box, typed params snapped to their values,
         a catalogue choice's coordinates those of the component it picks (so the model
@@ -160,16 +174,20 @@ class StudyConfig:
 
     def given(self, params: dict[str, Any], vector: np.ndarray) -> dict[str, Any]:
         """Params a user hands over (checked by :meth:`vector`, whose result ``vector``
-        is) as their trial keeps them: box params exactly as given, a design's as decoded
-        (its specs round-trip exactly already)."""
-        if self.representation is None or self.design_space is None:
-            return (self.box or BoxEncoding.of(self.space)).given(params)
-        return self.params(vector)
+        is) as their trial keeps them: box params exactly as given, a design's (and the one
+        design's of a space that searches nothing) as decoded (its specs round-trip
+        exactly already)."""
+        if self.fixed or (self.representation is not None and self.design_space is not None):
+            return self.params(vector)
+        return (self.box or BoxEncoding.of(self.space)).given(params)
 
     def vector(self, params: dict[str, Any]) -> np.ndarray:
         """The inverse of :meth:`params`, for params a user hands over: ValueError naming a
         missing, unknown, out-of-range or mistyped param. A design's params are its specs
-        (``structure_index`` picks the structure; a ``structure`` given must agree)."""
+        (``structure_index`` picks the structure; a ``structure`` given must agree). A
+        study of one design takes only that design: no params, or its own."""
+        if self.fixed:
+            return self._one_design(params)
         if self.representation is None or self.design_space is None:
             return (self.box or BoxEncoding.of(self.space)).encode(params)
         from adclient.decode import decode
@@ -192,6 +210,41 @@ class StudyConfig:
                     f"{params.get('structure_index', 0)} ({decoded!r})"
                 )
         return vector
+
+    def _one_design(self, params: dict[str, Any]) -> np.ndarray:
+        """The vector of a study of one design (zero-length) for params that name no other
+        design: each one given is one of the design's params with its value."""
+        own = self.params(np.zeros(0))
+        for key, value in params.items():
+            if key not in own:
+                known = f"its params: {', '.join(own)}" if own else "it has no params"
+                raise ValueError(
+                    f"{key!r} is no param of the study's one design ({known}); the space "
+                    "searches nothing, so give {} or the design's own params"
+                )
+            if not _same_value(value, own[key]):
+                raise ValueError(
+                    f"{key} = {value!r} is not the study's one design, whose {key} is "
+                    f"{own[key]!r}: the space searches nothing, so give {{}} or its own params"
+                )
+        return np.zeros(0)
+
+
+def _same_value(given: Any, own: Any) -> bool:
+    """A value as a user gives it back (numbers to 1e-9 relative, lists item by item)."""
+    if isinstance(own, list):
+        return (
+            isinstance(given, list)
+            and len(given) == len(own)
+            and all(_same_value(a, b) for a, b in zip(given, own, strict=True))
+        )
+    if isinstance(own, bool) or isinstance(given, bool):
+        return given is own
+    if isinstance(own, int | float):
+        return isinstance(given, int | float) and math.isclose(
+            given, own, rel_tol=1e-9, abs_tol=1e-12
+        )
+    return bool(given == own)
 
 
 class StudyConfigs:

@@ -123,9 +123,13 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
     study with ``task.transfer``, its source, left out with the reason logged when it
     cannot be chosen (the lease stands: the design trains from scratch); for a template
     study, with its stored URDF (none yet for a trial just proposed: see
-    ``urdfs.with_urdf``)."""
+    ``urdfs.with_urdf``); for a study of one design, the task with the trial's own seed
+    (``StudyConfig.repeat_seed``), so its repeats differ."""
     config = configs.get(trial.study_id)
     assert config.task is not None and trial.lease_expires_at is not None
+    task = config.task
+    if config.fixed:
+        task = task.model_copy(update={"seed": config.repeat_seed(trial.number)})
     transfer = None
     urdf: str | None = None
     if config.space.get("type") == "template":
@@ -169,7 +173,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
             "attempt": trial.attempts,
             "vector": trial.vector,
             "params": trial.params,
-            "task": config.task,
+            "task": task,
             "space": config.space,
             "representation": config.representation,
             "lease_expires_at": trial.lease_expires_at,

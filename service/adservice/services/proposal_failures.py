@@ -1,4 +1,4 @@
-"""A study whose proposals fail keeps its failure to itself (issue 36).
+"""A study whose proposals fail keeps its failure to itself.
 
 Any exception from a study's proposal (a model fit, canonicalising a candidate, a bug,
 memory) used to answer 500 to whoever asked: to a worker's lease too, so the oldest

@@ -55,10 +55,13 @@ async def create_study(
 
 def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | None:
     """The checks short of expanding a template; the search representation of a design
-    space (None for the others)."""
+    space (None for the others). A study of one design runs no proposer: only that its
+    settings load is checked."""
     check_proposer(body.proposer)
-    _check_proposer_device(body.proposer)
-    _check_proposer_outcomes(body)
+    proposes = not body.space.searches_nothing
+    if proposes:
+        _check_proposer_device(body.proposer)
+        _check_proposer_outcomes(body)
     representation = None
     if isinstance(body.space, DesignSpace):
         from adservice.representation import build_representation
@@ -76,7 +79,7 @@ def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | No
         if isinstance(body.space, TemplateSpace):
             _check_template_task(body)
         dim = len(body.space.params)
-    if budget is not None and budget.memory_bytes is not None:
+    if proposes and budget is not None and budget.memory_bytes is not None:
         check_options_memory(
             body.proposer, dim=dim, budget=budget.memory_bytes, outcomes=body.outcomes()
         )

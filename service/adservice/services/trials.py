@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -194,11 +195,44 @@ def proposer_history(session: Session, config: StudyConfig) -> History:
 
 def proposes_instantly(configs: StudyConfigs, study_id: int) -> bool:
     """Whether an ask of this study is only a few short writes: its configuration is
-    cached (no read needed) and its proposer needs no history (random, sobol)."""
+    cached (no read needed) and it is of one design, or its proposer needs no history
+    (random, sobol)."""
     config = configs.cached(study_id)
     if config is None or config.proposer_error is not None:
-        return False
-    return not get_proposer(config.proposer.name).needs_history
+        return config is not None and config.fixed
+    return config.fixed or not get_proposer(config.proposer.name).needs_history
+
+
+def repeats(config: StudyConfig, first: int, count: int) -> Proposal:
+    """A study of one design proposes it ``count`` times, no proposer run: the search
+    vector is empty, and each info names the trial's own seed (``repeat_seed``)."""
+    return Proposal(
+        candidates=np.zeros((count, 0)),
+        info=[
+            {"method": "fixed", "seed": config.repeat_seed(first + offset)}
+            for offset in range(count)
+        ],
+    )
+
+
+def _history_free(config: StudyConfig) -> Callable[[int, int], Proposal] | None:
+    """How a study proposes without its history (its repeats, for a study of one design;
+    else a proposer that reads none): ``propose(first_number, n)``; None for a proposer
+    that needs the history. StudyConfigError for proposer settings that cannot be used."""
+    if config.fixed:
+        return partial(repeats, config)
+    if config.proposer_error is not None:
+        raise StudyConfigError(
+            f"study {config.study_id} cannot propose: its proposer settings were stored "
+            f"before they were checked and are invalid: {config.proposer_error.detail}",
+            problems=config.proposer_error.problems,
+        )
+    proposer = get_proposer(config.proposer.name)
+    if proposer.needs_history:
+        return None
+    return lambda first, n: proposer.propose(
+        _request(config, count=n, n_issued=first, history=None)
+    )
 
 
 def propose_trials(
@@ -225,25 +259,18 @@ def propose_trials(
             owner_name=config.owner_name,
         )
     lease_token_id = caller.token_id if worker_id is not None else None
-    if config.proposer_error is not None:
-        raise StudyConfigError(
-            f"study {study_id} cannot propose: its proposer settings were stored before "
-            f"they were checked and are invalid: {config.proposer_error.detail}",
-            problems=config.proposer_error.problems,
-        )
-    proposer = get_proposer(config.proposer.name)
-    if not proposer.needs_history:
+    instant = _history_free(config)
+    if instant is not None:
         return _record(
             db,
             config,
             count=count,
-            propose=lambda first, n: proposer.propose(
-                _request(config, count=n, n_issued=first, history=None)
-            ),
+            propose=instant,
             worker_id=worker_id,
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
         )
+    proposer = get_proposer(config.proposer.name)
     with locks.hold(db, study_id):
         with db.read() as session:
             study = study_repo.get_study(session, study_id=study_id)

@@ -4,7 +4,8 @@ The split follows panda-gym: the :class:`~adworker.tasks.simulator.Simulator` ow
 PyBullet client (world, clock, camera), the :class:`~adworker.tasks.robot.Robot` is the
 typed Design in it (joints, shapes, state reads, motor commands), and a :class:`Task`
 reads both to say what the robot is asked to do (metric, reward, termination,
-observation extras, reset hook). :class:`RobotEnv` runs the loop.
+observation extras, reset hook, metrics of its own, points marked in the picture).
+:class:`RobotEnv` runs the loop.
 
 Each control step runs ``frame_skip`` physics steps, then reads the state once into a
 :class:`~adworker.tasks.snapshot.Snapshot`. The task turns the snapshot into its
@@ -23,7 +24,7 @@ step (:class:`~adworker.tasks.robot.MotorMeter`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Generic, TypeVar
@@ -34,9 +35,10 @@ import numpy as np
 from adclient.designs import Design
 from adclient.plugins import SimulatorOptions, catalogue
 from adclient.urdf_model import read_urdf
+from adworker.tasks.markers import Marker, checked_markers, draw_markers
 from adworker.tasks.model import RobotModel, model_of_design, model_of_urdf
 from adworker.tasks.robot import MotorMeter, Robot
-from adworker.tasks.simulator import Simulator
+from adworker.tasks.simulator import Camera, Simulator
 from adworker.tasks.snapshot import Snapshot
 
 DEFAULT_EPISODE_STEPS = 32
@@ -66,7 +68,7 @@ class Task(Generic[OptionsT]):
     """What the robot is asked to do; subclasses override the hooks they need.
 
     A task is built after the robot, so it can look links up by name
-    (``robot.link_position``) and keep what it needs from ``options`` (its options
+    (``robot.link_index``) and keep what it needs from ``options`` (its options
     model, validated: the one place its defaults live).
     """
 
@@ -126,6 +128,18 @@ class Task(Generic[OptionsT]):
     def score(self, metric: list[float]) -> float:
         """An episode's score from its per-step metric."""
         return episode_score(metric)
+
+    def metrics(self, snapshot: Snapshot) -> Mapping[str, float]:
+        """The task's own metrics of an evaluation episode, ``snapshot`` its last: the
+        trial reports each as ``task.<name>``, its mean over the evaluation episodes
+        (names and values checked: :mod:`adworker.task_metrics`)."""
+        return {}
+
+    def markers(self, snapshot: Snapshot) -> Sequence[Marker]:
+        """Points to mark in the trial's picture of ``snapshot`` (``robot.png``: the last
+        evaluation episode's final pose), framed with the robot
+        (:mod:`adworker.tasks.markers`)."""
+        return ()
 
 
 def robot_model(design: Design | None, urdf_path: str | Path) -> RobotModel:
@@ -268,10 +282,23 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
             return None
         return self.render_image()
 
+    def task_metrics(self) -> Mapping[str, float]:
+        """The task's own metrics of the episode that has just ended (``Task.metrics``
+        of its last snapshot), as the task returned them."""
+        return self.task.metrics(self.snapshot())
+
+    def camera(self, width: int = 320, height: int = 240) -> tuple[Camera, list[Marker]]:
+        """The camera of the current pose's picture, framing the whole robot and the
+        points the task marks, and those markers (checked)."""
+        snapshot = self.snapshot()
+        markers = checked_markers(self.task.markers(snapshot))
+        target, distance = self.robot.camera(snapshot, [m.position for m in markers])
+        return self.sim.camera(target, distance, width, height), markers
+
     def render_image(self, width: int = 320, height: int = 240) -> np.ndarray:
-        """The current pose, the whole robot in view."""
-        target, distance = self.robot.camera(self.snapshot())
-        return self.sim.render(target, distance, width, height)
+        """The current pose, the whole robot and the task's markers in view."""
+        camera, markers = self.camera(width, height)
+        return draw_markers(self.sim.render(camera), camera, markers)
 
     def close(self) -> None:
         self.sim.close()

@@ -10,20 +10,31 @@ reward is that cosine per step.
 At rest the cosine is 1/sqrt(3) = 0.577. Two parallel axes keep the distal link in
 one plane through +z, so it reaches the diagonal only when that plane happens to
 contain it; two non-parallel axes (for example one along x, one along y) reach it.
+
+The task reports ``task.angle_deg``, the angle between the distal link and the
+diagonal at the end of an evaluation episode (degrees, mean over the episodes), and
+marks its target in the picture: where the distal link's tip would be, pointing along
+the diagonal from where its parent end is (green, "target").
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from typing import ClassVar
+
+import numpy as np
 
 from adclient.builtin_tasks import DiagonalGestureOptions
 from adworker.tasks.base import Task
+from adworker.tasks.markers import Marker
 from adworker.tasks.robot import Robot
 from adworker.tasks.simulator import Simulator
 from adworker.tasks.snapshot import Snapshot
 
 INV_SQRT3 = 1.0 / math.sqrt(3.0)
+DIAGONAL = np.full(3, INV_SQRT3)
+TARGET_COLOUR = (0.1, 0.75, 0.2)
 
 
 class DiagonalGesture(Task[DiagonalGestureOptions]):
@@ -38,7 +49,7 @@ class DiagonalGesture(Task[DiagonalGestureOptions]):
             # The deepest link: the child of the last joint in the engine's (depth-first)
             # order.
             distal = "c" if "c" in robot.link_names else robot.joints[-1].child
-        self.distal = robot.link_position(distal)
+        self.distal = robot.link_index(distal)
 
     def observation_size(self) -> int:
         return 3
@@ -49,3 +60,15 @@ class DiagonalGesture(Task[DiagonalGestureOptions]):
     def metric(self, snapshot: Snapshot) -> float:
         x, y, z = snapshot.axis(self.distal)
         return (x + y + z) * INV_SQRT3
+
+    def metrics(self, snapshot: Snapshot) -> Mapping[str, float]:
+        cosine = max(-1.0, min(1.0, self.metric(snapshot)))
+        return {"angle_deg": math.degrees(math.acos(cosine))}
+
+    def markers(self, snapshot: Snapshot) -> Sequence[Marker]:
+        length = self.robot.geometry[self.distal].length
+        parent_end = snapshot.centre(self.distal) - np.asarray(snapshot.axis(self.distal)) * (
+            length / 2
+        )
+        x, y, z = (float(value) for value in parent_end + DIAGONAL * length)
+        return [Marker((x, y, z), TARGET_COLOUR, "target")]

@@ -20,6 +20,8 @@ physics step.
 from __future__ import annotations
 
 import math
+import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -386,17 +388,33 @@ class Robot:
             values += snapshot.touching
         return values
 
-    def link_position(self, name: str) -> int:
-        """Position of a link (by instance name) in the snapshot arrays."""
+    def link_index(self, name: str) -> int:
+        """The index ``k`` of a link (a design's instance name, or a URDF's link name) in
+        the snapshot's arrays and ``geometry``; KeyError naming it if there is none."""
         try:
             return self.link_names.index(name)
         except ValueError:
             raise KeyError(f"the robot has no link named {name!r}") from None
 
-    def camera(self, snapshot: Snapshot) -> tuple[np.ndarray, float]:
-        """Where a camera should look to frame the whole robot, and from how far."""
-        centres = np.array([snapshot.centre(k) for k in range(len(self.geometry))])
-        extent = float(np.ptp(centres, axis=0).max()) + max(
+    def link_position(self, name: str) -> int:
+        """Deprecated alias of :meth:`link_index` (it returns an index, not a position),
+        kept for one release."""
+        warnings.warn(
+            "Robot.link_position is deprecated: it returns an index, use Robot.link_index",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.link_index(name)
+
+    def camera(
+        self, snapshot: Snapshot, also: Sequence[Sequence[float]] = ()
+    ) -> tuple[np.ndarray, float]:
+        """Where a camera should look to frame the whole robot and the points ``also``,
+        and from how far."""
+        points = np.array(
+            [snapshot.centre(k) for k in range(len(self.geometry))] + [list(p) for p in also]
+        )
+        extent = float(np.ptp(points, axis=0).max()) + max(
             (g.length for g in self.geometry), default=0.4
         )
-        return centres.mean(axis=0), max(1.0, 1.6 * extent)
+        return points.mean(axis=0), max(1.0, 1.6 * extent)

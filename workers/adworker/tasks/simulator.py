@@ -12,7 +12,7 @@ on every control step, where building a named tuple would cost more than the rea
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -79,6 +79,28 @@ class DynamicsInfo(NamedTuple):
     contact_stiffness: float
     body_type: int
     collision_margin: float
+
+
+class Camera(NamedTuple):
+    """A camera as PyBullet takes it (view and projection matrices, column-major) and
+    the size of its pictures."""
+
+    view: tuple[float, ...]
+    projection: tuple[float, ...]
+    width: int
+    height: int
+
+    def pixel(self, point: Sequence[float]) -> tuple[float, float] | None:
+        """Where the world point ``point`` appears in this camera's pictures: (column,
+        row) from the top-left corner, in pixels (outside the picture when out of
+        view), or None when it is behind the camera."""
+        view = np.reshape(self.view, (4, 4), order="F")
+        projection = np.reshape(self.projection, (4, 4), order="F")
+        clip = projection @ view @ np.array([*point, 1.0], dtype=float)
+        if clip[3] <= 0.0:
+            return None
+        x, y = clip[0] / clip[3], clip[1] / clip[3]
+        return (x + 1.0) / 2.0 * self.width, (1.0 - y) / 2.0 * self.height
 
 
 class Simulator:
@@ -173,14 +195,14 @@ class Simulator:
         """The engine's contact points between ``body`` and the ground (raw tuples)."""
         return list(pybullet.getContactPoints(body, self.ground, physicsClientId=self.client))
 
-    def render(
+    def camera(
         self, target: np.ndarray, distance: float, width: int = 320, height: int = 240
-    ) -> np.ndarray:
-        """The world seen from a fixed angle at ``distance`` from ``target``: an RGB array,
-        through PyBullet's software renderer (works headless)."""
+    ) -> Camera:
+        """A camera at a fixed angle, ``distance`` from ``target``, making pictures of
+        ``width`` x ``height`` pixels."""
         cid = self.client
         view = pybullet.computeViewMatrixFromYawPitchRoll(
-            cameraTargetPosition=target.tolist(),
+            cameraTargetPosition=[float(value) for value in target],
             distance=distance,
             yaw=35.0,
             pitch=-25.0,
@@ -191,17 +213,23 @@ class Simulator:
         projection = pybullet.computeProjectionMatrixFOV(
             fov=50.0, aspect=width / height, nearVal=0.02, farVal=20.0, physicsClientId=cid
         )
+        return Camera(tuple(view), tuple(projection), width, height)
+
+    def render(self, camera: Camera) -> np.ndarray:
+        """The world as ``camera`` sees it: an RGB array, through PyBullet's software
+        renderer (works headless)."""
         image = pybullet.getCameraImage(
-            width,
-            height,
-            viewMatrix=view,
-            projectionMatrix=projection,
+            camera.width,
+            camera.height,
+            viewMatrix=list(camera.view),
+            projectionMatrix=list(camera.projection),
             renderer=pybullet.ER_TINY_RENDERER,
             lightDirection=[1.0, 1.0, 2.0],
             shadow=1,
-            physicsClientId=cid,
+            physicsClientId=self.client,
         )
-        rgba = np.reshape(np.asarray(image[CAMERA_RGBA], dtype=np.uint8), (height, width, 4))
+        shape = (camera.height, camera.width, 4)
+        rgba = np.reshape(np.asarray(image[CAMERA_RGBA], dtype=np.uint8), shape)
         return rgba[:, :, :3].copy()
 
     @property

@@ -27,8 +27,8 @@ class StandUp(Task[StandUpOptions]):
 
     def __init__(self, robot: Robot, sim: Simulator, options: StandUpOptions) -> None:
         super().__init__(robot, sim, options)
-        self.lifted = robot.link_position(options.lifted_link)
-        self.feet = [robot.link_position(name) for name in options.feet_links]
+        self.lifted = robot.link_index(options.lifted_link)
+        self.feet = [robot.link_index(name) for name in options.feet_links]
 
     def metric(self, snapshot: Snapshot) -> float:
         for k in self.feet:

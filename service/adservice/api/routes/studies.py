@@ -15,6 +15,7 @@ from adclient.schemas import (
     AskResponse,
     Study,
     StudyCreate,
+    StudySpread,
     StudyUpdate,
     Trial,
     TrialColumns,
@@ -184,6 +185,13 @@ def pareto_trials(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[
     """The complete, feasible trials that no other one dominates (Optuna's
     ``best_trials``), by number; for one objective, those with the best value."""
     return [trial_schema(row) for row in trial_repo.pareto_trials(session, study_id=study_id)]
+
+
+@router.get("/{study_id}/spread")
+def value_spread(study_id: StudyId, session: SessionDep, _: ReaderDep) -> StudySpread:
+    """Each objective's n, mean, standard deviation, min, median and max over the
+    study's complete trials: for a study of one design (``fixed``), its repeats."""
+    return views.value_spread(session, study_id=study_id)
 
 
 @router.get("/{study_id}/workers")

@@ -150,7 +150,7 @@ export class StudyHeader {
       template: `robot template, ${s.space.params?.length} params`,
     }[s.space.type] ?? 'robot design space';
     this.$('meta').innerHTML =
-      `${aims(s)} · proposer ${esc(s.proposer.name)}` +
+      `${aims(s)} · ${s.fixed ? 'one design, no proposer' : `proposer ${esc(s.proposer.name)}`}` +
       `${task} · ${space}${s.created_by ? ` · by ${esc(s.created_by)}` : ''}` +
       ` · updated <span title="${esc(s.updated_at)}">${ago(s.updated_at)}</span>`;
     this.$('progress').innerHTML = progressBar(s);

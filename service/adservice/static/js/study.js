@@ -1,7 +1,7 @@
 // A study's page (#/studies/ID): its panels, kept current by polling. A poll re-fetches
 // only what changed: the study itself every poll (one small read), and the chart columns,
-// the table page, the best design and (several objectives) the Pareto front only when the
-// study's counts or updated_at moved;
+// the table page, the best design, (several objectives) the Pareto front and (one design)
+// the repeats' spread only when the study's counts or updated_at moved;
 // chart columns come as a delta (new trials and the ones last seen open), so a
 // 10,000-trial study stays cheap to follow.
 
@@ -15,6 +15,7 @@ import { ParamsPanel } from './params.js';
 import { ParetoPanel } from './pareto.js';
 import { Series, paramCorrelations } from './series.js';
 import { showError } from './shell.js';
+import { SpreadCard } from './spread.js';
 import { openTrialDialog } from './trial-dialog.js';
 import { TrialsPanel } from './trials.js';
 import { WorkersPanel } from './workers.js';
@@ -53,6 +54,7 @@ export class StudyPage {
     this.searched = new Set();
     this.polls = 0;
     this.header = new StudyHeader(studyId);
+    this.spread = new SpreadCard(this);
     this.history = new HistoryPanel(this);
     this.best = new BestCard(this);
     this.pareto = new ParetoPanel(this);
@@ -62,7 +64,7 @@ export class StudyPage {
     this.trials = new TrialsPanel(this);
     this.root = element('<div class="study"><div class="grid"></div></div>');
     this.root.querySelector('.grid').append(this.history.root, this.best.root);
-    this.root.prepend(this.header.root);
+    this.root.prepend(this.header.root, this.spread.root);
     this.root.append(this.pareto.root, this.params.root, this.curves.root, this.workers.root, this.trials.root);
     view.replaceChildren(this.root);
     this.root.addEventListener('click', (event) => {
@@ -89,6 +91,7 @@ export class StudyPage {
     this.signature = signatureOf(this.study);
     this.header.render(this.study);
     await Promise.all([
+      this.spread.load(),
       this.series.load(),
       this.trials.load(),
       this.best.load(),
@@ -98,6 +101,7 @@ export class StudyPage {
     ]);
     if (!this.alive) return;
     this.drawCharts();
+    this.spread.render();
     this.trials.render();
     this.best.render();
     this.workers.render();
@@ -122,6 +126,7 @@ export class StudyPage {
     if (curvesDue) work.push(this.curves.load());
     if (changed) {
       work.push(this.series.load(), this.trials.load(), this.best.load(), this.pareto.load());
+      work.push(this.spread.load());
     } else {
       // Uploads do not touch the study: look for images that may have arrived since.
       if (this.best.awaitsImage) work.push(this.best.load());
@@ -133,6 +138,7 @@ export class StudyPage {
     this.header.render(study);
     if (changed) this.drawCharts({ scoresChanged });
     else if (curvesDue) this.curves.draw();
+    this.spread.render();
     this.trials.render();
     this.best.render();
     this.workers.render();

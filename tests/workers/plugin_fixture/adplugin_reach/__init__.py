@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from pydantic import BaseModel, ConfigDict, Field
 
 from adclient.plugins import LearnerSpec, SimulatorOptions, TaskSpec
@@ -12,6 +14,14 @@ class ReachUpOptions(SimulatorOptions):
 
     def link_names(self) -> list[tuple[str, str]]:
         return [("tip_link", self.tip_link)]
+
+
+class ReachPointOptions(ReachUpOptions):
+    target: tuple[
+        Annotated[float, Field(ge=-5, le=5)],
+        Annotated[float, Field(ge=-5, le=5)],
+        Annotated[float, Field(ge=0, le=5)],
+    ] = Field(default=(0.4, 0.3, 0.5), description="The point the tip reaches for (m)")
 
 
 class ArmLengthOptions(SimulatorOptions):
@@ -29,6 +39,14 @@ REACH_UP = TaskSpec(
     options=ReachUpOptions,
     description="An arm on a fixed base raises the top of its tip link as high as it can.",
     factory="adplugin_reach.env:ReachUp.make_env",
+    fixed_base=True,
+)
+REACH_POINT = TaskSpec(
+    name="reach-point",
+    options=ReachPointOptions,
+    description="An arm on a fixed base brings the tip of its tip link to a target point: "
+    "minus the distance between them (m).",
+    factory="adplugin_reach.env:ReachPoint.make_env",
     fixed_base=True,
 )
 REACH_ELSEWHERE = TaskSpec(
