@@ -34,8 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.servers import ServerProcess  # noqa: E402
-
+from adclient.testing.servers import ServerProcess  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
 
 MAX_ASK = 64

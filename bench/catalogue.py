@@ -36,9 +36,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.servers import ServerProcess  # noqa: E402
-
 from adclient import Client  # noqa: E402
+from adclient.testing.servers import ServerProcess  # noqa: E402
 from bench.paperlib import append_jsonl, quantiles, read_jsonl  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "catalogue.jsonl"

@@ -47,11 +47,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.servers import ServerProcess  # noqa: E402
-
 from adclient.decode import build_design, spec_layout  # noqa: E402
 from adclient.design import DesignSpace  # noqa: E402
 from adclient.designs import Design  # noqa: E402
+from adclient.testing.servers import ServerProcess  # noqa: E402
 from bench.design_objectives import EIGHT_TREES, OBJECTIVES, Objective  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
 

@@ -29,12 +29,9 @@ from pathlib import Path
 
 import httpx
 import sqlalchemy as sa
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from starlette.types import Message, Receive, Scope, Send
-from tests.servers import ServerProcess
 
+from adclient.testing.servers import ServerProcess
 from adservice.metrics import HttpMetrics, Metrics
 from adservice.models import TrialRow
 

@@ -43,7 +43,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 import warnings
@@ -55,10 +54,9 @@ from typing import Any
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from adclient.testing.servers import ServerProcess
 
-from tests.servers import ServerProcess  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 CHECKPOINTS = (40, 80)
 METHODS = ("qei", "random", "tpe", "gp-optuna", "nsga2-optuna", "tpe-optuna")
@@ -147,7 +145,8 @@ def run_robot(
     real workers; its trials' minimised objectives (-score, mass) in trial order."""
     import httpx
     import yaml
-    from tests.workers.processes import WorkerProcess
+
+    from adclient.testing.workers import WorkerProcess
 
     body = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
     body.update(name=f"robot-{method}-{seed}", max_trials=budget)

@@ -159,7 +159,7 @@ class Service:
     """One adserver (SQLite) and one ``adworker --concurrency N``, from the pinned code."""
 
     def __init__(self, workdir: Path, workers: int) -> None:
-        from tests.servers import ServerProcess
+        from adclient.testing.servers import ServerProcess
 
         self.workdir = workdir
         workdir.mkdir(parents=True, exist_ok=True)

@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -43,13 +42,11 @@ from typing import Any
 
 import yaml
 
+from adclient import Client
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import WorkerProcess
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from tests.servers import ServerProcess  # noqa: E402
-from tests.workers.processes import WorkerProcess  # noqa: E402
-
-from adclient import Client  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "pruning.jsonl"
 FIGURE = ROOT / "bench" / "results" / "pruning.png"

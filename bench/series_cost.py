@@ -22,10 +22,7 @@ from pathlib import Path
 import httpx
 import sqlalchemy as sa
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tests.servers import ServerProcess
-
+from adclient.testing.servers import ServerProcess
 from adservice.models import TrialRow
 
 N, P = int(os.environ.get("N", 6400)), int(os.environ.get("P", 256))

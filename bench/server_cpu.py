@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import tempfile
 import threading
 import time
@@ -25,9 +24,7 @@ from pathlib import Path
 
 import httpx
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]}
 

@@ -14,7 +14,6 @@ Run: ``.venv/bin/python bench/throughput.py [--clients 8] [--cycles 150]``.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import threading
 import time
@@ -24,10 +23,7 @@ from pathlib import Path
 import httpx
 
 from adclient import Client
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 
 def run_activedesign(workdir: Path, clients: int, cycles: int) -> dict[str, float]:

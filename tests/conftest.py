@@ -2,7 +2,7 @@
 
 Tests that ask for ``database_url``, ``new_database_url``, ``server_factory``,
 ``live_server`` or ``shared_server`` run twice: on a SQLite file and on a throwaway
-PostgreSQL cluster (one per test process, started on first use; see ``tests.postgres``).
+PostgreSQL cluster (one per test process, started on first use; see ``adclient.testing.postgres``).
 Each test gets fresh databases; ``shared_server`` is one server per test module and kind
 of database.
 """
@@ -13,8 +13,8 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from tests.postgres import PostgresCluster, PostgresUnavailable
-from tests.servers import ServerProcess
+from adclient.testing.postgres import PostgresCluster, PostgresUnavailable
+from adclient.testing.servers import ServerProcess
 from tests.system_packages import unavailable
 
 DATABASES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]

@@ -8,19 +8,21 @@ only what is missing and says what it does:
 
 A test whose package is missing skips, loudly, on a developer's machine; where
 ``AD_REQUIRE_SYSTEM_TESTS=1`` (``.ci/run`` sets it) it fails, so CI cannot go green
-without the browser and PostgreSQL tests. Standard library only: it runs before pytest.
+without the browser and PostgreSQL tests. It runs before pytest, maybe without it:
+besides the standard library it imports only the harness's PostgreSQL finder
+(``adclient.testing.postgres``, installed with the project).
 """
 
 from __future__ import annotations
 
-import glob
 import os
 import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from typing import NoReturn
+
+from adclient.testing.postgres import postgres_bin_dir
 
 REQUIRE = "AD_REQUIRE_SYSTEM_TESTS"
 HOW_TO_INSTALL = "run `.venv/bin/python tests/system_packages.py` (what `make test` runs first)"
@@ -28,19 +30,6 @@ HOW_TO_INSTALL = "run `.venv/bin/python tests/system_packages.py` (what `make te
 
 def chromium_executable() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
-
-
-def postgres_bin_dir() -> Path | None:
-    """The folder with ``initdb`` and ``postgres``: Debian keeps them off PATH, in
-    /usr/lib/postgresql/VERSION/bin; the newest version wins."""
-    on_path = shutil.which("initdb")
-    if on_path and Path(on_path).resolve().with_name("postgres").exists():
-        return Path(on_path).resolve().parent
-    versions = sorted(
-        glob.glob("/usr/lib/postgresql/*/bin/initdb"),
-        key=lambda path: int(Path(path).parts[-3]) if Path(path).parts[-3].isdigit() else 0,
-    )
-    return Path(versions[-1]).parent if versions else None
 
 
 PACKAGES: dict[str, Callable[[], object]] = {

@@ -2,8 +2,10 @@
 benchmarks, no module imports, at any depth and by any import (top level, inside a
 function, or only for type checking), a module that imports it back. A circle means a
 shared piece has no home of its own (qei's options once lived in qei, which imported
-the modules that needed them). And the one-way rule: the service and the worker never
-import each other, and the SDK imports neither."""
+the modules that needed them). And the one-way rules: the service and the worker never
+import each other, and the SDK imports neither; the tests and the benchmarks never import
+each other, at any depth (what both need is the SDK's process harness,
+``adclient.testing``), and no package imports either of them."""
 
 from __future__ import annotations
 
@@ -18,11 +20,12 @@ PACKAGES = {
     "adservice": ROOT / "service",
     "adworker": ROOT / "workers",
     "bench": ROOT,
+    "tests": ROOT,
 }
 
 
 def modules() -> dict[str, Path]:
-    """Every module of the four packages by dotted name (a package by its own name)."""
+    """Every module of the five packages by dotted name (a package by its own name)."""
     found = {}
     for package, base in PACKAGES.items():
         for path in (base / package).rglob("*.py"):
@@ -35,7 +38,8 @@ def modules() -> dict[str, Path]:
 
 def imports(name: str, path: Path, known: dict[str, Path]) -> set[str]:
     """The known modules ``name`` imports: ``from a.b import c`` is ``a.b.c`` where that
-    is a module, else ``a.b`` (its nearest known ancestor)."""
+    is a module, else ``a.b`` (its nearest known ancestor); ``importlib.import_module``
+    and ``__import__`` of a literal name count too."""
 
     def nearest(dotted: str) -> str | None:
         while dotted and dotted not in known:
@@ -55,6 +59,14 @@ def imports(name: str, path: Path, known: dict[str, Path]) -> set[str]:
             for alias in node.names:
                 full = f"{base}.{alias.name}"
                 found.add(full if full in known else nearest(base))
+        elif (
+            isinstance(node, ast.Call)
+            and ast.unparse(node.func) in ("importlib.import_module", "import_module", "__import__")
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
+            found.add(nearest(node.args[0].value))
     found.discard(None)
     found.discard(name)
     return {module for module in found if module is not None}
@@ -143,3 +155,56 @@ def test_the_service_and_the_worker_never_import_each_other(graph: dict[str, set
     assert crossing("adservice", ("adworker", "bench")) == []
     assert crossing("adworker", ("adservice", "bench")) == []
     assert crossing("adclient", ("adservice", "adworker", "bench")) == []
+
+
+def reachable(graph: dict[str, set[str]], start: str) -> set[str]:
+    """Every module ``start`` imports, directly or through others."""
+    seen: set[str] = set()
+    work = [start]
+    while work:
+        for module in graph[work.pop()] - seen:
+            seen.add(module)
+            work.append(module)
+    return seen
+
+
+def crossings(graph: dict[str, set[str]], source: str, target: str) -> list[str]:
+    """Each module of package ``source`` that reaches package ``target``, with one module
+    of ``target`` it reaches."""
+    found = []
+    for name in sorted(graph):
+        if name.split(".")[0] == source:
+            reached = sorted(m for m in reachable(graph, name) if m.split(".")[0] == target)
+            if reached:
+                found.append(f"{name} -> {reached[0]}")
+    return found
+
+
+def test_the_checks_see_every_import_form_and_a_crossing_at_depth(tmp_path: Path) -> None:
+    """A crossing through a module between, by each import form the house uses."""
+    known = {
+        "tests.a": tmp_path / "a.py",
+        "tests.b": tmp_path / "b.py",
+        "bench": tmp_path / "__init__.py",
+        "bench.load": tmp_path / "load.py",
+        "bench.slow": tmp_path / "slow.py",
+    }
+    known["tests.a"].write_text(
+        "def f():\n    import importlib\n    return importlib.import_module('bench.load')\n"
+    )
+    known["tests.b"].write_text("from bench import slow\n")
+    known["bench"].write_text("")
+    known["bench.load"].write_text("from . import slow\n")
+    known["bench.slow"].write_text("import tests.b as b\n")
+    graph = {name: imports(name, path, known) for name, path in known.items()}
+    assert graph["tests.a"] == {"bench.load"} and graph["bench.load"] == {"bench.slow"}
+    assert crossings(graph, "bench", "tests") == ["bench.load -> tests.b", "bench.slow -> tests.b"]
+    assert crossings(graph, "tests", "bench")[0] == "tests.a -> bench.load"
+
+
+def test_the_tests_and_the_benchmarks_never_import_each_other(graph: dict[str, set[str]]) -> None:
+    assert len([name for name in graph if name.startswith("tests.")]) > 100
+    assert crossings(graph, "tests", "bench") == []
+    assert crossings(graph, "bench", "tests") == []
+    for package in ("adclient", "adservice", "adworker"):
+        assert crossings(graph, package, "tests") == []

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import httpx
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

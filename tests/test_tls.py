@@ -13,8 +13,8 @@ import pytest
 
 from adclient import Client
 from adclient.errors import Unavailable
-from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess
 from tests.workers.test_worker_e2e import stand_up_study
 
 pytestmark = pytest.mark.e2e

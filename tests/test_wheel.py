@@ -30,12 +30,13 @@ import pytest
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 
-from tests.servers import free_port
+from adclient.testing.servers import free_port
 
 pytestmark = pytest.mark.xdist_group("wheel")
 
 REPO = Path(__file__).resolve().parents[1]
 STATIC = REPO / "service" / "adservice" / "static"
+HARNESS = REPO / "client" / "adclient" / "testing"
 RECIPE = "vendor/three-urdf/"
 """static/vendor/three-urdf/ builds static/vendor/three-urdf.js: in the sdist, not the wheel."""
 WORKER_ONLY = {"pybullet", "gymnasium", "stable-baselines3", "pillow"}
@@ -115,8 +116,12 @@ def test_the_wheel_carries_the_migrations_and_every_served_static_file(built: Bu
     shipped = {name for name in names if name.startswith("adservice/static/")}
     assert shipped == static, (sorted(shipped - static), sorted(static - shipped))
     assert not [name for name in names if "node_modules" in name or RECIPE in name]
-    # The source tree's top-level migrations/ is not installed as a package of its own.
-    assert not [name for name in names if name.startswith(("migrations/", "tests/"))]
+    # The source tree's top-level migrations/ is not installed as a package of its own,
+    # nor are the tests or the benchmarks; the process harness they share is the SDK's.
+    assert not [name for name in names if name.startswith(("migrations/", "tests/", "bench/"))]
+    harness = {f"adclient/testing/{name}" for name in relative(HARNESS) if name.endswith(".py")}
+    assert "adclient/testing/servers.py" in harness
+    assert harness <= names, sorted(harness - names)
 
 
 def test_the_sdist_keeps_migrations_at_the_top_and_the_bundle_recipe(built: Built) -> None:
@@ -207,7 +212,9 @@ def test_the_installed_package_is_the_wheel_with_its_migrations(environment: Pat
             str(environment / "bin" / "python"),
             "-c",
             "import adservice.db as db, adclient, sys; "
-            "print(db.__file__); print(db.MIGRATIONS_DIR); print(adclient.__file__)",
+            "import adclient.testing.load, adclient.testing.postgres as harness; "
+            "print(db.__file__); print(db.MIGRATIONS_DIR); print(adclient.__file__); "
+            "print(harness.__file__)",
         ],
         capture_output=True,
         text=True,
@@ -216,8 +223,9 @@ def test_the_installed_package_is_the_wheel_with_its_migrations(environment: Pat
         check=True,
     )
     site = next(environment.glob("lib/python*/site-packages"))
-    db_file, migrations, adclient_file = map(Path, done.stdout.split())
+    db_file, migrations, adclient_file, harness_file = map(Path, done.stdout.split())
     assert db_file.is_relative_to(site) and adclient_file.is_relative_to(site)
+    assert harness_file.is_relative_to(site)  # the harness runs from the wheel's service extra
     assert migrations == site.resolve() / "adservice" / "migrations"
 
 

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 import pytest
 
 from adclient import Client
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 
 @pytest.fixture

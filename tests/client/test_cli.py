@@ -16,8 +16,8 @@ from typer.testing import CliRunner, Result
 from adclient import Client, Conflict
 from adclient.cli import app
 from adclient.client import StudyHandle
+from adclient.testing.servers import ServerProcess
 from tests.client.scripted_server import Reply, ScriptedServer, refused_url
-from tests.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
 

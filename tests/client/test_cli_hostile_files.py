@@ -18,9 +18,9 @@ from hypothesis import strategies as st
 from adclient import Client
 from adclient.export import INERT_FIRST, formula_safe, unescaped
 from adclient.importing import EXPORT_DEPTH
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import run_adclient
 from tests.client.test_cli import server
-from tests.servers import ServerProcess
-from tests.workers.processes import run_adclient
 
 __all__ = ["server"]  # the module's adserver, shared
 

@@ -13,8 +13,8 @@ import pytest
 from adclient import Client
 from adclient.errors import Invalid
 from adclient.importing import ImportFileError, read_import
+from adclient.testing.servers import ServerProcess
 from tests.client.test_cli import failed_with, ok, run, server
-from tests.servers import ServerProcess
 
 __all__ = ["server"]  # the module's adserver, shared
 

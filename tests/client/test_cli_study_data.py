@@ -10,8 +10,8 @@ from typer.testing import CliRunner, Result
 
 from adclient import Client
 from adclient.cli import app
+from adclient.testing.servers import ServerProcess
 from tests.client.test_cli import failed_with, ok, run, server
-from tests.servers import ServerProcess
 
 __all__ = ["server"]  # the module's adserver, shared
 

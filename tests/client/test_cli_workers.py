@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from adclient import Client
+from adclient.testing.servers import ServerProcess
 from tests.client.test_cli import ok, run, write_study
-from tests.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 

@@ -72,3 +72,20 @@ def test_a_function_worker_imports_no_simulator_or_torch(tmp_path) -> None:
         "assert runner.tasks() == ['double'] and outcome.value == 3.0, outcome\n"
     )
     assert _heavy_modules_after(code, allowed=("adworker",)) == []
+
+
+def test_the_sdk_never_imports_its_process_harness() -> None:
+    code = "import adclient, adclient.client, adclient.cli, sys\nimport adclient.plugins\n"
+    code += "print(sorted(m for m in sys.modules if m.startswith('adclient.testing')))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"
+
+
+def test_the_process_harness_starts_the_programs_and_imports_neither() -> None:
+    """``adclient.testing`` runs adserver and adworker by command: every module of it
+    imports neither (the database and scrape readers may import SQLAlchemy)."""
+    harness = EXAMPLES.parent / "client" / "adclient" / "testing"
+    names = sorted(path.stem for path in harness.glob("*.py") if path.stem != "__init__")
+    assert {"servers", "workers", "postgres", "load", "attacks"} <= set(names)
+    code = "".join(f"import adclient.testing.{name}\n" for name in names)
+    assert _heavy_modules_after(code, allowed=("sqlalchemy",)) == []

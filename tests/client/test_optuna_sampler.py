@@ -23,7 +23,7 @@ from adclient import Client
 from adclient.optuna import TRIAL_ATTR, IndependentSamplingWarning, ServiceSampler
 from adclient.optuna_space import RelativeSpace, box_param, service_names
 from adclient.schemas import BoxParam, Study, Trial
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 GUIDE = Path(__file__).resolve().parents[2] / "docs" / "optuna.md"

@@ -11,8 +11,8 @@ from collections.abc import Iterator
 import pytest
 
 from adclient import Client, Conflict, Invalid, LiveTrial, TrialPruned
+from adclient.testing.servers import ServerProcess
 from tests.client.test_cli import ok, run
-from tests.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
 MEDIAN = {"name": "median", "options": {"n_startup_trials": 2}}

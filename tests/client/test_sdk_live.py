@@ -22,7 +22,7 @@ from adclient.schemas import (
     StudyCreate,
     Trial,
 )
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
 RANDOM = {"name": "random", "seed": 3}

@@ -12,9 +12,9 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adservice.app import create_app
 from adservice.settings import Settings
-from tests.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium, find_chromium
 
 LOCAL = "http://localhost"

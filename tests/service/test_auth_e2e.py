@@ -8,7 +8,7 @@ from collections.abc import Callable
 import httpx
 import pytest
 
-from tests.servers import ADSERVER, ServerProcess, make_token
+from adclient.testing.servers import ADSERVER, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 

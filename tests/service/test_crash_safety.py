@@ -12,7 +12,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.servers import SDK_HEADERS, ServerProcess
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 
 pytestmark = pytest.mark.e2e
 

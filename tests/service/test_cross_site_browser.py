@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.servers import ServerProcess, make_token
+from adclient.testing.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]

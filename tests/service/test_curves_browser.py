@@ -8,7 +8,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from tests.servers import SDK_HEADERS, ServerProcess
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]

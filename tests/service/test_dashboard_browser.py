@@ -15,7 +15,7 @@ from collections.abc import Callable
 import httpx
 import pytest
 
-from tests.servers import ServerProcess, make_token
+from adclient.testing.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import (
     BLUE,

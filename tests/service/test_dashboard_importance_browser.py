@@ -28,7 +28,7 @@ from optuna.distributions import (
 )
 from optuna.importance import PedAnovaImportanceEvaluator, get_param_importances
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,

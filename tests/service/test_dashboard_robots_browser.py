@@ -8,7 +8,7 @@ import httpx
 import pytest
 import yaml
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import (
     CHANGED_PIXELS,

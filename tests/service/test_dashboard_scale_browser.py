@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from adclient.schemas import TellRequest
+from adclient.testing.servers import ServerProcess
 from adservice.db import Database
 from adservice.principals import OPEN_ADMIN
 from adservice.repository import tell as tell_repo
 from adservice.repository import trials as trial_repo
-from tests.servers import ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import (
     MANAGED_BOX,

@@ -11,7 +11,7 @@ from collections.abc import Callable
 import httpx
 import pytest
 
-from tests.servers import SDK_HEADERS, ServerProcess, make_token
+from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.service.chromium import Chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]

@@ -21,6 +21,7 @@ from adclient.decode import PAD, decode, spec_layout
 from adclient.design import DesignSpace
 from adclient.designs import Representation
 from adclient.schemas import StudyCreate
+from adclient.testing.servers import ServerProcess
 from adservice.proposers import get_proposer
 from adservice.proposers.base import (
     AxisColumns,
@@ -31,7 +32,6 @@ from adservice.proposers.base import (
 )
 from adservice.proposers.gpmodel import SpecFeatures, StructureKernel, design_kernel
 from adservice.representation import build_representation, search_structure
-from tests.servers import ServerProcess
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TKW: dict[str, Any] = {"dtype": torch.float64}

@@ -14,7 +14,7 @@ import yaml
 from adclient.decode import decode
 from adclient.design import DesignSpace
 from adclient.designs import Representation
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 _COUNTER = itertools.count()

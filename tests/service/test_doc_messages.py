@@ -14,7 +14,7 @@ import httpx
 import pytest
 import yaml
 
-from tests.servers import SDK_HEADERS, ServerProcess
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 
 pytestmark = pytest.mark.e2e
 

@@ -14,7 +14,7 @@ import httpx
 import pytest
 import yaml
 
-from tests.servers import ServerProcess, make_token
+from adclient.testing.servers import ServerProcess, make_token
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("enqueue")]
 """One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""

@@ -17,9 +17,9 @@ from sqlalchemy.orm import Session
 
 from adclient import Client
 from adclient.schemas import CUT_JSON, MAX_JSON_BYTES, MAX_JSON_DEPTH, MAX_TRIAL_PAGE
+from adclient.testing.servers import ServerProcess
 from adservice.models import StudyRow
 from adservice.views import SERIES_CELLS, SERIES_PAGE
-from tests.servers import ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("hostile-input")]
 """One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""

@@ -9,9 +9,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from adclient.testing.servers import SDK_HEADERS
 from adservice.app import create_app
 from adservice.settings import Settings
-from tests.servers import SDK_HEADERS
 from tests.service.conftest import BOX_STUDY, LOCAL
 
 

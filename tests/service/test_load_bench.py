@@ -1,12 +1,14 @@
-"""bench/load.py at a small scale, on each database: the harness runs and its workers
-lose, duplicate and strand nothing (the full 10,000-trial run is the benchmark)."""
+"""The load driver (``adclient.testing.load``) at a small scale, on each database: it
+runs and its workers lose, duplicate and strand nothing (bench/load.py's 10,000-trial
+run is the benchmark)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
-from bench.load import ENDPOINTS, run_load
+
+from adclient.testing.load import ENDPOINTS, run_load
 
 pytestmark = pytest.mark.e2e
 

@@ -13,7 +13,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 pytestmark = pytest.mark.e2e
 

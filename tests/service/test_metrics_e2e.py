@@ -10,12 +10,11 @@ from pathlib import Path
 
 import httpx
 import pytest
-import sqlalchemy as sa
-from prometheus_client.parser import text_string_to_metric_families
 
 from adclient.schemas import TrialState
-from tests.servers import ServerProcess, make_token
-from tests.workers.processes import WorkerProcess
+from adclient.testing.metrics import Samples, in_database, scrape, trials_reported
+from adclient.testing.servers import ServerProcess, make_token
+from adclient.testing.workers import WorkerProcess
 
 pytestmark = pytest.mark.e2e
 
@@ -29,21 +28,6 @@ MANAGED = {
     "max_trials": 6,
 }
 SCORER = "def score(job):\n    return job.params['x']\n"
-
-Samples = dict[tuple[str, tuple[tuple[str, str], ...]], float]
-
-
-def scrape(url: str, token: str | None = None) -> Samples:
-    """Every sample of one scrape, by name and sorted labels."""
-    headers = {"Authorization": f"Bearer {token}"} if token else {}
-    response = httpx.get(f"{url}/metrics", headers=headers, timeout=30)
-    assert response.status_code == 200, response.text
-    assert response.headers["content-type"].startswith("text/plain")
-    return {
-        (sample.name, tuple(sorted(sample.labels.items()))): sample.value
-        for family in text_string_to_metric_families(response.text)
-        for sample in family.samples
-    }
 
 
 def database_gauges(samples: Samples) -> Samples:
@@ -59,36 +43,9 @@ def trials_by_state(samples: Samples, study: int) -> dict[str, float]:
     }
 
 
-def in_database(url: str) -> tuple[dict[tuple[int, str], int], int]:
-    """Trials by (study, state) and held leases, counted straight from the tables."""
-    engine = sa.create_engine(url)
-    try:
-        with engine.connect() as connection:
-            counts = {
-                (study, state): count
-                for study, state, count in connection.execute(
-                    sa.text("SELECT study_id, state, count(*) FROM trials GROUP BY study_id, state")
-                )
-            }
-            leases = connection.execute(
-                sa.text(
-                    "SELECT count(*) FROM trials "
-                    "WHERE state = 'running' AND lease_expires_at IS NOT NULL"
-                )
-            ).scalar_one()
-    finally:
-        engine.dispose()
-    return counts, leases
-
-
 def assert_agrees_with_database(samples: Samples, database_url: str) -> None:
     counts, leases = in_database(database_url)
-    reported = {
-        (int(dict(labels)["study"]), dict(labels)["state"]): value
-        for (name, labels), value in samples.items()
-        if name == "activedesign_trials" and value
-    }
-    assert reported == counts
+    assert trials_reported(samples) == counts
     assert samples[("activedesign_leases_active", ())] == leases
 
 

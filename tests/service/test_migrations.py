@@ -14,9 +14,9 @@ import sqlalchemy as sa
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 
+from adclient.testing.servers import ADSERVER
 from adservice.db import upgrade_to_head
 from adservice.models import Base
-from tests.servers import ADSERVER
 
 TABLES = {
     "trial_urdfs",

@@ -12,7 +12,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("multiobjective")]
 """One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""

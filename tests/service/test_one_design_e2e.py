@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from adclient import Client
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 pytestmark = [
     pytest.mark.e2e,

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 import httpx
 import pytest
 
-from tests.servers import ServerProcess, make_token
+from adclient.testing.servers import ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 

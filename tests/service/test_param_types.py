@@ -18,9 +18,9 @@ from scipy import stats
 
 from adclient.boxspace import BoxEncoding
 from adclient.schemas.common import MAX_ASK
+from adclient.testing.servers import ServerProcess
 from adservice.proposers import available, get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history
-from tests.servers import ServerProcess
 
 pytestmark = pytest.mark.xdist_group("param-types")
 """One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""

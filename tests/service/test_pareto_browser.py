@@ -18,8 +18,8 @@ from typing import Any
 import httpx
 import pytest
 
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.conftest import DATABASES
-from tests.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,

@@ -11,7 +11,7 @@ import httpx
 import pytest
 import sqlalchemy as sa
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.postgres]
 

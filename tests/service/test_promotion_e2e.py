@@ -13,8 +13,8 @@ from typing import Any
 import httpx
 import pytest
 
+from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.client.test_cli import run
-from tests.servers import SDK_HEADERS, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 

@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from adclient.testing.servers import SDK_HEADERS
 from adservice.app import create_app
 from adservice.models import utcnow
 from adservice.settings import Settings
@@ -25,7 +26,6 @@ from tests.failing_proposals import (
     unfit_representation,
     update_study,
 )
-from tests.servers import SDK_HEADERS
 from tests.service.conftest import LOCAL
 
 BACKOFF = 60.0

@@ -10,8 +10,8 @@ import httpx
 import numpy as np
 import pytest
 
+from adclient.testing.servers import ServerProcess
 from tests.failing_proposals import ERROR, design_study, unfit_representation, update_study
-from tests.servers import ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import STUDY_PAGE_READY
 

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 pytestmark = pytest.mark.e2e
 

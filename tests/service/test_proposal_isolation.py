@@ -1,6 +1,7 @@
 """Issue 13: one study's heavy ask never holds up another study, and every ask has a
-time and a memory budget. Real ``adserver`` processes; every figure compared is
-relative to the heavy ask's own duration, never an absolute limit."""
+time and a memory budget. Real ``adserver`` processes; what is compared is the order of
+events (others answered while the heavy ask is still out), never a duration: how fast
+they are is bench/ask_isolation.py's goal."""
 
 from __future__ import annotations
 
@@ -14,13 +15,13 @@ import httpx
 import numpy as np
 import pytest
 import torch
-from bench import ask_isolation
-from bench.ask_isolation import box
 
+from adclient.testing import isolation
+from adclient.testing.isolation import box
+from adclient.testing.servers import ServerProcess
 from adservice.proposers.base import ProposalRequest
 from adservice.proposers.gpfit import clear_caches
 from adservice.proposers.qei import QLogEIProposer
-from tests.servers import ServerProcess
 
 HEAVY_DIM = 96
 N_TOLD = 40
@@ -29,7 +30,7 @@ HEAVY_COUNT = 48
 
 def heavy_study(http: httpx.Client, name: str, dim: int = HEAVY_DIM, room: int = 64) -> int:
     """A qei study of ``dim`` params holding ``N_TOLD`` observations: its next ask fits."""
-    return ask_isolation.heavy_study(http, name, dim, N_TOLD, room)
+    return isolation.heavy_study(http, name, dim, N_TOLD, room)
 
 
 def timed_ask(url: str, study_id: int, count: int) -> tuple[float, float, httpx.Response]:
@@ -48,15 +49,15 @@ def in_background(work: Callable[[], Any]) -> tuple[threading.Thread, list[Any]]
 
 
 @pytest.mark.e2e
-def test_leases_and_healthz_of_another_study_stay_fast_during_a_heavy_ask(
+def test_leases_and_healthz_of_another_study_are_answered_during_a_heavy_ask(
     server_factory: Callable[..., ServerProcess],
 ) -> None:
     server = server_factory(AD_ASK_SECONDS="600")
     with httpx.Client(base_url=server.url, timeout=600) as http:
-        # 48 points: issue 26 halved the ask of 24 this test was written with (7.6 s ->
-        # 4.0 s on an idle 2-core machine), and the leases' budget is a fifth of the ask
+        # 48 points, so the ask outlasts the leases: issue 26 halved the ask of 24 this
+        # test was written with (7.6 s -> 4.0 s on an idle 2-core machine)
         heavy = heavy_study(http, "heavy", room=HEAVY_COUNT)
-        ask_isolation.managed_study(http)
+        isolation.managed_study(http)
         # the lease route's first call (its imports, the study's config) is not the point
         assert http.post("/api/v1/jobs/lease", json={"worker_id": "warm"}).status_code == 200
 
@@ -64,7 +65,7 @@ def test_leases_and_healthz_of_another_study_stay_fast_during_a_heavy_ask(
     time.sleep(0.5)  # the ask is computing (its fit alone takes longer)
     # more asks of the heavy study than the request threads (40): before issue 13 each
     # held one while it waited for the study's turn, and the server stopped answering
-    queued, statuses = ask_isolation.waiting_asks(server.url, heavy, 45)
+    queued, statuses = isolation.waiting_asks(server.url, heavy, 45)
     time.sleep(0.5)
 
     def lease(index: int) -> tuple[float, float, int]:
@@ -79,11 +80,8 @@ def test_leases_and_healthz_of_another_study_stay_fast_during_a_heavy_ask(
             response = http.get("/healthz")
             return started, time.monotonic(), response.status_code
 
-    # 40 leases from 8 workers at a time: a lease's latency, not how long 2 cores take to
-    # drain 40 sent at once (that p95 was the burst's length: 1.54 s of a 7.6 s ask with
-    # another test's training on the cores; from 8, 0.38 to 0.47 s beside a CPU hog).
-    # Before issue 13 any lease waited for the whole ask: the queued asks held every
-    # request thread
+    # 40 leases from 8 workers at a time. Before issue 13 any lease waited for the whole
+    # ask: the queued asks held every request thread
     with ThreadPoolExecutor(max_workers=8) as pool:
         leases = list(pool.map(lease, range(40)))
         checks = list(pool.map(health, range(10)))
@@ -93,17 +91,14 @@ def test_leases_and_healthz_of_another_study_stay_fast_during_a_heavy_ask(
     assert statuses == [409] * 45  # the heavy ask filled the study
     heavy_started, heavy_ended, response = asked[0]
     assert response.status_code == 200, response.text
-    heavy_seconds = heavy_ended - heavy_started
 
     assert [status for _, _, status in leases] == [200] * 40
     assert [status for _, _, status in checks] == [200] * 10
-    # everything was answered while the heavy ask was still computing...
-    assert max(end for _, end, _ in leases + checks) < heavy_ended
-    # ...and quickly compared with it (before issue 13 they took longer than the ask)
-    lease_p95 = float(np.percentile([end - start for start, end, _ in leases], 95))
-    health_max = max(end - start for start, end, _ in checks)
-    assert lease_p95 < heavy_seconds / 5, (lease_p95, heavy_seconds)
-    assert health_max < heavy_seconds / 5, (health_max, heavy_seconds)
+    # every one was sent after the heavy ask and answered before it (before issue 13 each
+    # was answered only after it)
+    calls = sorted(leases + checks)
+    assert heavy_started < calls[0][0], (heavy_started, calls[0])
+    assert max(end for _, end, _ in calls) < heavy_ended, (heavy_ended, calls)
 
 
 @pytest.mark.e2e

@@ -11,7 +11,7 @@ import httpx
 import pytest
 import torch
 
-from tests.servers import ADSERVER, ServerProcess, free_port, refused_at_start
+from adclient.testing.servers import ADSERVER, ServerProcess, free_port, refused_at_start
 
 pytestmark = pytest.mark.e2e
 

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+from adclient.testing.servers import ServerProcess
 from adservice.proposers import DEFAULT_PROPOSER, available, get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history
 from adservice.proposers.gpfit import clear_caches
 from adservice.proposers.neldermead import _initial_simplex
 from adservice.proposers.simple import sobol_points
-from tests.servers import ServerProcess
 
 BOUNDS = np.array([[-2.0, 0.0, 10.0], [2.0, 5.0, 10.5]])
 """A 3-d box with sides of different lengths and offsets, so scaling mistakes show."""

@@ -11,7 +11,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.servers import SDK_HEADERS, ServerProcess, make_token
+from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("pruning")]
 """One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""

@@ -19,9 +19,9 @@ from hypothesis import HealthCheck, settings
 from schemathesis.config import SchemathesisConfig
 from schemathesis.specs.openapi.checks import positive_data_acceptance
 
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adservice.app import create_app
 from adservice.settings import Settings
-from tests.servers import SDK_HEADERS, ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 

@@ -1,9 +1,11 @@
 """A real ``adserver`` against oversized and slow clients: it refuses them, closes their
-connections in time, and keeps answering others.
+connections once their timeout has passed, and answers others meanwhile.
 
-Latency bounds compare with what the attacks did before issue 13: a 100 MB header froze
-the event loop for 12 to 23 s, and slow connections were held for good. Timeouts here are
-2 to 3 s; the socket timeouts (60 s) only stop a broken build from hanging.
+Before issue 13 a 100 MB header was read whole (the event loop froze for 12 to 23 s) and
+slow connections were held for good. What is checked is the order of events (a fresh
+client answered while the attack's connections are held) and the refusals; how fast the
+others are answered is bench/slow_clients.py's goal. Timeouts here are 2 to 3 s; the
+socket timeouts (60 s) only stop a broken build from hanging.
 """
 
 from __future__ import annotations
@@ -18,16 +20,20 @@ from pathlib import Path
 
 import httpx
 import pytest
-from bench.slow_clients import Attack, big_header, healthz_seconds, slowloris
 
-from tests.servers import ADSERVER, ServerProcess
+from adclient.testing.attacks import (
+    BIG_HEADER_BYTES,
+    Attack,
+    big_header,
+    healthz_seconds,
+    slowloris,
+)
+from adclient.testing.servers import ADSERVER, ServerProcess
 
 pytestmark = pytest.mark.e2e
 
 HEADER_TIMEOUT = 3.0
 BODY_TIMEOUT = 2.0
-FAST = 5.0
-"""/healthz on a new connection stays under this (it took 12 s or more under the big header)."""
 PATIENCE = 60.0
 
 
@@ -57,20 +63,26 @@ def read_until_closed(sock: socket.socket) -> bytes:
     return received
 
 
-def test_a_100_mb_header_is_refused_without_stalling_other_clients(server: ServerProcess) -> None:
+def test_a_100_mb_header_is_refused_before_it_is_read_and_others_are_answered(
+    server: ServerProcess,
+) -> None:
     stop = threading.Event()
     results: list[Attack] = []
     attacker = threading.Thread(target=lambda: results.append(big_header(server.port, stop)))
     attacker.start()
-    latencies = [healthz_seconds(server.port)]
-    while attacker.is_alive() or len(latencies) < 3:
-        latencies.append(healthz_seconds(server.port))
+    probes = 1
+    healthz_seconds(server.port)  # raises unless answered 200
+    while attacker.is_alive() or probes < 3:
+        healthz_seconds(server.port)
+        probes += 1
         time.sleep(0.05)
     attacker.join()
     (attack,) = results
     assert attack.closed == 1
     assert attack.answers in ("", "HTTP/1.1 431"), attack.answers  # refused, or reset first
-    assert max(latencies) < FAST, latencies
+    # closed at the header cap, not read whole (what froze the event loop): what was sent
+    # is the cap and the sockets' buffers
+    assert attack.sent < BIG_HEADER_BYTES // 2, attack.sent
 
 
 def test_a_slow_body_gets_408_after_the_body_timeout(server: ServerProcess) -> None:
@@ -95,7 +107,7 @@ def test_a_slow_body_gets_408_after_the_body_timeout(server: ServerProcess) -> N
     assert reply.startswith(b"HTTP/1.1 408 "), reply[:200]
     assert b"connection: close" in reply.lower()
     assert elapsed >= BODY_TIMEOUT * 0.9
-    assert latencies and max(latencies) < FAST, latencies
+    assert latencies  # a fresh client was answered while the slow body was held
 
 
 def test_half_sent_headers_are_closed_after_the_header_timeout(server: ServerProcess) -> None:
@@ -114,17 +126,22 @@ def test_100_slowloris_connections_do_not_stop_healthz(server: ServerProcess) ->
     results: list[Attack] = []
     attacker = threading.Thread(target=lambda: results.append(slowloris(server.port, stop, 100)))
     attacker.start()
-    latencies = [healthz_seconds(server.port)]
+    probes: list[tuple[float, float]] = []  # (sent, answered) on the monotonic clock
     deadline = time.monotonic() + PATIENCE
     while attacker.is_alive() and time.monotonic() < deadline:
-        latencies.append(healthz_seconds(server.port))
+        sent = time.monotonic()
+        healthz_seconds(server.port)  # raises unless answered 200
+        probes.append((sent, time.monotonic()))
         time.sleep(0.1)
     stop.set()
     attacker.join()
     (attack,) = results
     assert (attack.opened, attack.closed) == (100, 100)  # every one closed by the server
     assert attack.answers == "HTTP/1.1 408"
-    assert max(latencies) < FAST, latencies
+    # fresh clients were answered while all 100 connections were held open
+    assert attack.held_from is not None and attack.first_close_at is not None
+    held = [p for p in probes if attack.held_from < p[0] and p[1] < attack.first_close_at]
+    assert held, (attack.held_from, attack.first_close_at, probes)
 
 
 def test_a_body_left_unread_ends_the_connection(server: ServerProcess) -> None:

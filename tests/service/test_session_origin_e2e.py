@@ -11,7 +11,7 @@ from collections.abc import Callable
 import httpx
 import pytest
 
-from tests.servers import ServerProcess, free_port, make_token
+from adclient.testing.servers import ServerProcess, free_port, make_token
 
 pytestmark = pytest.mark.e2e
 

@@ -28,12 +28,12 @@ from hypothesis import HealthCheck, Phase, event, example, given, settings
 
 from adclient.design import DesignSpace
 from adclient.schemas import Job
+from adclient.testing.servers import SDK_HEADERS
 from adservice.app import create_app
 from adservice.proposers import available
 from adservice.settings import Settings
 from adworker.job_robots import job_robot
 from tests.client.design_strategies import any_spaces
-from tests.servers import SDK_HEADERS
 from tests.service.conftest import LOCAL
 
 pytestmark = pytest.mark.slow

@@ -17,7 +17,7 @@ import pytest
 import sqlalchemy as sa
 import yaml
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("study-checks")]
 """One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""

@@ -14,7 +14,7 @@ import sqlalchemy as sa
 
 from adclient import Client
 from adclient.errors import Conflict, NotFound
-from tests.servers import SDK_HEADERS, ServerProcess, make_token
+from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 

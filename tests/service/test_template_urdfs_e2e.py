@@ -23,8 +23,8 @@ import yaml
 
 from adclient import Client
 from adclient.errors import Unavailable
+from adclient.testing.servers import ServerProcess
 from tests.picky_template import JOINTED, PICKY_SPACE, base_size, picky_size
-from tests.servers import ServerProcess
 
 pytestmark = pytest.mark.e2e
 

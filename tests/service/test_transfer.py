@@ -24,8 +24,8 @@ from adclient.decode import spec_vector, used_slots
 from adclient.errors import Invalid
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Job
+from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from adservice.models import TrialRow
-from tests.servers import SDK_HEADERS, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
 

@@ -8,9 +8,9 @@ import pytest
 
 from adclient.designs import Design
 from adclient.plugins import catalogue
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import WorkerProcess, pip_install_target, plugin_path
 from adworker import designs
-from tests.servers import ServerProcess
-from tests.workers.processes import WorkerProcess, pip_install_target, plugin_path
 from tests.workers.robots import write_urdf
 
 PLUGIN_FIXTURE = Path(__file__).resolve().parent / "plugin_fixture"

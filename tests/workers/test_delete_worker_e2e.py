@@ -11,8 +11,8 @@ import httpx
 import pytest
 
 from adclient import Client
-from tests.servers import SDK_HEADERS, ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess, wait_for
 
 pytestmark = pytest.mark.e2e
 

@@ -14,8 +14,8 @@ import pytest
 import yaml
 
 from adclient import Client
-from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess, wait_for
 
 pytestmark = pytest.mark.e2e
 

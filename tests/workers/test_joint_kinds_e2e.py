@@ -13,7 +13,7 @@ import pytest
 
 from adclient import Client
 from adclient.specs import link_volume
-from tests.workers.processes import completed_trials
+from adclient.testing.workers import completed_trials
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e

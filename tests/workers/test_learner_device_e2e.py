@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from adclient import Client
-from tests.servers import ServerProcess, free_port, refused_at_start
-from tests.workers.processes import ADWORKER, WorkerProcess
+from adclient.testing.servers import ServerProcess, free_port, refused_at_start
+from adclient.testing.workers import ADWORKER, WorkerProcess
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e

@@ -21,11 +21,11 @@ import yaml
 from adclient import Client
 from adclient.designs import Design
 from adclient.errors import Invalid
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess, pip_install_target, plugin_path
 from adclient.urdf import design_to_urdf, link_inertia
 from adworker import designs
 from adworker.learners import ConstantTargetSearch, evaluate_policy
-from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, pip_install_target, plugin_path
 
 # Off-screen rendering through EGL, chosen before MuJoCo is first imported (the
 # plugin does the same in the worker).

@@ -22,9 +22,9 @@ from adclient import Client
 from adclient.decode import decode, identity_representation
 from adclient.design import DesignSpace
 from adclient.schemas import Trial
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import WorkerProcess, run_adclient
 from adclient.urdf import design_mass
-from tests.servers import ServerProcess
-from tests.workers.processes import WorkerProcess, run_adclient
 
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 

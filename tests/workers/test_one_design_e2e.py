@@ -12,8 +12,8 @@ import pytest
 import yaml
 
 from adclient import Client
+from adclient.testing.workers import run_adclient
 from adworker.evaluate import EVAL_SEED_STRIDE
-from tests.workers.processes import run_adclient
 from tests.workers.robots import EXAMPLES
 
 pytestmark = pytest.mark.e2e

@@ -27,10 +27,10 @@ from PIL import Image
 
 from adclient import Client
 from adclient.plugins import catalogue
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess, completed_trials, plugin_path
 from tests.service.chromium import Chromium, find_chromium
 from tests.service.dashboard_pages import STUDY_PAGE_READY
-from tests.workers.processes import PATIENCE, WorkerProcess, completed_trials, plugin_path
 
 pytestmark = pytest.mark.e2e
 

@@ -15,8 +15,8 @@ import pytest
 
 from adclient import Client
 from adclient.schemas import Trial
-from tests.servers import SDK_HEADERS, ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, wait_for
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess, wait_for
 from tests.workers.test_pruning_worker_e2e import stand_up
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]

@@ -14,9 +14,9 @@ from typer.testing import CliRunner
 
 from adclient import Client
 from adclient.cli import app
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess
 from tests.failing_proposals import ERROR, design_study, unfit_representation
-from tests.servers import ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess
 
 pytestmark = pytest.mark.e2e
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from adclient import Client
-from tests.workers.processes import completed_trials
+from adclient.testing.workers import completed_trials
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e

@@ -24,8 +24,8 @@ from pathlib import Path
 import pytest
 
 from adclient import Client
-from tests.servers import ServerProcess, free_port
-from tests.workers.processes import ADWORKER, PATIENCE, WorkerProcess, wait_for
+from adclient.testing.servers import ServerProcess, free_port
+from adclient.testing.workers import ADWORKER, PATIENCE, WorkerProcess, wait_for
 from tests.workers.robots import example_study
 from tests.workers.test_worker_e2e import running_trial
 

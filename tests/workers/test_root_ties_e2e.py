@@ -15,7 +15,7 @@ import httpx
 import pytest
 
 from adclient import Client
-from tests.workers.processes import completed_trials
+from adclient.testing.workers import completed_trials
 
 pytestmark = pytest.mark.e2e
 

@@ -15,8 +15,8 @@ import pytest
 
 from adclient import Client
 from adclient.schemas import Trial
-from tests.servers import ServerProcess
-from tests.workers.processes import WorkerProcess, wait_for
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import WorkerProcess, wait_for
 from tests.workers.test_promotion_worker_e2e import promoting
 from tests.workers.test_pruning_worker_e2e import stand_up
 from tests.workers.test_transfer_worker_e2e import CHAIN, design, study_body

@@ -16,8 +16,8 @@ import pytest
 import yaml
 
 from adclient import Client
+from adclient.testing.workers import run_adclient
 from adclient.urdf_model import read_urdf
-from tests.workers.processes import run_adclient
 
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 

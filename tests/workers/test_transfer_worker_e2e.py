@@ -21,8 +21,8 @@ import yaml
 from adclient import Client
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Trial
-from tests.servers import SDK_HEADERS, ServerProcess
-from tests.workers.processes import PATIENCE, WorkerProcess, plugin_path, wait_for
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
+from adclient.testing.workers import PATIENCE, WorkerProcess, plugin_path, wait_for
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 

@@ -12,8 +12,8 @@ import pytest
 
 from adclient import Client
 from adclient.schemas import Trial
-from tests.servers import ServerProcess, refused_at_start
-from tests.workers.processes import ADWORKER, PATIENCE, wait_for
+from adclient.testing.servers import ServerProcess, refused_at_start
+from adclient.testing.workers import ADWORKER, PATIENCE, wait_for
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e

@@ -1,4 +1,5 @@
-"""Real ``adworker`` processes for tests, and a bounded wait."""
+"""Real ``adworker`` and ``adclient`` processes, an offline ``pip install`` of a plugin, and
+a bounded wait."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 
 ADWORKER = Path(sys.executable).with_name("adworker")
 ADCLIENT = Path(sys.executable).with_name("adclient")

@@ -6,11 +6,12 @@ import math
 from pathlib import Path
 
 import pytest
+from PIL import Image
+
 from bench.paper import METHODS, Cell, grid, main, study_create
 from bench.paper_report import best_designs, picture_label
 from bench.paper_stats import Study, _ratio, summarise
 from bench.paperlib import append_jsonl, quantiles, read_jsonl
-from PIL import Image
 
 
 def _study(values: list[float | None], target: float = 1.0, budget: int | None = None) -> Study:

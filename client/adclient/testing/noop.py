@@ -1,6 +1,7 @@
-"""The no-physics task's evaluation, for real ``adworker`` processes and Ray actors in
-``bench/load.py``: ``adworker --app-dir bench --function noop_worker:score --task noop``.
-It imports nothing, so a worker's cost is adworker's own loop (lease, tell) alone."""
+"""The no-physics task's score: what the load driver's simulated workers compute, and
+what real ``adworker`` processes and Ray actors run under load
+(``adworker --function adclient.testing.noop:score --task noop``). It imports nothing,
+so a worker's cost is adworker's own loop (lease, tell) alone."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Real ``adserver`` processes for tests: a free loopback port, a SQLite file, real HTTP."""
+"""Real ``adserver`` processes on free loopback ports: a database, real HTTP, tokens."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import httpx
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 ADSERVER = Path(sys.executable).with_name("adserver")
+"""The ``adserver`` installed beside this interpreter: the harness runs it by command."""
 
 
 def free_port() -> int:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import glob
 import itertools
 import os
 import pwd
@@ -25,8 +26,7 @@ from pathlib import Path
 
 import psycopg
 
-from tests.servers import free_port
-from tests.system_packages import postgres_bin_dir
+from adclient.testing.servers import free_port
 
 SUPERUSER = "postgres"
 UNPRIVILEGED_USER = "nobody"  # initdb and postgres refuse to run as root
@@ -35,6 +35,19 @@ PREFIX = "activedesign-pg-"
 
 class PostgresUnavailable(RuntimeError):
     """PostgreSQL is not installed (tests/system_packages.py installs it)."""
+
+
+def postgres_bin_dir() -> Path | None:
+    """The folder with ``initdb`` and ``postgres``: Debian keeps them off PATH, in
+    /usr/lib/postgresql/VERSION/bin; the newest version wins."""
+    on_path = shutil.which("initdb")
+    if on_path and Path(on_path).resolve().with_name("postgres").exists():
+        return Path(on_path).resolve().parent
+    versions = sorted(
+        glob.glob("/usr/lib/postgresql/*/bin/initdb"),
+        key=lambda path: int(Path(path).parts[-3]) if Path(path).parts[-3].isdigit() else 0,
+    )
+    return Path(versions[-1]).parent if versions else None
 
 
 def installed_bin_dir() -> Path:
