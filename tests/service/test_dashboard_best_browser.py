@@ -17,7 +17,7 @@ import httpx
 import pytest
 import yaml
 
-from tests.servers import ServerProcess
+from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import EXAMPLES, STUDY_PAGE_READY, tell
 from tests.service.test_pareto_browser import browser, http

@@ -15,9 +15,9 @@ import yaml
 from adclient.plugins import catalogue
 from adclient.schemas import Job, Spawn
 from adclient.spawn import CLEARANCE
+from adclient.testing.servers import ServerProcess
 from adworker.evaluate import task_options
 from adworker.job_robots import job_robot
-from tests.servers import ServerProcess
 from tests.workers.robots import EXAMPLES
 
 pytestmark = pytest.mark.e2e
