@@ -7,11 +7,14 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
+
+from adclient.testing.forked import ForkedProcess, can_fork, run_adserver
 
 ADSERVER = Path(sys.executable).with_name("adserver")
 """The ``adserver`` installed beside this interpreter: the harness runs it by command."""
@@ -31,7 +34,9 @@ class ServerProcess:
     workdir: Path
     env: dict[str, str] = field(default_factory=dict)
     port: int = field(default_factory=free_port)
-    process: subprocess.Popen[bytes] | None = None
+    process: subprocess.Popen[bytes] | ForkedProcess | None = None
+    """The running server: forked from preloaded imports where it can be
+    (:mod:`.forked`), else started by command."""
     program: list[str] = field(default_factory=lambda: [str(ADSERVER)])
     """The command that runs adserver (a bench runs it through a launcher of its own)."""
 
@@ -54,24 +59,27 @@ class ServerProcess:
             "AD_ARTIFACT_DIR": str(self.artifact_dir),
             **self.env,
         }
-        log = self.log_path.open("ab")
-        self.process = subprocess.Popen(
-            [
-                *self.program,
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(self.port),
-                "--database-url",
-                self.database_url,
-                "--log-level",
-                "warning",
-            ],
-            cwd=self.workdir,
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
+        argv = [
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--database-url",
+            self.database_url,
+            "--log-level",
+            "warning",
+        ]
+        if self.program == [str(ADSERVER)] and can_fork(env):
+            self.process = ForkedProcess(argv, env=env, cwd=self.workdir, output=self.log_path)
+        else:
+            with self.log_path.open("ab") as log:
+                self.process = subprocess.Popen(
+                    [*self.program, *argv],
+                    cwd=self.workdir,
+                    env=env,
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                )
         deadline = time.monotonic() + timeout
         with httpx.Client(verify=False) as poll:  # plain http: no CA bundle to load per poll
             while time.monotonic() < deadline:
@@ -113,15 +121,17 @@ body) is refused 415, as a cross-site page's would be."""
 
 
 def make_token(server: ServerProcess, role: str, name: str = "") -> str:
-    """A new API token of ``role``, made as an operator would: ``adserver token create``."""
-    done = subprocess.run(
-        [str(ADSERVER), "token", "create", "--role", role, "--database-url", server.database_url]
-        + (["--name", name] if name else []),
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return done.stdout.strip().splitlines()[-1]
+    """A new API token of ``role``, made as an operator would: ``adserver token create``
+    (forked, as the server is, where it can be)."""
+    argv = ["token", "create", "--role", role, "--database-url", server.database_url]
+    argv += ["--name", name] if name else []
+    with tempfile.TemporaryDirectory(prefix="adtoken-") as folder:
+        output = Path(folder) / "out"
+        code = run_adserver(argv, env=os.environ, cwd=server.workdir, output=output)
+        text = output.read_text()
+    if code != 0:
+        raise RuntimeError(f"adserver token create exited {code}:\n{text}")
+    return text.strip().splitlines()[-1]
 
 
 def refused_at_start(command: list[str], code: int, **env: str) -> str:
