@@ -64,6 +64,7 @@ from tests.postgres import PostgresCluster
 from tests.servers import ServerProcess
 from tests.service.test_metrics_e2e import Samples, in_database, scrape
 
+from bench.compare import emit
 from bench.noop_worker import score_params as score
 
 BENCH = Path(__file__).resolve().parent
@@ -493,6 +494,15 @@ def main() -> None:
                             limit_s=args.limit,
                         )
                 print(json.dumps(results[name]), flush=True)
+                emit(
+                    f"{name} throughput",
+                    results[name]["trials_per_s"],
+                    higher_is_better=True,
+                    unit="trials/s",
+                )
+                for endpoint in ("lease", "tell") if not kinds else ():
+                    p50 = results[name]["latency_ms"][endpoint]["p50"]
+                    emit(f"{name} {endpoint} p50", p50, higher_is_better=False, unit="ms")
     print()
     if kinds:
         print_adworker_table(results)

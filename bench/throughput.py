@@ -29,6 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.servers import ServerProcess
 
+from bench.compare import emit
+
 
 def run_activedesign(workdir: Path, clients: int, cycles: int) -> dict[str, float]:
     server = ServerProcess(database_url=f"sqlite:///{workdir / 'ad.db'}", workdir=workdir).start()
@@ -149,6 +151,9 @@ def main() -> None:
             f"{result['duplicated']:>5.0f}{result['errors']:>8.0f}{result['locked']:>8.0f}"
         )
     print(f"ratio activedesign/optuna: {ours['rate'] / theirs['rate']:.1f}x (goal >= 10x)")
+    emit("activedesign", ours["rate"], higher_is_better=True, unit="cycles/s")
+    emit("optuna RDBStorage", theirs["rate"], higher_is_better=True, unit="cycles/s")
+    emit("activedesign / optuna", ours["rate"] / theirs["rate"], higher_is_better=True)
 
 
 if __name__ == "__main__":
