@@ -38,7 +38,7 @@ def run_activedesign(workdir: Path, clients: int, cycles: int) -> dict[str, floa
     told: dict[int, float] = {}
     guard = threading.Lock()
     try:
-        with httpx.Client(base_url=server.url) as http:
+        with httpx.Client(base_url=server.url, timeout=60) as http:
             study = http.post(
                 "/api/v1/studies",
                 json={
