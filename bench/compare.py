@@ -51,6 +51,7 @@ from typing import Any
 
 PREFIX = "BENCH "
 CODE_DIRS = ("client", "service", "workers")
+RUN_DIRS = (*CODE_DIRS, "bench", "tests")
 IMPORT_FAILED = re.compile(r"^(ModuleNotFoundError|ImportError): ", re.MULTILINE)
 TAIL_LINES = 30
 STOP_GRACE_S = 30.0
@@ -126,9 +127,12 @@ def git(*args: str, cwd: Path) -> str:
 
 
 def describe(root: Path, *, work_tree: bool = False) -> str:
-    """Short commit and date; of a ``work_tree``, '+ uncommitted changes' where it has them."""
+    """Short commit and date; of a ``work_tree``, '+ uncommitted changes' where the code a
+    run imports (RUN_DIRS) has them."""
     text = git("log", "-1", "--format=%h (%cs)", cwd=root)
-    if work_tree and git("status", "--porcelain", "--untracked-files=no", cwd=root):
+    if work_tree and git(
+        "status", "--porcelain", "--untracked-files=no", "--", *RUN_DIRS, cwd=root
+    ):
         text += " + uncommitted changes"
     return text
 

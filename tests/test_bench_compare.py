@@ -117,6 +117,22 @@ def test_runs_alternate_on_each_trees_code_and_ratios_pair_runs(repo: Path, tmp_
     assert_no_worktree_left(repo, tmp_path)
 
 
+def test_uncommitted_changes_to_the_code_are_named_and_others_not(
+    repo: Path, tmp_path: Path
+) -> None:
+    (repo / "notes.md").write_text("tracked, not code\n")
+    commit(repo, {}, "notes")
+    (repo / "notes.md").write_text("changed\n")
+    done, _, _ = run_fake(repo, tmp_path, "HEAD~1", runs=1)
+    assert done.returncode == 0, done.stderr
+    assert "+ uncommitted changes" not in done.stdout
+    (repo / "service/fakecode/__init__.py").write_text("SPEED = 3.0\n")
+    done, log, _ = run_fake(repo, tmp_path, "HEAD~1", runs=1)
+    assert done.returncode == 0, done.stderr
+    assert "+ uncommitted changes" in done.stdout
+    assert log.read_text().split()[-2:] == ["2.0", "3.0"]  # the work tree's code, as it is
+
+
 def test_a_failing_run_stops_with_its_exit_status_and_last_lines(
     repo: Path, tmp_path: Path
 ) -> None:
