@@ -7,7 +7,9 @@ clients and the same cheap objective, each on a fresh SQLite file:
 - Optuna: every client is a thread doing ``study.ask()`` then ``study.tell()`` on one
   ``RDBStorage`` (in-process: no HTTP at all, Optuna's own distributed setup).
 
-Afterwards each store is read back: every told value must be there exactly once.
+Afterwards each store is read back: every told value must be there exactly once. The
+exit status is 1 where activedesign lost, duplicated or refused a cycle or said "database
+is locked" (its result lines are printed first).
 Run: ``.venv/bin/python bench/throughput.py [--clients 8] [--cycles 150]``.
 """
 
@@ -154,6 +156,7 @@ def main() -> None:
     emit("activedesign", ours["rate"], higher_is_better=True, unit="cycles/s")
     emit("optuna RDBStorage", theirs["rate"], higher_is_better=True, unit="cycles/s")
     emit("activedesign / optuna", ours["rate"] / theirs["rate"], higher_is_better=True)
+    sys.exit(1 if ours["lost"] or ours["duplicated"] or ours["errors"] or ours["locked"] else 0)
 
 
 if __name__ == "__main__":
