@@ -51,6 +51,7 @@ from typing import Any
 import sqlalchemy as sa
 
 from adclient import Client
+from adclient.testing.figures import emit
 from adclient.testing.load import ENDPOINTS, create_study, run_load
 from adclient.testing.metrics import Samples, in_database, scrape, trials_reported
 from adclient.testing.noop import score_params as score
@@ -318,6 +319,24 @@ def main() -> None:
                             limit_s=args.limit,
                         )
                 print(json.dumps(results[name]), flush=True)
+                emit(
+                    f"{name} throughput",
+                    results[name]["trials_per_s"],
+                    higher_is_better=True,
+                    unit="trials/s",
+                )
+                for endpoint in ("lease", "tell") if not kinds else ():
+                    p50 = results[name]["latency_ms"][endpoint]["p50"]
+                    emit(f"{name} {endpoint} p50", p50, higher_is_better=False, unit="ms")
+                emit(
+                    f"{name} throughput",
+                    results[name]["trials_per_s"],
+                    higher_is_better=True,
+                    unit="trials/s",
+                )
+                for endpoint in ("lease", "tell") if not kinds else ():
+                    p50 = results[name]["latency_ms"][endpoint]["p50"]
+                    emit(f"{name} {endpoint} p50", p50, higher_is_better=False, unit="ms")
     print()
     if kinds:
         print_adworker_table(results)

@@ -4,12 +4,10 @@ moves cycles per second.
 
 Each run starts a real ``adserver`` on a fresh SQLite file, warms it up, then ``--clients``
 threads (httpx, a connection each) do ``--cycles`` ask+tell cycles in all (the
-``random`` proposer, as bench/throughput.py). With ``--baseline DIR`` (a checkout of
-other code, e.g. ``git worktree add /tmp/before <commit>``) runs alternate between the
-installed code and the server started with ``DIR/service:DIR/client`` first on
-``PYTHONPATH``.
+``random`` proposer, as bench/throughput.py). The medians over the runs are its result
+lines; against other code, run it under ``bench/compare.py --baseline REV``.
 
-    python bench/server_cpu.py [--runs 4] [--clients 8] [--cycles 1200] [--baseline DIR]
+    python bench/server_cpu.py [--runs 4] [--clients 8] [--cycles 1200]
 """
 
 from __future__ import annotations
@@ -24,6 +22,7 @@ from pathlib import Path
 
 import httpx
 
+from adclient.testing.figures import emit
 from adclient.testing.servers import ServerProcess
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]}
@@ -34,16 +33,15 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def one_run(clients: int, cycles: int, pythonpath: str | None) -> tuple[float, float]:
+def one_run(clients: int, cycles: int) -> tuple[float, float]:
     """(server ms of CPU per cycle, cycles per second) of one fresh server."""
-    env = {"PYTHONPATH": pythonpath} if pythonpath else {}
     with tempfile.TemporaryDirectory() as temp:
         workdir = Path(temp)
         server = ServerProcess(
-            database_url=f"sqlite:///{workdir / 'ad.db'}", workdir=workdir, env=env
+            database_url=f"sqlite:///{workdir / 'ad.db'}", workdir=workdir
         ).start()
         try:
-            with httpx.Client(base_url=server.url) as http:
+            with httpx.Client(base_url=server.url, timeout=60) as http:
                 body = {"name": "cpu", "space": BOX, "proposer": {"name": "random"}}
                 study = http.post("/api/v1/studies", json=body).json()["id"]
                 for _ in range(20):  # warm up: the study's configuration cached
@@ -79,21 +77,17 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=4)
     parser.add_argument("--clients", type=int, default=8)
     parser.add_argument("--cycles", type=int, default=1200)
-    parser.add_argument("--baseline", type=Path, help="a checkout to alternate with")
     args = parser.parse_args()
-    codes: list[tuple[str, str | None]] = [("installed", None)]
-    if args.baseline:
-        root = args.baseline.resolve()
-        codes.insert(0, (f"baseline {root}", f"{root / 'service'}:{root / 'client'}"))
-    results: dict[str, list[float]] = {label: [] for label, _ in codes}
+    per_cycle, rates = [], []
     for run in range(args.runs):
-        for label, pythonpath in codes:
-            ms, rate = one_run(args.clients, args.cycles, pythonpath)
-            results[label].append(ms)
-            print(f"run {run + 1} {label}: {ms:.2f} ms server CPU per cycle, {rate:.0f} cycles/s")
-    for label, values in results.items():
-        shown = ", ".join(f"{v:.2f}" for v in values)
-        print(f"{label}: {shown}; mean {statistics.fmean(values):.2f} ms per cycle")
+        ms, rate = one_run(args.clients, args.cycles)
+        per_cycle.append(ms)
+        rates.append(rate)
+        print(f"run {run + 1}: {ms:.2f} ms server CPU per cycle, {rate:.0f} cycles/s")
+    shown = ", ".join(f"{v:.2f}" for v in per_cycle)
+    print(f"{shown}; median {statistics.median(per_cycle):.2f} ms per cycle")
+    emit("server CPU per cycle", statistics.median(per_cycle), higher_is_better=False, unit="ms")
+    emit("cycles/s", statistics.median(rates), higher_is_better=True)
 
 
 if __name__ == "__main__":

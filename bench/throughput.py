@@ -7,13 +7,16 @@ clients and the same cheap objective, each on a fresh SQLite file:
 - Optuna: every client is a thread doing ``study.ask()`` then ``study.tell()`` on one
   ``RDBStorage`` (in-process: no HTTP at all, Optuna's own distributed setup).
 
-Afterwards each store is read back: every told value must be there exactly once.
+Afterwards each store is read back: every told value must be there exactly once. The
+exit status is 1 where activedesign lost, duplicated or refused a cycle or said "database
+is locked" (its result lines are printed first).
 Run: ``.venv/bin/python bench/throughput.py [--clients 8] [--cycles 150]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import threading
 import time
@@ -23,6 +26,7 @@ from pathlib import Path
 import httpx
 
 from adclient import Client
+from adclient.testing.figures import emit
 from adclient.testing.servers import ServerProcess
 
 
@@ -32,7 +36,7 @@ def run_activedesign(workdir: Path, clients: int, cycles: int) -> dict[str, floa
     told: dict[int, float] = {}
     guard = threading.Lock()
     try:
-        with httpx.Client(base_url=server.url) as http:
+        with httpx.Client(base_url=server.url, timeout=60) as http:
             study = http.post(
                 "/api/v1/studies",
                 json={
@@ -145,6 +149,10 @@ def main() -> None:
             f"{result['duplicated']:>5.0f}{result['errors']:>8.0f}{result['locked']:>8.0f}"
         )
     print(f"ratio activedesign/optuna: {ours['rate'] / theirs['rate']:.1f}x (goal >= 10x)")
+    emit("activedesign", ours["rate"], higher_is_better=True, unit="cycles/s")
+    emit("optuna RDBStorage", theirs["rate"], higher_is_better=True, unit="cycles/s")
+    emit("activedesign / optuna", ours["rate"] / theirs["rate"], higher_is_better=True)
+    sys.exit(1 if ours["lost"] or ours["duplicated"] or ours["errors"] or ours["locked"] else 0)
 
 
 if __name__ == "__main__":
