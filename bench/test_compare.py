@@ -16,6 +16,10 @@ import pytest
 
 from bench.compare import RunFailed, parse
 
+FAKE = str(Path("bench", "fake.py"))
+"""The fake repository's bench script (not a file of this repository)."""
+SLEEPER = str(Path("bench", "sleep.py"))
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 COMPARE = REPO_ROOT / "bench" / "compare.py"
 
@@ -58,13 +62,13 @@ def commit(repo: Path, files: dict[str, str], message: str) -> None:
 
 @pytest.fixture
 def repo(tmp_path: Path) -> Path:
-    """A repository whose HEAD~1 has SPEED 1 and HEAD SPEED 2, both with bench/fake.py."""
+    """A repository whose HEAD~1 has SPEED 1 and HEAD SPEED 2, both with the fake bench."""
     repo = tmp_path / "repo"
     repo.mkdir()
     git(repo, "init", "-q")
     commit(
         repo,
-        {"service/fakecode/__init__.py": "SPEED = 1.0\n", "bench/fake.py": FAKE_BENCH},
+        {"service/fakecode/__init__.py": "SPEED = 1.0\n", FAKE: FAKE_BENCH},
         "baseline",
     )
     commit(repo, {"service/fakecode/__init__.py": "SPEED = 2.0\n"}, "current")
@@ -84,11 +88,11 @@ def run_compare(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
 def run_fake(
     repo: Path, tmp_path: Path, baseline: str, runs: int = 5
 ) -> tuple[subprocess.CompletedProcess[str], Path, Path]:
-    """compare.py on the repository's bench/fake.py: its answer, the bench's log, the report."""
+    """compare.py on the repository's fake bench (FAKE): its answer, the bench's log, the report."""
     log, report = tmp_path / "log", tmp_path / "report.json"
     done = run_compare(
         tmp_path, "--baseline", baseline, "--runs", str(runs), "--json", str(report),
-        "--", str(repo / "bench/fake.py"), str(log),
+        "--", str(repo / FAKE), str(log),
     )  # fmt: skip
     return done, log, report
 
@@ -142,7 +146,7 @@ def test_a_failing_run_stops_with_its_exit_status_and_last_lines(
         "import fakecode\nif fakecode.SPEED > 1:\n    print('the current code broke')\n"
         "    sys.exit(3)\n",
     )
-    commit(repo, {"bench/fake.py": failing}, "a bench that fails on the current code")
+    commit(repo, {FAKE: failing}, "a bench that fails on the current code")
     done, _, _ = run_fake(repo, tmp_path, "HEAD~2")
     head = git(repo, "rev-parse", "--short", "HEAD").strip()
     assert done.returncode == 1
@@ -154,8 +158,8 @@ def test_a_failing_run_stops_with_its_exit_status_and_last_lines(
 
 
 def test_a_run_without_a_result_line_stops_it(repo: Path, tmp_path: Path) -> None:
-    commit(repo, {"bench/fake.py": "print('figures, but not as result lines')\n"}, "no lines")
-    done = run_compare(tmp_path, "--baseline", "HEAD~2", "--", str(repo / "bench/fake.py"))
+    commit(repo, {FAKE: "print('figures, but not as result lines')\n"}, "no lines")
+    done = run_compare(tmp_path, "--baseline", "HEAD~2", "--", str(repo / FAKE))
     assert done.returncode == 1
     assert "run 1 of 10 (baseline, " in done.stderr and "no result line" in done.stderr
     assert "figures, but not as result lines" in done.stderr
@@ -163,7 +167,7 @@ def test_a_run_without_a_result_line_stops_it(repo: Path, tmp_path: Path) -> Non
 
 
 def test_an_unknown_baseline_is_named(repo: Path, tmp_path: Path) -> None:
-    done = run_compare(tmp_path, "--baseline", "no-such-rev", "--", str(repo / "bench/fake.py"))
+    done = run_compare(tmp_path, "--baseline", "no-such-rev", "--", str(repo / FAKE))
     assert done.returncode == 1
     assert "no-such-rev" in done.stderr and "Traceback" not in done.stderr
     assert_no_worktree_left(repo, tmp_path)
@@ -176,14 +180,14 @@ def test_a_script_that_does_not_import_against_the_baseline_runs_the_baselines_o
         repo,
         {
             "service/fakecode/extra.py": "BONUS = 0.0\n",
-            "bench/fake.py": FAKE_BENCH.replace("import fakecode\n", "import fakecode.extra\n"),
+            FAKE: FAKE_BENCH.replace("import fakecode\n", "import fakecode.extra\n"),
         },
         "the bench imports a module the baseline lacks",
     )
     done, _, report = run_fake(repo, tmp_path, "HEAD~2", runs=2)
     assert done.returncode == 0, done.stderr
     assert "the baseline runs its own copy" in done.stdout
-    assert "the baseline ran its own bench/fake.py" in done.stdout
+    assert f"the baseline ran its own {FAKE}" in done.stdout
     assert json.loads(report.read_text())["metrics"][0]["baseline"] == [1.0, 3.0]
     assert_no_worktree_left(repo, tmp_path)
 
@@ -199,11 +203,11 @@ def test_interrupted_it_stops_the_run_and_removes_the_worktree(repo: Path, tmp_p
         except KeyboardInterrupt:
             Path({str(stopped)!r}).write_text("cleaned up")
         """)
-    commit(repo, {"bench/sleep.py": sleeper}, "a bench that sleeps")
+    commit(repo, {SLEEPER: sleeper}, "a bench that sleeps")
     temp = tmp_path / "temp"
     temp.mkdir()
     process = subprocess.Popen(
-        [sys.executable, str(COMPARE), "--baseline", "HEAD", "--", str(repo / "bench/sleep.py")],
+        [sys.executable, str(COMPARE), "--baseline", "HEAD", "--", str(repo / SLEEPER)],
         env={**os.environ, "TMPDIR": str(temp)},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -2,10 +2,12 @@
 
 An ``adserver`` process spends about 1.8 of its 2.5 s of start-up CPU importing
 FastAPI, SQLAlchemy, pydantic and the service; a test run starts hundreds. Here a
-``multiprocessing`` fork server imports those modules once (by name: this module never
-imports the service itself), and each server is a fresh process forked from it that
-runs ``adserver``'s own ``main`` with its own arguments, environment, working folder
-and log: the same program, without paying for its imports again. A process whose
+``multiprocessing`` fork server imports those modules once (``PRELOAD``, by name), and
+each server is a fresh process forked from it that runs the installed ``adserver``
+program's entry point (found with ``importlib.metadata``, as its console script finds
+it) with its own arguments, environment, working folder and log: the same program,
+without paying for its imports again. The SDK still never imports the service: this
+module only names the program and the modules to preload. A process whose
 ``PYTHONPATH`` differs from this one's (a plugin folder), or any run when
 ``AD_TESTING_EXEC=1``, is started by command instead (:func:`can_fork`).
 """
@@ -19,11 +21,19 @@ import subprocess
 import sys
 from collections.abc import Mapping
 from functools import cache
+from importlib.metadata import EntryPoint, entry_points
 from multiprocessing.context import ForkServerContext
 from pathlib import Path
 
 PRELOAD = ["adservice.cli", "adservice.app", "adservice.server", "adservice.db"]
-"""What the fork server imports once: everything an ``adserver`` imports to start."""
+"""What the fork server imports once: the modules an ``adserver`` imports to start."""
+
+
+@cache
+def _program() -> EntryPoint | None:
+    """The installed ``adserver`` console script's entry point."""
+    found = entry_points(group="console_scripts", name="adserver")
+    return next(iter(found), None)
 
 
 def can_fork(env: Mapping[str, str]) -> bool:
@@ -31,6 +41,8 @@ def can_fork(env: Mapping[str, str]) -> bool:
     sees (its ``PYTHONPATH`` is this one's), and the environment has not asked for real
     executions (``AD_TESTING_EXEC=1``)."""
     if env.get("AD_TESTING_EXEC") == "1" or os.environ.get("AD_TESTING_EXEC") == "1":
+        return False
+    if _program() is None:
         return False
     return env.get("PYTHONPATH", "") == os.environ.get("PYTHONPATH", "")
 
@@ -53,9 +65,9 @@ def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str) -> No
     os.dup2(fd, 2)
     os.close(fd)
     sys.argv = ["adserver", *argv]
-    from adservice.cli import main  # preloaded: no import cost here
-
-    main()
+    program = _program()
+    assert program is not None  # can_fork checked it
+    program.load()()  # preloaded: no import cost here
 
 
 class ForkedProcess:

@@ -1,0 +1,56 @@
+"""The harness forks ``adserver`` from preloaded imports (adclient.testing.forked): the
+forked program is the installed one with the arguments, environment and folder it is
+given, exits as the command does, and AD_TESTING_EXEC=1 starts it by command."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+
+from adclient.testing.forked import ForkedProcess, run_adserver
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
+
+pytestmark = pytest.mark.e2e
+
+
+def test_a_forked_server_runs_with_its_own_environment_and_stops(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'studies.db'}"
+    server = ServerProcess(database_url=url, workdir=tmp_path, env={"AD_MAX_BODY_BYTES": "2000"})
+    server.start()
+    try:
+        assert isinstance(server.process, ForkedProcess)
+        assert server.process.pid != os.getpid()
+        body = {"name": "x" * 3000, "space": {"type": "box", "params": []}}
+        answer = httpx.post(f"{server.url}/api/v1/studies", json=body, headers=SDK_HEADERS)
+        assert answer.status_code == 413  # its own AD_MAX_BODY_BYTES, not this process's
+        assert (tmp_path / "studies.db").is_file()
+    finally:
+        server.stop()
+    assert server.process.poll() is not None
+
+
+def test_a_forked_command_exits_as_the_command_does(tmp_path: Path) -> None:
+    argv = ["token", "create", "--role", "emperor", "--database-url", "sqlite://"]
+    output = tmp_path / "out"
+    assert run_adserver(argv, env=os.environ, cwd=tmp_path, output=output) == 2
+    forked = output.read_text()
+    adserver = Path(sys.executable).with_name("adserver")
+    done = subprocess.run([str(adserver), *argv], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert "unknown role 'emperor'" in forked
+    assert forked.strip() == done.stderr.strip()
+
+
+def test_exec_is_used_when_asked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("AD_TESTING_EXEC", "1")
+    server = ServerProcess(database_url=f"sqlite:///{tmp_path / 's.db'}", workdir=tmp_path)
+    server.start()
+    try:
+        assert isinstance(server.process, subprocess.Popen)
+    finally:
+        server.stop()
