@@ -54,3 +54,28 @@ def test_exec_is_used_when_asked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
         assert isinstance(server.process, subprocess.Popen)
     finally:
         server.stop()
+
+
+def test_a_fork_server_that_cannot_start_falls_back_to_the_command(tmp_path: Path) -> None:
+    """The fork server's socket lives in TMPDIR; past 107 characters it cannot bind (as
+    under bench/compare.py's worktrees), and the server is started by command instead."""
+    deep = tmp_path / ("t" * 60) / ("u" * 60)
+    deep.mkdir(parents=True)
+    script = (
+        "import sys; from pathlib import Path\n"
+        "from adclient.testing.servers import ServerProcess\n"
+        "from adclient.testing import forked\n"
+        "work = Path(sys.argv[1])\n"
+        "server = ServerProcess(database_url=f'sqlite:///{work}/s.db', workdir=work).start()\n"
+        "print(type(server.process).__name__, bool(forked._BROKEN))\n"
+        "server.stop()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(tmp_path)],
+        env={**os.environ, "TMPDIR": str(deep)},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["Popen", "True"]

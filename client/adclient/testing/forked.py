@@ -14,6 +14,7 @@ module only names the program and the modules to preload. A process whose
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import signal
@@ -42,9 +43,13 @@ def can_fork(env: Mapping[str, str]) -> bool:
     executions (``AD_TESTING_EXEC=1``)."""
     if env.get("AD_TESTING_EXEC") == "1" or os.environ.get("AD_TESTING_EXEC") == "1":
         return False
-    if _program() is None:
+    if _program() is None or _BROKEN:
         return False
     return env.get("PYTHONPATH", "") == os.environ.get("PYTHONPATH", "")
+
+
+_BROKEN: list[str] = []
+"""Why the fork server could not start in this process (then every run is by command)."""
 
 
 @cache
@@ -70,6 +75,10 @@ def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str) -> No
     program.load()()  # preloaded: no import cost here
 
 
+class ForkUnavailable(RuntimeError):
+    """The fork server could not start here; start the program by command."""
+
+
 class ForkedProcess:
     """The part of :class:`subprocess.Popen` the harness uses, for a forked program."""
 
@@ -77,7 +86,11 @@ class ForkedProcess:
         self._process = _context().Process(
             target=_adserver, args=(argv, dict(env), str(cwd), str(output)), daemon=False
         )
-        self._process.start()
+        try:
+            self._process.start()
+        except OSError as exc:  # the fork server's socket (e.g. a TMPDIR past 107 characters)
+            _BROKEN.append(str(exc))
+            raise ForkUnavailable(str(exc)) from exc
         assert self._process.pid is not None  # started
         self.pid: int = self._process.pid
         self.args = ["adserver", *argv]
@@ -110,7 +123,8 @@ def run_adserver(argv: list[str], *, env: Mapping[str, str], cwd: Path, output: 
     """Run ``adserver ARGV`` to its end (a forked one where :func:`can_fork`); its output
     is appended to ``output``; returns its exit status."""
     if can_fork(env):
-        return ForkedProcess(argv, env=env, cwd=cwd, output=output).wait()
+        with contextlib.suppress(ForkUnavailable):
+            return ForkedProcess(argv, env=env, cwd=cwd, output=output).wait()
     adserver = Path(sys.executable).with_name("adserver")
     with output.open("ab") as log:
         done = subprocess.run(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import httpx
 
-from adclient.testing.forked import ForkedProcess, can_fork, run_adserver
+from adclient.testing.forked import ForkedProcess, ForkUnavailable, can_fork, run_adserver
 
 ADSERVER = Path(sys.executable).with_name("adserver")
 """The ``adserver`` installed beside this interpreter: the harness runs it by command."""
@@ -69,9 +70,11 @@ class ServerProcess:
             "--log-level",
             "warning",
         ]
+        self.process = None
         if self.program == [str(ADSERVER)] and can_fork(env):
-            self.process = ForkedProcess(argv, env=env, cwd=self.workdir, output=self.log_path)
-        else:
+            with contextlib.suppress(ForkUnavailable):
+                self.process = ForkedProcess(argv, env=env, cwd=self.workdir, output=self.log_path)
+        if self.process is None:
             with self.log_path.open("ab") as log:
                 self.process = subprocess.Popen(
                     [*self.program, *argv],
