@@ -11,10 +11,11 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 
 from adclient import Client
-from adclient.testing.servers import ServerProcess
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.client.test_cli import ok, run, write_study
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
@@ -107,6 +108,14 @@ def test_a_worker_without_the_study_s_learner_does_not_serve_it(server: ServerPr
     does, and the workers table shows each one's learners (any: it named none)."""
     with Client(server.url) as client:
         study = client.create_study(managed("reach-point", "learned")).id
+        for learners in (["../fast"], ["fast"] * 257, "fast"):
+            refused = httpx.post(
+                f"{server.url}/api/v1/jobs/lease",
+                json={"worker_id": "hostile", "learners": learners},
+                headers=SDK_HEADERS,
+            )
+            assert refused.status_code == 422 and "learners" in refused.text, refused.text
+        assert client.workers() == []  # refused: nothing stored
         assert client.lease("no-fast", tasks=["reach-point"], learners=["ppo"]) is None
         said = words(ok(run(server.url, "status", str(study))).stdout)
         assert "workers none serving task 'reach-point' with learner 'fast' seen" in said, said
