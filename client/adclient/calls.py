@@ -29,6 +29,7 @@ from adclient.schemas import (
     Job,
     LearnerInfo,
     Study,
+    StudyServing,
     StudySpread,
     TaskInfo,
     TellRequest,
@@ -330,12 +331,19 @@ class ServerCalls(Transport):
 
     # -- workers ---------------------------------------------------------------------
 
-    def lease(self, worker_id: str, tasks: Iterable[str] | None = None) -> Job | None:
-        """Lease the next job of a managed study (of one of ``tasks``, when given: the
-        tasks this worker can run), or ``None`` when there is no work."""
+    def lease(
+        self,
+        worker_id: str,
+        tasks: Iterable[str] | None = None,
+        learners: Iterable[str] | None = None,
+    ) -> Job | None:
+        """Lease the next job of a managed study (of one of ``tasks`` and ``learners``,
+        when given: the ones this worker can run), or ``None`` when there is no work."""
         body: dict[str, Any] = {"worker_id": worker_id}
         if tasks is not None:
             body["tasks"] = list(tasks)
+        if learners is not None:
+            body["learners"] = list(learners)
         response = self.request("POST", f"{API}/jobs/lease", json_body=body, idempotent=False)
         if response.status_code == 204 or not response.content:
             return None
@@ -368,6 +376,13 @@ class ServerCalls(Transport):
         path = "workers" if study_id is None else f"studies/{int(study_id)}/workers"
         data = self._get_json(f"{API}/{path}")
         return [WorkerInfo.model_validate(item) for item in data]
+
+    def serving(self, study_id: int) -> StudyServing | None:
+        """Whether the workers seen lately serve a study's task and learner, and what to
+        start when none does; None for a study no worker runs (unmanaged, or not
+        running)."""
+        data = self._get_json(f"{API}/studies/{int(study_id)}/serving")
+        return None if data is None else StudyServing.model_validate(data)
 
     # -- artifacts -------------------------------------------------------------------
 

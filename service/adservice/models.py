@@ -206,6 +206,8 @@ class WorkerRow(Base):
     jobs_failed: Mapped[int] = mapped_column(default=0)
     tasks: Mapped[list[str] | None] = mapped_column(sa.JSON(none_as_null=True), nullable=True)
     """The tasks the worker named at its latest lease (None: any task)."""
+    learners: Mapped[list[str] | None] = mapped_column(sa.JSON(none_as_null=True), nullable=True)
+    """The learners the worker named at its latest lease (None: any learner)."""
 
 
 class TokenRow(Base):

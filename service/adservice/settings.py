@@ -17,6 +17,9 @@ class Settings(BaseSettings):
     artifact_dir: Path | None = None
     """Artifact folder; default: ``artifacts`` beside a SQLite file, else ./artifacts."""
     lease_seconds: float = 60.0
+    unserved_seconds: float = Field(default=60.0, ge=0)
+    """A running managed study that no recently seen worker serves and that has been
+    idle this long is flagged ``unserved`` (the dashboard's warning)."""
     proposal_threads: int | None = Field(default=None, ge=1)
     """Threads that compute model-based proposals, apart from the ones serving requests;
     None: one per core this process may use."""

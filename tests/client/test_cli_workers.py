@@ -1,8 +1,9 @@
 """Issue 39: a study that no worker can serve does not wait in silence. The server keeps
-the tasks each worker leases for (GET /api/v1/workers); ``adclient workers`` lists
-them, ``adclient status`` of a running managed study says how many recent workers
-serve its task or what to start, and ``submit --wait`` says so when nothing starts.
-A real server; workers are raw leases, as a worker of any language makes them."""
+the tasks and learners each worker leases for (GET /api/v1/workers); ``adclient
+workers`` lists them, ``adclient status`` of a running managed study says how many
+recent workers serve its task and learner or what to start (the server's word, GET
+/studies/{id}/serving), and ``submit --wait`` says so when nothing starts. A real
+server; workers are raw leases, as a worker of any language makes them."""
 
 from __future__ import annotations
 
@@ -10,10 +11,11 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 
 from adclient import Client
-from adclient.testing.servers import ServerProcess
+from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.client.test_cli import ok, run, write_study
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
@@ -45,18 +47,24 @@ def test_workers_and_status_say_who_serves_a_study(server: ServerProcess) -> Non
     with Client(server.url) as client:
         study = client.create_study(managed("reach-point", "reach")).id
         said = words(ok(run(server.url, "status", str(study))).stdout)
-        assert "workers none serving task 'reach-point' seen in the last 90 s" in said, said
-        assert "adworker --function MODULE:FUNCTION --task reach-point" in said
+        unserved = "none serving task 'reach-point' with learner 'fast' seen in the last 90 s"
+        assert f"workers {unserved}" in said, said
+        assert (
+            f"adworker --server {server.url} --function MODULE:FUNCTION --task reach-point" in said
+        )
 
         assert client.lease("sim-1", tasks=["other-sim"]) is None
         said = words(ok(run(server.url, "status", str(study))).stdout)
-        assert "none serving task 'reach-point'" in said
-        assert "(1 other workers serve other tasks)" in said
+        assert unserved in said
+        assert "(1 other workers serve other tasks or learners)" in said
 
         job = client.lease("sim-2", tasks=["reach-point", "other-sim"])
         assert job is not None and job.study_id == study
         said = words(ok(run(server.url, "status", str(study))).stdout)
-        assert "workers 1 serving task 'reach-point', seen in the last 90 s" in said
+        assert (
+            "workers 1 serving task 'reach-point' with learner 'fast', seen in the last 90 s"
+            in said
+        )
 
         listed = {w.worker_id: w.tasks for w in client.workers()}
         assert listed == {"sim-1": ["other-sim"], "sim-2": ["other-sim", "reach-point"]}
@@ -90,5 +98,33 @@ def test_submit_wait_says_when_no_worker_serves_the_study(
     result = ok(run(server.url, "submit", "--wait", "--poll", "0.2", str(path)))
     stopper.join()
     said = words(result.stderr)
-    assert "no worker: none serving task 'reach-point' seen in the last 90 s" in said, said
+    assert "no worker: none serving task 'reach-point' with learner 'fast' seen" in said, said
     assert said.count("no worker:") == 1
+
+
+def test_a_worker_without_the_study_s_learner_does_not_serve_it(server: ServerProcess) -> None:
+    """A worker names the learners that load on it: one without the study's learner
+    leases none of its trials, and status names the learner it waits for; one with it
+    does, and the workers table shows each one's learners (any: it named none)."""
+    with Client(server.url) as client:
+        study = client.create_study(managed("reach-point", "learned")).id
+        for learners in (["../fast"], ["fast"] * 257, "fast"):
+            refused = httpx.post(
+                f"{server.url}/api/v1/jobs/lease",
+                json={"worker_id": "hostile", "learners": learners},
+                headers=SDK_HEADERS,
+            )
+            assert refused.status_code == 422 and "learners" in refused.text, refused.text
+        assert client.workers() == []  # refused: nothing stored
+        assert client.lease("no-fast", tasks=["reach-point"], learners=["ppo"]) is None
+        said = words(ok(run(server.url, "status", str(study))).stdout)
+        assert "workers none serving task 'reach-point' with learner 'fast' seen" in said, said
+        assert "(1 other workers serve other tasks or learners)" in said
+        job = client.lease("has-fast", tasks=["reach-point"], learners=["fast", "ppo"])
+        assert job is not None and job.study_id == study
+        said = words(ok(run(server.url, "status", str(study))).stdout)
+        assert "workers 1 serving task 'reach-point' with learner 'fast', seen" in said
+        learners = {w.worker_id: w.learners for w in client.workers()}
+        assert learners == {"no-fast": ["ppo"], "has-fast": ["fast", "ppo"]}
+    table = words(ok(run(server.url, "workers")).stdout)
+    assert "learners" in table and "reach-point fast, ppo" in table, table

@@ -140,7 +140,8 @@ def test_study_page_draws_the_study_and_follows_it_live(
         assert urdf[0] == f"/api/v1/trials/{best['id']}/artifacts/robot.urdf"
         assert urdf[1].startswith("<robot")
 
-        # Workers: who holds which lease, jobs done and failed.
+        # Workers: who holds which lease, jobs done and failed, the tasks and learners
+        # each named (none: any).
         workers = browser.evaluate(
             "[...document.querySelectorAll('table.workers tbody tr')]"
             ".map(row => [...row.cells].map(cell => cell.textContent.trim()))"
@@ -150,7 +151,8 @@ def test_study_page_draws_the_study_and_follows_it_live(
         assert by_name["worker-1"][1] == f"trial #{seeded['held']['number']}"
         assert by_name["worker-2"][1] == "idle"
         for name in ("worker-1", "worker-2"):
-            assert by_name[name][3:] == [str(seeded["done"][name]), str(seeded["failed"][name])]
+            done, failed = str(seeded["done"][name]), str(seeded["failed"][name])
+            assert by_name[name][3:] == [done, failed, "any", "any"]
 
         # A row opens its trial: image and files.
         browser.evaluate("document.querySelector('tr.is-best a[data-image]').click()")

@@ -134,6 +134,11 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
             assert "'reach-up'" in leased and "reach-elsewhere" not in leased
             assert "task reach-elsewhere: its environment does not load" in with_it.log()
             assert client.study_info(elsewhere.id).n_trials == 0
+            # Each named the learners that load on it: the plugin's only where it is.
+            learners = {worker.worker_id: worker.learners for worker in client.workers()}
+            assert learners["with"] is not None and "hold" in learners["with"]
+            assert learners["without"] is not None and "hold" not in learners["without"]
+            assert "fast" in learners["without"]
             final = study.wait(poll=0.2, timeout=PATIENCE)
             assert final.n_complete == 3, [trial.message for trial in study.trials]
             for trial in study.trials:

@@ -140,17 +140,20 @@ def test_second_sigterm_abandons_the_job_and_gives_the_lease_back(server_factory
         assert staying.wait() == 0
 
 
-def test_evaluation_error_becomes_a_failed_tell_and_the_worker_goes_on(server_factory, workers):
+def test_adworker_leaves_a_study_of_a_learner_it_does_not_have(server_factory, workers):
+    """Issue 39: adworker names the learners that load on it, so a study of another
+    learner waits for a worker that has it, and says which, instead of failing its
+    trials here (a function worker's failed evaluation: test_function_worker_e2e.py)."""
     server = server_factory()
     with Client(server.url) as client:
         # external: creation leaves the learner to the workers, and adworker has no such one.
         study = stand_up_study(client, max_trials=2, learner="dreamer", external=True)
-        worker = workers(server, "careful", "--max-jobs", "2")
+        worker = workers(server, "careful", "--idle-exit", "3")
         assert worker.wait() == 0, worker.log()
-        trials = study.trials
-        assert [trial.state for trial in trials] == ["failed", "failed"]
-        assert all("'dreamer'" in (trial.message or "") for trial in trials)
-        assert all(trial.message.startswith("JobError: unknown learner") for trial in trials)
+        assert client.study_info(study.id).n_trials == 0
+        serving = client.serving(study.id)
+        assert serving is not None and (serving.serving, serving.others) == (0, 1)
+        assert "with learner 'dreamer' seen in the last 90 s" in serving.text, serving.text
 
 
 def test_adworker_leaves_tasks_it_does_not_have_to_other_workers(server_factory, workers):

@@ -290,7 +290,8 @@ def _transfer_metrics(job: Job, learner: Learner) -> dict[str, float]:
 class TaskRunner:
     """Runs jobs of the installed tasks whose environments load here: ``adworker``'s
     default runner. A task whose factory fails to import (its simulator missing) is not
-    leased, so a worker that has it takes its trials."""
+    leased, so a worker that has it takes its trials; nor is a study whose learner does
+    not load."""
 
     def __init__(self, *, render: bool = True) -> None:
         self.render = render
@@ -306,13 +307,19 @@ class TaskRunner:
                 log.warning(
                     "task %s: its environment does not load (%s); not leasing it", name, problem
                 )
+        self._learners: list[str] = []
         for name, learner in sorted(installed.learners.items()):
             problem = factory_problem(learner)
-            if problem is not None:
-                log.warning("learner %s does not load (%s): its jobs will fail", name, problem)
+            if problem is None:
+                self._learners.append(name)
+            else:
+                log.warning("learner %s does not load (%s); not leasing its studies", name, problem)
 
     def tasks(self) -> list[str]:
         return list(self._tasks)
+
+    def learners(self) -> list[str]:
+        return list(self._learners)
 
     def __call__(
         self, job: Job, workdir: Path, check: Callable[[], None], report: Report = no_report

@@ -101,6 +101,10 @@ class FunctionRunner:
     def tasks(self) -> list[str]:
         return [self.task]
 
+    def learners(self) -> None:
+        """Any: the function decides what a job's learner means."""
+        return None
+
     def __call__(
         self, job: Job, workdir: Path, check: Callable[[], None], report: Report = no_report
     ) -> Outcome:

@@ -81,6 +81,10 @@ class Runner(Protocol):
         """The task names to lease: the ones this runner can run."""
         ...
 
+    def learners(self) -> list[str] | None:
+        """The learner names to lease (the ones that load here); None: any learner."""
+        ...
+
     def __call__(
         self, job: Job, workdir: Path, check: Callable[[], None], report: Report = no_report
     ) -> Outcome:

@@ -200,8 +200,14 @@ class Worker:
     def run(self) -> int:
         """Work until told to stop, out of jobs (``max_jobs``) or idle (``idle_exit``)."""
         config = self.config
-        tasks = self.runner.tasks()
-        log.info("worker %s serving %s: tasks %s", config.worker_id, config.server, tasks)
+        tasks, learners = self.runner.tasks(), self.runner.learners()
+        log.info(
+            "worker %s serving %s: tasks %s, learners %s",
+            config.worker_id,
+            config.server,
+            tasks,
+            "any" if learners is None else learners,
+        )
         idle_since = time.monotonic()
         failures = 0
         if self._own_workdir:
@@ -215,7 +221,7 @@ class Worker:
                     log.info("the pool's job budget is spent")
                     break
                 try:
-                    job = self.client.lease(config.worker_id, tasks=tasks)
+                    job = self.client.lease(config.worker_id, tasks=tasks, learners=learners)
                 except (Unauthorized, Forbidden) as exc:
                     raise AuthError(str(exc)) from exc
                 except ApiError as exc:

@@ -256,7 +256,7 @@ def _follow(study: StudyHandle, poll: float) -> Study:
             if idle and not checked and time.monotonic() - started >= WORKERS_CHECK_SECONDS:
                 checked = True  # once: say why a study waits at 0 of N, if no worker serves it
                 workers = serving(study.client, current)
-                if workers is not None and workers.count == 0:
+                if workers is not None and workers.serving == 0:
                     progress.console.print(f"[yellow]no worker:[/yellow] {escape(workers.text)}")
 
         try:

@@ -96,6 +96,7 @@ from adclient.schemas.workers import (
     Job,
     LeaseRequest,
     ReleaseRequest,
+    StudyServing,
     TransferSource,
     WorkerInfo,
 )
@@ -154,6 +155,7 @@ __all__ = [
     "StudyCreate",
     "StudyCurves",
     "StudyName",
+    "StudyServing",
     "StudySpread",
     "StudyState",
     "StudyUpdate",

@@ -26,6 +26,12 @@ class LeaseRequest(Strict):
         description="lease only trials of studies whose task has one of these names "
         "(the tasks this worker can run); none: any task",
     )
+    learners: list[Annotated[str, Field(pattern=NAME_PATTERN)]] | None = Field(
+        default=None,
+        max_length=256,
+        description="lease only trials of studies whose task's learner has one of these "
+        "names (the learners that load on this worker); none: any learner",
+    )
 
 
 class HeartbeatRequest(Strict):
@@ -107,3 +113,28 @@ class WorkerInfo(BaseModel):
     tasks: list[str] | None = Field(
         default=None, description="the tasks it named at its latest lease; null: any task"
     )
+    learners: list[str] | None = Field(
+        default=None,
+        description="the learners it named at its latest lease; null: any learner",
+    )
+
+
+class StudyServing(BaseModel):
+    """Whether the workers seen lately serve a running managed study
+    (``GET /studies/{id}/serving``): what ``adclient status`` and the dashboard say."""
+
+    task: str
+    learner: str
+    external: bool
+    recent_seconds: float = Field(description="a worker seen this recently is serving")
+    serving: int = Field(description="recently seen workers that serve its task and learner")
+    others: int = Field(description="recently seen workers that serve neither")
+    idle_seconds: float | None = Field(
+        description="how long the study has seen no activity with no trial running; "
+        "null while a trial runs"
+    )
+    unserved: bool = Field(
+        description="no recent worker serves it and it has been idle for the server's "
+        "unserved_seconds: it waits for a worker that may never come"
+    )
+    text: str = Field(description="the same said for a person, with what to start")

@@ -42,10 +42,11 @@ def touch_worker(
     now: datetime,
     current_trial_id: int | None,
     tasks: Sequence[str] | Unset | None = UNSET,
+    learners: Sequence[str] | Unset | None = UNSET,
 ) -> None:
     """Record that ``worker_id`` was seen at ``now``, holding ``current_trial_id`` (a
-    worker seen for the first time gets its row); at a lease, the ``tasks`` it serves
-    (None: any)."""
+    worker seen for the first time gets its row); at a lease, the ``tasks`` and
+    ``learners`` it serves (None: any), each written only when it changed."""
     worker = session.get(WorkerRow, worker_id)
     if worker is None:
         worker = WorkerRow(worker_id=worker_id, jobs_done=0, jobs_failed=0)
@@ -56,6 +57,10 @@ def touch_worker(
         served = None if tasks is None else sorted(tasks)
         if worker.tasks != served:
             worker.tasks = served
+    if not isinstance(learners, Unset):
+        loaded = None if learners is None else sorted(learners)
+        if worker.learners != loaded:
+            worker.learners = loaded
 
 
 def counted_value(outcome: Outcome) -> float | None:

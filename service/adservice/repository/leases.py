@@ -66,11 +66,16 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
     return len(expired)
 
 
-def _task_among(tasks: Sequence[str] | None) -> list[sa.ColumnElement[bool]]:
-    """Managed studies, and with ``tasks`` only those whose task has one of these names."""
+def _task_among(
+    tasks: Sequence[str] | None, learners: Sequence[str] | None
+) -> list[sa.ColumnElement[bool]]:
+    """Managed studies, and with ``tasks`` (``learners``) only those whose task (its
+    learner) has one of these names."""
     where: list[sa.ColumnElement[bool]] = [StudyRow.task.is_not(None)]
     if tasks is not None:
         where.append(StudyRow.task["name"].as_string().in_(list(tasks)))
+    if learners is not None:
+        where.append(StudyRow.task["learner"].as_string().in_(list(learners)))
     return where
 
 
@@ -86,9 +91,10 @@ def lease_queued_trial(
     lease_token_id: int | None,
     lease_seconds: float,
     tasks: Sequence[str] | None = None,
+    learners: Sequence[str] | None = None,
 ) -> TrialRow | None:
-    """Lease the oldest queued trial of a running managed study (of one of ``tasks``)
-    that is not backing off after a failure (``proposal_retry_at``)."""
+    """Lease the oldest queued trial of a running managed study (of one of ``tasks``
+    and ``learners``) that is not backing off after a failure (``proposal_retry_at``)."""
     now = utcnow()
     expire_leases(session, now=now)
     query = (
@@ -97,7 +103,7 @@ def lease_queued_trial(
         .where(
             TrialRow.state == TrialState.queued,
             StudyRow.state == "running",
-            *_task_among(tasks),
+            *_task_among(tasks, learners),
             _not_backing_off(now),
         )
         .order_by(TrialRow.id)
@@ -107,7 +113,14 @@ def lease_queued_trial(
         query = query.with_for_update(of=TrialRow, skip_locked=True)
     trial = session.scalars(query).one_or_none()
     if trial is None:
-        touch_worker(session, worker_id=worker_id, now=now, current_trial_id=None, tasks=tasks)
+        touch_worker(
+            session,
+            worker_id=worker_id,
+            now=now,
+            current_trial_id=None,
+            tasks=tasks,
+            learners=learners,
+        )
         return None
     trial.state = TrialState.running
     trial.worker_id = worker_id
@@ -117,18 +130,31 @@ def lease_queued_trial(
     trial.started_at = now
     trial.heartbeat_at = now
     trial.lease_expires_at = now + timedelta(seconds=lease_seconds)
-    touch_worker(session, worker_id=worker_id, now=now, current_trial_id=trial.id, tasks=tasks)
+    touch_worker(
+        session,
+        worker_id=worker_id,
+        now=now,
+        current_trial_id=trial.id,
+        tasks=tasks,
+        learners=learners,
+    )
     return trial
 
 
-def studies_wanting_trials(session: Session, *, tasks: Sequence[str] | None = None) -> list[int]:
-    """Running managed studies (of one of ``tasks``) with room for a trial, oldest first;
-    a study whose proposals failed is left out until its ``proposal_retry_at``."""
+def studies_wanting_trials(
+    session: Session,
+    *,
+    tasks: Sequence[str] | None = None,
+    learners: Sequence[str] | None = None,
+) -> list[int]:
+    """Running managed studies (of one of ``tasks`` and ``learners``) with room for a
+    trial, oldest first; a study whose proposals failed is left out until its
+    ``proposal_retry_at``."""
     query = (
         sa.select(StudyRow.id)
         .where(
             StudyRow.state == "running",
-            *_task_among(tasks),
+            *_task_among(tasks, learners),
             StudyRow.n_trials < StudyRow.max_trials,
             _not_backing_off(utcnow()),
         )
@@ -195,11 +221,16 @@ def release_lease(
     return trial
 
 
-def list_workers(session: Session, *, study_id: int | None = None) -> list[WorkerRow]:
-    """All workers, or those that ever held a trial of ``study_id``."""
+def list_workers(
+    session: Session, *, study_id: int | None = None, seen_since: datetime | None = None
+) -> list[WorkerRow]:
+    """All workers, or those that ever held a trial of ``study_id``; with ``seen_since``
+    only those seen then or later."""
     query = sa.select(WorkerRow).order_by(WorkerRow.last_seen_at.desc())
     if study_id is not None:
         get_study(session, study_id=study_id)
         held = sa.select(TrialRow.worker_id).where(TrialRow.study_id == study_id).distinct()
         query = query.where(WorkerRow.worker_id.in_(held))
+    if seen_since is not None:
+        query = query.where(WorkerRow.last_seen_at >= seen_since)
     return list(session.scalars(query))

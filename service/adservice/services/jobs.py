@@ -30,11 +30,12 @@ async def lease_job(
     caller: Principal,
     lease_seconds: float,
     tasks: Sequence[str] | None = None,
+    learners: Sequence[str] | None = None,
 ) -> Job | None:
     """A queued trial if there is one, else a freshly proposed one from a managed study
-    with room; None when there is no work (of ``tasks``, when given). Paused trials of
-    studies whose budget is spent are ended first (pruned). Leasing a queued
-    trial is one short write that never waits for a proposal; a model-based proposal
+    with room; None when there is no work (of ``tasks`` and ``learners``, when given).
+    Paused trials of studies whose budget is spent are ended first (pruned). Leasing a
+    queued trial is one short write that never waits for a proposal; a model-based proposal
     runs in the proposal threads, preferring a study with none under way. A study whose
     proposal fails is recorded and skipped (``proposal_failures``): the same lease goes
     on to the next study."""
@@ -54,12 +55,13 @@ async def lease_job(
                 lease_token_id=caller.token_id,
                 lease_seconds=lease_seconds,
                 tasks=tasks,
+                learners=learners,
             )
             return Trial.model_validate(row, from_attributes=True) if row else None
 
     def wanting() -> list[int]:
         with db.read() as session:
-            return lease_repo.studies_wanting_trials(session, tasks=tasks)
+            return lease_repo.studies_wanting_trials(session, tasks=tasks, learners=learners)
 
     def served(trial: Trial) -> Job | None:
         """The queued trial's job; None when its study cannot make one (its stored

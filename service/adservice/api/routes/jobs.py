@@ -24,6 +24,7 @@ async def lease(
         caller=caller,
         lease_seconds=settings.lease_seconds,
         tasks=body.tasks,
+        learners=body.learners,
     )
     if job is None:
         return Response(status_code=204)

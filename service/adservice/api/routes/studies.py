@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
 from pydantic import AfterValidator
 
 from adclient.schemas import (
@@ -15,6 +15,7 @@ from adclient.schemas import (
     AskResponse,
     Study,
     StudyCreate,
+    StudyServing,
     StudySpread,
     StudyUpdate,
     Trial,
@@ -22,7 +23,7 @@ from adclient.schemas import (
     TrialState,
     WorkerInfo,
 )
-from adservice import views
+from adservice import serving, views
 from adservice.api.deps import (
     MAX_ID,
     ArtifactStoreDep,
@@ -30,6 +31,7 @@ from adservice.api.deps import (
     ProposingDep,
     ReaderDep,
     SessionDep,
+    SettingsDep,
     StudyId,
     UserDep,
 )
@@ -197,6 +199,24 @@ def value_spread(study_id: StudyId, session: SessionDep, _: ReaderDep) -> StudyS
 @router.get("/{study_id}/workers")
 def study_workers(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[WorkerInfo]:
     return [worker_schema(row) for row in lease_repo.list_workers(session, study_id=study_id)]
+
+
+@router.get("/{study_id}/serving")
+def study_serving(
+    study_id: StudyId,
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    _: ReaderDep,
+) -> StudyServing | None:
+    """Whether the workers seen in the last 90 s serve a running managed study's task
+    and learner, and what to start when none does; null for a study no worker runs."""
+    return serving.study_serving(
+        session,
+        study_id=study_id,
+        unserved_seconds=settings.unserved_seconds,
+        server_url=settings.public_url or str(request.base_url).rstrip("/"),
+    )
 
 
 @router.get("/{study_id}/series", response_model=TrialColumns)

@@ -1,10 +1,12 @@
-// The studies list (#/): every study with its state, progress, best score and activity.
+// The studies list (#/): every study with its state, progress, best score and activity,
+// and every worker the server has seen.
 
 import { getJSON } from './api.js';
 import { formatNumber } from './charts.js';
 import { countsText, progressBar } from './header.js';
 import { ago, badge, element, esc } from './html.js';
 import { setCrumbs } from './shell.js';
+import { ServerWorkersPanel } from './workers.js';
 
 /** The best value and its direction; a study of several objectives has a Pareto front
  * instead (its page draws it): how many objectives. */
@@ -19,6 +21,8 @@ export class StudiesPage {
     this.root = element(`<div>
       <section class="card"><h2>Studies</h2><div class="table-wrap" data-list>Loading…</div></section>
     </div>`);
+    this.workers = new ServerWorkersPanel();
+    this.root.append(this.workers.root);
     view.replaceChildren(this.root);
     this.alive = true;
     document.title = 'Studies · activedesign';
@@ -30,7 +34,7 @@ export class StudiesPage {
   }
 
   async poll() {
-    const studies = await getJSON('/api/v1/studies');
+    const [studies] = await Promise.all([getJSON('/api/v1/studies'), this.workers.poll()]);
     if (!this.alive) return;
     const target = this.root.querySelector('[data-list]');
     if (studies.length === 0) {

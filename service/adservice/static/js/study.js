@@ -18,7 +18,7 @@ import { showError } from './shell.js';
 import { SpreadCard } from './spread.js';
 import { openTrialDialog } from './trial-dialog.js';
 import { TrialsPanel } from './trials.js';
-import { WorkersPanel } from './workers.js';
+import { UnservedCard, WorkersPanel } from './workers.js';
 
 /** Timings the browser tests read: ms since navigation for the first full render of a
  * study page, and for each live update the ms from poll start to the next frame. */
@@ -61,10 +61,11 @@ export class StudyPage {
     this.params = new ParamsPanel(this);
     this.curves = new CurvesPanel(this);
     this.workers = new WorkersPanel(this);
+    this.unserved = new UnservedCard(this);
     this.trials = new TrialsPanel(this);
     this.root = element('<div class="study"><div class="grid"></div></div>');
     this.root.querySelector('.grid').append(this.history.root, this.best.root);
-    this.root.prepend(this.header.root, this.spread.root);
+    this.root.prepend(this.header.root, this.unserved.root, this.spread.root);
     this.root.append(this.pareto.root, this.params.root, this.curves.root, this.workers.root, this.trials.root);
     view.replaceChildren(this.root);
     this.root.addEventListener('click', (event) => {
@@ -97,6 +98,7 @@ export class StudyPage {
       this.best.load(),
       this.pareto.load(),
       this.workers.load(),
+      this.unserved.load(),
       this.curves.load(),
     ]);
     if (!this.alive) return;
@@ -105,6 +107,7 @@ export class StudyPage {
     this.trials.render();
     this.best.render();
     this.workers.render();
+    this.unserved.render();
     await this.best.imageLoaded();
     await nextFrame();
     metrics.renders.push(performance.now() - started);
@@ -121,7 +124,7 @@ export class StudyPage {
     const scoresChanged = study.n_complete !== this.study.n_complete;
     this.study = study;
     this.signature = signatureOf(study);
-    const work = [this.workers.load()];
+    const work = [this.workers.load(), this.unserved.load()];
     const curvesDue = changed || this.curves.wanted(study);
     if (curvesDue) work.push(this.curves.load());
     if (changed) {
@@ -142,6 +145,7 @@ export class StudyPage {
     this.trials.render();
     this.best.render();
     this.workers.render();
+    this.unserved.render();
     if (changed) {
       await nextFrame();
       const done = performance.now();

@@ -1,10 +1,38 @@
-// The workers panel: who has leased this study's trials, what each holds now, when it
-// was last heard from, and its jobs done and failed.
+// Workers: the study page's panel (who has leased this study's trials, what each holds
+// now, the tasks and learners it serves, when it was last heard from, its jobs done and
+// failed), the same table of every worker the server has seen on the studies list, and
+// the study page's warning when no recent worker serves the study's task and learner
+// (GET /studies/{id}/serving: the server's rule, the one `adclient status` prints).
 
 import { getJSON } from './api.js';
 import { ago, element, esc } from './html.js';
 
 const STALE_SECONDS = 60;
+
+/** What a worker named at its latest lease: the names, or "any" when it named none. */
+function served(names) {
+  return names === null || names === undefined
+    ? '<span class="meta">any</span>'
+    : esc(names.join(', '));
+}
+
+/** A table of workers; `holds(worker)` is the markup of its lease column. */
+function workersTable(workers, holds) {
+  const rows = workers
+    .map((w) => {
+      const age = (Date.now() - Date.parse(w.last_seen_at)) / 1000;
+      return `<tr class="${age > STALE_SECONDS ? 'stale' : ''}" data-worker="${esc(w.worker_id)}">
+        <td>${esc(w.worker_id)}</td><td>${holds(w)}</td>
+        <td title="${esc(w.last_seen_at)}">${ago(w.last_seen_at)}</td>
+        <td class="num">${w.jobs_done}</td><td class="num">${w.jobs_failed}</td>
+        <td data-worker-tasks>${served(w.tasks)}</td>
+        <td data-worker-learners>${served(w.learners)}</td></tr>`;
+    })
+    .join('');
+  return `<table class="workers"><thead><tr><th>Worker</th><th>Lease</th>
+    <th>Last contact</th><th>Jobs done</th><th>Failures</th><th>Tasks</th><th>Learners</th>
+    </tr></thead><tbody>${rows}</tbody></table>`;
+}
 
 export class WorkersPanel {
   constructor(page) {
@@ -36,21 +64,62 @@ export class WorkersPanel {
       target.innerHTML = '<p class="meta">No worker has leased a trial of this study.</p>';
       return;
     }
-    const rows = this.workers
-      .map((w) => {
-        const age = (Date.now() - Date.parse(w.last_seen_at)) / 1000;
-        const number = this.trialNumbers.get(w.current_trial_id);
-        const holds =
-          w.current_trial_id === null
-            ? '<span class="meta">idle</span>'
-            : `<a href="#" data-open-trial="${w.current_trial_id}">trial #${number ?? '?'}</a>`;
-        return `<tr class="${age > STALE_SECONDS ? 'stale' : ''}">
-          <td>${esc(w.worker_id)}</td><td>${holds}</td>
-          <td title="${esc(w.last_seen_at)}">${ago(w.last_seen_at)}</td>
-          <td class="num">${w.jobs_done}</td><td class="num">${w.jobs_failed}</td></tr>`;
-      })
-      .join('');
-    target.innerHTML = `<table class="workers"><thead><tr><th>Worker</th><th>Lease</th>
-      <th>Last heartbeat</th><th>Jobs done</th><th>Failures</th></tr></thead><tbody>${rows}</tbody></table>`;
+    target.innerHTML = workersTable(this.workers, (w) => {
+      if (w.current_trial_id === null) return '<span class="meta">idle</span>';
+      const number = this.trialNumbers.get(w.current_trial_id);
+      return `<a href="#" data-open-trial="${w.current_trial_id}">trial #${number ?? '?'}</a>`;
+    });
+  }
+}
+
+/** Every worker the server has seen (GET /workers), for the studies list. */
+export class ServerWorkersPanel {
+  constructor() {
+    this.root = element(`<section class="card">
+      <h2>Workers <span class="meta">every worker this server has seen</span></h2>
+      <div class="table-wrap" data-server-workers>Loading…</div>
+    </section>`);
+  }
+
+  async poll() {
+    const workers = await getJSON('/api/v1/workers');
+    const target = this.root.querySelector('[data-server-workers]');
+    if (workers.length === 0) {
+      target.innerHTML =
+        '<p class="meta">No worker has asked for work yet: start one with <code>adworker --server URL</code>.</p>';
+      return;
+    }
+    target.innerHTML = workersTable(workers, (w) =>
+      w.current_trial_id === null
+        ? '<span class="meta">idle</span>'
+        : `trial id ${w.current_trial_id}`,
+    );
+  }
+}
+
+/** A running managed study that no recent worker serves, idle for the server's
+ * unserved_seconds: which task and learner it waits for and what to start. */
+export class UnservedCard {
+  constructor(page) {
+    this.page = page;
+    this.serving = null;
+    this.root = element(`<section class="card unserved" data-unserved hidden>
+      <h2>No worker serves this study</h2>
+      <p data-unserved-text></p>
+    </section>`);
+  }
+
+  async load() {
+    const managed = this.page.study?.task && this.page.study.state === 'running';
+    this.serving = managed ? await getJSON(this.page.api('/serving')) : null;
+  }
+
+  render() {
+    const s = this.serving;
+    this.root.hidden = !s?.unserved;
+    if (!s?.unserved) return;
+    this.root.querySelector('h2').innerHTML =
+      `No worker serves task <code>${esc(s.task)}</code> with learner <code>${esc(s.learner)}</code>`;
+    this.root.querySelector('[data-unserved-text]').textContent = s.text;
   }
 }
