@@ -24,7 +24,9 @@ demo: install
 test: install
 	# Debian's chromium and postgresql, once, before any test process starts.
 	$(BIN)/python tests/system_packages.py
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q --durations=30
+	# Three test processes on two cores: the tests wait on servers, workers and browsers
+	# part of the time, and a third process fills it.
+	$(BIN)/python -m pytest -n 3 --dist loadgroup -q --durations=30
 
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser and not postgres"
