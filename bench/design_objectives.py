@@ -230,6 +230,65 @@ def shifted_optima() -> Callable[[Design], float]:
     return score
 
 
+# -- spec-dominated families: one sample per tree misranks the trees (issue 37) ------
+#
+# Each tree has its own ceiling, optimum and width, and the specs decide far more than
+# the tree: the best tree's optimum is narrow, so a random design of it scores poorly,
+# and a mediocre decoy tree has a broad plateau, so its random design looks best. A
+# search that ranks the trees by one design each commits to the decoy.
+
+
+def spec_dominated(
+    layout_seed: int, narrow: float, broad: float, shift: float
+) -> Callable[[Design], float]:
+    """8 trees; the score is ``ceiling[tree] * fit * (0.3 + 0.7 * alignment)``, where
+    ``fit`` is a Gaussian bump of the links' lengths (root-mean-square distance to the
+    tree's optimum over its width). The best tree (ceiling 1) has width ``narrow``; a
+    decoy (ceiling 0.35 to 0.45) has width ``broad``; the others ceilings 0.3 to 0.75
+    and widths between. Every tree's optimal lengths and axes lie near shared ones
+    (normal offsets of ``shift`` in length, tilts of ``shift`` in the axes), so what a
+    study learns of one tree is roughly right on another. The best and decoy trees are
+    drawn from ``layout_seed``."""
+    rng = np.random.default_rng([909, layout_seed])
+    count = len(LIMBS5_STRUCTURES)
+    best, decoy = (int(i) for i in rng.choice(count, size=2, replace=False))
+    ceilings = rng.uniform(0.3, 0.75, size=count)
+    widths = rng.uniform(narrow + 0.25 * (broad - narrow), narrow + 0.6 * (broad - narrow), count)
+    ceilings[best], widths[best] = 1.0, narrow
+    ceilings[decoy], widths[decoy] = float(rng.uniform(0.35, 0.45)), broad
+    base_lengths = {name: float(rng.uniform(0.2, 0.4)) for name in "abcde"}
+    base_axes = {name: _unit(rng) for name in "bcde"}
+    per_tree = []
+    for _ in LIMBS5_STRUCTURES:
+        lengths = {
+            k: float(np.clip(v + rng.normal(0, shift), 0.12, 0.48)) for k, v in base_lengths.items()
+        }
+        axes = {}
+        for name, axis in base_axes.items():
+            tilted = axis + shift * 4.0 * _unit(rng)
+            axes[name] = tilted / np.linalg.norm(tilted)
+        per_tree.append((lengths, axes))
+
+    def score(design: Design) -> float:
+        tree = design.structure_index
+        lengths, axes = per_tree[tree]
+        own = _lengths(design)
+        misfit = sum((own[k] - lengths[k]) ** 2 for k in own) / len(own)
+        fit = math.exp(-misfit / (2.0 * widths[tree] ** 2))
+        return float(ceilings[tree]) * fit * (0.3 + 0.7 * _alignment(design, axes))
+
+    return score
+
+
+SPEC_DOMINATED = {
+    "spec-dominated-1": (1, 0.05, 0.35, 0.03),
+    "spec-dominated-2": (2, 0.07, 0.30, 0.05),
+    "spec-dominated-3": (3, 0.04, 0.40, 0.02),
+    "spec-dominated-4": (4, 0.06, 0.30, 0.08),
+}
+"""Layout seed, narrow width, broad width and shift of each spec-dominated objective."""
+
+
 def all_trees_space(names: str, radius: bool) -> dict[str, Any]:
     link: dict[str, Any] = {"length": {"low": 0.1, "high": 0.5}, "radius": 0.04, "mass": 1.0}
     if radius:
@@ -335,6 +394,8 @@ _SHAPE_SCORE, _SHAPE_TREES = tree_shape_64()
 OBJECTIVES["tree-shape-64"] = Objective(
     "tree-shape-64", tree_shape_space(_SHAPE_TREES), _SHAPE_SCORE
 )
+for _name, _layout in SPEC_DOMINATED.items():
+    OBJECTIVES[_name] = Objective(_name, limbs5_space(), spec_dominated(*_layout))
 EIGHT_TREES = {
     name
     for name, o in OBJECTIVES.items()

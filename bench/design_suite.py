@@ -62,6 +62,9 @@ BUDGET = 30
 SERVICE_METHODS = {"qei": None, "qei-fused": "fused", "qei-onehot": "onehot"}
 OPTUNA_METHODS = ("gp-optuna", "tpe-optuna", "random-optuna")
 DEFAULT_METHODS = ["qei", "gp-optuna", "tpe-optuna", "random-optuna", "qei-onehot"]
+BASELINE = "qei-main"
+"""The label of a baseline's qei runs (``--label qei=qei-main``: another checkout's
+server, its code on PYTHONPATH), reported beside the others."""
 
 
 def design_from_params(space: DesignSpace, params: dict[str, Any]) -> Design:
@@ -160,14 +163,17 @@ def report(records: list[dict]) -> str:
     """Per objective and method: the median and lower quartile of the best score by
     ``BUDGET``, the median number of trees a run tried, and the issue-26 goals (qei's
     median at or above GPSampler's, its lower quartile at or above random search's)."""
-    methods = [m for m in DEFAULT_METHODS if any(r["method"] == m for r in records)]
+    methods = [m for m in [*DEFAULT_METHODS, BASELINE] if any(r["method"] == m for r in records)]
     lines = [
         f"Best score by {BUDGET} evaluations over seeds: median / lower quartile "
-        "(trees tried, median), n seeds. Goals (issue 26): qei's median at or above "
-        "GPSampler's, qei's lower quartile at or above random search's.",
+        "(trees tried, median), n seeds. Goals (issues 26 and 37): qei's median at or "
+        "above GPSampler's, qei's lower quartile, and (issue 37) every seed of qei, at or "
+        "above random search's lower quartile; qei's worst seed beside it.",
         "",
-        "| objective | " + " | ".join(methods) + " | median vs GP | q1 vs random |",
-        "| --- | " + " | ".join("---" for _ in methods) + " | --- | --- |",
+        "| objective | "
+        + " | ".join(methods)
+        + " | median vs GP | q1 vs random | qei worst seed (of base) | every seed |",
+        "| --- | " + " | ".join("---" for _ in methods) + " | --- | --- | --- | --- |",
     ]
     for name in OBJECTIVES:
         rows = {
@@ -197,7 +203,16 @@ def report(records: list[dict]) -> str:
                 [best_by(r["values"], BUDGET) for r in rows["gp-optuna"]],
             )
             verdict_gp += f" (p = {p:.2f})"
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {verdict_gp} | {verdict_random} |")
+        worst = {m: min(best_by(r["values"], BUDGET) for r in rows[m]) for m in medians}
+        worst_cell = f"{worst['qei']:.3f}" + (
+            f" ({worst[BASELINE]:.3f})" if BASELINE in worst else ""
+        )
+        every = "-" if random is None else ("met" if worst["qei"] >= random else "**missed**")
+        lines.append(
+            f"| {name} | "
+            + " | ".join(cells)
+            + f" | {verdict_gp} | {verdict_random} | {worst_cell} | {every} |"
+        )
     ask = {
         m: np.median([s for r in records if r["method"] == m for s in r["ask_seconds"]])
         for m in methods
@@ -234,10 +249,19 @@ def main() -> int:
     parser.add_argument("--results", type=Path, default=RESULTS_PATH, help="JSON lines, resumed")
     parser.add_argument("--no-write", action="store_true")
     parser.add_argument("--report", action="store_true", help="only rewrite the report")
+    parser.add_argument(
+        "--label",
+        default=None,
+        help="METHOD=LABEL: record METHOD's runs as LABEL (a baseline: qei=qei-main)",
+    )
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
+    labels = dict([args.label.split("=", 1)]) if args.label else {}
     if not args.report:
         done = {(r["objective"], r["method"], r["seed"]) for r in read_results(args.results)}
+        done = {
+            (o, m, s) for o, label, s in done for m in args.methods if labels.get(m, m) == label
+        }
         todo = [
             (objective, method, seed)
             for seed in range(args.first_seed, args.first_seed + args.seeds)
@@ -259,7 +283,8 @@ def main() -> int:
                             result = run_service(http, objective, method, seed)
                         else:
                             result = run_optuna(objective, method, seed)
-                        record = {"objective": name, "method": method, "seed": seed, **result}
+                        label = labels.get(method, method)
+                        record = {"objective": name, "method": label, "seed": seed, **result}
                         with args.results.open("a") as out:
                             out.write(json.dumps(record) + "\n")
                         print(
