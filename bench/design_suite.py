@@ -142,9 +142,16 @@ def run_optuna(objective: Objective, method: str, seed: int) -> dict:
 
 
 def read_results(path: Path) -> list[dict]:
+    """The runs of a results file, the first of each (objective, method, seed): files of
+    runs side by side can be concatenated."""
     if not path.exists():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    runs: dict[tuple[str, str, int], dict] = {}
+    for line in path.read_text().splitlines():
+        if line.strip():
+            record = json.loads(line)
+            runs.setdefault((record["objective"], record["method"], record["seed"]), record)
+    return list(runs.values())
 
 
 def best_by(values: list[float], n: int) -> float:
