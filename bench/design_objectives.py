@@ -239,23 +239,31 @@ def shifted_optima() -> Callable[[Design], float]:
 
 
 def spec_dominated(
-    layout_seed: int, narrow: float, broad: float, shift: float
+    layout_seed: int,
+    narrow: float,
+    broad: float,
+    shift: float,
+    others: tuple[float, float] | None = None,
+    decoy: tuple[float, float] = (0.35, 0.45),
 ) -> Callable[[Design], float]:
     """8 trees; the score is ``ceiling[tree] * fit * (0.3 + 0.7 * alignment)``, where
     ``fit`` is a Gaussian bump of the links' lengths (root-mean-square distance to the
     tree's optimum over its width). The best tree (ceiling 1) has width ``narrow``; a
-    decoy (ceiling 0.35 to 0.45) has width ``broad``; the others ceilings 0.3 to 0.75
-    and widths between. Every tree's optimal lengths and axes lie near shared ones
+    decoy (ceiling in ``decoy``) has width ``broad``; the others ceilings 0.3 to 0.75
+    and widths in ``others`` (by default a quarter to 0.6 of the way from narrow to
+    broad). Every tree's optimal lengths and axes lie near shared ones
     (normal offsets of ``shift`` in length, tilts of ``shift`` in the axes), so what a
     study learns of one tree is roughly right on another. The best and decoy trees are
     drawn from ``layout_seed``."""
     rng = np.random.default_rng([909, layout_seed])
     count = len(LIMBS5_STRUCTURES)
-    best, decoy = (int(i) for i in rng.choice(count, size=2, replace=False))
+    best, decoy_tree = (int(i) for i in rng.choice(count, size=2, replace=False))
     ceilings = rng.uniform(0.3, 0.75, size=count)
-    widths = rng.uniform(narrow + 0.25 * (broad - narrow), narrow + 0.6 * (broad - narrow), count)
+    if others is None:
+        others = (narrow + 0.25 * (broad - narrow), narrow + 0.6 * (broad - narrow))
+    widths = rng.uniform(*others, count)
     ceilings[best], widths[best] = 1.0, narrow
-    ceilings[decoy], widths[decoy] = float(rng.uniform(0.35, 0.45)), broad
+    ceilings[decoy_tree], widths[decoy_tree] = float(rng.uniform(*decoy)), broad
     base_lengths = {name: float(rng.uniform(0.2, 0.4)) for name in "abcde"}
     base_axes = {name: _unit(rng) for name in "bcde"}
     per_tree = []
@@ -285,8 +293,12 @@ SPEC_DOMINATED = {
     "spec-dominated-2": (2, 0.07, 0.30, 0.05),
     "spec-dominated-3": (3, 0.04, 0.40, 0.02),
     "spec-dominated-4": (4, 0.06, 0.30, 0.08),
+    # as issue 37's trap: every other tree narrow too, the decoy's plateau low
+    "spec-dominated-5": (5, 0.06, 0.35, 0.03, (0.07, 0.10), (0.15, 0.25)),
+    "spec-dominated-6": (6, 0.05, 0.30, 0.05, (0.06, 0.12), (0.15, 0.25)),
 }
-"""Layout seed, narrow width, broad width and shift of each spec-dominated objective."""
+"""Layout seed, narrow width, broad width, shift (and the other trees' widths, the
+decoy's ceiling) of each spec-dominated objective."""
 
 
 def all_trees_space(names: str, radius: bool) -> dict[str, Any]:
