@@ -27,6 +27,15 @@ trees it has not seen behave like the ones it has (see the functions' docstrings
   to how alike the trees are.
 - ``tree-shape-64`` (64 of the 125 trees of 5 links): the tree's value follows its
   shape (depth, leaves, root degree), so alike trees score alike.
+
+Spec-dominated families (issue 37): the specs decide more than the tree; the best
+tree's optimum is narrow, so its one random design scores poorly, and a decoy's is
+broad (``spec_dominated``).
+
+- ``spec-dominated-1`` to ``-4`` (the 8-tree space): four layouts and widths; the
+  other trees' optima lie between the best's and the decoy's in width.
+- ``spec-dominated-5`` and ``-6``: as issue 37's trap, every other tree narrow too and
+  the decoy's plateau low.
 """
 
 from __future__ import annotations

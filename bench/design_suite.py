@@ -27,6 +27,20 @@ own server and results file, then reported them together:
     cat bench/results/design_suite-i26b.jsonl >> bench/results/design_suite-i26.jsonl
     .venv/bin/python bench/design_suite.py --report
 
+Issue 37 ran the spec-dominated objectives with this branch's server and, beside it,
+main's (a worktree of main first on PYTHONPATH, its runs labelled ``qei-main``), then
+reported the files together (a run appears once however many files hold it):
+
+    S="spec-dominated-1 spec-dominated-2 spec-dominated-3 spec-dominated-4"
+    .venv/bin/python bench/design_suite.py --seeds 10 --objectives $S \
+        --methods qei gp-optuna random-optuna --no-write \
+        --results bench/results/design_suite-i37.jsonl
+    PYTHONPATH=$MAIN/client:$MAIN/service:$MAIN/workers:$PWD .venv/bin/python \
+        bench/design_suite.py --seeds 10 --objectives $S --methods qei --label qei=qei-main \
+        --results bench/results/design_suite-i37-main.jsonl --no-write
+    cat bench/results/design_suite-i37*.jsonl > /tmp/i37.jsonl
+    .venv/bin/python bench/design_suite.py --report --results /tmp/i37.jsonl --no-write
+
 ``--seeds 2 --no-write --results /tmp/x.jsonl`` while developing.
 """
 
