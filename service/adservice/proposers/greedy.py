@@ -1,8 +1,8 @@
 """The greedy batch search of ``qei``'s model phases (one objective in ``qei``, several
 objectives or constraints in ``multiobjective``): each step maximises its acquisition
 over the mixed domain (``acquisition.maximise``) with the previous steps' candidates
-pending; a step that is a second look (``initial.second_look``) maximises it over the
-structures observed once. Imported only when a proposal is computed."""
+pending; with ``second_looks``, a step that is a second look (``initial.second_look``)
+maximises it over the structures observed once. Imported only when a proposal is computed."""
 
 from __future__ import annotations
 
@@ -107,7 +107,7 @@ class Greedy:
         )
         pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
         counts = None
-        if search is not None and search.n_structures > 1:
+        if options.second_looks and search is not None and search.n_structures > 1:
             trees = np.concatenate([Z[:, 0], pending_Z[:, 0]]).round().astype(np.int64)
             counts = np.bincount(trees, minlength=search.n_structures)
         return cls(

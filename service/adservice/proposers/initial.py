@@ -7,10 +7,11 @@ an unseen choice to be average. So the start is long enough to try each, up to
 ``COVERED_CHOICES``, and deals them to its points.
 
 One random design per tree does not rank the trees either when the specs matter more
-than the tree: the best tree's one design can be poor. So after the start, every
-``SECOND_LOOK_EVERY``-th model ask (``second_look``) is a second look: it chooses among
-the structures observed only once, its specs by the acquisition within them, until
-each has been looked at twice (docs/method.md, "The model's choices").
+than the tree: the best tree's one design can be poor. With ``second_looks`` (a qei
+option, off by default) every ``SECOND_LOOK_EVERY``-th model ask after the start
+(``second_look``) is a second look: it chooses among the structures observed only
+once, its specs by the acquisition within them, until each has been looked at twice
+(docs/method.md, "The model's choices").
 """
 
 from __future__ import annotations

@@ -11,11 +11,11 @@ What a caller can rely on:
   scrambled Sobol sequence (``initial``); a design space's start covers its structures,
   one per structure up to ``initial.COVERED_CHOICES``, as a typed box's categorical
   choices are covered.
-- **Second looks.** After the start, every second model candidate of a design space is
-  a second look while any structure has exactly one design (observed, failed or
-  pending): the acquisition is maximised over those structures alone, so no tree is
-  judged by its one random design (``initial.second_look``); its info says
-  ``second_look: true``.
+- **Second looks** (``options["second_looks"]``, off by default). After the start,
+  every second model candidate of a design space is a second look while any structure
+  has exactly one design (observed, failed or pending): the acquisition is maximised
+  over those structures alone, so no tree is judged by its one random design
+  (``initial.second_look``); its info says ``second_look: true``.
 - **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
   (structure index and normalised specs, or a box scaled to the unit box), outcomes
   standardised, hyperparameters by maximum a posteriori (``gpmodel.fit_map``), the
