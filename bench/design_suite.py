@@ -1,7 +1,7 @@
 """Synthetic design-space objectives: the service's proposers against Optuna's, 30 evaluations.
 
 The objectives, each a score in [0, 1] of a decoded robot design (tree + specs), and
-their families are in bench/design_objectives.py.
+their families are in client/adclient/testing/design_objectives.py (shared with the tests).
 
 Methods:
 - ``qei``: the service's default (the ``mixed`` encoding), ``qei-fused`` (the
@@ -27,6 +27,20 @@ own server and results file, then reported them together:
     cat bench/results/design_suite-i26b.jsonl >> bench/results/design_suite-i26.jsonl
     .venv/bin/python bench/design_suite.py --report
 
+Issue 37 ran the spec-dominated objectives with this branch's server and, beside it,
+main's (a worktree of main first on PYTHONPATH, its runs labelled ``qei-main``), then
+reported the files together (a run appears once however many files hold it):
+
+    S="spec-dominated-1 spec-dominated-2 spec-dominated-3 spec-dominated-4"
+    .venv/bin/python bench/design_suite.py --seeds 10 --objectives $S \
+        --methods qei gp-optuna random-optuna --no-write \
+        --results bench/results/design_suite-i37.jsonl
+    PYTHONPATH=$MAIN/client:$MAIN/service:$MAIN/workers:$PWD .venv/bin/python \
+        bench/design_suite.py --seeds 10 --objectives $S --methods qei --label qei=qei-main \
+        --results bench/results/design_suite-i37-main.jsonl --no-write
+    cat bench/results/design_suite-i37*.jsonl > /tmp/i37.jsonl
+    .venv/bin/python bench/design_suite.py --report --results /tmp/i37.jsonl --no-write
+
 ``--seeds 2 --no-write --results /tmp/x.jsonl`` while developing.
 """
 
@@ -50,8 +64,8 @@ sys.path.insert(0, str(ROOT))
 from adclient.decode import build_design, spec_layout  # noqa: E402
 from adclient.design import DesignSpace  # noqa: E402
 from adclient.designs import Design  # noqa: E402
+from adclient.testing.design_objectives import EIGHT_TREES, OBJECTIVES, Objective  # noqa: E402
 from adclient.testing.servers import ServerProcess  # noqa: E402
-from bench.design_objectives import EIGHT_TREES, OBJECTIVES, Objective  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
 
 RESULTS_PATH = ROOT / "bench" / "results" / "design_suite-i26.jsonl"
@@ -61,6 +75,9 @@ BUDGET = 30
 SERVICE_METHODS = {"qei": None, "qei-fused": "fused", "qei-onehot": "onehot"}
 OPTUNA_METHODS = ("gp-optuna", "tpe-optuna", "random-optuna")
 DEFAULT_METHODS = ["qei", "gp-optuna", "tpe-optuna", "random-optuna", "qei-onehot"]
+BASELINE = "qei-main"
+"""The label of a baseline's qei runs (``--label qei=qei-main``: another checkout's
+server, its code on PYTHONPATH), reported beside the others."""
 
 
 def design_from_params(space: DesignSpace, params: dict[str, Any]) -> Design:
@@ -138,9 +155,16 @@ def run_optuna(objective: Objective, method: str, seed: int) -> dict:
 
 
 def read_results(path: Path) -> list[dict]:
+    """The runs of a results file, the first of each (objective, method, seed): files of
+    runs side by side can be concatenated."""
     if not path.exists():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    runs: dict[tuple[str, str, int], dict] = {}
+    for line in path.read_text().splitlines():
+        if line.strip():
+            record = json.loads(line)
+            runs.setdefault((record["objective"], record["method"], record["seed"]), record)
+    return list(runs.values())
 
 
 def best_by(values: list[float], n: int) -> float:
@@ -159,14 +183,17 @@ def report(records: list[dict]) -> str:
     """Per objective and method: the median and lower quartile of the best score by
     ``BUDGET``, the median number of trees a run tried, and the issue-26 goals (qei's
     median at or above GPSampler's, its lower quartile at or above random search's)."""
-    methods = [m for m in DEFAULT_METHODS if any(r["method"] == m for r in records)]
+    methods = [m for m in [*DEFAULT_METHODS, BASELINE] if any(r["method"] == m for r in records)]
     lines = [
         f"Best score by {BUDGET} evaluations over seeds: median / lower quartile "
-        "(trees tried, median), n seeds. Goals (issue 26): qei's median at or above "
-        "GPSampler's, qei's lower quartile at or above random search's.",
+        "(trees tried, median), n seeds. Goals (issues 26 and 37): qei's median at or "
+        "above GPSampler's, qei's lower quartile, and (issue 37) every seed of qei, at or "
+        "above random search's lower quartile; qei's worst seed beside it.",
         "",
-        "| objective | " + " | ".join(methods) + " | median vs GP | q1 vs random |",
-        "| --- | " + " | ".join("---" for _ in methods) + " | --- | --- |",
+        "| objective | "
+        + " | ".join(methods)
+        + " | median vs GP | q1 vs random | qei worst seed (of base) | every seed |",
+        "| --- | " + " | ".join("---" for _ in methods) + " | --- | --- | --- | --- |",
     ]
     for name in OBJECTIVES:
         rows = {
@@ -196,7 +223,16 @@ def report(records: list[dict]) -> str:
                 [best_by(r["values"], BUDGET) for r in rows["gp-optuna"]],
             )
             verdict_gp += f" (p = {p:.2f})"
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {verdict_gp} | {verdict_random} |")
+        worst = {m: min(best_by(r["values"], BUDGET) for r in rows[m]) for m in medians}
+        worst_cell = f"{worst['qei']:.3f}" + (
+            f" ({worst[BASELINE]:.3f})" if BASELINE in worst else ""
+        )
+        every = "-" if random is None else ("met" if worst["qei"] >= random else "**missed**")
+        lines.append(
+            f"| {name} | "
+            + " | ".join(cells)
+            + f" | {verdict_gp} | {verdict_random} | {worst_cell} | {every} |"
+        )
     ask = {
         m: np.median([s for r in records if r["method"] == m for s in r["ask_seconds"]])
         for m in methods
@@ -233,10 +269,19 @@ def main() -> int:
     parser.add_argument("--results", type=Path, default=RESULTS_PATH, help="JSON lines, resumed")
     parser.add_argument("--no-write", action="store_true")
     parser.add_argument("--report", action="store_true", help="only rewrite the report")
+    parser.add_argument(
+        "--label",
+        default=None,
+        help="METHOD=LABEL: record METHOD's runs as LABEL (a baseline: qei=qei-main)",
+    )
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
+    labels = dict([args.label.split("=", 1)]) if args.label else {}
     if not args.report:
         done = {(r["objective"], r["method"], r["seed"]) for r in read_results(args.results)}
+        done = {
+            (o, m, s) for o, label, s in done for m in args.methods if labels.get(m, m) == label
+        }
         todo = [
             (objective, method, seed)
             for seed in range(args.first_seed, args.first_seed + args.seeds)
@@ -258,7 +303,8 @@ def main() -> int:
                             result = run_service(http, objective, method, seed)
                         else:
                             result = run_optuna(objective, method, seed)
-                        record = {"objective": name, "method": method, "seed": seed, **result}
+                        label = labels.get(method, method)
+                        record = {"objective": name, "method": label, "seed": seed, **result}
                         with args.results.open("a") as out:
                             out.write(json.dumps(record) + "\n")
                         print(

@@ -4,7 +4,8 @@ Optuna's: real ``adserver`` and ``adworker`` processes on free loopback ports
 a ``/metrics`` scrape and the tables it must agree with (:mod:`.metrics`), and the
 workloads both measure or check: simulated workers under load (:mod:`.load`, scoring
 with :mod:`.noop`), slow and oversized clients (:mod:`.attacks`), one study's heavy ask
-beside another's leases (:mod:`.isolation`).
+beside another's leases (:mod:`.isolation`), and the design suite's synthetic objectives
+(:mod:`.design_objectives`).
 
 It starts the programs by command, as an operator does, and never imports
 ``adservice`` or ``adworker``; ``adclient`` itself never imports it, so the SDK stays

@@ -15,6 +15,10 @@ the specs continuous (model inputs ``z = [structure index, u]``, see ``gpmodel``
    start that gains by switching is optimised again (``DISCRETE_ROUNDS`` times at
    most). This is what finds good structures among many (``structures: all``).
 
+Told ``structures`` (a subset of the structure indices), every raw sample, start and
+switch stays among them, and the best observed designs' specs are also started from
+on each of them: the best point found is a design of one of those structures.
+
 A box of typed params (``DiscreteColumns``: ints, stepped floats, categoricals) is
 searched the way BoTorch's ``optimize_acqf_mixed_alternating`` searches one: the raw
 samples are snapped to valid values (or, when the whole space has no more points
@@ -208,16 +212,23 @@ def _evaluate(
     return np.where(np.isfinite(out), out, -np.inf)
 
 
-def raw_samples(domain: MixedDomain, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Sobol spec vectors dealt round-robin to the structures, canonical; every point of
-    a typed box that has no more points than ``count``."""
+def raw_samples(
+    domain: MixedDomain,
+    count: int,
+    rng: np.random.Generator,
+    structures: np.ndarray | None = None,
+) -> np.ndarray:
+    """Sobol spec vectors dealt round-robin to the structures (``structures``: to those
+    alone), canonical; every point of a typed box that has no more points than
+    ``count``."""
     box = domain.discrete.box if domain.discrete is not None else None
     if domain.discrete is not None and box is not None and (box.n_points or count + 1) <= count:
         specs = domain.discrete.every_point()
         return np.column_stack([np.zeros(len(specs)), specs])
     p = domain.used.shape[1]
     specs = qmc.Sobol(p, scramble=True, rng=rng).random(count) if p else np.zeros((count, 0))
-    index = (np.arange(count) + rng.integers(domain.n_structures)) % domain.n_structures
+    dealt = np.arange(domain.n_structures) if structures is None else structures
+    index = dealt[(np.arange(count) + rng.integers(len(dealt))) % len(dealt)]
     return domain.canonical(np.column_stack([index, specs]))
 
 
@@ -319,6 +330,7 @@ def maximise(
     screen: Acquisition | None = None,
     n_incumbents: int = INCUMBENTS,
     region: SpecRegion | None = None,
+    structures: np.ndarray | None = None,
 ) -> Optimum:
     """The best point found, not one of ``taken`` if any other was found (see the
     module docstring). ``screen``: a cheaper estimate of ``acqf`` (a Monte Carlo
@@ -326,15 +338,21 @@ def maximise(
     then only the ``SCREENED`` best raw samples are scored with ``acqf`` itself.
     ``region``: spec constraints; the raw samples are the feasible ones (topped up
     with the nearest feasible points to others), and every local search's end is
-    moved to the nearest feasible point, so the best point found satisfies them."""
+    moved to the nearest feasible point, so the best point found satisfies them.
+    ``structures``: the structures the answer may have (see the module docstring)."""
     rng = np.random.default_rng(seed)
-    S = domain.n_structures
-    raw = raw_samples(domain, raw_count, rng)
+    allowed = np.arange(domain.n_structures) if structures is None else structures
+    S = len(allowed)
+    raw = raw_samples(domain, raw_count, rng, structures)
     if region is not None:
         raw = _feasible_raw(raw, region, num_restarts)
     values = raw_values = _evaluate(screen or acqf, raw, tkw, deadline)
     chosen = starts(raw, values, num_restarts, rng, 1 < S <= ENUMERATE_LIMIT)
-    initial = np.concatenate([raw[chosen], domain.canonical(incumbents[:n_incumbents])])
+    best_known = incumbents[:n_incumbents]
+    if structures is not None:
+        best_known = np.repeat(best_known, S, axis=0)
+        best_known[:, 0] = np.tile(allowed, n_incumbents)[: len(best_known)]
+    initial = np.concatenate([raw[chosen], domain.canonical(best_known)])
     if screen is not None:
         best_raw = np.argsort(-raw_values, kind="stable")[:SCREENED]
         raw, raw_values = raw[best_raw], _evaluate(acqf, raw[best_raw], tkw)
@@ -344,7 +362,7 @@ def maximise(
         if past(deadline):
             break
         variants = np.repeat(points, S, axis=0)
-        variants[:, 0] = np.tile(np.arange(S), len(points))
+        variants[:, 0] = np.tile(allowed, len(points))
         variants = domain.canonical(variants)
         scores = _evaluate(acqf, variants, tkw).reshape(len(points), S)
         best = scores.argmax(axis=1)

@@ -1,7 +1,8 @@
 """The greedy batch search of ``qei``'s model phases (one objective in ``qei``, several
 objectives or constraints in ``multiobjective``): each step maximises its acquisition
 over the mixed domain (``acquisition.maximise``) with the previous steps' candidates
-pending. Imported only when a proposal is computed."""
+pending; with ``second_looks``, a step that is a second look (``initial.second_look``)
+maximises it over the structures observed once. Imported only when a proposal is computed."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from adservice.proposers.base import ProposalRequest, SpecRegion, model_inputs, search_vectors
+from adservice.proposers.initial import initial_count, second_look
 from adservice.proposers.simple import derived_seed
 
 if TYPE_CHECKING:
@@ -43,6 +45,7 @@ class Found:
     methods: list[str]
     values: list[float]
     switched: int
+    second_looks: list[bool]
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,12 @@ class Greedy:
     deadline: float | None
     n_incumbents: int = 1
     region: SpecRegion | None = None
+    structure_counts: np.ndarray | None = None
+    """Observed and pending designs per structure (None: one structure)."""
+    end_number: int = 0
+    """The study's number of the candidate after this ask's last."""
+    n_start: int = 0
+    """The study's initial designs (``initial.initial_count``)."""
 
     @classmethod
     def of(
@@ -97,6 +106,10 @@ class Greedy:
             spec_width=search.spec_high - search.spec_low if search is not None else None,
         )
         pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
+        counts = None
+        if options.second_looks and search is not None and search.n_structures > 1:
+            trees = np.concatenate([Z[:, 0], pending_Z[:, 0]]).round().astype(np.int64)
+            counts = np.bincount(trees, minlength=search.n_structures)
         return cls(
             domain=domain,
             raw_count=options.raw_samples or max(default_raw, num_restarts),
@@ -111,6 +124,9 @@ class Greedy:
             region=SpecRegion(request.spec_polytope, bounds, search)
             if request.spec_polytope is not None
             else None,
+            structure_counts=counts,
+            end_number=request.n_issued + request.count,
+            n_start=initial_count(request),
         )
 
     def run(
@@ -122,7 +138,7 @@ class Greedy:
 
         from adservice.proposers.acquisition import maximise, past
 
-        found = Found(chosen=[], methods=[], values=[], switched=0)
+        found = Found(chosen=[], methods=[], values=[], switched=0, second_looks=[])
         switched = 0
         for step in range(q):
             if step and past(self.deadline):
@@ -132,6 +148,13 @@ class Greedy:
             batch_pending = np.concatenate([self.pending_Z, *new])
             pending_t = torch.as_tensor(batch_pending, **self.tkw) if len(batch_pending) else None
             current = acquisition_at(step_seed, pending_t)
+            structures = None
+            if self.structure_counts is not None:
+                counts = self.structure_counts.copy()
+                for z in found.chosen:
+                    counts[round(float(z[0]))] += 1
+                number = self.end_number - q + step
+                structures = second_look(counts, number, self.n_start)
             optimum = maximise(
                 current.acqf,
                 self.domain,
@@ -146,12 +169,14 @@ class Greedy:
                 screen=current.screen,
                 n_incumbents=self.n_incumbents,
                 region=self.region,
+                structures=structures,
             )
             found.chosen.append(optimum.z)
             found.methods.append(current.method)
             found.values.append(optimum.value)
+            found.second_looks.append(structures is not None)
             switched += optimum.structures_switched
-        return Found(found.chosen, found.methods, found.values, switched)
+        return Found(found.chosen, found.methods, found.values, switched, found.second_looks)
 
     def rows(
         self,
@@ -184,4 +209,5 @@ class Greedy:
             extra["structure_lengthscale"] = structure_lengthscale(model)
             extra["structure_correlation"] = structure_correlation(model, search, self.tkw)
             extra["structures_switched"] = found.switched
+            extra["second_looks"] = found.second_looks
         return rows_np, extra

@@ -3,9 +3,15 @@ points that cover a typed box's categorical choices, a design space's structures
 the components of its catalogues.
 
 A GP cannot rank a choice or a tree it never saw: with the one-hot kernel it expects
-an unseen choice to be average, and a design study started on two trees of eight kept
-to the first good one (bench/RESULTS.md, issues 16 and 26). So the start is long
-enough to try each, up to ``COVERED_CHOICES``, and deals them to its points.
+an unseen choice to be average. So the start is long enough to try each, up to
+``COVERED_CHOICES``, and deals them to its points.
+
+One random design per tree does not rank the trees either when the specs matter more
+than the tree: the best tree's one design can be poor. With ``second_looks`` (a qei
+option, off by default) every ``SECOND_LOOK_EVERY``-th model ask after the start
+(``second_look``) is a second look: it chooses among the structures observed only
+once, its specs by the acquisition within them, until each has been looked at twice
+(docs/method.md, "The model's choices").
 """
 
 from __future__ import annotations
@@ -18,6 +24,10 @@ from adservice.proposers.simple import scale_to_bounds, sobol_points
 COVERED_CHOICES = 16
 """The most choices of a categorical param, or structures of a design space, the
 initial design makes sure to try."""
+
+
+SECOND_LOOK_EVERY = 2
+"""Every this many model asks after the start, one is a second look (``second_look``)."""
 
 
 def initial_points(request: ProposalRequest, bounds: np.ndarray, count: int) -> np.ndarray:
@@ -89,3 +99,17 @@ def covering_choices(points: np.ndarray, request: ProposalRequest) -> np.ndarray
         order = np.random.default_rng([request.seed, column]).permutation(count)
         points[:, column] = order[numbers % count]
     return box.snap(points)
+
+
+def second_look(counts: np.ndarray, number: int, n_start: int) -> np.ndarray | None:
+    """The structures the study's candidate number ``number`` must choose among, or None
+    for a free choice: after a start of ``n_start`` designs, every
+    ``SECOND_LOOK_EVERY``-th model candidate (the second, fourth, ...) chooses among
+    the structures with exactly one design so far (``counts``: observed, failed and
+    pending designs per structure, this batch's earlier candidates included), while
+    any has; a structure never tried is left to the model, which holds it uncertain."""
+    model_number = number - n_start
+    if model_number < 0 or model_number % SECOND_LOOK_EVERY != SECOND_LOOK_EVERY - 1:
+        return None
+    once = np.flatnonzero(counts == 1)
+    return once if len(once) else None

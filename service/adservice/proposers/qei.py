@@ -11,6 +11,11 @@ What a caller can rely on:
   scrambled Sobol sequence (``initial``); a design space's start covers its structures,
   one per structure up to ``initial.COVERED_CHOICES``, as a typed box's categorical
   choices are covered.
+- **Second looks** (``options["second_looks"]``, off by default). After the start,
+  every second model candidate of a design space is a second look while any structure
+  has exactly one design (observed, failed or pending): the acquisition is maximised
+  over those structures alone, so no tree is judged by its one random design
+  (``initial.second_look``); its info says ``second_look: true``.
 - **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
   (structure index and normalised specs, or a box scaled to the unit box), outcomes
   standardised, hyperparameters by maximum a posteriori (``gpmodel.fit_map``), the
@@ -323,6 +328,7 @@ class QLogEIProposer:
             extra["n_observed"] = n_observed
             extra["train_subset"] = "best, nearest the best, random (subset.py)"
         methods = extra.pop("methods")
+        looks = extra.pop("second_looks", [])
         infos: list[dict[str, Any]] = []
         rows_Z = model_inputs(rows, bounds, request.structure)
         taken = [observed_Z, model_inputs(X_pending, bounds, request.structure)]
@@ -335,7 +341,8 @@ class QLogEIProposer:
                 rows_Z[i] = model_inputs(sobol_rows[i], bounds, request.structure)[0]
                 infos.append({**sobol_info[i], **extra, "method": "sobol-fallback"})
             else:
-                infos.append({"proposer": self.name, **extra, "method": methods[i]})
+                look = {"second_look": True} if i < len(looks) and looks[i] else {}
+                infos.append({"proposer": self.name, **extra, "method": methods[i], **look})
         if len(rows) < q:
             done = len(rows)
             late_rows, late_info = self._fallback(

@@ -72,6 +72,11 @@ class QEIOptions(ProposerOptions):
         "Monte Carlo qLogEI / qLogNEI with pending points",
     )
     warm_start: bool = True
+    second_looks: bool = Field(
+        default=False,
+        description="design spaces: after the start, every second model candidate "
+        "chooses among the structures with one design so far (initial.second_look)",
+    )
     max_train: int | None = Field(
         default=None,
         ge=16,

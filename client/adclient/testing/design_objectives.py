@@ -27,6 +27,15 @@ trees it has not seen behave like the ones it has (see the functions' docstrings
   to how alike the trees are.
 - ``tree-shape-64`` (64 of the 125 trees of 5 links): the tree's value follows its
   shape (depth, leaves, root degree), so alike trees score alike.
+
+Spec-dominated families (issue 37): the specs decide more than the tree; the best
+tree's optimum is narrow, so its one random design scores poorly, and a decoy's is
+broad (``spec_dominated``).
+
+- ``spec-dominated-1`` to ``-4`` (the 8-tree space): four layouts and widths; the
+  other trees' optima lie between the best's and the decoy's in width.
+- ``spec-dominated-5`` and ``-6``: as issue 37's trap, every other tree narrow too and
+  the decoy's plateau low.
 """
 
 from __future__ import annotations
@@ -230,6 +239,77 @@ def shifted_optima() -> Callable[[Design], float]:
     return score
 
 
+# -- spec-dominated families: one sample per tree misranks the trees (issue 37) ------
+#
+# Each tree has its own ceiling, optimum and width, and the specs decide far more than
+# the tree: the best tree's optimum is narrow, so a random design of it scores poorly,
+# and a mediocre decoy tree has a broad plateau, so its random design looks best. A
+# search that ranks the trees by one design each commits to the decoy.
+
+
+def spec_dominated(
+    layout_seed: int,
+    narrow: float,
+    broad: float,
+    shift: float,
+    others: tuple[float, float] | None = None,
+    decoy: tuple[float, float] = (0.35, 0.45),
+) -> Callable[[Design], float]:
+    """8 trees; the score is ``ceiling[tree] * fit * (0.3 + 0.7 * alignment)``, where
+    ``fit`` is a Gaussian bump of the links' lengths (root-mean-square distance to the
+    tree's optimum over its width). The best tree (ceiling 1) has width ``narrow``; a
+    decoy (ceiling in ``decoy``) has width ``broad``; the others ceilings 0.3 to 0.75
+    and widths in ``others`` (by default a quarter to 0.6 of the way from narrow to
+    broad). Every tree's optimal lengths and axes lie near shared ones
+    (normal offsets of ``shift`` in length, tilts of ``shift`` in the axes), so what a
+    study learns of one tree is roughly right on another. The best and decoy trees are
+    drawn from ``layout_seed``."""
+    rng = np.random.default_rng([909, layout_seed])
+    count = len(LIMBS5_STRUCTURES)
+    best, decoy_tree = (int(i) for i in rng.choice(count, size=2, replace=False))
+    ceilings = rng.uniform(0.3, 0.75, size=count)
+    if others is None:
+        others = (narrow + 0.25 * (broad - narrow), narrow + 0.6 * (broad - narrow))
+    widths = rng.uniform(*others, count)
+    ceilings[best], widths[best] = 1.0, narrow
+    ceilings[decoy_tree], widths[decoy_tree] = float(rng.uniform(*decoy)), broad
+    base_lengths = {name: float(rng.uniform(0.2, 0.4)) for name in "abcde"}
+    base_axes = {name: _unit(rng) for name in "bcde"}
+    per_tree = []
+    for _ in LIMBS5_STRUCTURES:
+        lengths = {
+            k: float(np.clip(v + rng.normal(0, shift), 0.12, 0.48)) for k, v in base_lengths.items()
+        }
+        axes = {}
+        for name, axis in base_axes.items():
+            tilted = axis + shift * 4.0 * _unit(rng)
+            axes[name] = tilted / np.linalg.norm(tilted)
+        per_tree.append((lengths, axes))
+
+    def score(design: Design) -> float:
+        tree = design.structure_index
+        lengths, axes = per_tree[tree]
+        own = _lengths(design)
+        misfit = sum((own[k] - lengths[k]) ** 2 for k in own) / len(own)
+        fit = math.exp(-misfit / (2.0 * widths[tree] ** 2))
+        return float(ceilings[tree]) * fit * (0.3 + 0.7 * _alignment(design, axes))
+
+    return score
+
+
+SPEC_DOMINATED: dict[str, tuple[Any, ...]] = {
+    "spec-dominated-1": (1, 0.05, 0.35, 0.03),
+    "spec-dominated-2": (2, 0.07, 0.30, 0.05),
+    "spec-dominated-3": (3, 0.04, 0.40, 0.02),
+    "spec-dominated-4": (4, 0.06, 0.30, 0.08),
+    # as issue 37's trap: every other tree narrow too, the decoy's plateau low
+    "spec-dominated-5": (5, 0.06, 0.35, 0.03, (0.07, 0.10), (0.15, 0.25)),
+    "spec-dominated-6": (6, 0.05, 0.30, 0.05, (0.06, 0.12), (0.15, 0.25)),
+}
+"""Layout seed, narrow width, broad width, shift (and the other trees' widths, the
+decoy's ceiling) of each spec-dominated objective."""
+
+
 def all_trees_space(names: str, radius: bool) -> dict[str, Any]:
     link: dict[str, Any] = {"length": {"low": 0.1, "high": 0.5}, "radius": 0.04, "mass": 1.0}
     if radius:
@@ -335,6 +415,8 @@ _SHAPE_SCORE, _SHAPE_TREES = tree_shape_64()
 OBJECTIVES["tree-shape-64"] = Objective(
     "tree-shape-64", tree_shape_space(_SHAPE_TREES), _SHAPE_SCORE
 )
+for _name, _layout in SPEC_DOMINATED.items():
+    OBJECTIVES[_name] = Objective(_name, limbs5_space(), spec_dominated(*_layout))
 EIGHT_TREES = {
     name
     for name, o in OBJECTIVES.items()
