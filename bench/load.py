@@ -328,15 +328,6 @@ def main() -> None:
                 for endpoint in ("lease", "tell") if not kinds else ():
                     p50 = results[name]["latency_ms"][endpoint]["p50"]
                     emit(f"{name} {endpoint} p50", p50, higher_is_better=False, unit="ms")
-                emit(
-                    f"{name} throughput",
-                    results[name]["trials_per_s"],
-                    higher_is_better=True,
-                    unit="trials/s",
-                )
-                for endpoint in ("lease", "tell") if not kinds else ():
-                    p50 = results[name]["latency_ms"][endpoint]["p50"]
-                    emit(f"{name} {endpoint} p50", p50, higher_is_better=False, unit="ms")
     print()
     if kinds:
         print_adworker_table(results)
