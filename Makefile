@@ -26,7 +26,9 @@ test: install
 	$(BIN)/python tests/system_packages.py
 	# Three test processes on two cores: they keep both busy (99% of the CPU outside a
 	# run's last two minutes, 90% over the whole run, on this project's 2-core machine).
-	$(BIN)/python -m pytest -n 3 --dist loadgroup -q --durations=30
+	# Bytecode caches on (some machines set PYTHONDONTWRITEBYTECODE): else each of the
+	# three processes compiles and assert-rewrites every test module again, 12 CPU-s each.
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -n 3 --dist loadgroup -q --durations=30
 
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser and not postgres"

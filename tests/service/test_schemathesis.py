@@ -43,10 +43,25 @@ CONFIG = SchemathesisConfig.from_dict(
     {"checks": {"negative_data_rejection": {"expected-statuses": REJECTIONS}}}
 )
 
-# The document the server publishes; the app is only built here (not started) to read it.
-schema = schemathesis.openapi.from_dict(
-    create_app(Settings(database_url="sqlite://")).openapi(), config=CONFIG
-)
+
+@pytest.fixture(scope="module")
+def published_schema() -> schemathesis.schemas.BaseSchema:
+    """The document the server publishes; the app is only built here (not started) to
+    read it. Loaded by the test process that runs the test, not at collection: building
+    the cases costs about 10 CPU-s, which every test process would pay otherwise."""
+    return schemathesis.openapi.from_dict(
+        create_app(Settings(database_url="sqlite://")).openapi(), config=CONFIG
+    )
+
+
+schema = schemathesis.pytest.from_fixture("published_schema")
+
+
+@pytest.fixture(autouse=True)
+def node_id_for_schemathesis(request: pytest.FixtureRequest) -> None:
+    """schemathesis's lazy loader renames the test per operation through the node's
+    ``_nodeid``, which pytest 9 no longer has: give it one to read and rewrite."""
+    request.node._nodeid = request.node.nodeid
 
 
 @schema.parametrize()
