@@ -43,6 +43,22 @@ def server(plugin_server: ServerProcess) -> ServerProcess:
     return plugin_server
 
 
+@pytest.fixture(scope="module")
+def checking_server(
+    plugin_site: Path, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[ServerProcess]:
+    """One server that has the plugin, for the tests that only read its catalogue or are
+    refused a study (they run on one xdist process, group ``plugin-checks``)."""
+    work = tmp_path_factory.mktemp("plugin-checks")
+    server = ServerProcess(
+        database_url=f"sqlite:///{work / 'studies.db'}", workdir=work, env=plugin_path(plugin_site)
+    ).start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
 def reach_up_study(**task: Any) -> dict[str, Any]:
     """diagonal-gesture's arm with searched link lengths, scored by the plugin's task."""
     body = yaml.safe_load((EXAMPLES / "diagonal-gesture.yaml").read_text())
@@ -54,8 +70,11 @@ def reach_up_study(**task: Any) -> dict[str, Any]:
     return body
 
 
-def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerProcess) -> None:
-    with Client(server.url) as client:
+@pytest.mark.xdist_group("plugin-checks")
+def test_the_catalogue_lists_the_plugin_with_its_option_schemas(
+    checking_server: ServerProcess,
+) -> None:
+    with Client(checking_server.url) as client:
         tasks = {task.name: task for task in client.tasks()}
         learners = {learner.name: learner for learner in client.learners()}
     assert sorted(tasks) == sorted(
@@ -73,6 +92,7 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerPr
     assert learners["ppo"].options_schema is not None
 
 
+@pytest.mark.xdist_group("plugin-checks")
 @pytest.mark.parametrize(
     ("task", "named"),
     [
@@ -85,13 +105,15 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(server: ServerPr
     ],
 )
 def test_a_study_of_the_plugin_is_checked_with_its_declarations(
-    server: ServerProcess, task: dict[str, Any], named: list[str]
+    checking_server: ServerProcess, task: dict[str, Any], named: list[str]
 ) -> None:
-    answer = httpx.post(f"{server.url}/api/v1/studies", json=reach_up_study(**task), timeout=60)
+    url = f"{checking_server.url}/api/v1/studies"
+    answer = httpx.post(url, json=reach_up_study(**task), timeout=60)
     assert answer.status_code == 422, answer.text
     detail = answer.json()["detail"]
     for text in named:
         assert text in detail, (text, detail)
+    assert httpx.get(url, timeout=60).json() == [], "a refused study was stored"
 
 
 def test_the_command_lines_list_the_plugin_and_what_does_not_load_here(plugin_site: Path) -> None:
@@ -185,6 +207,7 @@ def reach_point_run(
         server.stop()
 
 
+@pytest.mark.xdist_group("browser")  # with the dashboard's test: they share reach_point_run
 def test_a_plugin_tasks_own_metric_and_markers_reach_the_trial_and_its_exports(
     reach_point_run: tuple[ServerProcess, int, list[Any]],
 ) -> None:

@@ -108,9 +108,12 @@ def cluster(
 
 
 def stand_up_study(client: Client, *, max_trials: int, **task: object):
-    """The example stand-up study, as its file sets it, with a budget and task changes."""
+    """The example stand-up study, as its file sets it, with a budget, task changes and
+    the random proposer: these tests are about Ray workers, not proposals, and qei would
+    fit a model in the server for every ask past its first two."""
     body = example_study("stand-up").model_dump(mode="json", exclude_unset=True)
     body["max_trials"] = max_trials
+    body["proposer"] = {"name": "random", "seed": 0}
     body["task"].update(task)
     return client.create_study(body)
 

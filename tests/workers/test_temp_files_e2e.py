@@ -86,11 +86,13 @@ def test_a_signal_mid_job_leaves_nothing_in_the_temporary_folder(
     server: ServerProcess, tmp_path: Path, signals: tuple[str, ...]
 ) -> None:
     """Stopped while PPO trains (it has reported): one signal finishes and reports the
-    job, two abandon it and give its lease back; either way its folders go with it."""
+    job, two abandon it and give its lease back; either way its folders go with it. The
+    signals follow the first report (64 steps) at once, so 1,024 steps (two rollouts of
+    512) leave seconds of training to land in."""
     tmp = temporary_folder(tmp_path)
     never = {"name": "median", "options": {"n_startup_trials": 1000}, "report_every": 64}
     with Client(server.url) as client:
-        study = client.create_study({**stand_up("ppo", 2048, never), "max_trials": 1})
+        study = client.create_study({**stand_up("ppo", 1024, never), "max_trials": 1})
         worker = worker_in(server, tmp_path, tmp, "stopped")
         try:
             trial = wait_for(lambda: running(client, study.id), "a lease")

@@ -36,8 +36,12 @@ def server_factory(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
 
 
 def stand_up_study(client: Client, *, max_trials: int, **task: object):
+    """The example stand-up study with a budget and task changes, and the random
+    proposer: these tests are about workers and leases, not proposals, and qei would fit
+    a model in the server for every ask past its first two."""
     body = example_study("stand-up").model_dump(mode="json")
     body["max_trials"] = max_trials
+    body["proposer"] = {"name": "random", "seed": 0}
     body["task"].update(task)
     return client.create_study(body)
 
@@ -121,7 +125,8 @@ def test_sigterm_mid_job_finishes_and_reports_it_then_exits(server_factory, work
 def test_second_sigterm_abandons_the_job_and_gives_the_lease_back(server_factory, workers):
     server = server_factory(AD_LEASE_SECONDS="600")  # only a release can requeue it soon
     with Client(server.url) as client:
-        study = stand_up_study(client, max_trials=1, learner="fast", train_steps=32 * 512)
+        # A job of a few seconds (as above), so both signals land in the middle of it.
+        study = stand_up_study(client, max_trials=1, learner="fast", train_steps=32 * 128)
         leaving = workers(server, "leaving")
         trial = wait_for(lambda: running_trial(client, study.id, "leaving"), "a lease")
         leaving.signal(signal.SIGTERM)
