@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 from collections.abc import Callable
+from pathlib import Path
 
 import httpx
 import pytest
 
+from adclient.testing.forked import run_adserver
 from adclient.testing.servers import ADSERVER, ServerProcess, make_token
 
 pytestmark = pytest.mark.e2e
@@ -73,22 +76,24 @@ def test_no_token_is_401_before_the_body_is_read(secured: ServerProcess) -> None
             assert answer.status_code == 401, (path, answer.text)
 
 
-def test_revoked_token_stops_working(secured: ServerProcess) -> None:
+def token_command(server: ServerProcess, output: Path, *argv: str) -> str:
+    """``adserver token ARGV`` on the server's database, as an operator runs it (forked,
+    as the harness starts the server itself); what it printed, having exited 0."""
+    argv = ("token", *argv, "--database-url", server.database_url)
+    code = run_adserver(list(argv), env=os.environ, cwd=server.workdir, output=output)
+    printed = output.read_text()
+    output.unlink()
+    assert code == 0, printed
+    return printed
+
+
+def test_revoked_token_stops_working(secured: ServerProcess, tmp_path: Path) -> None:
     reader = make_token(secured, "reader")
     with client(secured, reader) as as_reader:
         assert as_reader.get("/api/v1/studies").status_code == 200
-    listed = subprocess.run(
-        [str(ADSERVER), "token", "list", "--database-url", secured.database_url],
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout
+    listed = token_command(secured, tmp_path / "out", "list")
     token_id = listed.split()[0]
-    subprocess.run(
-        [str(ADSERVER), "token", "revoke", token_id, "--database-url", secured.database_url],
-        check=True,
-        capture_output=True,
-    )
+    token_command(secured, tmp_path / "out", "revoke", token_id)
     secured.restart()  # no cached answer survives a restart; within one process it lasts 5 s
     with client(secured, reader) as as_reader:
         assert as_reader.get("/api/v1/studies").status_code == 401

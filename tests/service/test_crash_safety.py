@@ -14,7 +14,7 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("crash-safety")]
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 
@@ -74,12 +74,12 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
     assert info["n_complete"] == len(values)  # counters agree with the rows after the crash
 
 
-def test_interrupted_upload_is_never_served(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=10, headers=SDK_HEADERS) as http:
+def test_interrupted_upload_is_never_served(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
         trial = one_trial(http)
     path = f"/api/v1/trials/{trial['id']}/artifacts/robot.png"
     # Declare 100 kB, send 10 kB, hang up: the upload never completes.
-    with socket.create_connection(("127.0.0.1", live_server.port)) as sock:
+    with socket.create_connection(("127.0.0.1", shared_server.port)) as sock:
         sock.sendall(
             f"PUT {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: image/png\r\n"
             "X-Activedesign-Client: test\r\n"
@@ -87,7 +87,7 @@ def test_interrupted_upload_is_never_served(live_server: ServerProcess) -> None:
             + b"\x89PNG" * 2500
         )
         time.sleep(0.3)
-    with httpx.Client(base_url=live_server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
         assert http.get(path).status_code == 404
         assert http.get(f"/api/v1/trials/{trial['id']}/artifacts").json() == []
         image = b"\x89PNG\r\n\x1a\n" * 5
@@ -96,26 +96,27 @@ def test_interrupted_upload_is_never_served(live_server: ServerProcess) -> None:
         served = http.get(path)
         assert served.status_code == 200 and served.content == image
         assert served.headers["content-type"] == "image/png"
-    leftovers = list(live_server.artifact_dir.rglob(".upload-*"))
+    leftovers = list(shared_server.artifact_dir.rglob(".upload-*"))
     assert leftovers == []
 
 
-def test_truncated_artifact_file_is_not_served(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=10, headers=SDK_HEADERS) as http:
+def test_truncated_artifact_file_is_not_served(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
         trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/curve.json"
         http.put(path, content=b'{"curve": [1, 2, 3]}')
-        (stored,) = list(live_server.artifact_dir.rglob("curve.json.*"))
+        folder = shared_server.artifact_dir / str(trial["study_id"])  # this study's
+        (stored,) = list(folder.rglob("curve.json.*"))
         stored.write_bytes(b'{"curve": [1,')  # damaged on disk behind the server's back
         response = http.get(path)
         assert response.status_code == 404 and "incomplete" in response.json()["detail"]
 
 
-@pytest.mark.xdist_group("crash-safety")  # one xdist worker: its cases share two servers
 @pytest.mark.parametrize("name", ["..", "a/b", "..%2F..%2Fetc", ".hidden", "x" * 200])
 def test_artifact_names_cannot_escape(shared_server: ServerProcess, name: str) -> None:
-    """On the module's server: only these cases put an artifact there, and all are refused,
-    so no file under its folder holds their content."""
+    """On the module's server: these cases put an artifact holding ``x`` there (the
+    module's other tests upload other bytes), and all are refused, so no file under its
+    folder holds their content."""
     with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
         trial = one_trial(http)
         response = http.put(f"/api/v1/trials/{trial['id']}/artifacts/{name}", content=b"x")

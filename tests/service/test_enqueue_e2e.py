@@ -196,14 +196,15 @@ def test_no_room_or_a_stopped_study_is_409_and_stores_nothing(shared_server: Ser
         assert stopped.status_code == 409
 
 
-def test_a_managed_study_leases_its_enqueued_trials_first(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
-        sid = study(http, task={"name": "noop", "external": True}, max_trials=5)["id"]
+def test_a_managed_study_leases_its_enqueued_trials_first(shared_server: ServerProcess) -> None:
+    lease = {"worker_id": "w", "tasks": ["enqueued-first"]}  # this study's jobs alone
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+        sid = study(http, task={"name": "enqueued-first", "external": True}, max_trials=5)["id"]
         queued = http.post(f"/api/v1/studies/{sid}/trials", json={"params": params(3)}).json()
-        job = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+        job = http.post("/api/v1/jobs/lease", json=lease).json()
         assert job["trial_id"] == queued["id"] and job["params"] == params(3)
         assert job["attempt"] == 1
-        after = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+        after = http.post("/api/v1/jobs/lease", json=lease).json()
         assert after["trial_id"] != queued["id"]  # then proposals
 
 

@@ -15,7 +15,7 @@ import pytest
 
 from adclient.testing.servers import ServerProcess
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("log-specs")]
 
 MASS = (0.01, 100.0)
 """A log-scaled spec over four decades: geometric mean 1, arithmetic mean 50.005."""
@@ -54,9 +54,9 @@ def ask(http: httpx.Client, sid: int, count: int) -> list[dict[str, Any]]:
 
 @pytest.mark.parametrize("proposer", ["sobol", "random"])
 def test_proposals_spread_a_log_spec_log_uniformly(
-    live_server: ServerProcess, proposer: str
+    shared_server: ServerProcess, proposer: str
 ) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=60) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
         sid = create(http, proposer)
         trials = ask(http, sid, 64) + ask(http, sid, 64)
     masses = [t["params"][f"{link}.mass"] for t in trials for link in "ab"]
@@ -81,8 +81,8 @@ def test_proposals_spread_a_log_spec_log_uniformly(
         assert trial["vector"][1] == pytest.approx(expected, abs=1e-12)
 
 
-def test_an_enqueued_log_design_round_trips(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=60) as http:
+def test_an_enqueued_log_design_round_trips(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
         sid = create(http, "random")
         asked = ask(http, sid, 4)
         url = f"/api/v1/studies/{sid}/trials"
@@ -118,12 +118,13 @@ def test_an_enqueued_log_design_round_trips(live_server: ServerProcess) -> None:
         assert "'a.mass' = 0.001 lies outside [0.01, 100.0]" in refused.json()["detail"]
 
 
-def test_a_log_spec_needs_low_above_zero(live_server: ServerProcess) -> None:
+def test_a_log_spec_needs_low_above_zero(shared_server: ServerProcess) -> None:
     space = {**SPACE, "joint": {"effort": {"low": 0.0, "high": 10.0, "log": True}}}
-    with httpx.Client(base_url=live_server.url, timeout=60) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
+        before = http.get("/api/v1/studies").json()
         refused = http.post("/api/v1/studies", json={"name": "bad log", "space": space})
         assert refused.status_code == 422
         detail = refused.json()["detail"]
         assert "space.design.joint.effort" in detail
         assert "log: a log scale needs low > 0, got 0.0" in detail
-        assert http.get("/api/v1/studies").json() == []  # nothing stored
+        assert http.get("/api/v1/studies").json() == before  # nothing stored

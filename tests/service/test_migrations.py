@@ -4,9 +4,11 @@ PostgreSQL; upgrading twice, or from several processes at once, is harmless."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -14,7 +16,7 @@ import sqlalchemy as sa
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 
-from adclient.testing.servers import ADSERVER
+from adclient.testing.forked import run_adserver
 from adservice.db import upgrade_to_head
 from adservice.models import Base
 
@@ -48,16 +50,16 @@ def test_upgrade_is_idempotent(database_url: str) -> None:
     assert tables >= TABLES
 
 
-def test_adserver_migrate_brings_the_schema_to_head_and_exits(database_url: str) -> None:
-    """What deploy/k8s's init container runs before each server replica starts."""
+def test_adserver_migrate_brings_the_schema_to_head_and_exits(
+    database_url: str, tmp_path: Path
+) -> None:
+    """What deploy/k8s's init container runs before each server replica starts (the
+    installed program, forked as the harness starts servers)."""
+    output = tmp_path / "migrate.log"
     for _ in range(2):
-        done = subprocess.run(
-            [str(ADSERVER), "migrate", "--database-url", database_url],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
-        assert done.returncode == 0, done.stderr
+        argv = ["migrate", "--database-url", database_url]
+        code = run_adserver(argv, env=os.environ, cwd=tmp_path, output=output)
+        assert code == 0, output.read_text()
     engine = sa.create_engine(database_url)
     tables = set(sa.inspect(engine).get_table_names())
     engine.dispose()

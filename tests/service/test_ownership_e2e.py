@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import httpx
 import pytest
 
 from adclient.testing.servers import ServerProcess, make_token
+from tests.conftest import DATABASES
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("ownership")]
 
 MANAGED = {
     "name": "managed",
@@ -25,9 +27,41 @@ PNG = b"\x89PNG\r\n\x1a\n" + bytes(64)
 SCRIPT_SVG = b'<svg xmlns="http://www.w3.org/2000/svg"><script>alert(1)</script></svg>'
 
 
-@pytest.fixture
-def secured(server_factory: Callable[..., ServerProcess]) -> ServerProcess:
-    return server_factory(AD_AUTH="true")
+@pytest.fixture(scope="module", params=DATABASES)
+def secured(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[ServerProcess]:
+    """One server with auth on per kind of database, shared by the module's tests that
+    take it: each makes studies of its own and leases only its own task's jobs
+    (:func:`managed`)."""
+    workdir = tmp_path_factory.mktemp("secured")
+    if request.param == "postgresql":
+        url = request.getfixturevalue("postgres_cluster").create_database()
+    else:
+        url = f"sqlite:///{workdir / 'studies.db'}"
+    server = ServerProcess(database_url=url, workdir=workdir, env={"AD_AUTH": "true"})
+    yield server.start()
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def token(secured: ServerProcess) -> Callable[..., str]:
+    """``token(role, name="")``: a token of the shared server, made by ``adserver token
+    create`` once per role and name, for every test that asks for it."""
+    made: dict[tuple[str, str], str] = {}
+
+    def of(role: str, name: str = "") -> str:
+        if (role, name) not in made:
+            made[role, name] = make_token(secured, role, name=name)
+        return made[role, name]
+
+    return of
+
+
+def managed(task: str) -> dict[str, Any]:
+    """A managed study of its own ``task``, so that leasing ``[task]`` takes its jobs and
+    no other test's on a shared server."""
+    return {**MANAGED, "task": {"name": task, "external": True}}
 
 
 def as_token(server: ServerProcess, token: str) -> httpx.Client:
@@ -44,12 +78,15 @@ def trial_state(api: httpx.Client, trial_id: int) -> dict:
     return answer.json()
 
 
-def test_only_the_leasing_token_acts_on_a_trial(secured: ServerProcess) -> None:
-    admin = as_token(secured, make_token(secured, "admin"))
-    first = as_token(secured, make_token(secured, "worker"))
-    second = as_token(secured, make_token(secured, "worker"))
-    assert admin.post("/api/v1/studies", json=MANAGED).status_code == 201
-    job = first.post("/api/v1/jobs/lease", json={"worker_id": "a"}).json()
+def test_only_the_leasing_token_acts_on_a_trial(
+    secured: ServerProcess, token: Callable[..., str]
+) -> None:
+    admin = as_token(secured, token("admin"))
+    first = as_token(secured, token("worker"))
+    second = as_token(secured, token("worker", name="second"))
+    assert admin.post("/api/v1/studies", json=managed("leasing-token")).status_code == 201
+    lease = {"worker_id": "a", "tasks": ["leasing-token"]}
+    job = first.post("/api/v1/jobs/lease", json=lease).json()
     trial = f"/api/v1/trials/{job['trial_id']}"
     before = trial_state(admin, job["trial_id"])
 
@@ -81,15 +118,18 @@ def test_only_the_leasing_token_acts_on_a_trial(secured: ServerProcess) -> None:
     assert late.status_code == 409 and "complete" in late.json()["detail"]
 
 
-def test_an_admin_releases_or_fails_any_trial(secured: ServerProcess) -> None:
-    admin = as_token(secured, make_token(secured, "admin"))
-    worker = as_token(secured, make_token(secured, "worker"))
-    admin.post("/api/v1/studies", json=MANAGED)
-    held = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+def test_an_admin_releases_or_fails_any_trial(
+    secured: ServerProcess, token: Callable[..., str]
+) -> None:
+    admin = as_token(secured, token("admin"))
+    worker = as_token(secured, token("worker"))
+    admin.post("/api/v1/studies", json=managed("admin-releases"))
+    lease = {"worker_id": "w", "tasks": ["admin-releases"]}
+    held = worker.post("/api/v1/jobs/lease", json=lease).json()
     released = admin.post(f"/api/v1/trials/{held['trial_id']}/release", json={})
     assert released.status_code == 200 and released.json()["state"] == "queued"
     # A worker must name itself to release.
-    again = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+    again = worker.post("/api/v1/jobs/lease", json=lease).json()
     assert again["trial_id"] == held["trial_id"]
     unnamed = worker.post(f"/api/v1/trials/{again['trial_id']}/release", json={})
     assert unnamed.status_code == 403
@@ -103,11 +143,13 @@ def test_an_admin_releases_or_fails_any_trial(secured: ServerProcess) -> None:
     assert late.status_code == 409
 
 
-def test_users_manage_only_their_own_studies(secured: ServerProcess) -> None:
-    alice = as_token(secured, make_token(secured, "user", name="alice"))
-    bob = as_token(secured, make_token(secured, "user", name="bob"))
-    admin = as_token(secured, make_token(secured, "admin"))
-    reader = as_token(secured, make_token(secured, "reader"))
+def test_users_manage_only_their_own_studies(
+    secured: ServerProcess, token: Callable[..., str]
+) -> None:
+    alice = as_token(secured, token("user", name="alice"))
+    bob = as_token(secured, token("user", name="bob"))
+    admin = as_token(secured, token("admin"))
+    reader = as_token(secured, token("reader"))
     study = alice.post("/api/v1/studies", json=ASKED).json()
     assert study["created_by"] == "alice"
     url = f"/api/v1/studies/{study['id']}"
@@ -166,11 +208,12 @@ def test_artifact_uploads_need_the_lease_and_fit_the_quota(
     assert sorted(a["name"] for a in admin.get(base).json()) == ["a.json", "b.json", "c.json"]
 
 
-def test_artifacts_are_served_inert(secured: ServerProcess) -> None:
-    admin = as_token(secured, make_token(secured, "admin"))
-    worker = as_token(secured, make_token(secured, "worker"))
-    admin.post("/api/v1/studies", json=MANAGED)
-    job = worker.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+def test_artifacts_are_served_inert(secured: ServerProcess, token: Callable[..., str]) -> None:
+    admin = as_token(secured, token("admin"))
+    worker = as_token(secured, token("worker"))
+    admin.post("/api/v1/studies", json=managed("served-inert"))
+    lease = {"worker_id": "w", "tasks": ["served-inert"]}
+    job = worker.post("/api/v1/jobs/lease", json=lease).json()
     base = f"/api/v1/trials/{job['trial_id']}/artifacts"
     uploads = {
         "robot.png": (SCRIPT_SVG, "image/svg+xml"),
@@ -196,8 +239,10 @@ def test_artifacts_are_served_inert(secured: ServerProcess) -> None:
     assert served["curve.json"].headers["content-disposition"].startswith("attachment")
 
 
-def test_dashboard_sign_in_is_a_cookie_session_with_csrf(secured: ServerProcess) -> None:
-    token = make_token(secured, "user", name="carol")
+def test_dashboard_sign_in_is_a_cookie_session_with_csrf(
+    secured: ServerProcess, token: Callable[..., str]
+) -> None:
+    carol = token("user", name="carol")
     with httpx.Client(base_url=secured.url, timeout=30) as browser:
         assert browser.get("/api/v1/session").json() == {
             "auth": True,
@@ -207,10 +252,10 @@ def test_dashboard_sign_in_is_a_cookie_session_with_csrf(secured: ServerProcess)
             "csrf_token": None,
         }
         assert browser.post("/api/v1/session", json={"token": "adt_wrong"}).status_code == 401
-        signed = browser.post("/api/v1/session", json={"token": token})
+        signed = browser.post("/api/v1/session", json={"token": carol})
         assert signed.status_code == 200
         cookie = signed.headers["set-cookie"].lower()
-        assert "httponly" in cookie and "samesite=strict" in cookie and token.lower() not in cookie
+        assert "httponly" in cookie and "samesite=strict" in cookie and carol.lower() not in cookie
         info = signed.json()
         assert info["signed_in"] and info["role"] == "user" and info["name"] == "carol"
         assert browser.get("/api/v1/studies").status_code == 200  # the cookie authenticates
@@ -233,10 +278,10 @@ def test_dashboard_sign_in_is_a_cookie_session_with_csrf(secured: ServerProcess)
         assert replay.get("/api/v1/studies").status_code == 401
 
 
-def test_a_simple_cross_site_request_changes_nothing(live_server: ServerProcess) -> None:
+def test_a_simple_cross_site_request_changes_nothing(shared_server: ServerProcess) -> None:
     """Auth off (loopback): what a page on another origin can send unasked, a form post or
     a no-cors fetch, has neither a JSON type nor a custom header, and is refused."""
-    with httpx.Client(base_url=live_server.url, timeout=30) as browser_like:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as browser_like:
         study = browser_like.post("/api/v1/studies", json=ASKED).json()  # JSON: allowed
         url = f"/api/v1/studies/{study['id']}"
         for headers, body in (
@@ -259,8 +304,8 @@ def test_a_simple_cross_site_request_changes_nothing(live_server: ServerProcess)
         assert stopped.status_code == 200 and stopped.json()["state"] == "stopped"
 
 
-def test_every_answer_carries_security_headers(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+def test_every_answer_carries_security_headers(shared_server: ServerProcess) -> None:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         for path in ("/", "/index.html", "/healthz", "/docs"):  # pages
             answer = http.get(path)
             assert answer.headers["x-content-type-options"] == "nosniff", path
@@ -294,19 +339,21 @@ def test_host_header_must_name_the_server(server_factory: Callable[..., ServerPr
 
 
 def test_an_upload_refused_at_its_end_leaves_the_artifact_as_it_was(
-    live_server: ServerProcess,
+    shared_server: ServerProcess,
 ) -> None:
     """The lease is lost while a new version streams in: the old version stays served,
     and once a version is replaced its file is gone from disk."""
     http = httpx.Client(
-        base_url=live_server.url, timeout=30, headers={"X-Activedesign-Client": "t"}
+        base_url=shared_server.url, timeout=30, headers={"X-Activedesign-Client": "t"}
     )
-    http.post("/api/v1/studies", json=MANAGED)
-    job = http.post("/api/v1/jobs/lease", json={"worker_id": "w"}).json()
+    study = http.post("/api/v1/studies", json=managed("refused-upload")).json()
+    lease = {"worker_id": "w", "tasks": ["refused-upload"]}
+    job = http.post("/api/v1/jobs/lease", json=lease).json()
     url = f"/api/v1/trials/{job['trial_id']}/artifacts/curve.json?worker_id=w"
     assert http.put(url, content=b"[1]").status_code == 201
     assert http.put(url, content=b"[1, 2]").status_code == 201  # replaces [1]
-    files = list(live_server.artifact_dir.rglob("curve.json.*"))
+    folder = shared_server.artifact_dir / str(study["id"])  # this study's artifacts
+    files = list(folder.rglob("curve.json.*"))
     assert [f.read_bytes() for f in files] == [b"[1, 2]"]
 
     halfway = threading.Event()
@@ -328,6 +375,6 @@ def test_an_upload_refused_at_its_end_leaves_the_artifact_as_it_was(
     upload.join(30)
     assert answer[0].status_code == 409, answer[0].text
     assert http.get(url.split("?")[0]).content == b"[1, 2]"
-    files = list(live_server.artifact_dir.rglob("curve.json.*"))
+    files = list(folder.rglob("curve.json.*"))
     assert [f.read_bytes() for f in files] == [b"[1, 2]"]
     http.close()

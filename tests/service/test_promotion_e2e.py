@@ -16,7 +16,7 @@ import pytest
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.client.test_cli import run
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("promotion")]
 
 PROMOTION = {
     "name": "asha",
@@ -24,22 +24,25 @@ PROMOTION = {
 }
 
 
-def managed(pruner: dict[str, Any], max_trials: int) -> dict[str, Any]:
-    """A box study that workers of the external task ``curve`` lease."""
+def managed(pruner: dict[str, Any], max_trials: int, task: str = "curve") -> dict[str, Any]:
+    """A box study that workers of the external ``task`` lease (a test on the shared
+    server names a task of its own, so that it leases only its own study's jobs)."""
     return {
         "name": "promoted",
         "direction": "maximize",
         "space": {"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
         "proposer": {"name": "random", "seed": 1},
-        "task": {"name": "curve", "external": True},
+        "task": {"name": task, "external": True},
         "pruner": pruner,
         "max_trials": max_trials,
     }
 
 
 @pytest.fixture
-def http(live_server: ServerProcess) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=live_server.url, headers=SDK_HEADERS, timeout=30) as client:
+def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
+    """The module's server: a test leases only its own task's jobs and looks only at its
+    own studies."""
+    with httpx.Client(base_url=shared_server.url, headers=SDK_HEADERS, timeout=30) as client:
         yield client
 
 
@@ -49,8 +52,8 @@ def create(http: httpx.Client, body: dict[str, Any]) -> int:
     return int(created.json()["id"])
 
 
-def lease(http: httpx.Client, worker: str) -> dict[str, Any] | None:
-    leased = http.post("/api/v1/jobs/lease", json={"worker_id": worker, "tasks": ["curve"]})
+def lease(http: httpx.Client, worker: str, task: str = "curve") -> dict[str, Any] | None:
+    leased = http.post("/api/v1/jobs/lease", json={"worker_id": worker, "tasks": [task]})
     assert leased.status_code in (200, 204), leased.text
     return leased.json() if leased.status_code == 200 else None
 
@@ -79,9 +82,9 @@ def pause(http: httpx.Client, trial: int, worker: str, step: int, **extra: Any) 
     )
 
 
-def paused_at_rung(http: httpx.Client, worker: str, value: float) -> int:
-    """A new trial leased by ``worker``, reported at rung 10, paused there."""
-    job = lease(http, worker)
+def paused_at_rung(http: httpx.Client, worker: str, value: float, task: str = "curve") -> int:
+    """A new trial of ``task`` leased by ``worker``, reported at rung 10, paused there."""
+    job = lease(http, worker, task)
     assert job is not None
     answer = report(http, job["trial_id"], worker, 10, value)
     assert answer == {"should_stop": True, "pause": True}, answer
@@ -96,14 +99,15 @@ def trial(http: httpx.Client, trial_id: int) -> dict[str, Any]:
 
 
 def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(
-    http: httpx.Client, live_server: ServerProcess
+    http: httpx.Client, shared_server: ServerProcess
 ) -> None:
-    study = create(http, managed(PROMOTION, max_trials=4))
-    a = lease(http, "wa")
+    task = "promoted"
+    study = create(http, managed(PROMOTION, max_trials=4, task=task))
+    a = lease(http, "wa", task)
     assert a is not None and a["resume"] is None
     assert report(http, a["trial_id"], "wa", 10, 1.0) == {"should_stop": False, "pause": False}
 
-    b = lease(http, "wb")
+    b = lease(http, "wb", task)
     assert b is not None
     assert report(http, b["trial_id"], "wb", 10, 0.5) == {"should_stop": True, "pause": True}
     below = pause(http, b["trial_id"], "wb", 5)
@@ -133,20 +137,20 @@ def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(
     assert (info["n_paused"], info["n_running"], info["n_pruned"]) == (1, 1, 0)
     listed = http.get(f"/api/v1/studies/{study}/trials", params={"state": "paused"}).json()
     assert [t["id"] for t in listed] == [b["trial_id"]]
-    status = run(live_server.url, "status", str(study)).stdout
+    status = run(shared_server.url, "status", str(study)).stdout
     rows = [
         [cell.strip() for cell in line.split("│") if cell.strip()] for line in status.splitlines()
     ]
     assert ["paused", "1"] in rows, status
 
     # Rung 10 holds [1.0, 0.5, 0.2]: 3 // 2 - 1 < 0, so only the best goes on; b waits.
-    paused_at_rung(http, "wc", 0.2)
+    paused_at_rung(http, "wc", 0.2, task)
     assert trial(http, b["trial_id"])["state"] == "paused"
     # A fourth value: 4 // 2 - 1 = 1, the top two go on: 0.5 is the second best now.
-    paused_at_rung(http, "wd", 0.1)
+    paused_at_rung(http, "wd", 0.1, task)
     assert trial(http, b["trial_id"])["state"] == "queued"
 
-    resumed = lease(http, "we")
+    resumed = lease(http, "we", task)
     assert resumed is not None and resumed["trial_id"] == b["trial_id"], resumed
     assert resumed["resume"] == record["checkpoint"]
     assert resumed["attempt"] == 1  # the paused attempt did not count against max_attempts
@@ -157,16 +161,17 @@ def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(
 def test_paused_trials_end_pruned_with_their_value_once_the_budget_is_spent(
     http: httpx.Client,
 ) -> None:
-    study = create(http, managed(PROMOTION, max_trials=2))
-    a = lease(http, "wa")
+    task = "budget-spent"
+    study = create(http, managed(PROMOTION, max_trials=2, task=task))
+    a = lease(http, "wa", task)
     assert a is not None
     report(http, a["trial_id"], "wa", 10, 1.0)
-    b = paused_at_rung(http, "wb", 0.5)
-    assert lease(http, "wc") is None  # no room for a new trial, b waits, a still runs
+    b = paused_at_rung(http, "wb", 0.5, task)
+    assert lease(http, "wc", task) is None  # no room for a new trial, b waits, a still runs
     assert trial(http, b)["state"] == "paused"
     told = http.post(f"/api/v1/trials/{a['trial_id']}/tell", json={"value": 2.0, "worker_id": "wa"})
     assert told.status_code == 200, told.text
-    assert lease(http, "wc") is None  # nothing can reach rung 10 any more: b ends
+    assert lease(http, "wc", task) is None  # nothing can reach rung 10 any more: b ends
     ended = trial(http, b)
     assert (ended["state"], ended["value"]) == ("pruned", 0.5)
     assert "budget" in ended["message"]
@@ -181,8 +186,8 @@ def test_paused_trials_end_pruned_with_their_value_once_the_budget_is_spent(
 
 def test_only_asha_with_promotion_pauses_and_only_a_workers_trial(http: httpx.Client) -> None:
     plain = {"name": "asha", "options": {"min_resource": 10, "reduction_factor": 2}}
-    create(http, managed(plain, max_trials=2))
-    first, second = lease(http, "wa"), lease(http, "wb")
+    create(http, managed(plain, max_trials=2, task="no-promotion"))
+    first, second = lease(http, "wa", "no-promotion"), lease(http, "wb", "no-promotion")
     assert first is not None and second is not None
     report(http, first["trial_id"], "wa", 10, 1.0)
     assert report(http, second["trial_id"], "wb", 10, 0.5) == {

@@ -16,7 +16,7 @@ from adclient import Client
 from adclient.errors import Conflict, NotFound
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("study-data")]
 
 NAMES = [
     "Roboter-Entwurf 設計 v2",
@@ -44,13 +44,14 @@ def raw(server: ServerProcess, token: str | None = None) -> httpx.Client:
 
 
 def test_names_are_free_text_and_control_characters_are_refused(
-    live_server: ServerProcess,
+    shared_server: ServerProcess,
 ) -> None:
-    with Client(live_server.url) as client:
+    with Client(shared_server.url) as client:
+        before = [study.name for study in client.studies()]  # the module's other tests'
         made = [client.create_study(name=name, space=BOX).id for name in NAMES]
         assert [client.study_info(study_id).name for study_id in made] == NAMES
-        assert [study.name for study in client.studies()] == NAMES
-    api = raw(live_server)
+        assert [study.name for study in client.studies()] == before + NAMES
+    api = raw(shared_server)
     for name, problem in (
         ("line\nbreak", "U+000A at position 4"),
         ("\x1b[31mred", "U+001B at position 0"),
@@ -67,12 +68,13 @@ def test_names_are_free_text_and_control_characters_are_refused(
     lone = b'{"name": "half \\ud800", "space": {"type": "box", "params": []}}'
     answer = api.post("/api/v1/studies", content=lone, headers={"Content-Type": "application/json"})
     assert answer.status_code == 422
-    assert len(api.get("/api/v1/studies").json()) == len(NAMES)
+    assert len(api.get("/api/v1/studies").json()) == len(before) + len(NAMES)
 
 
-def lease_with_files(api: httpx.Client, worker_id: str) -> int:
-    """Lease a trial as ``worker_id``, report on it and upload two artifacts."""
-    job = api.post("/api/v1/jobs/lease", json={"worker_id": worker_id}).json()
+def lease_with_files(api: httpx.Client, worker_id: str, task: str) -> int:
+    """Lease a trial of ``task`` as ``worker_id``, report on it and upload two artifacts."""
+    lease = {"worker_id": worker_id, "tasks": [task]}
+    job = api.post("/api/v1/jobs/lease", json=lease).json()
     trial = f"/api/v1/trials/{job['trial_id']}"
     body = {"worker_id": worker_id, "step": 1, "value": 0.5}
     assert api.post(f"{trial}/report", json=body).status_code == 200
@@ -83,17 +85,19 @@ def lease_with_files(api: httpx.Client, worker_id: str) -> int:
 
 
 def test_delete_refuses_leases_unless_forced_and_removes_everything(
-    live_server: ServerProcess,
+    shared_server: ServerProcess,
 ) -> None:
-    api = raw(live_server)
-    doomed = api.post("/api/v1/studies", json={**MANAGED, "max_trials": 2}).json()["id"]
-    finished = lease_with_files(api, "w1")
+    api = raw(shared_server)
+    task = "deleted"  # this test's jobs alone, on a shared server
+    body = {**MANAGED, "task": {"name": task, "external": True}}
+    doomed = api.post("/api/v1/studies", json={**body, "max_trials": 2}).json()["id"]
+    finished = lease_with_files(api, "w1", task)
     assert api.post(f"/api/v1/trials/{finished}/tell", json={"worker_id": "w1", "value": 1.0})
-    held = lease_with_files(api, "w2")
-    kept = api.post("/api/v1/studies", json={**MANAGED, "name": "kept"}).json()["id"]
-    other = lease_with_files(api, "w3")
+    held = lease_with_files(api, "w2", task)
+    kept = api.post("/api/v1/studies", json={**body, "name": "kept"}).json()["id"]
+    other = lease_with_files(api, "w3", task)
     assert api.get(f"/api/v1/trials/{other}").json()["study_id"] == kept
-    files = live_server.artifact_dir / str(doomed)
+    files = shared_server.artifact_dir / str(doomed)
     assert len(list(files.rglob("robot.png.*"))) >= 2
     before = api.get(f"/api/v1/studies/{doomed}/trials").json()
 
@@ -121,11 +125,12 @@ def test_delete_refuses_leases_unless_forced_and_removes_everything(
     ):
         assert answer.status_code == 404, answer.text
         assert answer.json()["detail"] == f"trial {held} not found"
-    engine = sa.create_engine(live_server.database_url)
+    engine = sa.create_engine(shared_server.database_url)
     with engine.connect() as connection:
-        current = dict(
-            connection.execute(sa.text("SELECT worker_id, current_trial_id FROM workers")).all()
+        mine = sa.text(  # this test's workers (others lease on the shared server)
+            "SELECT worker_id, current_trial_id FROM workers WHERE worker_id IN ('w1', 'w2', 'w3')"
         )
+        current = dict(connection.execute(mine).all())
     engine.dispose()
     assert current == {"w1": None, "w2": None, "w3": other}
     # The other study is whole, and a new study never takes the deleted one's id.
@@ -133,7 +138,7 @@ def test_delete_refuses_leases_unless_forced_and_removes_everything(
     assert (
         api.post(f"/api/v1/trials/{other}/heartbeat", json={"worker_id": "w3"}).status_code == 200
     )
-    assert (live_server.artifact_dir / str(kept)).is_dir()
+    assert (shared_server.artifact_dir / str(kept)).is_dir()
     # Ids are never given again, even those of the newest study and trial.
     newest = api.post("/api/v1/studies", json={"name": "newest", "space": BOX}).json()["id"]
     asked = api.post(f"/api/v1/studies/{newest}/ask", json={}).json()["trials"][0]["id"]
@@ -143,10 +148,10 @@ def test_delete_refuses_leases_unless_forced_and_removes_everything(
     assert api.post(f"/api/v1/studies/{again}/ask", json={}).json()["trials"][0]["id"] > asked
 
 
-def test_sdk_delete_and_its_conflict(live_server: ServerProcess) -> None:
-    with Client(live_server.url) as client:
-        study = client.create_study(MANAGED)
-        job = client.lease("w")
+def test_sdk_delete_and_its_conflict(shared_server: ServerProcess) -> None:
+    with Client(shared_server.url) as client:
+        study = client.create_study({**MANAGED, "task": {"name": "sdk-delete", "external": True}})
+        job = client.lease("w", tasks=["sdk-delete"])
         assert job is not None
         with pytest.raises(Conflict, match="leased by worker"):
             study.delete()
@@ -206,9 +211,9 @@ def test_only_the_owner_or_an_admin_deletes_and_sets_attributes(secured: ServerP
     assert admin.get(f"/api/v1/studies/{study}").status_code == 404
 
 
-def test_user_attributes_merge_and_bad_ones_change_nothing(live_server: ServerProcess) -> None:
-    api = raw(live_server)
-    with Client(live_server.url) as client:
+def test_user_attributes_merge_and_bad_ones_change_nothing(shared_server: ServerProcess) -> None:
+    api = raw(shared_server)
+    with Client(shared_server.url) as client:
         study = client.create_study(name="attrs", space=BOX, direction="minimize")
         study.set_user_attr("owner", "Ada 設計")
         study.set_user_attr("budget", {"steps": 1000, "tags": ["a", "b"]})

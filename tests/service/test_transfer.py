@@ -27,7 +27,7 @@ from adclient.schemas import Job
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from adservice.models import TrialRow
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("transfer")]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 AMONG = 2
@@ -101,7 +101,7 @@ def tell(client: Client, kind: str, job: Job, source: int | None):
 
 @pytest.mark.parametrize("kind", OBJECTIVES)
 def test_a_job_starts_from_the_nearest_of_the_best_evaluated_designs_of_its_tree(
-    live_server: ServerProcess, kind: str
+    shared_server: ServerProcess, kind: str
 ) -> None:
     """Every leased job is checked against what the service has seen: a job of a tree
     with evaluated designs that left a checkpoint starts from the nearest of the best of
@@ -110,12 +110,14 @@ def test_a_job_starts_from_the_nearest_of_the_best_evaluated_designs_of_its_tree
     nothing; a design of another tree, or one that left no checkpoint, is never a
     source. The tell's answer names the source (it was read before the source was kept
     in a constrained or two-objective study)."""
-    with Client(live_server.url) as client:
-        study = client.create_study({**study_body(f"transfer-{kind}"), **OBJECTIVES[kind]})
+    task = "nearest-" + kind.replace(" ", "-")  # this study's jobs alone, on a shared server
+    with Client(shared_server.url) as client:
+        body = {**study_body(f"transfer-{kind}", name=task), **OBJECTIVES[kind]}
+        study = client.create_study(body)
         done: list[tuple[int, list[float]]] = []  # id, vector (checkpointed)
         started_from = 0
         for index in range(40):
-            job = client.lease("w")
+            job = client.lease("w", tasks=[task])
             assert job is not None and job.study_id == study.id
             tree, specs = key(job, job.vector)
             same = [(i, v) for i, v in done if key(job, v)[0] == tree]
@@ -145,41 +147,42 @@ def test_a_job_starts_from_the_nearest_of_the_best_evaluated_designs_of_its_tree
         assert started_from >= 20  # six trees, 40 designs: most start from another
 
 
-def test_a_checkpoint_of_an_earlier_attempt_is_no_source(live_server: ServerProcess) -> None:
+def test_a_checkpoint_of_an_earlier_attempt_is_no_source(shared_server: ServerProcess) -> None:
     """A trial that uploaded its checkpoint, lost its lease (here: gave it back) and
     was completed by a later attempt that uploaded none (as a promoted trial whose
     final upload failed holds its rung's) is no source: only a checkpoint of the attempt
     that completed a trial is its final controller. One uploaded by that attempt is."""
-    with Client(live_server.url) as client:
-        study = client.create_study(study_body("transfer-attempts"))
-        first = client.lease("w")
+    mine = ["attempts"]  # this study's jobs alone, on a shared server
+    with Client(shared_server.url) as client:
+        study = client.create_study(study_body("transfer-attempts", name="attempts"))
+        first = client.lease("w", tasks=mine)
         assert first is not None
         client.put_artifact(first.trial_id, CHECKPOINT_ARTIFACT, b"PK", worker_id="w")
         client.release(first.trial_id, "w")
-        again = client.lease("w")
+        again = client.lease("w", tasks=mine)
         assert again is not None and again.trial_id == first.trial_id  # a new attempt
         client.tell(first.trial_id, 1.0, worker_id="w")
         assert [a.name for a in client.artifacts(first.trial_id)] == [CHECKPOINT_ARTIFACT]
 
         client.add_trials(study.id, [{"params": first.params}, {"params": first.params}])
-        second = client.lease("w")
+        second = client.lease("w", tasks=mine)
         assert second is not None and key(second, second.vector)[0] == key(first, first.vector)[0]
         assert second.transfer is None, second.transfer
         client.put_artifact(second.trial_id, CHECKPOINT_ARTIFACT, b"PK", worker_id="w")
         client.tell(second.trial_id, 0.5, worker_id="w")
-        third = client.lease("w")
+        third = client.lease("w", tasks=mine)
         assert third is not None and third.transfer is not None
         assert third.transfer.trial_id == second.trial_id
 
 
 def test_transfer_from_names_another_trial_of_the_same_study_or_nothing_is_stored(
-    live_server: ServerProcess,
+    shared_server: ServerProcess,
 ) -> None:
     """A tell naming a trial of another study, the trial itself, one still running or
     one completed without a checkpoint, a tell in a study without ``task.transfer``,
     and a tell or pause naming ``true`` or an id past the database's integers, are
     refused and leave the trial running; a right one is kept in its info and exports."""
-    with Client(live_server.url) as client:
+    with Client(shared_server.url) as client:
         study = client.create_study(study_body("transfer-a", name="alpha"))
         client.create_study(study_body("transfer-b", name="beta"))
         cold = client.create_study({**study_body("transfer-c", name="gamma"), "task": None})
@@ -198,7 +201,7 @@ def test_transfer_from_names_another_trial_of_the_same_study_or_nothing_is_store
         for route, body in (("tell", {"value": 1.0}), ("pause", {"step": 1})):
             for wrong in (2**70, True):
                 refused = httpx.post(
-                    f"{live_server.url}/api/v1/trials/{mine.trial_id}/{route}",
+                    f"{shared_server.url}/api/v1/trials/{mine.trial_id}/{route}",
                     json={**body, "worker_id": "w", "transfer_from": wrong},
                     headers=SDK_HEADERS,
                 )
@@ -222,9 +225,9 @@ def test_transfer_from_names_another_trial_of_the_same_study_or_nothing_is_store
 
 
 def test_a_learner_that_cannot_start_from_another_controller_is_refused(
-    live_server: ServerProcess,
+    shared_server: ServerProcess,
 ) -> None:
-    with Client(live_server.url) as client:
+    with Client(shared_server.url) as client:
         body = study_body("transfer-fast")
         body["task"] = {"name": "lift-highest", "learner": "fast", "transfer": "nearest"}
         with pytest.raises(Invalid, match="learner 'fast' cannot start from another"):
@@ -287,19 +290,20 @@ def test_a_checkpoint_a_user_uploaded_is_never_a_source(
         assert following["transfer"]["trial_id"] == job["trial_id"], following
 
 
-def test_a_transfer_scan_that_fails_still_leases_the_job(live_server: ServerProcess) -> None:
+def test_a_transfer_scan_that_fails_still_leases_the_job(shared_server: ServerProcess) -> None:
     """Choosing a source raises here for real: a checkpointed trial's stored vector is
     made undecodable straight in the database (``["not a number"]``, as corruption or a
     hand edit would leave it). The next job is leased all the same, without a source,
     the reason is in the server's log, and its worker tells it."""
-    with Client(live_server.url) as client:
-        study = client.create_study(BOX)
-        first = client.lease("w")
+    mine = ["scan-fails"]  # this study's jobs alone, on a shared server
+    with Client(shared_server.url) as client:
+        study = client.create_study({**BOX, "task": {**BOX["task"], "name": mine[0]}})
+        first = client.lease("w", tasks=mine)
         assert first is not None
         client.put_artifact(first.trial_id, CHECKPOINT_ARTIFACT, b"PK", worker_id="w")
         client.tell(first.trial_id, 1.0, worker_id="w")
         client.add_trials(study.id, [{"params": {"x": 0.5}}])  # leased next, no proposal
-        engine = sa.create_engine(live_server.database_url)
+        engine = sa.create_engine(shared_server.database_url)
         with engine.begin() as connection:
             connection.execute(
                 sa.update(TrialRow.__table__)
@@ -307,8 +311,8 @@ def test_a_transfer_scan_that_fails_still_leases_the_job(live_server: ServerProc
                 .values(vector=["not a number"])
             )
         engine.dispose()
-        job = client.lease("w")
+        job = client.lease("w", tasks=mine)
         assert job is not None and job.params == {"x": 0.5} and job.transfer is None
-        log = live_server.log_path.read_text()
+        log = shared_server.log_path.read_text()
         assert f"trial {job.trial_id}: no transfer source (ValueError" in log, log[-2000:]
         assert client.tell(job.trial_id, 0.5, worker_id="w").state == "complete"
