@@ -35,6 +35,30 @@ BROKEN = (ConnectionClosed, OSError, TimeoutError, RuntimeError)
 """What talking to a browser that died or hangs raises."""
 
 
+POLL = """(async () => {
+  const deadline = performance.now() + %(ms)f;
+  const pythonTruthy = (value) => Array.isArray(value) ? value.length > 0
+    : value !== null && typeof value === 'object' ? Object.keys(value).length > 0
+    : !!value;
+  for (;;) {
+    let polled;
+    try {
+      polled = {value: await (
+%(expression)s
+)};
+    } catch (error) {
+      polled = {error: String(error)};
+    }
+    if (('value' in polled && pythonTruthy(polled.value)) || performance.now() >= deadline) {
+      return polled;
+    }
+    await new Promise((resolve) => setTimeout(resolve, %(interval)f));
+  }
+})()"""
+"""Evaluates an expression in the page until its value is truthy as Python sees values
+(null, false, 0, "", [] and {} are not) or the deadline passes."""
+
+
 class PageError(AssertionError):
     """JavaScript evaluated in the page threw."""
 
@@ -248,22 +272,46 @@ class Chromium:
     def wait_for(self, expression: str, timeout: float = 30.0, interval: float = 0.02) -> Any:
         """Poll ``expression`` until its value, as Python sees it, is truthy (so a DOM
         node, which comes back as ``{}``, needs ``!!``); returns the value. Fails naming
-        the expression, its last value and any page errors."""
+        the expression, its last value and any page errors.
+
+        The page polls (every ``interval`` seconds, for up to a second per call): one
+        DevTools round trip a second, not one a poll. A navigation that replaces the
+        page's document while it polls ends that call; the next one polls the new one."""
         deadline = time.monotonic() + timeout
         value: Any = None
-        while time.monotonic() < deadline:
+        while True:
+            called = time.monotonic()
+            seconds = min(deadline - called, 1.0)
             try:
-                value = self.evaluate(expression)
+                value = self._poll(expression, seconds, interval)
             except PageError as error:
+                value = str(error)
+            except RuntimeError as error:  # the document polled was replaced
                 value = str(error)
             else:
                 if value:
                     return value
-            time.sleep(interval)
+            if time.monotonic() >= deadline:
+                break
+            if time.monotonic() - called < seconds:  # back early: not a busy loop
+                time.sleep(interval)
         raise AssertionError(
             f"timed out after {timeout}s waiting for {expression!r}; last value {value!r}; "
             f"page errors: {self.errors}"
         )
+
+    def _poll(self, expression: str, seconds: float, interval: float) -> Any:
+        """The first value of ``expression`` within ``seconds`` that would be truthy in
+        Python (the caller checks), or its last value; raises if its last try threw."""
+        script = POLL % {
+            "expression": expression,
+            "ms": max(seconds, 0) * 1000,
+            "interval": interval * 1000,
+        }
+        polled = self.evaluate(script)
+        if "error" in polled:
+            raise PageError(f"{expression!r} threw: {polled['error']}")
+        return polled.get("value")
 
     def screenshot(self, path: Path) -> None:
         data = self.send("Page.captureScreenshot", format="png")["data"]

@@ -130,3 +130,24 @@ def test_a_dead_or_hung_browser_is_replaced(shared: SharedChromium, how: str) ->
         assert not old.temporary.exists()
     finally:
         after.close()
+
+
+def test_wait_for_polls_in_the_page_as_python_sees_values(
+    browser: Chromium, site: LoopbackSite
+) -> None:
+    """``wait_for`` returns the first value Python finds truthy (a DOM node, an empty
+    list or object is not), across a navigation that replaces the document it polls, and
+    names a throwing expression's error when it times out."""
+    browser.navigate(site.url)
+    browser.wait_for("document.title === 'site'")
+    browser.evaluate("setTimeout(() => { window.later = [1, {a: 2}]; }, 300)")
+    assert browser.wait_for("window.later") == [1, {"a": 2}]
+    for falsy in ("document.body", "[]", "({})", "0", "''", "null"):
+        with pytest.raises(AssertionError, match=r"timed out after 0\.3s"):
+            browser.wait_for(falsy, timeout=0.3)
+    assert browser.wait_for("!!document.body") is True
+    browser.evaluate("setTimeout(() => { location.href = '/cached'; }, 200)")
+    ready = "location.pathname === '/cached' && document.readyState === 'complete'"
+    assert browser.wait_for(ready) is True
+    with pytest.raises(AssertionError, match="threw: TypeError"):
+        browser.wait_for("document.querySelector('#none').textContent", timeout=0.3)
