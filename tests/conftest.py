@@ -4,7 +4,8 @@ Tests that ask for ``database_url``, ``new_database_url``, ``server_factory``,
 ``live_server`` or ``shared_server`` run twice: on a SQLite file and on a throwaway
 PostgreSQL cluster (one per test process, started on first use; see ``adclient.testing.postgres``).
 Each test gets fresh databases; ``shared_server`` is one server per test module and kind
-of database.
+of database. ``browser`` is a page of a headless Chromium started once per test process,
+in a browser context of its own.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import pytest
 
 from adclient.testing.postgres import PostgresCluster, PostgresUnavailable
 from adclient.testing.servers import ServerProcess
+from tests.service.chromium import Chromium, SharedChromium, find_chromium
 from tests.system_packages import unavailable
 
 DATABASES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
@@ -116,3 +118,28 @@ def shared_server(
         server.stop()
         if request.param == "postgresql":
             cluster.drop_database(url)
+
+
+@pytest.fixture(scope="session")
+def chromium_executable() -> str:
+    return find_chromium()
+
+
+@pytest.fixture(scope="session")
+def shared_chromium(
+    chromium_executable: str, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[SharedChromium]:
+    """One headless Chromium per test process (restarted if it dies or hangs)."""
+    shared = SharedChromium(chromium_executable, tmp_path_factory.mktemp("chromium"))
+    yield shared
+    shared.close()
+
+
+@pytest.fixture
+def browser(shared_chromium: SharedChromium) -> Iterator[Chromium]:
+    """A page for one test, in a fresh browser context of the shared Chromium: cookies,
+    storage and cache of its own, as a new profile's. A test that needs a whole browser
+    (a profile on disk, flags, a restart) makes its own ``Chromium``."""
+    page = shared_chromium.page()
+    yield page
+    page.close()

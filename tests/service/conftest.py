@@ -1,6 +1,6 @@
 """In-process app on a real database (SQLite file, then PostgreSQL: see ``database_url``),
-for contract tests that need no separate process; two server processes on one PostgreSQL;
-a headless Chromium for the browser tests."""
+for contract tests that need no separate process; two server processes on one PostgreSQL.
+The browser tests' Chromium is tests/conftest.py's."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ from fastapi.testclient import TestClient
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adservice.app import create_app
 from adservice.settings import Settings
-from tests.service.chromium import Chromium, find_chromium
 
 LOCAL = "http://localhost"
 """The in-process app answers only Host names it is served under (loopback by default)."""
@@ -67,21 +66,6 @@ def two_servers(
     finally:
         for server in servers:
             server.stop()
-
-
-@pytest.fixture(scope="session")
-def chromium_executable() -> str:
-    return find_chromium()
-
-
-@pytest.fixture
-def browser(chromium_executable: str, tmp_path: Path) -> Iterator[Chromium]:
-    """A fresh headless Chromium (its own profile) for one test."""
-    profile = tmp_path / "chromium-profile"
-    profile.mkdir()
-    chromium = Chromium(chromium_executable, profile)
-    yield chromium
-    chromium.close()
 
 
 @pytest.fixture(scope="module")

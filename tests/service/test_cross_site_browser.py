@@ -8,16 +8,14 @@ from __future__ import annotations
 
 import json
 import subprocess
-import threading
 from collections.abc import Callable
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any
 
 import httpx
 import pytest
 
 from adclient.testing.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium
+from tests.service.sites import LoopbackSite
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
@@ -53,33 +51,6 @@ window.attack = async () => {{
 </script></body></html>"""
 
 
-class AttackerSite:
-    """A page served on another loopback port, as another web site would serve it."""
-
-    def __init__(self, page: str) -> None:
-        body = page.encode()
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_GET(self) -> None:
-                self.send_response(200)
-                self.send_header("Content-Type", "text/html; charset=utf-8")
-                self.send_header("Content-Length", str(len(body)))
-                self.end_headers()
-                self.wfile.write(body)
-
-            def log_message(self, *args: Any) -> None:
-                pass
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/"
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
 @pytest.mark.parametrize("auth", [False, True], ids=["auth-off", "auth-on"])
 def test_a_page_of_another_origin_changes_nothing(
     server_factory: Callable[..., ServerProcess], browser: Chromium, auth: bool
@@ -100,7 +71,7 @@ def test_a_page_of_another_origin_changes_nothing(
                 ".then(r => r.status)"
             )
             assert signed in (200, 201), signed
-        site = AttackerSite(ATTACK.format(api=api))
+        site = LoopbackSite({"/": ATTACK.format(api=api)})  # another web site
         try:
             browser.navigate(site.url)
             browser.wait_for("typeof window.attack === 'function'")

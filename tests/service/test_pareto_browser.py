@@ -5,14 +5,13 @@ constraint draws its complete trials, the server's front (as many points as
 shows its picture and clicking a point opens that trial's dialog; the trials table has a
 column per objective and marks infeasible trials; a study of three objectives lets one
 pick the two axes; a study of one objective shows no Pareto panel (and, constrained,
-greys and marks its infeasible trials). One server and one browser per database for the
-whole module."""
+greys and marks its infeasible trials). One server and one page (in a browser context of
+its own) per database for the whole module."""
 
 from __future__ import annotations
 
 import random
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -20,7 +19,7 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.conftest import DATABASES
-from tests.service.chromium import Chromium
+from tests.service.chromium import Chromium, SharedChromium
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,
     lease,
@@ -55,14 +54,11 @@ def server(
 
 
 @pytest.fixture(scope="module")
-def browser(
-    server: ServerProcess, chromium_executable: str, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[Chromium]:
-    """One browser per server, closed first (a page polling a stopped server logs errors)."""
-    profile: Path = tmp_path_factory.mktemp("chromium-profile")
-    chromium = Chromium(chromium_executable, profile)
-    yield chromium
-    chromium.close()
+def browser(server: ServerProcess, shared_chromium: SharedChromium) -> Iterator[Chromium]:
+    """One page per server, closed first (a page polling a stopped server logs errors)."""
+    page = shared_chromium.page()
+    yield page
+    page.close()
 
 
 @pytest.fixture(scope="module")

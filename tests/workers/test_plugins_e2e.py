@@ -29,7 +29,7 @@ from adclient import Client
 from adclient.plugins import catalogue
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess, completed_trials, plugin_path
-from tests.service.chromium import Chromium, find_chromium
+from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import STUDY_PAGE_READY
 
 pytestmark = pytest.mark.e2e
@@ -241,26 +241,20 @@ def test_a_plugin_tasks_own_metric_and_markers_reach_the_trial_and_its_exports(
 @pytest.mark.browser
 @pytest.mark.xdist_group("browser")
 def test_the_dashboards_trial_view_shows_a_plugin_tasks_own_metric(
-    reach_point_run: tuple[ServerProcess, int, list[Any]], tmp_path: Path
+    reach_point_run: tuple[ServerProcess, int, list[Any]], browser: Chromium
 ) -> None:
     server, study_id, trials = reach_point_run
     first = trials[0]
     row = f"document.querySelector('tr[data-trial-id=\"{first.id}\"]')"
-    profile = tmp_path / "chromium-profile"
-    profile.mkdir()
-    browser = Chromium(find_chromium(), profile)
-    try:
-        browser.navigate(f"{server.url}/#/studies/{study_id}")
-        browser.wait_for(STUDY_PAGE_READY)
-        browser.wait_for(f"!!{row}")
-        browser.evaluate(f"{row}.click()")
-        browser.wait_for("document.querySelector('[data-trial-dialog]').open")
-        shown = browser.evaluate(
-            "[...document.querySelectorAll('[data-trial-dialog] th')]"
-            ".find(th => th.textContent === 'task.tip_distance')?.nextElementSibling.textContent"
-        )
-        assert shown is not None
-        assert float(shown) == pytest.approx(first.metrics["task.tip_distance"], rel=1e-3)
-        assert browser.errors == []
-    finally:
-        browser.close()
+    browser.navigate(f"{server.url}/#/studies/{study_id}")
+    browser.wait_for(STUDY_PAGE_READY)
+    browser.wait_for(f"!!{row}")
+    browser.evaluate(f"{row}.click()")
+    browser.wait_for("document.querySelector('[data-trial-dialog]').open")
+    shown = browser.evaluate(
+        "[...document.querySelectorAll('[data-trial-dialog] th')]"
+        ".find(th => th.textContent === 'task.tip_distance')?.nextElementSibling.textContent"
+    )
+    assert shown is not None
+    assert float(shown) == pytest.approx(first.metrics["task.tip_distance"], rel=1e-3)
+    assert browser.errors == []
