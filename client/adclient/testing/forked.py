@@ -1,7 +1,7 @@
 """``adserver`` runs forked from a process that has already imported it.
 
 An ``adserver`` process spends about 1.8 of its 2.5 s of start-up CPU importing
-FastAPI, SQLAlchemy, pydantic and the service; a test run starts hundreds. Here a
+FastAPI, SQLAlchemy, pydantic, Alembic and the service; a test run starts hundreds. Here a
 ``multiprocessing`` fork server imports those modules once (``PRELOAD``, by name), and
 each server is a fresh process forked from it that runs the installed ``adserver``
 program's entry point (found with ``importlib.metadata``, as its console script finds
@@ -26,8 +26,35 @@ from importlib.metadata import EntryPoint, entry_points
 from multiprocessing.context import ForkServerContext
 from pathlib import Path
 
-PRELOAD = ["adservice.cli", "adservice.app", "adservice.server", "adservice.db"]
-"""What the fork server imports once: the modules an ``adserver`` imports to start."""
+PRELOAD = [
+    "adservice.cli",
+    "adservice.app",
+    "adservice.server",
+    "adservice.db",
+    # What a server imports only as it starts: the migrations' machinery, the built-in
+    # tasks and learners its catalogue loads, and uvicorn's loop, lifespan and protocols.
+    "alembic.command",
+    "alembic.config",
+    "alembic.script",
+    "alembic.runtime.migration",
+    "adclient.builtin_tasks",
+    "adclient.builtin_learners",
+    "sqlite3",
+    "tomllib",
+    "encodings.idna",
+    "anyio._backends._asyncio",
+    "anyio.streams.memory",
+    "typer._adapters",
+    "typer._click.decorators",
+    "fastapi.telemetry._runtime",
+    "uvicorn.lifespan.on",
+    "uvicorn.loops.auto",
+    "uvicorn.loops.uvloop",
+    "uvicorn.protocols.websockets.auto",
+]
+"""What the fork server imports once: every module an ``adserver`` imports to start and
+answer, so that a forked one imports nothing (tests/client/test_testing_forked.py). A
+name that does not import here (uvloop not installed) is skipped by the fork server."""
 
 
 @cache
