@@ -31,6 +31,7 @@ PRELOAD = [
     "adservice.app",
     "adservice.server",
     "adservice.db",
+    "adclient.testing.forked",  # the forked process's body
     # What a server imports only as it starts: the migrations' machinery, the built-in
     # tasks and learners its catalogue loads, and uvicorn's loop, lifespan and protocols.
     "alembic.command",
@@ -86,9 +87,10 @@ def _context() -> ForkServerContext:
     return context
 
 
-def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str) -> None:
+def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str, entry: str) -> None:
     """The forked process's body: ``adserver ARGV`` in ``cwd`` with exactly ``env``, its
-    output appended to ``output``."""
+    output appended to ``output``; ``entry`` is the console script's entry point (found
+    by the parent: looking it up scans every installed distribution's metadata)."""
     os.environ.clear()
     os.environ.update(env)
     os.chdir(cwd)
@@ -97,9 +99,7 @@ def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str) -> No
     os.dup2(fd, 2)
     os.close(fd)
     sys.argv = ["adserver", *argv]
-    program = _program()
-    assert program is not None  # can_fork checked it
-    program.load()()  # preloaded: no import cost here
+    EntryPoint("adserver", entry, "console_scripts").load()()  # preloaded: no import cost
 
 
 class ForkUnavailable(RuntimeError):
@@ -110,8 +110,12 @@ class ForkedProcess:
     """The part of :class:`subprocess.Popen` the harness uses, for a forked program."""
 
     def __init__(self, argv: list[str], *, env: Mapping[str, str], cwd: Path, output: Path):
+        program = _program()
+        assert program is not None  # can_fork checked it
         self._process = _context().Process(
-            target=_adserver, args=(argv, dict(env), str(cwd), str(output)), daemon=False
+            target=_adserver,
+            args=(argv, dict(env), str(cwd), str(output), program.value),
+            daemon=False,
         )
         try:
             self._process.start()
