@@ -75,6 +75,15 @@ def _sqlite_copy(template: Path, tmp_path_factory: pytest.TempPathFactory) -> st
     return f"sqlite:///{path}"
 
 
+@pytest.fixture
+def new_sqlite_url(
+    sqlite_template: Path, tmp_path_factory: pytest.TempPathFactory
+) -> Callable[[], str]:
+    """Make fresh SQLite files at the schema's head, with no rows (for tests of SQLite
+    alone): ``new_sqlite_url()``."""
+    return lambda: _sqlite_copy(sqlite_template, tmp_path_factory)
+
+
 def _postgres_maker(cluster: PostgresCluster, template: str | None) -> Iterator[Callable[[], str]]:
     made: list[str] = []
 
@@ -111,8 +120,7 @@ def new_database_url(
     ``new_database_url()``."""
     if database == "postgresql":
         return request.getfixturevalue("new_postgres_url")
-    template: Path = request.getfixturevalue("sqlite_template")
-    return lambda: _sqlite_copy(template, tmp_path_factory)
+    return request.getfixturevalue("new_sqlite_url")
 
 
 @pytest.fixture
