@@ -8,9 +8,11 @@ import json
 import re
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import httpx
+import pytest
 
 from adclient.testing.servers import ServerProcess
 
@@ -23,9 +25,18 @@ def block_after(marker: str) -> str:
     return re.search(r"```\w*\n(.*?)```", text, re.S).group(1)  # type: ignore[union-attr]
 
 
-def test_the_rest_quick_start_runs_as_written(live_server: ServerProcess) -> None:
+@pytest.fixture
+def first_start(
+    server_factory: Callable[..., ServerProcess], empty_database_url: str
+) -> ServerProcess:
+    """A server's first start, as the quick start's: on a database nothing has touched
+    (it migrates the schema at start)."""
+    return server_factory(database_url=empty_database_url)
+
+
+def test_the_rest_quick_start_runs_as_written(first_start: ServerProcess) -> None:
     lines = block_after("**REST**").replace("\\\n", "").strip().splitlines()
-    address = live_server.url.removeprefix("http://")
+    address = first_start.url.removeprefix("http://")
     answers = [
         subprocess.run(
             line.replace("localhost:8000", address) + " -w '\\n%{http_code}'",
@@ -40,11 +51,11 @@ def test_the_rest_quick_start_runs_as_written(live_server: ServerProcess) -> Non
     study, asked, told = (json.loads(body) for body, _code in answers[:3])
     assert study["id"] == 1 and asked["trials"][0]["id"] == 1
     assert told["state"] == "complete" and told["value"] == 0.25
-    assert httpx.get(f"{live_server.url}/api/v1/studies/1").status_code == 404
+    assert httpx.get(f"{first_start.url}/api/v1/studies/1").status_code == 404
 
 
-def test_the_python_quick_start_runs_as_written(live_server: ServerProcess) -> None:
-    code = block_after("**Python**").replace("http://127.0.0.1:8000", live_server.url)
+def test_the_python_quick_start_runs_as_written(first_start: ServerProcess) -> None:
+    code = block_after("**Python**").replace("http://127.0.0.1:8000", first_start.url)
     done = subprocess.run(
         [sys.executable, "-c", code],
         capture_output=True,

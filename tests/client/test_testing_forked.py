@@ -13,7 +13,7 @@ import httpx
 import pytest
 
 from adclient.testing.forked import ForkedProcess, run_adserver
-from adclient.testing.servers import SDK_HEADERS, ServerProcess
+from adclient.testing.servers import SDK_HEADERS, ServerProcess, free_port
 
 pytestmark = pytest.mark.e2e
 
@@ -79,3 +79,49 @@ def test_a_fork_server_that_cannot_start_falls_back_to_the_command(tmp_path: Pat
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["Popen", "True"]
+
+
+FIRST_START = """
+import importlib, os, signal, sys, threading, time, urllib.request
+from adclient.testing.forked import PRELOAD, _program
+for name in PRELOAD:
+    try:
+        importlib.import_module(name)
+    except ImportError:
+        pass
+program = _program()
+program.load()
+port, url = sys.argv[1], sys.argv[2]
+before = set(sys.modules)
+
+def report():
+    while True:
+        try:
+            urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=1).read()
+            break
+        except OSError:
+            time.sleep(0.1)
+    print("imported:", *sorted(set(sys.modules) - before), flush=True)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+threading.Thread(target=report, daemon=True).start()
+sys.argv = ["adserver", "--port", port, "--database-url", url, "--log-level", "warning"]
+program.load()()
+"""
+
+
+def test_the_fork_server_preloads_every_module_a_server_imports_to_start(
+    tmp_path: Path,
+) -> None:
+    """What a forked server would import as it starts (first start: it migrates an empty
+    SQLite file) and answers, it imports again on every start: all of it is preloaded."""
+    url = f"sqlite:///{tmp_path / 'studies.db'}"
+    done = subprocess.run(
+        [sys.executable, "-c", FIRST_START, str(free_port()), url],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert "imported:" in done.stdout, done.stderr
+    assert done.stdout.split("imported:", 1)[1].split() == []

@@ -46,10 +46,10 @@ BOX_STUDY = {
 
 @pytest.fixture
 def two_servers(
-    new_postgres_url: Callable[[], str], tmp_path: Path
+    new_empty_postgres_url: Callable[[], str], tmp_path: Path
 ) -> Iterator[tuple[ServerProcess, ServerProcess]]:
-    """Two servers on one fresh database, started at the same time (both migrate)."""
-    url = new_postgres_url()
+    """Two servers on one fresh empty database, started at the same time (both migrate)."""
+    url = new_empty_postgres_url()
     servers = [
         ServerProcess(database_url=url, workdir=tmp_path, env={"AD_LEASE_SECONDS": "120"})
         for _ in range(2)

@@ -1,5 +1,7 @@
 """Alembic's head on an empty database is exactly the models' schema, on SQLite and on
-PostgreSQL; upgrading twice, or from several processes at once, is harmless."""
+PostgreSQL; upgrading twice, or from several processes at once, is harmless. These tests
+take databases nothing has touched (``empty_database_url``); the suite's other fresh
+databases are copies of one migrated per test process, checked here too."""
 
 from __future__ import annotations
 
@@ -32,35 +34,61 @@ TABLES = {
 }
 
 
-def test_upgrade_head_matches_models(database_url: str) -> None:
-    upgrade_to_head(database_url)
-    engine = sa.create_engine(database_url)
+def test_upgrade_head_matches_models(empty_database_url: str) -> None:
+    upgrade_to_head(empty_database_url)
+    engine = sa.create_engine(empty_database_url)
     with engine.connect() as connection:
         diff = compare_metadata(MigrationContext.configure(connection), Base.metadata)
     engine.dispose()
     assert diff == []
 
 
-def test_upgrade_is_idempotent(database_url: str) -> None:
-    upgrade_to_head(database_url)
-    upgrade_to_head(database_url)
-    engine = sa.create_engine(database_url)
+def test_fresh_databases_are_what_migrating_from_empty_gives(
+    database_url: str, empty_database_url: str
+) -> None:
+    """The suite's fresh databases (copies of a template migrated once per test process,
+    tests/conftest.py) hold exactly the models' schema at Alembic's head and no rows,
+    while an empty one holds nothing until migrated."""
+    fresh, empty = sa.create_engine(database_url), sa.create_engine(empty_database_url)
+    assert sa.inspect(empty).get_table_names() == []
+    with fresh.connect() as connection:
+        diff = compare_metadata(MigrationContext.configure(connection), Base.metadata)
+        version = connection.execute(sa.text("SELECT version_num FROM alembic_version")).all()
+        counts = {
+            table: connection.execute(sa.text(f'SELECT count(*) FROM "{table}"')).scalar()
+            for table in sorted(TABLES - {"alembic_version"})
+        }
+    fresh.dispose()
+    empty.dispose()
+    upgrade_to_head(empty_database_url)
+    migrated = sa.create_engine(empty_database_url)
+    with migrated.connect() as connection:
+        head = connection.execute(sa.text("SELECT version_num FROM alembic_version")).all()
+    migrated.dispose()
+    assert diff == [] and version == head
+    assert counts == dict.fromkeys(counts, 0)
+
+
+def test_upgrade_is_idempotent(empty_database_url: str) -> None:
+    upgrade_to_head(empty_database_url)
+    upgrade_to_head(empty_database_url)
+    engine = sa.create_engine(empty_database_url)
     tables = set(sa.inspect(engine).get_table_names())
     engine.dispose()
     assert tables >= TABLES
 
 
 def test_adserver_migrate_brings_the_schema_to_head_and_exits(
-    database_url: str, tmp_path: Path
+    empty_database_url: str, tmp_path: Path
 ) -> None:
     """What deploy/k8s's init container runs before each server replica starts (the
     installed program, forked as the harness starts servers)."""
     output = tmp_path / "migrate.log"
     for _ in range(2):
-        argv = ["migrate", "--database-url", database_url]
+        argv = ["migrate", "--database-url", empty_database_url]
         code = run_adserver(argv, env=os.environ, cwd=tmp_path, output=output)
         assert code == 0, output.read_text()
-    engine = sa.create_engine(database_url)
+    engine = sa.create_engine(empty_database_url)
     tables = set(sa.inspect(engine).get_table_names())
     engine.dispose()
     assert tables >= TABLES
@@ -68,10 +96,10 @@ def test_adserver_migrate_brings_the_schema_to_head_and_exits(
 
 @pytest.mark.postgres
 def test_processes_starting_at_once_migrate_one_after_the_other(
-    new_postgres_url: Callable[[], str],
+    new_empty_postgres_url: Callable[[], str],
 ) -> None:
     """Several servers started together on one PostgreSQL database all come up."""
-    url = new_postgres_url()
+    url = new_empty_postgres_url()
     script = "import sys; from adservice.db import upgrade_to_head; upgrade_to_head(sys.argv[1])"
     processes = [
         subprocess.Popen([sys.executable, "-c", script, url], stderr=subprocess.PIPE, text=True)
@@ -98,14 +126,14 @@ def _alembic(url: str) -> Any:
     return config
 
 
-def test_0005_gives_old_studies_no_pruner_and_goes_back_down(database_url: str) -> None:
+def test_0005_gives_old_studies_no_pruner_and_goes_back_down(empty_database_url: str) -> None:
     """A study stored before pruning reads as ``pruner: none`` with 0 pruned; the
     reports table comes and goes with the revision."""
     from alembic import command
 
-    config = _alembic(database_url)
+    config = _alembic(empty_database_url)
     command.upgrade(config, "0004")
-    engine = sa.create_engine(database_url)
+    engine = sa.create_engine(empty_database_url)
     with engine.begin() as connection:
         connection.execute(
             sa.text(
@@ -131,14 +159,14 @@ def test_0005_gives_old_studies_no_pruner_and_goes_back_down(database_url: str) 
     assert "n_pruned" not in columns and "pruner" not in columns
 
 
-def test_0007_gives_old_rows_no_user_attrs_and_goes_back_down(database_url: str) -> None:
+def test_0007_gives_old_rows_no_user_attrs_and_goes_back_down(empty_database_url: str) -> None:
     """Rows stored before 0007 read as having no user attributes; going back down keeps
     each study, its name cut to the old column's 128 characters."""
     from alembic import command
 
-    config = _alembic(database_url)
+    config = _alembic(empty_database_url)
     command.upgrade(config, "0006")
-    engine = sa.create_engine(database_url)
+    engine = sa.create_engine(empty_database_url)
     with engine.begin() as connection:
         connection.execute(
             sa.text(

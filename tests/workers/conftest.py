@@ -27,20 +27,20 @@ def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture
-def server(tmp_path: Path) -> Iterator[ServerProcess]:
+def server(tmp_path: Path, new_sqlite_url: Callable[[], str]) -> Iterator[ServerProcess]:
     """A real adserver on a fresh SQLite file (``plugin_server``: one that has the plugin)."""
-    process = ServerProcess(
-        database_url=f"sqlite:///{tmp_path / 'studies.db'}", workdir=tmp_path
-    ).start()
+    process = ServerProcess(database_url=new_sqlite_url(), workdir=tmp_path).start()
     yield process
     process.stop()
 
 
 @pytest.fixture
-def plugin_server(plugin_site: Path, tmp_path: Path) -> Iterator[ServerProcess]:
+def plugin_server(
+    plugin_site: Path, tmp_path: Path, new_sqlite_url: Callable[[], str]
+) -> Iterator[ServerProcess]:
     """A real adserver that has the test plugin (its tasks, and the hold learner)."""
     process = ServerProcess(
-        database_url=f"sqlite:///{tmp_path / 'studies.db'}",
+        database_url=new_sqlite_url(),
         workdir=tmp_path,
         env=plugin_path(plugin_site),
     ).start()

@@ -1,7 +1,7 @@
 """``adserver`` runs forked from a process that has already imported it.
 
 An ``adserver`` process spends about 1.8 of its 2.5 s of start-up CPU importing
-FastAPI, SQLAlchemy, pydantic and the service; a test run starts hundreds. Here a
+FastAPI, SQLAlchemy, pydantic, Alembic and the service; a test run starts hundreds. Here a
 ``multiprocessing`` fork server imports those modules once (``PRELOAD``, by name), and
 each server is a fresh process forked from it that runs the installed ``adserver``
 program's entry point (found with ``importlib.metadata``, as its console script finds
@@ -26,8 +26,36 @@ from importlib.metadata import EntryPoint, entry_points
 from multiprocessing.context import ForkServerContext
 from pathlib import Path
 
-PRELOAD = ["adservice.cli", "adservice.app", "adservice.server", "adservice.db"]
-"""What the fork server imports once: the modules an ``adserver`` imports to start."""
+PRELOAD = [
+    "adservice.cli",
+    "adservice.app",
+    "adservice.server",
+    "adservice.db",
+    "adclient.testing.forked",  # the forked process's body
+    # What a server imports only as it starts: the migrations' machinery, the built-in
+    # tasks and learners its catalogue loads, and uvicorn's loop, lifespan and protocols.
+    "alembic.command",
+    "alembic.config",
+    "alembic.script",
+    "alembic.runtime.migration",
+    "adclient.builtin_tasks",
+    "adclient.builtin_learners",
+    "sqlite3",
+    "tomllib",
+    "encodings.idna",
+    "anyio._backends._asyncio",
+    "anyio.streams.memory",
+    "typer._adapters",
+    "typer._click.decorators",
+    "fastapi.telemetry._runtime",
+    "uvicorn.lifespan.on",
+    "uvicorn.loops.auto",
+    "uvicorn.loops.uvloop",
+    "uvicorn.protocols.websockets.auto",
+]
+"""What the fork server imports once: every module an ``adserver`` imports to start and
+answer, so that a forked one imports nothing (tests/client/test_testing_forked.py). A
+name that does not import here (uvloop not installed) is skipped by the fork server."""
 
 
 @cache
@@ -59,9 +87,10 @@ def _context() -> ForkServerContext:
     return context
 
 
-def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str) -> None:
+def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str, entry: str) -> None:
     """The forked process's body: ``adserver ARGV`` in ``cwd`` with exactly ``env``, its
-    output appended to ``output``."""
+    output appended to ``output``; ``entry`` is the console script's entry point (found
+    by the parent: looking it up scans every installed distribution's metadata)."""
     os.environ.clear()
     os.environ.update(env)
     os.chdir(cwd)
@@ -70,9 +99,7 @@ def _adserver(argv: list[str], env: dict[str, str], cwd: str, output: str) -> No
     os.dup2(fd, 2)
     os.close(fd)
     sys.argv = ["adserver", *argv]
-    program = _program()
-    assert program is not None  # can_fork checked it
-    program.load()()  # preloaded: no import cost here
+    EntryPoint("adserver", entry, "console_scripts").load()()  # preloaded: no import cost
 
 
 class ForkUnavailable(RuntimeError):
@@ -83,8 +110,12 @@ class ForkedProcess:
     """The part of :class:`subprocess.Popen` the harness uses, for a forked program."""
 
     def __init__(self, argv: list[str], *, env: Mapping[str, str], cwd: Path, output: Path):
+        program = _program()
+        assert program is not None  # can_fork checked it
         self._process = _context().Process(
-            target=_adserver, args=(argv, dict(env), str(cwd), str(output)), daemon=False
+            target=_adserver,
+            args=(argv, dict(env), str(cwd), str(output), program.value),
+            daemon=False,
         )
         try:
             self._process.start()

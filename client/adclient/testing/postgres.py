@@ -5,6 +5,8 @@ stopped.
 
     with PostgresCluster.start() as cluster:
         url = cluster.create_database()   # postgresql+psycopg://postgres@127.0.0.1:PORT/db_1
+        template = cluster.create_template(migrate)   # once: a database others copy
+        copy = cluster.create_database(template=template)
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import signal
 import subprocess
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -184,12 +186,25 @@ class PostgresCluster:
         """The SQLAlchemy URL of one database (psycopg 3)."""
         return f"postgresql+psycopg://{SUPERUSER}@127.0.0.1:{self.port}/{database}"
 
-    def create_database(self, prefix: str = "db") -> str:
-        """A new empty database; returns its SQLAlchemy URL."""
+    def create_database(self, prefix: str = "db", *, template: str | None = None) -> str:
+        """A new database, empty, or a copy of ``template`` (a URL from
+        :meth:`create_template`); returns its SQLAlchemy URL."""
         name = f"{prefix}_{os.getpid()}_{next(self._names)}"
+        copy = f' TEMPLATE "{template.rsplit("/", 1)[1]}"' if template is not None else ""
         with psycopg.connect(self.dsn("postgres"), autocommit=True) as connection:
-            connection.execute(f'CREATE DATABASE "{name}"')  # name is ours: no user text
+            connection.execute(f'CREATE DATABASE "{name}"{copy}')  # names are ours: no user text
         return self.url(name)
+
+    def create_template(self, prepare: Callable[[str], None]) -> str:
+        """A database that ``prepare(url)`` fills (e.g. migrates), then closed to
+        connections, so that :meth:`create_database` can copy it (PostgreSQL copies a
+        template only while no one is connected to it); returns its URL."""
+        url = self.create_database("template")
+        prepare(url)
+        name = url.rsplit("/", 1)[1]
+        with psycopg.connect(self.dsn("postgres"), autocommit=True) as connection:
+            connection.execute(f'ALTER DATABASE "{name}" WITH ALLOW_CONNECTIONS false')
+        return url
 
     def drop_database(self, url: str) -> None:
         """Drop a database made by :meth:`create_database`, ending its connections."""
