@@ -3,6 +3,7 @@ a bounded wait."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
@@ -13,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from adclient.testing.forked import ForkedProcess, ForkUnavailable, can_fork
 from adclient.testing.servers import ServerProcess
 
 ADWORKER = Path(sys.executable).with_name("adworker")
@@ -43,7 +45,9 @@ def plugin_path(site: Path) -> dict[str, str]:
 
 
 class WorkerProcess:
-    """One ``adworker`` process with its log file; ``env`` adds to the environment."""
+    """One ``adworker`` process with its log file; ``env`` adds to the environment. It is
+    forked from preloaded imports where it can be (:mod:`.forked`; not with ``--ray``,
+    whose processes Ray starts), else started by command."""
 
     def __init__(
         self,
@@ -57,13 +61,20 @@ class WorkerProcess:
         self.log_path = workdir / f"{worker_id}.log"
         environment = {**os.environ, "AD_SERVER_URL": server.url, **(env or {})}
         environment.pop("AD_TOKEN", None)
-        with self.log_path.open("ab") as log:
-            self.process = subprocess.Popen(
-                [str(ADWORKER), "--worker-id", worker_id, "--poll", "0.2", *args],
-                env=environment,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-            )
+        argv = ["--worker-id", worker_id, "--poll", "0.2", *args]
+        process: subprocess.Popen[bytes] | ForkedProcess | None = None
+        ray = "--ray" in args or "AD_RAY_ADDRESS" in environment
+        if not ray and can_fork(environment, "adworker"):
+            with contextlib.suppress(ForkUnavailable):
+                process = ForkedProcess(
+                    argv, env=environment, cwd=Path.cwd(), output=self.log_path, program="adworker"
+                )
+        if process is None:
+            with self.log_path.open("ab") as log:
+                process = subprocess.Popen(
+                    [str(ADWORKER), *argv], env=environment, stdout=log, stderr=subprocess.STDOUT
+                )
+        self.process = process
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")
