@@ -87,7 +87,7 @@ def test_a_fork_server_that_cannot_start_falls_back_to_the_command(tmp_path: Pat
 
 
 PROBE = """
-import os, signal, tempfile, torch
+import gc, os, signal, tempfile, torch
 
 def probe(job):
     \"\"\"What the worker process is like when it runs a job (torch is preloaded when forked).\"\"\"
@@ -97,6 +97,7 @@ def probe(job):
         "own_tmpdir": float(tempfile.gettempdir() == os.environ["TMPDIR"]),
         "own_variable": float(os.environ.get("PROBE_ONLY") == "yes"),
         "handles_sigterm": float(callable(signal.getsignal(signal.SIGTERM))),
+        "preloaded_frozen": float(gc.get_freeze_count() > 0),
     }
 """
 
@@ -106,7 +107,9 @@ def test_a_forked_worker_starts_as_an_execd_one(
 ) -> None:
     """torch, imported in the fork server, takes the thread count the worker sets from
     OMP_NUM_THREADS (1 where unset); the temporary folder is the worker's own TMPDIR; the
-    environment is its own; SIGTERM reaches the worker's handler and ends it with 0."""
+    environment is its own; SIGTERM reaches the worker's handler and ends it with 0; the
+    objects the fork server made are frozen (the worker's collections do not copy their
+    pages)."""
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     app, tmp = tmp_path / "app", tmp_path / "tmp"
     app.mkdir()
@@ -136,6 +139,7 @@ def test_a_forked_worker_starts_as_an_execd_one(
             assert trial.metrics["own_tmpdir"] == 1.0
             assert trial.metrics["own_variable"] == 1.0
             assert trial.metrics["handles_sigterm"] == 1.0
+            assert trial.metrics["preloaded_frozen"] == 1.0  # its collections skip them
             worker.signal(signal.SIGTERM)
             assert worker.wait() == 0, worker.log()
     finally:

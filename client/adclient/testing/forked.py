@@ -8,7 +8,10 @@ name), and each process is a fresh one forked from it that runs the installed pr
 entry point (found with ``importlib.metadata``, as its console script finds it) with its
 own arguments, environment, working folder and log: the same program, without paying
 for its imports again. The SDK still never imports the service or the worker: this
-module only names the programs and the modules to preload.
+module only names the programs and the modules to preload. Each program has a fork
+server of its own: a server forked from one holding the worker's imports too carries
+them (a full garbage collection in it took 258 ms of CPU against 145), and every forked
+process freezes the objects it inherits, which its collections then skip.
 
 The forked process starts as an exec'd one would: ``os.environ`` is its own, what the
 preloaded modules computed from the fork server's environment is recomputed (the
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import gc
 import io
 import logging
 import os
@@ -121,7 +125,11 @@ class _ProgramProcess(ForkServerProcess):
 
 
 def _fresh_start() -> None:
-    """Drop what the preloaded modules computed from the fork server's environment."""
+    """Drop what the preloaded modules computed from the fork server's environment, and
+    freeze the objects the preloading made (``gc.freeze``: the child's collections skip
+    them instead of reading, and so copying, the fork server's pages: a full collection
+    in a child of the worker's preloads took 240 ms of CPU, 12 ms frozen)."""
+    gc.freeze()
     tempfile.tempdir = None
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.default_int_handler)
