@@ -16,9 +16,10 @@ import httpx
 import pytest
 
 from adclient import Client
+from adclient.testing import forked
 from adclient.testing.forked import ForkedProcess, run_adserver
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
-from adclient.testing.workers import ADWORKER, PATIENCE, WorkerProcess
+from adclient.testing.workers import ADCLIENT, ADWORKER, PATIENCE, WorkerProcess, run_adclient
 
 pytestmark = pytest.mark.e2e
 
@@ -175,3 +176,23 @@ def test_a_ray_worker_is_started_by_command(tmp_path: Path) -> None:
     worker = WorkerProcess(server, tmp_path, "ray", "--ray", "local", "--concurrency", "0")
     assert isinstance(worker.process, subprocess.Popen)
     assert worker.wait() == 2
+
+
+def test_a_forked_adclient_answers_as_the_command_does(tmp_path: Path) -> None:
+    """Its stdout and its stderr apart, its exit status, as ``subprocess.run`` gives them."""
+    server = ServerProcess(database_url="sqlite://", workdir=tmp_path)  # never started
+    missing = str(tmp_path / "missing.yaml")
+    env = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
+    for argv in (["submit", missing], ["--help"]):
+        done = run_adclient(server, *argv)
+        assert forked._server("adclient")._forkserver_pid is not None  # it ran forked
+        command = subprocess.run([str(ADCLIENT), *argv], capture_output=True, text=True, env=env)
+        assert (done.returncode, done.stdout, done.stderr) == (
+            command.returncode,
+            command.stdout,
+            command.stderr,
+        )
+    assert done.returncode == 0 and "submit" in done.stdout
+    refused = run_adclient(server, "submit", missing)
+    assert refused.returncode != 0 and "missing.yaml" in refused.stderr
+    assert refused.stdout == ""

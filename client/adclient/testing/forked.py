@@ -56,6 +56,7 @@ PRELOAD = {
         "torch",
         "pybullet",
     ),
+    "adclient": ("adclient.cli",),
 }
 """What each program's fork server imports once: what the program imports to start and
 (``adworker``) to run its first job. Importing them starts no thread pool (torch's
@@ -145,16 +146,17 @@ def _fresh_start() -> None:
                 value.cache_clear()
 
 
-def _run(program: str, argv: list[str], env: dict[str, str], cwd: str, output: str) -> None:
+def _run(program: str, argv: list[str], env: dict[str, str], cwd: str, outputs: list[str]) -> None:
     """The forked process's body: ``PROGRAM ARGV`` in ``cwd`` with exactly ``env``, its
-    output appended to ``output``, ended as the exec'd program ends."""
+    stdout and stderr appended to the two ``outputs`` (one file twice: both to it), ended
+    as the exec'd program ends."""
     os.environ.clear()
     os.environ.update(env)
     os.chdir(cwd)
-    fd = os.open(output, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-    os.dup2(fd, 1)
-    os.dup2(fd, 2)
-    os.close(fd)
+    for stream, output in enumerate(outputs, start=1):
+        fd = os.open(output, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        os.dup2(fd, stream)
+        os.close(fd)
     _fresh_start()
     sys.argv = [program, *argv]
     entry = _program(program)
@@ -198,9 +200,13 @@ class ForkedProcess:
         cwd: Path,
         output: Path,
         program: str = "adserver",
+        errors: Path | None = None,
     ):
+        """``PROGRAM ARGV``, its stdout and stderr appended to ``output`` (stderr to
+        ``errors`` where given)."""
+        outputs = [str(output), str(errors or output)]
         self._process = _ProgramProcess(
-            target=_run, args=(program, argv, dict(env), str(cwd), str(output)), daemon=False
+            target=_run, args=(program, argv, dict(env), str(cwd), outputs), daemon=False
         )
         try:
             self._process.start()

@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -112,9 +113,13 @@ def completed_trials(study: Any, count: int) -> list[Any]:
 
 
 def run_adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProcess[str]:
-    """The ``adclient`` CLI as a user runs it against ``server``: plain text, wide."""
+    """The ``adclient`` CLI as a user runs it against ``server``: plain text, wide (forked
+    from preloaded imports where it can be, :mod:`.forked`)."""
     environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
     environment.pop("AD_TOKEN", None)
+    if can_fork(environment, "adclient"):
+        with contextlib.suppress(ForkUnavailable):
+            return _forked_adclient(list(args), environment)
     return subprocess.run(
         [str(ADCLIENT), *args],
         env=environment,
@@ -123,3 +128,21 @@ def run_adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProce
         timeout=PATIENCE,
         check=False,
     )
+
+
+def _forked_adclient(argv: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """``adclient ARGV`` forked, its stdout and stderr read back as ``subprocess.run``
+    with ``capture_output`` and ``text`` reads them."""
+    with tempfile.TemporaryDirectory(prefix="adclient-") as folder:
+        out, err = Path(folder, "stdout"), Path(folder, "stderr")
+        process = ForkedProcess(
+            argv, env=env, cwd=Path.cwd(), output=out, errors=err, program="adclient"
+        )
+        try:
+            code = process.wait(timeout=PATIENCE)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+            raise
+        read = [path.read_text() if path.exists() else "" for path in (out, err)]
+    return subprocess.CompletedProcess([str(ADCLIENT), *argv], code, *read)
