@@ -88,7 +88,13 @@ def test_a_fork_server_that_cannot_start_falls_back_to_the_command(tmp_path: Pat
 
 
 PROBE = """
-import gc, os, signal, tempfile, torch
+import gc, os, signal, subprocess, sys, tempfile, torch
+
+FRESH = "import sys; print(*sys.path[1:], sep=chr(10))"
+EXECD = [os.path.dirname(sys.executable), *subprocess.run(
+    [sys.executable, "-c", FRESH], capture_output=True, text=True
+).stdout.splitlines()]
+
 
 def probe(job):
     \"\"\"What the worker process is like when it runs a job (torch is preloaded when forked).\"\"\"
@@ -99,6 +105,7 @@ def probe(job):
         "own_variable": float(os.environ.get("PROBE_ONLY") == "yes"),
         "handles_sigterm": float(callable(signal.getsignal(signal.SIGTERM))),
         "preloaded_frozen": float(gc.get_freeze_count() > 0),
+        "path_as_execd": float(sys.path == [os.path.dirname(__file__), *EXECD]),
     }
 """
 
@@ -108,7 +115,7 @@ def test_a_forked_worker_starts_as_an_execd_one(
 ) -> None:
     """torch, imported in the fork server, takes the thread count the worker sets from
     OMP_NUM_THREADS (1 where unset); the temporary folder is the worker's own TMPDIR; the
-    environment is its own; SIGTERM reaches the worker's handler and ends it with 0; the
+    environment and ``sys.path`` are its own; SIGTERM reaches the worker's handler and ends it with 0; the
     objects the fork server made are frozen (the worker's collections do not copy their
     pages)."""
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
@@ -141,6 +148,7 @@ def test_a_forked_worker_starts_as_an_execd_one(
             assert trial.metrics["own_variable"] == 1.0
             assert trial.metrics["handles_sigterm"] == 1.0
             assert trial.metrics["preloaded_frozen"] == 1.0  # its collections skip them
+            assert trial.metrics["path_as_execd"] == 1.0  # not pytest's sys.path
             worker.signal(signal.SIGTERM)
             assert worker.wait() == 0, worker.log()
     finally:

@@ -16,12 +16,12 @@ process freezes the objects it inherits, which its collections then skip.
 The forked process starts as an exec'd one would: ``os.environ`` is its own, what the
 preloaded modules computed from the fork server's environment is recomputed (the
 temporary folder, ``functools.cache`` values of the project's modules, the root
-logger's handlers), the signal handlers are the defaults, its ``atexit`` functions run,
-an uncaught exception is printed and is exit status 1 (a ``KeyboardInterrupt`` ends it
-by SIGINT), and ``sys.exit`` sets its status. A process whose ``PYTHONPATH`` differs
-from this one's (a plugin folder), or any run when ``AD_TESTING_EXEC=1``, is started by
-command instead (:func:`can_fork`), as is anything the caller knows cannot be faithful
-(``adworker --ray``: Ray's own processes).
+logger's handlers), ``sys.path`` is the command's, the signal handlers are the
+defaults, its ``atexit`` functions run, an uncaught exception is printed and is exit
+status 1 (a ``KeyboardInterrupt`` ends it by SIGINT), and ``sys.exit`` sets its status.
+A process whose ``PYTHONPATH`` differs from this one's (a plugin folder), or any run
+when ``AD_TESTING_EXEC=1``, is started by command instead (:func:`can_fork`), as is
+anything the caller knows cannot be faithful (``adworker --ray``: Ray's own processes).
 """
 
 from __future__ import annotations
@@ -89,6 +89,16 @@ _BROKEN: list[str] = []
 
 
 @cache
+def _exec_path() -> list[str]:
+    """The ``sys.path`` a program started by command has: its script's folder (this
+    interpreter's), then what a fresh interpreter with this environment finds; the fork
+    servers have this process's, to which pytest adds its own folders."""
+    fresh = "import sys; print(*sys.path[1:], sep=chr(10))"
+    done = subprocess.run([sys.executable, "-c", fresh], capture_output=True, text=True, check=True)
+    return [str(Path(sys.executable).parent), *done.stdout.splitlines()]
+
+
+@cache
 def _server(program: str) -> forkserver.ForkServer:
     """``program``'s fork server (started at its first process)."""
     server = forkserver.ForkServer()
@@ -146,10 +156,17 @@ def _fresh_start() -> None:
                 value.cache_clear()
 
 
-def _run(program: str, argv: list[str], env: dict[str, str], cwd: str, outputs: list[str]) -> None:
+def _run(
+    program: str,
+    argv: list[str],
+    env: dict[str, str],
+    cwd: str,
+    outputs: list[str],
+    path: list[str],
+) -> None:
     """The forked process's body: ``PROGRAM ARGV`` in ``cwd`` with exactly ``env``, its
-    stdout and stderr appended to the two ``outputs`` (one file twice: both to it), ended
-    as the exec'd program ends."""
+    stdout and stderr appended to the two ``outputs`` (one file twice: both to it),
+    ``path`` its ``sys.path``, ended as the exec'd program ends."""
     os.environ.clear()
     os.environ.update(env)
     os.chdir(cwd)
@@ -158,6 +175,7 @@ def _run(program: str, argv: list[str], env: dict[str, str], cwd: str, outputs: 
         os.dup2(fd, stream)
         os.close(fd)
     _fresh_start()
+    sys.path[:] = path
     sys.argv = [program, *argv]
     entry = _program(program)
     assert entry is not None  # can_fork checked it
@@ -206,7 +224,9 @@ class ForkedProcess:
         ``errors`` where given)."""
         outputs = [str(output), str(errors or output)]
         self._process = _ProgramProcess(
-            target=_run, args=(program, argv, dict(env), str(cwd), outputs), daemon=False
+            target=_run,
+            args=(program, argv, dict(env), str(cwd), outputs, _exec_path()),
+            daemon=False,
         )
         try:
             self._process.start()
