@@ -1,10 +1,13 @@
-"""The harness forks ``adserver`` from preloaded imports (adclient.testing.forked): the
-forked program is the installed one with the arguments, environment and folder it is
-given, exits as the command does, and AD_TESTING_EXEC=1 starts it by command."""
+"""The harness forks ``adserver`` and ``adworker`` from preloaded imports
+(adclient.testing.forked): the forked program is the installed one with the arguments,
+environment and folder it is given, starts as the exec'd one would (its temporary
+folder, torch threads, signal handlers), exits as the command does, and
+AD_TESTING_EXEC=1 starts it by command."""
 
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -12,8 +15,11 @@ from pathlib import Path
 import httpx
 import pytest
 
+from adclient import Client
+from adclient.testing import forked
 from adclient.testing.forked import ForkedProcess, run_adserver
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, free_port
+from adclient.testing.workers import ADCLIENT, ADWORKER, PATIENCE, WorkerProcess, run_adclient
 
 pytestmark = pytest.mark.e2e
 
@@ -84,12 +90,12 @@ def test_a_fork_server_that_cannot_start_falls_back_to_the_command(tmp_path: Pat
 FIRST_START = """
 import importlib, os, signal, sys, threading, time, urllib.request
 from adclient.testing.forked import PRELOAD, _program
-for name in PRELOAD:
+for name in PRELOAD["adserver"]:
     try:
         importlib.import_module(name)
     except ImportError:
         pass
-program = _program()
+program = _program("adserver")
 program.load()
 port, url = sys.argv[1], sys.argv[2]
 before = set(sys.modules)
@@ -125,3 +131,122 @@ def test_the_fork_server_preloads_every_module_a_server_imports_to_start(
     )
     assert "imported:" in done.stdout, done.stderr
     assert done.stdout.split("imported:", 1)[1].split() == []
+
+
+PROBE = """
+import gc, os, signal, subprocess, sys, tempfile, torch
+
+FRESH = "import sys; print(*sys.path[1:], sep=chr(10))"
+EXECD = [os.path.dirname(sys.executable), *subprocess.run(
+    [sys.executable, "-c", FRESH], capture_output=True, text=True
+).stdout.splitlines()]
+
+
+def probe(job):
+    \"\"\"What the worker process is like when it runs a job (torch is preloaded when forked).\"\"\"
+    return {
+        "value": job.params["x"],
+        "torch_threads": torch.get_num_threads(),
+        "own_tmpdir": float(tempfile.gettempdir() == os.environ["TMPDIR"]),
+        "own_variable": float(os.environ.get("PROBE_ONLY") == "yes"),
+        "handles_sigterm": float(callable(signal.getsignal(signal.SIGTERM))),
+        "preloaded_frozen": float(gc.get_freeze_count() > 0),
+        "path_as_execd": float(sys.path == [os.path.dirname(__file__), *EXECD]),
+    }
+"""
+
+
+def test_a_forked_worker_starts_as_an_execd_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """torch, imported in the fork server, takes the thread count the worker sets from
+    OMP_NUM_THREADS (1 where unset); the temporary folder is the worker's own TMPDIR; the
+    environment and ``sys.path`` are its own; SIGTERM reaches the worker's handler and
+    ends it with 0; the objects the fork server made are frozen (the worker's
+    collections do not copy their pages)."""
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    app, tmp = tmp_path / "app", tmp_path / "tmp"
+    app.mkdir()
+    tmp.mkdir()
+    (app / "probe.py").write_text(PROBE)
+    server = ServerProcess(database_url=f"sqlite:///{tmp_path / 's.db'}", workdir=tmp_path)
+    server.start()
+    worker = None
+    try:
+        with Client(server.url) as client:
+            study = client.create_study(
+                name="probe",
+                direction="minimize",
+                space={"type": "box", "params": [{"name": "x", "low": 0, "high": 1}]},
+                proposer={"name": "random", "seed": 1},
+                task={"name": "probe", "external": True},
+                max_trials=1,
+            )
+            args = ["--app-dir", str(app), "--function", "probe:probe", "--task", "probe"]
+            worker = WorkerProcess(
+                server, tmp_path, "probe", *args, env={"TMPDIR": str(tmp), "PROBE_ONLY": "yes"}
+            )
+            assert isinstance(worker.process, ForkedProcess)
+            assert study.wait(poll=0.2, timeout=PATIENCE).n_complete == 1, worker.log()
+            (trial,) = study.trials
+            assert trial.metrics["torch_threads"] == 1
+            assert trial.metrics["own_tmpdir"] == 1.0
+            assert trial.metrics["own_variable"] == 1.0
+            assert trial.metrics["handles_sigterm"] == 1.0
+            assert trial.metrics["preloaded_frozen"] == 1.0  # its collections skip them
+            assert trial.metrics["path_as_execd"] == 1.0  # not pytest's sys.path
+            worker.signal(signal.SIGTERM)
+            assert worker.wait() == 0, worker.log()
+    finally:
+        if worker is not None:
+            worker.stop()
+        server.stop()
+
+
+def test_a_forked_worker_refuses_its_arguments_as_the_command_does(tmp_path: Path) -> None:
+    server = ServerProcess(database_url="sqlite://", workdir=tmp_path)  # never started
+    worker = WorkerProcess(server, tmp_path, "half", "--function", "scorer:score")
+    assert isinstance(worker.process, ForkedProcess)
+    assert worker.wait() == 2
+    argv = ["--worker-id", "half", "--poll", "0.2", "--function", "scorer:score"]
+    done = subprocess.run([str(ADWORKER), *argv], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert "--function and --task go together" in worker.log()
+    assert worker.log().strip() == done.stderr.strip()
+
+
+def test_a_forked_worker_dies_of_sigkill(tmp_path: Path) -> None:
+    """No handler of the fork server stands between the worker and a signal: SIGKILL is
+    its end, as for the command (a Popen's returncode)."""
+    server = ServerProcess(database_url="sqlite://", workdir=tmp_path)  # never started
+    worker = WorkerProcess(server, tmp_path, "killed", "--idle-exit", "600")
+    assert isinstance(worker.process, ForkedProcess)
+    worker.signal(signal.SIGKILL)
+    assert worker.wait() == -signal.SIGKILL
+
+
+def test_a_ray_worker_is_started_by_command(tmp_path: Path) -> None:
+    server = ServerProcess(database_url="sqlite://", workdir=tmp_path)  # never started
+    worker = WorkerProcess(server, tmp_path, "ray", "--ray", "local", "--concurrency", "0")
+    assert isinstance(worker.process, subprocess.Popen)
+    assert worker.wait() == 2
+
+
+def test_a_forked_adclient_answers_as_the_command_does(tmp_path: Path) -> None:
+    """Its stdout and its stderr apart, its exit status, as ``subprocess.run`` gives them."""
+    server = ServerProcess(database_url="sqlite://", workdir=tmp_path)  # never started
+    missing = str(tmp_path / "missing.yaml")
+    env = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
+    for argv in (["submit", missing], ["--help"]):
+        done = run_adclient(server, *argv)
+        assert forked._server("adclient")._forkserver_pid is not None  # it ran forked
+        command = subprocess.run([str(ADCLIENT), *argv], capture_output=True, text=True, env=env)
+        assert (done.returncode, done.stdout, done.stderr) == (
+            command.returncode,
+            command.stdout,
+            command.stderr,
+        )
+    assert done.returncode == 0 and "submit" in done.stdout
+    refused = run_adclient(server, "submit", missing)
+    assert refused.returncode != 0 and "missing.yaml" in refused.stderr
+    assert refused.stdout == ""

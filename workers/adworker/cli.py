@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 from enum import StrEnum
 from pathlib import Path
 
@@ -133,6 +134,7 @@ def run(
     # One BLAS/torch thread per process: N processes share the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("MKL_NUM_THREADS", "1")
+    _threads_of_imported_torch()
     level = logging.getLevelNamesMapping().get(log_level.upper())
     if level is None:
         raise typer.BadParameter(f"unknown log level {log_level!r}", param_hint="--log-level")
@@ -179,6 +181,16 @@ def run(
     else:
         code = run_pool(config, concurrency, level)
     raise typer.Exit(code)
+
+
+def _threads_of_imported_torch() -> None:
+    """torch takes its thread count from OMP_NUM_THREADS when it is first imported; one
+    imported before this process set it (a process forked from preloaded imports) is
+    given it now. A worker that has not imported torch imports it later, and reads it."""
+    torch = sys.modules.get("torch")
+    threads = os.environ["OMP_NUM_THREADS"]
+    if torch is not None and threads.isdigit() and int(threads) > 0:
+        torch.set_num_threads(int(threads))
 
 
 def _run_on_ray(

@@ -3,16 +3,19 @@ a bounded wait."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from adclient.testing.forked import ForkedProcess, ForkUnavailable, can_fork
 from adclient.testing.servers import ServerProcess
 
 ADWORKER = Path(sys.executable).with_name("adworker")
@@ -43,7 +46,9 @@ def plugin_path(site: Path) -> dict[str, str]:
 
 
 class WorkerProcess:
-    """One ``adworker`` process with its log file; ``env`` adds to the environment."""
+    """One ``adworker`` process with its log file; ``env`` adds to the environment. It is
+    forked from preloaded imports where it can be (:mod:`.forked`; not with ``--ray``,
+    whose processes Ray starts), else started by command."""
 
     def __init__(
         self,
@@ -57,13 +62,20 @@ class WorkerProcess:
         self.log_path = workdir / f"{worker_id}.log"
         environment = {**os.environ, "AD_SERVER_URL": server.url, **(env or {})}
         environment.pop("AD_TOKEN", None)
-        with self.log_path.open("ab") as log:
-            self.process = subprocess.Popen(
-                [str(ADWORKER), "--worker-id", worker_id, "--poll", "0.2", *args],
-                env=environment,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-            )
+        argv = ["--worker-id", worker_id, "--poll", "0.2", *args]
+        process: subprocess.Popen[bytes] | ForkedProcess | None = None
+        ray = "--ray" in args or "AD_RAY_ADDRESS" in environment
+        if not ray and can_fork(environment, "adworker"):
+            with contextlib.suppress(ForkUnavailable):
+                process = ForkedProcess(
+                    argv, env=environment, cwd=Path.cwd(), output=self.log_path, program="adworker"
+                )
+        if process is None:
+            with self.log_path.open("ab") as log:
+                process = subprocess.Popen(
+                    [str(ADWORKER), *argv], env=environment, stdout=log, stderr=subprocess.STDOUT
+                )
+        self.process = process
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")
@@ -101,9 +113,13 @@ def completed_trials(study: Any, count: int) -> list[Any]:
 
 
 def run_adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProcess[str]:
-    """The ``adclient`` CLI as a user runs it against ``server``: plain text, wide."""
+    """The ``adclient`` CLI as a user runs it against ``server``: plain text, wide (forked
+    from preloaded imports where it can be, :mod:`.forked`)."""
     environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
     environment.pop("AD_TOKEN", None)
+    if can_fork(environment, "adclient"):
+        with contextlib.suppress(ForkUnavailable):
+            return _forked_adclient(list(args), environment)
     return subprocess.run(
         [str(ADCLIENT), *args],
         env=environment,
@@ -112,3 +128,21 @@ def run_adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProce
         timeout=PATIENCE,
         check=False,
     )
+
+
+def _forked_adclient(argv: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """``adclient ARGV`` forked, its stdout and stderr read back as ``subprocess.run``
+    with ``capture_output`` and ``text`` reads them."""
+    with tempfile.TemporaryDirectory(prefix="adclient-") as folder:
+        out, err = Path(folder, "stdout"), Path(folder, "stderr")
+        process = ForkedProcess(
+            argv, env=env, cwd=Path.cwd(), output=out, errors=err, program="adclient"
+        )
+        try:
+            code = process.wait(timeout=PATIENCE)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+            raise
+        read = [path.read_text() if path.exists() else "" for path in (out, err)]
+    return subprocess.CompletedProcess([str(ADCLIENT), *argv], code, *read)
