@@ -76,10 +76,12 @@ def repo(tmp_path: Path) -> Path:
 
 
 def run_compare(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    """compare.py as a program; its temporary folders go under ``tmp_path/temp``."""
+    """compare.py as a program; its temporary folders go under ``tmp_path/temp``. No
+    bytecode caches: a test rewrites a fake module within a second at the same size,
+    which a cached .pyc (keyed on mtime and size) would hide."""
     temp = tmp_path / "temp"
     temp.mkdir(exist_ok=True)
-    env = {**os.environ, "TMPDIR": str(temp)}
+    env = {**os.environ, "TMPDIR": str(temp), "PYTHONDONTWRITEBYTECODE": "1"}
     return subprocess.run(
         [sys.executable, str(COMPARE), *args], capture_output=True, text=True, env=env
     )
