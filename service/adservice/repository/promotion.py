@@ -100,6 +100,7 @@ def pause_trial(
         rung=rung,
         metrics=body.metrics,
         lease=trial.leases,
+        budget=body.budget,
     ).model_dump()
     trial.worker_id = None
     trial.lease_token_id = None
