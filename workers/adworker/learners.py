@@ -6,8 +6,9 @@ best pose it can hold, found in about a second); ``ddpg`` (the preprint's method
 budgets sized so one evaluation takes about 10 s on one CPU core per worker process.
 
 A learner gets a built env, a step budget (environment control steps; the task
-config's ``train_steps`` overrides the learner's default) and a seed, and returns a
-deterministic policy plus its training curve. Evaluation is separate (see
+config's ``train_steps`` overrides the learner's default), a seed and where it starts
+(:mod:`adworker.starts`: from scratch, its own paused state, or another design's
+controller), and returns a deterministic policy plus its training curve. Evaluation is separate (see
 :func:`evaluate_policy`) and identical for every learner.
 
 Default budgets (control steps at 10 Hz; an episode is 32 steps), CPU time of one
