@@ -273,9 +273,11 @@ class ServerCalls(Transport):
         value: float | None = None,
         metrics: Mapping[str, float] | None = None,
         transfer_from: int | None = None,
+        budget: int | None = None,
     ) -> Trial:
         """Pause a held trial at ``step`` with the checkpoint artifact it uploaded (its
-        study's ASHA pruner said ``pause``); it waits for promotion. A repeat is
+        study's ASHA pruner said ``pause``); it waits for promotion, and its job then
+        trains on to ``budget`` steps (default: the task's budget). A repeat is
         harmless; a lost lease raises :class:`Conflict`."""
         try:
             body = PauseRequest(
@@ -285,6 +287,7 @@ class ServerCalls(Transport):
                 value=value,
                 metrics=dict(metrics or {}),
                 transfer_from=transfer_from,
+                budget=budget,
             )
         except ValidationError as exc:
             raise Invalid(None, "invalid", validation_message(exc)) from exc

@@ -135,12 +135,14 @@ class TaskSpec:
 class LearnerSpec:
     """A learner: its name, the options model of ``task.options.learner_kwargs`` (None:
     it takes none), and the factory the worker calls with those options (a model
-    instance, or None) to get an object with ``train(env, steps=, seed=, check=)``.
+    instance, or None) to get an object with ``train(env, steps=, seed=, check=,
+    start=, keep_checkpoint=, reporting=)`` (docs/plugins.md).
 
     ``transfers``: it takes part in a study's ``task.transfer`` (docs/worker.md): it
-    trains on from ``learner.warm_start`` (bytes of a checkpoint it returned) when the
-    worker sets it, and returns its final state as ``TrainResult.checkpoint``. Those
-    bytes (and a promoted trial's ``resume_from``) come from the server: a worker's
+    trains on from a ``start=Warm(checkpoint, steps)`` (bytes of a checkpoint it
+    returned), and returns its final state as ``TrainResult.checkpoint`` when asked
+    (``keep_checkpoint``). Those bytes (and a promoted trial's ``Resume``) come from
+    the server: a worker's
     upload, but still to be read as data only (``torch.load(weights_only=True)``,
     ``np.load(allow_pickle=False)``, JSON; never ``pickle`` or SB3's ``Model.load``),
     filling a model built from the job's own settings (docs/plugins.md)."""

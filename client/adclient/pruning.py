@@ -154,6 +154,22 @@ class Checkpoint(BaseModel):
         description="the trial's lease (its count of leases) that uploaded the checkpoint "
         "and paused: a job resumes from the artifact only while it is still that upload",
     )
+    budget: int | None = Field(
+        default=None,
+        description="the steps its job trains on to (a warm-started trial's warm budget); "
+        "none: the task's budget",
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _budget_of_older_pauses(cls, data: Any) -> Any:
+        """A pause stored, or sent by a worker, of the release before ``budget`` carried
+        a warm start's budget only as its ``transfer_steps`` metric."""
+        if isinstance(data, dict) and data.get("budget") is None:
+            steps = (data.get("metrics") or {}).get("transfer_steps")
+            if steps is not None:
+                return {**data, "budget": int(steps)}
+        return data
 
 
 class PauseRequest(_Strict):
@@ -175,6 +191,14 @@ class PauseRequest(_Strict):
         le=MAX_ID,
         strict=True,
         description="as a tell's: the trial its controller started from",
+    )
+    budget: int | None = Field(
+        default=None,
+        ge=1,
+        le=MAX_STEP,
+        strict=True,
+        description="the steps the trial trains on to when promoted (a warm-started "
+        "trial's warm budget); default: the task's budget",
     )
 
     @field_validator("value")

@@ -115,7 +115,11 @@ def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(
     missing = pause(http, b["trial_id"], "wb", 10)
     assert missing.status_code == 409 and "checkpoint.zip" in missing.json()["detail"]
     upload_checkpoint(http, b["trial_id"], "wb")
-    paused = pause(http, b["trial_id"], "wb", 10, metrics={"time_total_s": 3.0})
+    for budget in (0, "40", True):  # a budget is a positive integer: nothing stored
+        refused = pause(http, b["trial_id"], "wb", 10, budget=budget)
+        assert refused.status_code == 422 and "budget" in refused.text, refused.text
+        assert trial(http, b["trial_id"])["state"] == "running"
+    paused = pause(http, b["trial_id"], "wb", 10, metrics={"time_total_s": 3.0}, budget=40)
     assert paused.status_code == 200, paused.text
     record = paused.json()
     assert (record["state"], record["value"], record["worker_id"]) == ("paused", 0.5, None)
@@ -125,8 +129,9 @@ def test_a_paused_trial_waits_and_is_promoted_when_it_qualifies(
         "rung": 10,
         "metrics": {"time_total_s": 3.0},
         "lease": 1,
+        "budget": 40,
     }
-    again = pause(http, b["trial_id"], "wb", 10, metrics={"time_total_s": 3.0})
+    again = pause(http, b["trial_id"], "wb", 10, metrics={"time_total_s": 3.0}, budget=40)
     assert again.status_code == 200 and again.json()["state"] == "paused"
     late = http.post(
         f"/api/v1/trials/{b['trial_id']}/report",

@@ -155,6 +155,8 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
             leased = with_it.log().split("tasks", 1)[1].splitlines()[0]
             assert "'reach-up'" in leased and "reach-elsewhere" not in leased
             assert "task reach-elsewhere: its environment does not load" in with_it.log()
+            # hold is written against the learner interface before issue 38: it trains
+            assert "learner Hold: train(env, *, steps, seed, check) configured" in with_it.log()
             assert client.study_info(elsewhere.id).n_trials == 0
             # Each named the learners that load on it: the plugin's only where it is.
             learners = {worker.worker_id: worker.learners for worker in client.workers()}

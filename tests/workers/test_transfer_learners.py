@@ -19,7 +19,8 @@ import pytest
 
 from adworker.checkpoints import PARAMETERS_MEMBER, REPLAY_MEMBER
 from adworker.designs import HALF_PI, arch_chain, tree_design
-from adworker.learners import StableBaselinesLearner, TrainResult, WarmStart
+from adworker.learners import StableBaselinesLearner, TrainResult
+from adworker.starts import Resume, Warm
 
 pytestmark = pytest.mark.slow
 
@@ -32,7 +33,6 @@ def learner_of(name: str) -> StableBaselinesLearner:
 
     learner = catalogue().learner(name).load_factory()(None)
     assert isinstance(learner, StableBaselinesLearner)
-    learner.keep_checkpoint = True
     return learner
 
 
@@ -59,13 +59,19 @@ def replay_size(result: TrainResult) -> int | None:
 @pytest.mark.parametrize("name", LEARNERS)
 def test_a_warm_started_learner_trains_on_from_the_source_state(name: str, env_of) -> None:
     near = arch_chain(length=0.45)
-    source = learner_of(name).train(env_of("stand-up", "arch_chain"), steps=SOURCE_STEPS, seed=0)
+    source = learner_of(name).train(
+        env_of("stand-up", "arch_chain"), steps=SOURCE_STEPS, seed=0, keep_checkpoint=True
+    )
     assert source.checkpoint is not None and not source.warm_started
 
     warm_learner = learner_of(name)
-    warm_learner.warm_start = WarmStart(source.checkpoint, WARM_STEPS)
-    warm = warm_learner.train(env_of("stand-up", near), steps=SOURCE_STEPS, seed=1)
-    fresh = learner_of(name).train(env_of("stand-up", near), steps=WARM_STEPS, seed=1)
+    start = Warm(source.checkpoint, WARM_STEPS)
+    warm = warm_learner.train(
+        env_of("stand-up", near), steps=SOURCE_STEPS, seed=1, start=start, keep_checkpoint=True
+    )
+    fresh = learner_of(name).train(
+        env_of("stand-up", near), steps=WARM_STEPS, seed=1, keep_checkpoint=True
+    )
 
     assert warm.warm_started and warm_learner.warm_problem is None
     assert WARM_STEPS <= warm.train_steps < SOURCE_STEPS  # PPO rounds up to its rollout
@@ -80,7 +86,9 @@ def test_a_warm_started_learner_trains_on_from_the_source_state(name: str, env_o
 def test_a_state_that_does_not_fit_is_refused_and_the_design_trains_from_scratch(
     name: str, env_of
 ) -> None:
-    source = learner_of(name).train(env_of("stand-up", "arch_chain"), steps=SOURCE_STEPS, seed=0)
+    source = learner_of(name).train(
+        env_of("stand-up", "arch_chain"), steps=SOURCE_STEPS, seed=0, keep_checkpoint=True
+    )
     assert source.checkpoint is not None
     star = tree_design(
         [("a", "b"), ("a", "c"), ("a", "d")],
@@ -88,8 +96,8 @@ def test_a_state_that_does_not_fit_is_refused_and_the_design_trains_from_scratch
     )
     for checkpoint, reason in ((source.checkpoint, "space"), (b"PK\0\0 not a zip", "zip")):
         learner = learner_of(name)
-        learner.warm_start = WarmStart(checkpoint, WARM_STEPS)
-        result = learner.train(env_of("lift-highest", star), steps=64, seed=0)
+        start = Warm(checkpoint, WARM_STEPS)
+        result = learner.train(env_of("lift-highest", star), steps=64, seed=0, start=start)
         assert not result.warm_started and result.train_steps >= 64
         assert learner.warm_problem is not None and reason in learner.warm_problem.lower()
 
@@ -146,22 +154,22 @@ def test_a_checkpoint_that_would_run_code_is_refused_unread(env_of, tmp_path: Pa
     """Each hostile checkpoint, as a warm start, is refused with the reason and the
     design trains from scratch; as a resume point the job fails with the reason. The
     file its unpickling would write never appears."""
-    source = learner_of("sac").train(env_of("stand-up", "arch_chain"), steps=SOURCE_STEPS, seed=0)
+    source = learner_of("sac").train(
+        env_of("stand-up", "arch_chain"), steps=SOURCE_STEPS, seed=0, keep_checkpoint=True
+    )
     assert source.checkpoint is not None
     marker = tmp_path / "unpickled"
     env = env_of("stand-up", "arch_chain")
     checkpoints = hostile(source.checkpoint, marker, learner_of("sac"), env)
     for kind, checkpoint in checkpoints.items():
         warm = learner_of("sac")
-        warm.warm_start = WarmStart(checkpoint, WARM_STEPS)
-        result = warm.train(env, steps=64, seed=0)
+        result = warm.train(env, steps=64, seed=0, start=Warm(checkpoint, WARM_STEPS))
         assert not marker.exists(), kind
         assert not result.warm_started and result.train_steps >= 64, kind
         assert warm.warm_problem is not None and "refused" in warm.warm_problem, kind
         resumed = learner_of("sac")
-        resumed.resume_from = checkpoint
         with pytest.raises(ValueError, match="refused unread"):
-            resumed.train(env, steps=SOURCE_STEPS + 32, seed=0)
+            resumed.train(env, steps=SOURCE_STEPS + 32, seed=0, start=Resume(checkpoint))
         assert not marker.exists(), kind
 
 

@@ -245,6 +245,7 @@ def test_warm_started_trials_pause_at_asha_rungs_and_resume_with_their_warm_budg
             assert source.state == "complete" and source.number < trial.number
             assert trial.checkpoint is not None and trial.checkpoint.rung == 256
             assert trial.checkpoint.metrics["transfer_steps"] == warm_steps
+            assert trial.checkpoint.budget == warm_steps
         assert promoted.info["transfer_from"] == first.id  # the only complete design then
         assert promoted.state == "complete" and promoted.value == pytest.approx(1.2)
         assert promoted.metrics["resumed_from_step"] == 256

@@ -43,7 +43,6 @@ from adworker.learners import (
     Policy,
     Reporting,
     TrainResult,
-    WarmStart,
     evaluate_policy,
 )
 from adworker.runner import (
@@ -56,6 +55,7 @@ from adworker.runner import (
     factory_problem,
     no_report,
 )
+from adworker.starts import SCRATCH, Resume, Start, Warm, train_learner
 from adworker.task_metrics import merge_task_metrics
 
 log = logging.getLogger("adworker")
@@ -163,12 +163,12 @@ def evaluate_job(
     options = task_options(task)
     make_env = catalogue().task(task.name).load_factory()
     learner = make_learner(task, options)
-    learner.keep_checkpoint = task.transfer != "none"
+    start: Start = SCRATCH
     if job.resume is not None:  # a promoted trial: the worker put its checkpoint here
-        learner.resume_from = (workdir / job.resume.artifact).read_bytes()
+        start = Resume((workdir / job.resume.artifact).read_bytes())
     elif job.transfer is not None and (workdir / TRANSFER_FILE).exists():
         checkpoint = (workdir / TRANSFER_FILE).read_bytes()
-        learner.warm_start = WarmStart(checkpoint, task.warm_steps(learner.default_steps))
+        start = Warm(checkpoint, task.warm_steps(learner.default_steps))
 
     t = time.perf_counter()
     design, urdf_text = job_robot(job)
@@ -181,9 +181,9 @@ def evaluate_job(
     try:
         t = lap("env", t)
         budget = task.train_steps if task.train_steps is not None else learner.default_steps
-        steps = budget
-        if job.resume is not None and "transfer_steps" in job.resume.metrics:
-            steps = int(job.resume.metrics["transfer_steps"])  # it was warm-started
+        # a promoted trial trains on to the budget it paused under (a warm start's)
+        steps = budget if job.resume is None or job.resume.budget is None else job.resume.budget
+        reporting = None
         if report is not None and job.pruner.name != "none":
 
             def interim(policy: Policy) -> float:
@@ -198,13 +198,24 @@ def evaluate_job(
             # on the from-scratch budget's steps, warm or resumed: every attempt of every
             # design reports at the same steps, so ASHA's rungs compare like with like
             every = job.pruner.report_every or max(1, budget // 10)
-            learner.reporting = Reporting(every=every, evaluate=interim, report=report)
+            reporting = Reporting(every=every, evaluate=interim, report=report)
         try:
-            trained = learner.train(env, steps=steps, seed=task.seed, check=check)
+            trained = train_learner(
+                learner,
+                env,
+                steps=steps,
+                seed=task.seed,
+                check=check,
+                start=start,
+                keep_checkpoint=task.transfer != "none",
+                reporting=reporting,
+            )
         except Pruned as stopped:
-            if learner.warm_start is not None and learner.warm_problem is None:
+            stopped.budget = steps
+            if isinstance(start, Warm) and getattr(learner, "warm_problem", None) is None:
+                stopped.budget = start.steps
                 stopped.transfer_from = _transfer_from(job)
-                stopped.metrics.update(_transfer_metrics(job, learner))
+                stopped.metrics.update(_transfer_metrics(job, start))
             raise
         t = lap("train", t)
         # A task env of this package meters its motors; a plugin's env may not.
@@ -245,8 +256,8 @@ def evaluate_job(
             else design_metrics(design, job.space if isinstance(job.space, DesignSpace) else None)
         ),
     }
-    if trained.warm_started:
-        metrics.update(_transfer_metrics(job, learner))
+    if trained.warm_started and isinstance(start, Warm):
+        metrics.update(_transfer_metrics(job, start))
     if meter is not None:
         metrics["effort"] = float(meter.effort)
         metrics["energy"] = float(meter.energy)
@@ -277,12 +288,12 @@ def _transfer_from(job: Job) -> int:
     return job.transfer.trial_id
 
 
-def _transfer_metrics(job: Job, learner: Learner) -> dict[str, float]:
-    """A warm-started trial's budget (a promoted one trains to it) and its distance to
-    the design it started from."""
-    assert job.transfer is not None and learner.warm_start is not None
+def _transfer_metrics(job: Job, start: Warm) -> dict[str, float]:
+    """What a warm-started trial shows its users: its budget and its distance to the
+    design it started from."""
+    assert job.transfer is not None
     return {
-        "transfer_steps": float(learner.warm_start.steps),
+        "transfer_steps": float(start.steps),
         "transfer_distance": job.transfer.distance,
     }
 

@@ -6,8 +6,9 @@ best pose it can hold, found in about a second); ``ddpg`` (the preprint's method
 budgets sized so one evaluation takes about 10 s on one CPU core per worker process.
 
 A learner gets a built env, a step budget (environment control steps; the task
-config's ``train_steps`` overrides the learner's default) and a seed, and returns a
-deterministic policy plus its training curve. Evaluation is separate (see
+config's ``train_steps`` overrides the learner's default), a seed and where it starts
+(:mod:`adworker.starts`: from scratch, its own paused state, or another design's
+controller), and returns a deterministic policy plus its training curve. Evaluation is separate (see
 :func:`evaluate_policy`) and identical for every learner.
 
 Default budgets (control steps at 10 Hz; an episode is 32 steps), CPU time of one
@@ -40,6 +41,7 @@ from pydantic import BaseModel
 from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adworker import checkpoints
 from adworker.runner import Pruned
+from adworker.starts import SCRATCH, Resume, Start, Warm, no_check
 from adworker.task_metrics import checked_task_metrics
 from adworker.tasks.base import RobotEnv
 
@@ -57,16 +59,7 @@ class TrainResult:
     checkpoint: bytes | None = None
     """The learner's final state, when the worker asked for it (``keep_checkpoint``)."""
     warm_started: bool = False
-    """It trained on from ``Learner.warm_start``: another design's controller."""
-
-
-@dataclass
-class WarmStart:
-    """Another design's controller to start from (a study with ``task.transfer``): the
-    checkpoint its learner returned and the steps to train from there."""
-
-    checkpoint: bytes
-    steps: int
+    """It trained on from its ``Warm`` start: another design's controller."""
 
 
 @dataclass
@@ -77,10 +70,6 @@ class EpisodeResult:
     metric: list[float]
     task_metrics: dict[str, float] = field(default_factory=dict)
     """The task's own metrics of the episode (:mod:`adworker.task_metrics`), checked."""
-
-
-def _no_check() -> None:
-    return None
 
 
 @dataclass
@@ -109,7 +98,7 @@ class Reporting:
 
 
 def evaluate_policy(
-    env: RobotEnv, policy: Policy, seeds: list[int], check: Callable[[], None] = _no_check
+    env: RobotEnv, policy: Policy, seeds: list[int], check: Callable[[], None] = no_check
 ) -> list[EpisodeResult]:
     """Run one deterministic episode per seed; the score is the task's episode score,
     and an env that offers ``task_metrics()`` is asked for its task's own metrics once
@@ -141,24 +130,26 @@ class Learner:
 
     def __init__(self, options: BaseModel | None = None) -> None:
         self.options = options
-        self.reporting: Reporting | None = None
-        """Set by the worker for a study with a pruner; learners that report use it."""
-        self.resume_from: bytes | None = None
-        """Set by the worker for a promoted trial: the checkpoint a learner that pauses
-        (attaching one to ``Pruned``) made; it trains on from there to the budget."""
-        self.warm_start: WarmStart | None = None
-        """Set by the worker for a study with ``task.transfer``: a learner that transfers
-        loads it (when it fits this design) and trains ``warm_start.steps``."""
-        self.keep_checkpoint = False
-        """Set by the worker for a study with ``task.transfer``: return the final state
-        as ``TrainResult.checkpoint``, so later designs can start from it."""
         self.warm_problem: str | None = None
-        """Why ``warm_start`` was not used (the learner trained from scratch), if so."""
+        """Why the last ``train``'s ``Warm`` start was not used (it trained from
+        scratch), if so."""
 
     def train(
-        self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
+        self,
+        env: RobotEnv,
+        *,
+        steps: int,
+        seed: int,
+        check: Callable[[], None] = no_check,
+        start: Start = SCRATCH,
+        keep_checkpoint: bool = False,
+        reporting: Reporting | None = None,
     ) -> TrainResult:
-        """Train within ``steps`` env steps; ``check`` is called often and may raise."""
+        """Train within ``steps`` env steps from ``start``; ``check`` is called often and
+        may raise. ``keep_checkpoint``: return the final state as
+        ``TrainResult.checkpoint`` (a study with ``task.transfer``, so later designs can
+        start from it). ``reporting``: a study with a pruner; a learner that reports
+        scores its policy with it as it trains."""
         raise NotImplementedError
 
 
@@ -182,8 +173,18 @@ class ConstantTargetSearch(Learner):
     default_steps: ClassVar[int] = 32 * 32
 
     def train(
-        self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
+        self,
+        env: RobotEnv,
+        *,
+        steps: int,
+        seed: int,
+        check: Callable[[], None] = no_check,
+        start: Start = SCRATCH,
+        keep_checkpoint: bool = False,
+        reporting: Reporting | None = None,
     ) -> TrainResult:
+        """Searches from scratch whatever ``start`` says and keeps no checkpoint (it
+        does not transfer, nor pause: a pruner that would pause it prunes it)."""
         dims = env.joint_count if env.gait_period is None else 3 * env.joint_count
         policy_of = _constant if env.gait_period is None else _gait
         episodes = max(1, steps // env.episode_steps)
@@ -194,8 +195,6 @@ class ConstantTargetSearch(Learner):
         rng = np.random.default_rng(seed)
         curve: list[dict[str, float]] = []
         used = 0
-
-        reporting = self.reporting
 
         def score_of(action: np.ndarray, episode_seed: int) -> float:
             nonlocal used
@@ -351,14 +350,22 @@ class StableBaselinesLearner(Learner):
         return _without_log_folder(model)
 
     def train(
-        self, env: RobotEnv, *, steps: int, seed: int, check: Callable[[], None] = _no_check
+        self,
+        env: RobotEnv,
+        *,
+        steps: int,
+        seed: int,
+        check: Callable[[], None] = no_check,
+        start: Start = SCRATCH,
+        keep_checkpoint: bool = False,
+        reporting: Reporting | None = None,
     ) -> TrainResult:
         import torch
         from stable_baselines3.common.callbacks import BaseCallback
 
         torch.set_num_threads(1)
         curve: list[dict[str, float]] = []
-        reporting = self.reporting
+        self.warm_problem = None
 
         class EpisodeScores(BaseCallback):
             def _on_step(self) -> bool:
@@ -375,14 +382,14 @@ class StableBaselinesLearner(Learner):
                         )
                 return True
 
-        resuming = self.resume_from is not None
-        warm = None if resuming else self._warm_model(env, seed=seed)
-        if self.resume_from is not None:
-            model = self.load_checkpoint(env, self.resume_from, steps=steps, seed=seed)
+        resuming = isinstance(start, Resume)
+        warm = self._warm_model(env, start, seed=seed) if isinstance(start, Warm) else None
+        if isinstance(start, Resume):
+            model = self.load_checkpoint(env, start.checkpoint, steps=steps, seed=seed)
             if reporting is not None:
                 reporting.resume_at(int(model.num_timesteps))
-        elif warm is not None:
-            model, steps = warm, self.warm_start.steps if self.warm_start else steps
+        elif isinstance(start, Warm) and warm is not None:
+            model, steps = warm, start.steps
         else:
             model = self.make_model(env, steps=steps, seed=seed)
         resumed_at = int(model.num_timesteps)
@@ -403,22 +410,18 @@ class StableBaselinesLearner(Learner):
             train_steps=int(model.num_timesteps),
             curve=curve,
             info={"algorithm": self.algorithm},
-            checkpoint=self.checkpoint(model) if self.keep_checkpoint else None,
+            checkpoint=self.checkpoint(model) if keep_checkpoint else None,
             warm_started=warm is not None,
         )
 
-    def _warm_model(self, env: Any, *, seed: int) -> Any:
-        """The model of ``warm_start`` on this design's env, its step count at zero and
+    def _warm_model(self, env: Any, start: Warm, *, seed: int) -> Any:
+        """The model of a ``Warm`` start on this design's env, its step count at zero and
         its replay buffer kept (an off-policy learner updates from the first step);
-        None, with the reason logged, when there is none or it does not fit (another
-        observation or action space, a corrupt file, one that is not weights alone):
-        the design trains from scratch."""
-        if self.warm_start is None:
-            return None
+        None, with the reason in ``warm_problem`` and logged, when it does not fit
+        (another observation or action space, a corrupt file, one that is not weights
+        alone): the design trains from scratch."""
         try:
-            model = self.load_checkpoint(
-                env, self.warm_start.checkpoint, steps=self.warm_start.steps, seed=seed
-            )
+            model = self.load_checkpoint(env, start.checkpoint, steps=start.steps, seed=seed)
         except Exception as error:
             self.warm_problem = f"{type(error).__name__}: {error}"
             log.warning("warm start refused (%s): training from scratch", self.warm_problem)

@@ -41,7 +41,9 @@ class Pruned(Exception):
         self.transfer_from: int | None = None
         """The trial whose controller the stopped one started from, if it did."""
         self.metrics: dict[str, float] = {}
-        """Metrics the learner's caller adds to the pause (a warm start's budget)."""
+        """Metrics the learner's caller adds to the pause (a warm start's)."""
+        self.budget: int | None = None
+        """The steps the stopped trial was training to: a promoted one trains on to them."""
 
 
 Report = Callable[[int, float], None]

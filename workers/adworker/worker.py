@@ -334,7 +334,7 @@ class Worker:
                 checkpoint = Artifact(CHECKPOINT_ARTIFACT, "application/zip", exc.checkpoint or b"")
                 if exc.checkpoint is not None and self._upload(job, heartbeat, label, [checkpoint]):
                     result = "paused"
-                    step, value, source = exc.step, exc.value, exc.transfer_from
+                    step, value, source, budget = exc.step, exc.value, exc.transfer_from, exc.budget
 
                     def pause() -> object:
                         return self.client.pause(
@@ -344,6 +344,7 @@ class Worker:
                             value=value,
                             metrics=metrics,
                             transfer_from=source,
+                            budget=budget,
                         )
 
                     unreported = not self._deliver(label, pause)

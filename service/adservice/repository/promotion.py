@@ -27,7 +27,7 @@ from adservice.repository.artifacts import trusted_checkpoint
 from adservice.repository.leases import check_lease_token, held_trial
 from adservice.repository.reports import curves_by_trial
 from adservice.repository.studies import History, finish_study_if_done, get_study
-from adservice.repository.transfer import check_transfer_from
+from adservice.repository.transfer import record_transfer_from
 from adservice.repository.trials import get_trial
 
 
@@ -100,14 +100,14 @@ def pause_trial(
         rung=rung,
         metrics=body.metrics,
         lease=trial.leases,
+        budget=body.budget,
     ).model_dump()
     trial.worker_id = None
     trial.lease_token_id = None
     trial.lease_expires_at = None
     trial.attempts -= 1  # the attempt did not fail: it ran to its rung
     if body.transfer_from is not None:
-        check_transfer_from(session, trial_id=trial_id, source_id=body.transfer_from)
-        trial.info = {**(trial.info or {}), "transfer_from": body.transfer_from}
+        record_transfer_from(session, trial_id=trial_id, source_id=body.transfer_from)
     worker = session.get(WorkerRow, holder)
     if worker is not None:
         worker.last_seen_at = now

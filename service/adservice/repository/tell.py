@@ -104,8 +104,9 @@ def tell_trial(
         return _explain_refused_tell(
             session, trial_id=trial_id, body=body, caller=caller, cached=cached_outcomes
         )
+    info = None
     if body.transfer_from is not None:
-        record_transfer_from(session, trial_id=trial_id, source_id=body.transfer_from)
+        info = record_transfer_from(session, trial_id=trial_id, source_id=body.transfer_from)
     if body.state == "complete":
         outcomes = _outcomes(session, finished["study_id"], cached_outcomes)
         if not outcomes.plain or body.values is not None:
@@ -126,8 +127,8 @@ def tell_trial(
             )
             assert finished is not None
             value = counted_value(outcome)
-    if body.transfer_from is not None:  # the returned row is read before the ORM's write
-        finished = {**finished, "info": {**finished["info"], "transfer_from": body.transfer_from}}
+    if info is not None:  # the returned row was read before the ORM's write
+        finished = {**finished, "info": info}
     COUNT[body.state].rows(
         session, [{"sid": finished["study_id"], "tid": trial_id, "value": value, "now": now}]
     )

@@ -4,6 +4,7 @@
 - ``studies``: creating a study (the checks the schema cannot make);
 - ``trials``: proposing trials (an owner's ask, or one for a worker's lease);
 - ``jobs``: leasing work to workers;
+- ``transfer``: which evaluated design a leased job's controller starts from;
 - ``budget``: an ask's memory budget.
 
 Routes validate and call one function here or in a module of ``adservice.repository``; these

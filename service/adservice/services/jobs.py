@@ -13,11 +13,11 @@ from adservice.errors import BusyError, ConflictError, ProposalFailedError, Stud
 from adservice.principals import Principal
 from adservice.repository import leases as lease_repo
 from adservice.repository import promotion as promotion_repo
-from adservice.repository import transfer as transfer_repo
 from adservice.repository import urdfs as urdf_repo
 from adservice.services import urdfs
 from adservice.services.configs import StudyConfigs
 from adservice.services.proposal_failures import failures_recorded
+from adservice.services.transfer import transfer_source
 from adservice.services.trials import Proposing, propose_trials, proposes_instantly
 
 log = logging.getLogger("adservice")
@@ -150,16 +150,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
             )
     if config.task.transfer != "none":
         try:
-            with db.read() as session:
-                transfer = transfer_repo.transfer_source(
-                    session,
-                    trial=trial,
-                    task=config.task,
-                    representation=config.representation,
-                    ties=config.design_space.ties() if config.design_space else {},
-                    bounds=config.bounds,
-                    outcomes=config.outcomes,
-                )
+            transfer = transfer_source(db, trial=trial, config=config)
         except Exception as error:
             log.warning(
                 "trial %s: no transfer source (%s: %s): its controller starts from scratch",

@@ -1,4 +1,6 @@
-"""The learner: a constant policy, no training."""
+"""The learner: a constant policy, no training. Its ``train`` is of the interface
+before issue 38 (no ``start``, ``keep_checkpoint`` or ``reporting``), as a plugin
+written then is: the worker still runs it, with a DeprecationWarning."""
 
 from __future__ import annotations
 

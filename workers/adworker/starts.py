@@ -1,0 +1,123 @@
+"""Where a learner's training starts, and calling a learner with it.
+
+A learner's ``train(env, *, steps, seed, check, start, keep_checkpoint, reporting)``
+(:class:`adworker.learners.Learner`) starts from one typed value: :class:`Scratch`,
+:class:`Resume` (its own trial's paused state) or :class:`Warm` (another design's
+controller). :func:`train_learner` calls a learner so, and still calls a plugin learner
+written against the interface before (``train(env, *, steps, seed, check)`` configured
+by attributes) for one release, with a DeprecationWarning (docs/plugins.md).
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import logging
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, cast
+
+if TYPE_CHECKING:
+    from adworker.learners import Reporting, TrainResult
+
+log = logging.getLogger("adworker")
+
+
+def no_check() -> None:
+    """A ``check`` that never stops training."""
+    return None
+
+
+@dataclass(frozen=True)
+class Scratch:
+    """Train from nothing: a fresh model of the job's own settings."""
+
+
+@dataclass(frozen=True)
+class Resume:
+    """Train on from this trial's own state (a promoted trial): the checkpoint a learner
+    that pauses attached to ``Pruned``, to the ``steps`` budget it was training to."""
+
+    checkpoint: bytes
+
+
+@dataclass(frozen=True)
+class Warm:
+    """Start from another design's controller (a study with ``task.transfer``): the
+    checkpoint its learner returned, and the ``steps`` to train from there instead of
+    the from-scratch budget. A learner that cannot use it (another observation or
+    action space, a file that does not load) says why in ``Learner.warm_problem`` and
+    trains from scratch to the budget."""
+
+    checkpoint: bytes
+    steps: int
+
+
+Start = Scratch | Resume | Warm
+"""Where a learner's training starts: one value, so a resume and a warm start can never
+both be asked for. A shared controller (issue 38) is to be a fourth kind here."""
+
+SCRATCH = Scratch()
+
+
+def train_learner(
+    learner: Any,
+    env: Any,
+    *,
+    steps: int,
+    seed: int,
+    check: Callable[[], None] = no_check,
+    start: Start = SCRATCH,
+    keep_checkpoint: bool = False,
+    reporting: Reporting | None = None,
+) -> TrainResult:
+    """``learner.train`` with the job's start, checkpoint wish and reporting as keyword
+    arguments. A plugin learner written against the interface before them
+    (``train(env, *, steps, seed, check)``, configured by attributes) still trains for
+    this release, with a DeprecationWarning: its ``reporting``, ``resume_from`` (a
+    ``Resume``'s bytes), ``warm_start`` (the ``Warm`` itself: ``checkpoint`` and
+    ``steps``) and ``keep_checkpoint`` are set before it is called."""
+    if _takes_start(learner.train):
+        return cast(
+            "TrainResult",
+            learner.train(
+                env,
+                steps=steps,
+                seed=seed,
+                check=check,
+                start=start,
+                keep_checkpoint=keep_checkpoint,
+                reporting=reporting,
+            ),
+        )
+    message = (
+        f"learner {type(learner).__name__}: train(env, *, steps, seed, check) configured by "
+        "the attributes reporting, resume_from, warm_start and keep_checkpoint is "
+        "deprecated and will stop working in the next release; accept train(env, *, "
+        "steps, seed, check, start, keep_checkpoint, reporting) instead (docs/plugins.md)"
+    )
+    warnings.warn(message, DeprecationWarning, stacklevel=2)
+    _log_once(message)
+    learner.reporting = reporting
+    learner.resume_from = start.checkpoint if isinstance(start, Resume) else None
+    learner.warm_start = start if isinstance(start, Warm) else None
+    learner.keep_checkpoint = keep_checkpoint
+    learner.warm_problem = None
+    return cast("TrainResult", learner.train(env, steps=steps, seed=seed, check=check))
+
+
+@functools.cache
+def _log_once(message: str) -> None:
+    """Log a deprecation once per worker process (Python hides DeprecationWarning from
+    a program's own users unless asked)."""
+    log.warning("%s", message)
+
+
+def _takes_start(train: Callable[..., Any]) -> bool:
+    """Whether a learner's ``train`` takes the ``start`` keyword (or any keyword)."""
+    parameters = inspect.signature(train).parameters.values()
+    return any(
+        parameter.name == "start" or parameter.kind is inspect.Parameter.VAR_KEYWORD
+        for parameter in parameters
+    )
