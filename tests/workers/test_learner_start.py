@@ -115,3 +115,37 @@ def test_a_pause_stored_before_its_budget_field_keeps_its_warm_budget() -> None:
     assert Checkpoint.model_validate(old).budget == 512
     assert Checkpoint.model_validate({**old, "budget": 300}).budget == 300
     assert Checkpoint.model_validate({**old, "metrics": {}}).budget is None
+
+
+@pytest.mark.slow
+def test_an_old_style_subclass_of_a_built_in_learner_keeps_its_warm_start(env_of) -> None:
+    """A plugin of the interface before that subclasses a built-in learner and calls
+    ``super().train(env, steps=, seed=, check=)`` trains from the warm start the worker
+    set as an attribute, and keeps its checkpoint, instead of silently from scratch."""
+    from adclient.plugins import catalogue
+
+    built_in = type(catalogue().learner("ppo").load_factory()(None))
+
+    class OldSubclass(built_in):  # type: ignore[misc, valid-type]
+        def train(self, env: Any, *, steps: int, seed: int, check: Any = lambda: None) -> Any:
+            return super().train(env, steps=steps, seed=seed, check=check)
+
+    source = built_in(None).train(
+        env_of("stand-up", "arch_chain"), steps=128, seed=0, keep_checkpoint=True
+    )
+    assert source.checkpoint is not None
+    learner = OldSubclass(None)
+    with pytest.warns(DeprecationWarning):
+        trained = train_learner(
+            learner,
+            env_of("stand-up", "arch_chain"),
+            steps=128,
+            seed=1,
+            start=Warm(source.checkpoint, 32),
+            keep_checkpoint=True,
+        )
+    assert trained.warm_started and learner.warm_problem is None
+    assert trained.checkpoint is not None
+    with pytest.warns(DeprecationWarning):
+        scratch = train_learner(learner, env_of("stand-up", "arch_chain"), steps=64, seed=1)
+    assert not scratch.warm_started and scratch.checkpoint is None

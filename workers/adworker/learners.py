@@ -41,7 +41,7 @@ from pydantic import BaseModel
 from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adworker import checkpoints
 from adworker.runner import Pruned
-from adworker.starts import SCRATCH, Resume, Start, Warm, no_check
+from adworker.starts import SCRATCH, Resume, Start, Warm, from_attributes, no_check
 from adworker.task_metrics import checked_task_metrics
 from adworker.tasks.base import RobotEnv
 
@@ -60,6 +60,11 @@ class TrainResult:
     """The learner's final state, when the worker asked for it (``keep_checkpoint``)."""
     warm_started: bool = False
     """It trained on from its ``Warm`` start: another design's controller."""
+
+
+WarmStart = Warm
+"""Deprecated name of :class:`adworker.starts.Warm` (a plugin of the attribute interface
+may import it), kept for one release."""
 
 
 @dataclass
@@ -179,12 +184,13 @@ class ConstantTargetSearch(Learner):
         steps: int,
         seed: int,
         check: Callable[[], None] = no_check,
-        start: Start = SCRATCH,
-        keep_checkpoint: bool = False,
+        start: Start | None = None,
+        keep_checkpoint: bool | None = None,
         reporting: Reporting | None = None,
     ) -> TrainResult:
         """Searches from scratch whatever ``start`` says and keeps no checkpoint (it
         does not transfer, nor pause: a pruner that would pause it prunes it)."""
+        reporting = from_attributes(self, start, keep_checkpoint, reporting)[2]
         dims = env.joint_count if env.gait_period is None else 3 * env.joint_count
         policy_of = _constant if env.gait_period is None else _gait
         episodes = max(1, steps // env.episode_steps)
@@ -356,12 +362,14 @@ class StableBaselinesLearner(Learner):
         steps: int,
         seed: int,
         check: Callable[[], None] = no_check,
-        start: Start = SCRATCH,
-        keep_checkpoint: bool = False,
+        start: Start | None = None,
+        keep_checkpoint: bool | None = None,
         reporting: Reporting | None = None,
     ) -> TrainResult:
         import torch
         from stable_baselines3.common.callbacks import BaseCallback
+
+        start, keep_checkpoint, reporting = from_attributes(self, start, keep_checkpoint, reporting)
 
         torch.set_num_threads(1)
         curve: list[dict[str, float]] = []

@@ -107,6 +107,27 @@ def train_learner(
     return cast("TrainResult", learner.train(env, steps=steps, seed=seed, check=check))
 
 
+def from_attributes(
+    learner: Any, start: Start | None, keep_checkpoint: bool | None, reporting: Reporting | None
+) -> tuple[Start, bool, Reporting | None]:
+    """A built-in learner's start, checkpoint wish and reporting: as given, or, where
+    ``start`` is None (an attribute-configured plugin subclass calling
+    ``super().train(env, steps=, seed=, check=)``), from the attributes
+    :func:`train_learner` set on it for this release, so its resume or warm start is not
+    silently dropped."""
+    if start is None:
+        resume = getattr(learner, "resume_from", None)
+        warm = getattr(learner, "warm_start", None)
+        start = (
+            Resume(resume) if resume is not None else warm if isinstance(warm, Warm) else SCRATCH
+        )
+    if keep_checkpoint is None:
+        keep_checkpoint = bool(getattr(learner, "keep_checkpoint", False))
+    if reporting is None:
+        reporting = getattr(learner, "reporting", None)
+    return start, keep_checkpoint, reporting
+
+
 @functools.cache
 def _log_once(message: str) -> None:
     """Log a deprecation once per worker process (Python hides DeprecationWarning from
