@@ -73,19 +73,54 @@ _studies = cast(sa.Table, StudyRow.__table__)
 _trials = cast(sa.Table, TrialRow.__table__)
 _workers = cast(sa.Table, WorkerRow.__table__)
 
+
 # Hot-path statements, built once: ask and tell run these on every request.
-RESERVE = Prepared(
-    sa.update(_studies)
-    .where(
-        _studies.c.id == sa.bindparam("sid"),
-        _studies.c.state == "running",
-        sa.or_(
-            _studies.c.max_trials.is_(None),
-            _studies.c.n_trials + sa.bindparam("count") <= _studies.c.max_trials,
-        ),
+def _reserve_statement(*, proposing: bool) -> sa.Update:
+    """Reserve trial numbers of a running study with room. ``proposing``: a proposal's
+    reservation, which also clears the study's recorded proposal failures (the proposal
+    that follows in the same transaction succeeded, or the transaction rolls back) and
+    returns the fallback reason the study holds (cleared only where one is held)."""
+    values: dict[Any, Any] = {
+        _studies.c.n_trials: _studies.c.n_trials + sa.bindparam("count"),
+        _studies.c.updated_at: sa.bindparam("now"),
+    }
+    returned = [_studies.c.n_trials]
+    if proposing:
+        values |= {
+            _studies.c.proposal_failures: 0,
+            _studies.c.proposal_error: None,
+            _studies.c.proposal_retry_at: None,
+        }
+        returned.append(_studies.c.proposal_fallback_reason)
+    return (
+        sa.update(_studies)
+        .where(
+            _studies.c.id == sa.bindparam("sid"),
+            _studies.c.state == "running",
+            sa.or_(
+                _studies.c.max_trials.is_(None),
+                _studies.c.n_trials + sa.bindparam("count") <= _studies.c.max_trials,
+            ),
+        )
+        .values(values)
+        .returning(*returned)
     )
-    .values(n_trials=_studies.c.n_trials + sa.bindparam("count"), updated_at=sa.bindparam("now"))
-    .returning(_studies.c.n_trials)
+
+
+RESERVE = Prepared(_reserve_statement(proposing=False))
+RESERVE_PROPOSING = Prepared(_reserve_statement(proposing=True))
+ADD_FALLBACKS = Prepared(
+    sa.update(_studies)
+    .where(_studies.c.id == sa.bindparam("sid"))
+    .values(
+        proposal_fallbacks=_studies.c.proposal_fallbacks + sa.bindparam("count"),
+        proposal_fallback_reason=sa.bindparam("reason"),
+    )
+)
+CLEAR_FALLBACK_REASON = Prepared(
+    sa.update(_studies)
+    .where(_studies.c.id == sa.bindparam("sid"))
+    .values(proposal_fallback_reason=None)
 )
 
 
