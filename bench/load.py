@@ -326,8 +326,9 @@ def main() -> None:
                     unit="trials/s",
                 )
                 for endpoint in ("lease", "tell") if not kinds else ():
-                    p50 = results[name]["latency_ms"][endpoint]["p50"]
-                    emit(f"{name} {endpoint} p50", p50, higher_is_better=False, unit="ms")
+                    for q in ("p50", "p99"):
+                        latency = results[name]["latency_ms"][endpoint][q]
+                        emit(f"{name} {endpoint} {q}", latency, higher_is_better=False, unit="ms")
     print()
     if kinds:
         print_adworker_table(results)

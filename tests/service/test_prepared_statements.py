@@ -92,6 +92,13 @@ def _script(db: Database) -> list[Any]:
                     )
             except (ConflictError, LeaseLostError) as error:
                 out.append(type(error).__name__)
+        with db.write() as session:  # a proposal's reservation, and its fallbacks
+            reserved = trial_repo.reserve_for_proposal(session, study_id=study_id, count=1)
+            out.append(reserved)
+            study_repo.record_fallbacks(session, study_id=study_id, count=2, reason="budget")
+        with db.write() as session:
+            out.append(trial_repo.reserve_for_proposal(session, study_id=study_id, count=1))
+            study_repo.record_fallbacks(session, study_id=study_id, count=0, reason=None)
         with db.write() as session:
             try:
                 trial_repo.reserve_numbers(session, study_id=study_id, count=3)  # over max
@@ -151,6 +158,12 @@ def test_the_driver_path_does_what_sqlalchemy_does(databases: tuple[Database, Da
         for row in tables["studies"]
     }
     assert best == {1: (5.0, 3, 1), 2: (-1.0, 3, 1)}
+    reserved = [x for x in ours if isinstance(x, trial_repo.Reserved)]
+    assert reserved == [(4, None), (5, "budget")] * 2  # the reason read back, then cleared
+    assert {
+        (row["proposal_fallbacks"], row["proposal_fallback_reason"], row["n_trials"])
+        for row in tables["studies"]
+    } == {(2, None, 6)}
     assert {row["worker_id"]: row["jobs_done"] for row in tables["workers"]} == {"w1": 2}
 
 

@@ -517,3 +517,21 @@ def test_only_numerical_failures_of_a_model_fall_back() -> None:
         AssertionError(),
     ):
         assert not isinstance(bug, caught), type(bug)
+
+
+def test_a_proposer_class_is_looked_up_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every ask asks for its study's proposer: after the first, no import machinery."""
+    import importlib
+
+    from adservice.proposers import proposer_class
+    from adservice.proposers.simple import RandomProposer
+
+    assert proposer_class("random") is RandomProposer
+
+    def no_import(name: str, package: str | None = None) -> None:
+        raise AssertionError(f"imported {name} again")
+
+    monkeypatch.setattr(importlib, "import_module", no_import)
+    assert get_proposer("random").name == "random"
+    with pytest.raises(KeyError):
+        proposer_class("no-such-proposer")

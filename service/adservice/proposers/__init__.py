@@ -6,6 +6,7 @@ import time, so listing names or checking a study's options stays light.
 
 from __future__ import annotations
 
+import functools
 import importlib
 
 from adservice.proposers.base import Proposal, ProposalRequest, Proposer, ProposerOptions
@@ -25,8 +26,10 @@ def available() -> list[str]:
     return sorted(_CLASSES)
 
 
+@functools.cache
 def proposer_class(name: str) -> type[Proposer]:
-    """The class of the proposer named ``name``; KeyError for an unknown name."""
+    """The class of the proposer named ``name``; KeyError for an unknown name. Looked
+    up once per name: every ask asks for its study's proposer."""
     module, attribute = _CLASSES[name]
     proposer: type[Proposer] = getattr(importlib.import_module(module), attribute)
     return proposer

@@ -46,21 +46,37 @@ def touch_worker(
 ) -> None:
     """Record that ``worker_id`` was seen at ``now``, holding ``current_trial_id`` (a
     worker seen for the first time gets its row); at a lease, the ``tasks`` and
-    ``learners`` it serves (None: any), each written only when it changed."""
-    worker = session.get(WorkerRow, worker_id)
-    if worker is None:
-        worker = WorkerRow(worker_id=worker_id, jobs_done=0, jobs_failed=0)
-        session.add(worker)
-    worker.last_seen_at = now
-    worker.current_trial_id = current_trial_id
-    if not isinstance(tasks, Unset):
-        served = None if tasks is None else sorted(tasks)
-        if worker.tasks != served:
-            worker.tasks = served
-    if not isinstance(learners, Unset):
-        loaded = None if learners is None else sorted(learners)
-        if worker.learners != loaded:
-            worker.learners = loaded
+    ``learners`` it serves (None: any). One UPDATE where the worker has its row (after
+    the session's pending changes: this runs on the scope's connection)."""
+    session.flush()
+    params: dict[str, Any] = {"wid": worker_id, "now": now, "tid": current_trial_id}
+    served = not isinstance(tasks, Unset) and not isinstance(learners, Unset)
+    if served:
+        params["tasks"] = None if tasks is None else sorted(cast(Sequence[str], tasks))
+        params["learners"] = None if learners is None else sorted(cast(Sequence[str], learners))
+    if TOUCH_WORKER[served].row(session, params) is None:
+        INSERT_WORKER.rows(
+            session,
+            [{"tasks": None, "learners": None} | params | {"jobs_done": 0, "jobs_failed": 0}],
+        )
+
+
+def served_changed(
+    session: Session,
+    *,
+    worker_id: str,
+    tasks: Sequence[str] | None,
+    learners: Sequence[str] | None,
+) -> bool:
+    """Whether ``worker_id`` is new, or serves other ``tasks`` or ``learners`` than its
+    row says (one indexed read)."""
+    row = session.execute(
+        sa.select(_workers.c.tasks, _workers.c.learners).where(_workers.c.worker_id == worker_id)
+    ).one_or_none()
+    return row is None or (row.tasks, row.learners) != (
+        None if tasks is None else sorted(tasks),
+        None if learners is None else sorted(learners),
+    )
 
 
 def counted_value(outcome: Outcome) -> float | None:
@@ -73,19 +89,54 @@ _studies = cast(sa.Table, StudyRow.__table__)
 _trials = cast(sa.Table, TrialRow.__table__)
 _workers = cast(sa.Table, WorkerRow.__table__)
 
+
 # Hot-path statements, built once: ask and tell run these on every request.
-RESERVE = Prepared(
-    sa.update(_studies)
-    .where(
-        _studies.c.id == sa.bindparam("sid"),
-        _studies.c.state == "running",
-        sa.or_(
-            _studies.c.max_trials.is_(None),
-            _studies.c.n_trials + sa.bindparam("count") <= _studies.c.max_trials,
-        ),
+def _reserve_statement(*, proposing: bool) -> sa.Update:
+    """Reserve trial numbers of a running study with room. ``proposing``: a proposal's
+    reservation, which also clears the study's recorded proposal failures (the proposal
+    that follows in the same transaction succeeded, or the transaction rolls back) and
+    returns the fallback reason the study holds (cleared only where one is held)."""
+    values: dict[Any, Any] = {
+        _studies.c.n_trials: _studies.c.n_trials + sa.bindparam("count"),
+        _studies.c.updated_at: sa.bindparam("now"),
+    }
+    returned = [_studies.c.n_trials]
+    if proposing:
+        values |= {
+            _studies.c.proposal_failures: 0,
+            _studies.c.proposal_error: None,
+            _studies.c.proposal_retry_at: None,
+        }
+        returned.append(_studies.c.proposal_fallback_reason)
+    return (
+        sa.update(_studies)
+        .where(
+            _studies.c.id == sa.bindparam("sid"),
+            _studies.c.state == "running",
+            sa.or_(
+                _studies.c.max_trials.is_(None),
+                _studies.c.n_trials + sa.bindparam("count") <= _studies.c.max_trials,
+            ),
+        )
+        .values(values)
+        .returning(*returned)
     )
-    .values(n_trials=_studies.c.n_trials + sa.bindparam("count"), updated_at=sa.bindparam("now"))
-    .returning(_studies.c.n_trials)
+
+
+RESERVE = Prepared(_reserve_statement(proposing=False))
+RESERVE_PROPOSING = Prepared(_reserve_statement(proposing=True))
+ADD_FALLBACKS = Prepared(
+    sa.update(_studies)
+    .where(_studies.c.id == sa.bindparam("sid"))
+    .values(
+        proposal_fallbacks=_studies.c.proposal_fallbacks + sa.bindparam("count"),
+        proposal_fallback_reason=sa.bindparam("reason"),
+    )
+)
+CLEAR_FALLBACK_REASON = Prepared(
+    sa.update(_studies)
+    .where(_studies.c.id == sa.bindparam("sid"))
+    .values(proposal_fallback_reason=None)
 )
 
 
@@ -218,4 +269,34 @@ SET_OUTCOME = Prepared(
         feasible=sa.bindparam("feasible"),
     )
     .returning(*_trials.c)
+)
+
+
+def _touch_statement(*, served: bool) -> sa.Update:
+    values: dict[Any, Any] = {
+        _workers.c.last_seen_at: sa.bindparam("now"),
+        _workers.c.current_trial_id: sa.bindparam("tid"),
+    }
+    if served:
+        values[_workers.c.tasks] = sa.bindparam("tasks", type_=_workers.c.tasks.type)
+        values[_workers.c.learners] = sa.bindparam("learners", type_=_workers.c.learners.type)
+    return (
+        sa.update(_workers)
+        .where(_workers.c.worker_id == sa.bindparam("wid"))
+        .values(values)
+        .returning(_workers.c.worker_id)
+    )
+
+
+TOUCH_WORKER = {served: Prepared(_touch_statement(served=served)) for served in (False, True)}
+INSERT_WORKER = Prepared(
+    sa.insert(_workers).values(
+        worker_id=sa.bindparam("wid"),
+        last_seen_at=sa.bindparam("now"),
+        current_trial_id=sa.bindparam("tid"),
+        jobs_done=sa.bindparam("jobs_done"),
+        jobs_failed=sa.bindparam("jobs_failed"),
+        tasks=sa.bindparam("tasks", type_=_workers.c.tasks.type),
+        learners=sa.bindparam("learners", type_=_workers.c.learners.type),
+    )
 )

@@ -18,7 +18,7 @@ from adclient.schemas import TrialState
 from adservice.errors import ForbiddenError, LeaseLostError
 from adservice.models import StudyRow, TrialRow, WorkerRow, utcnow
 from adservice.principals import Principal
-from adservice.repository._shared import locking, touch_worker
+from adservice.repository._shared import locking, served_changed, touch_worker
 from adservice.repository.studies import finish_study_if_done, get_study
 from adservice.repository.trials import get_trial
 
@@ -94,7 +94,12 @@ def lease_queued_trial(
     learners: Sequence[str] | None = None,
 ) -> TrialRow | None:
     """Lease the oldest queued trial of a running managed study (of one of ``tasks``
-    and ``learners``) that is not backing off after a failure (``proposal_retry_at``)."""
+    and ``learners``) that is not backing off after a failure (``proposal_retry_at``).
+
+    With none queued, only a new worker, or one that now serves other tasks or learners,
+    is written (so the transaction commits without a write when nothing changed): the
+    caller records the worker as seen, by the proposal that leases it a trial or by
+    :func:`record_idle_worker`."""
     now = utcnow()
     expire_leases(session, now=now)
     query = (
@@ -113,14 +118,8 @@ def lease_queued_trial(
         query = query.with_for_update(of=TrialRow, skip_locked=True)
     trial = session.scalars(query).one_or_none()
     if trial is None:
-        touch_worker(
-            session,
-            worker_id=worker_id,
-            now=now,
-            current_trial_id=None,
-            tasks=tasks,
-            learners=learners,
-        )
+        if served_changed(session, worker_id=worker_id, tasks=tasks, learners=learners):
+            record_idle_worker(session, worker_id=worker_id, tasks=tasks, learners=learners)
         return None
     trial.state = TrialState.running
     trial.worker_id = worker_id
@@ -139,6 +138,25 @@ def lease_queued_trial(
         learners=learners,
     )
     return trial
+
+
+def record_idle_worker(
+    session: Session,
+    *,
+    worker_id: str,
+    tasks: Sequence[str] | None,
+    learners: Sequence[str] | None,
+) -> None:
+    """A lease that found no work: the worker seen now, holding no trial, serving
+    ``tasks`` and ``learners``."""
+    touch_worker(
+        session,
+        worker_id=worker_id,
+        now=utcnow(),
+        current_trial_id=None,
+        tasks=tasks,
+        learners=learners,
+    )
 
 
 def studies_wanting_trials(

@@ -22,7 +22,7 @@ from adservice import principals
 from adservice.errors import NotFoundError
 from adservice.models import StudyRow, TrialRow, utcnow
 from adservice.principals import Principal
-from adservice.repository._shared import locking
+from adservice.repository._shared import ADD_FALLBACKS, CLEAR_FALLBACK_REASON, locking
 
 
 def create_study(
@@ -123,39 +123,13 @@ def record_proposal_failure(
     return study
 
 
-def clear_proposal_failures(session: Session, *, study_id: int) -> None:
-    """A proposal succeeded: the study's recorded failures and backoff are gone (one
-    UPDATE that changes nothing, and locks nothing, when none were recorded)."""
-    session.execute(
-        sa.update(StudyRow)
-        .where(StudyRow.id == study_id, StudyRow.proposal_failures > 0)
-        .values(proposal_failures=0, proposal_error=None, proposal_retry_at=None)
-        .execution_options(synchronize_session=False)
-    )
-
-
 def record_fallbacks(session: Session, *, study_id: int, count: int, reason: str | None) -> None:
     """An ask's model phase ran: ``count`` of its candidates fell back for ``reason``
-    (0 and None: none did, which clears the study's reason; one UPDATE that changes
-    nothing, and locks nothing, when there was none to clear)."""
+    (0 and None: none did, which clears the study's reason)."""
     if count:
-        values = {
-            "proposal_fallbacks": StudyRow.proposal_fallbacks + count,
-            "proposal_fallback_reason": reason,
-        }
-        session.execute(
-            sa.update(StudyRow)
-            .where(StudyRow.id == study_id)
-            .values(values)
-            .execution_options(synchronize_session=False)
-        )
-        return
-    session.execute(
-        sa.update(StudyRow)
-        .where(StudyRow.id == study_id, StudyRow.proposal_fallback_reason.is_not(None))
-        .values(proposal_fallback_reason=None)
-        .execution_options(synchronize_session=False)
-    )
+        ADD_FALLBACKS.rows(session, [{"sid": study_id, "count": count, "reason": reason}])
+    else:
+        CLEAR_FALLBACK_REASON.rows(session, [{"sid": study_id}])
 
 
 def check_manager(study: StudyRow, caller: Principal) -> None:

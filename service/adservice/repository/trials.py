@@ -10,13 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import datetime, timedelta
-from typing import Any, cast
+from typing import Any, NamedTuple, cast
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from adclient.objectives import Outcome, pareto_front, stored_outcomes
 from adclient.schemas import Trial, TrialAdd, TrialState
+from adservice.db import Prepared
 from adservice.errors import ConflictError, NotFoundError
 from adservice.models import StudyRow, TrialRow, utcnow
 from adservice.repository._shared import (
@@ -24,6 +25,7 @@ from adservice.repository._shared import (
     COUNT,
     INSERT_TRIALS,
     RESERVE,
+    RESERVE_PROPOSING,
     counted_value,
     locking,
     touch_worker,
@@ -65,11 +67,33 @@ def _trial_order(session: Session, order_by: str) -> sa.SQLColumnExpression[Any]
 def reserve_numbers(session: Session, *, study_id: int, count: int) -> int:
     """Claim the next ``count`` trial numbers of a running study with room; returns the
     first. One conditional UPDATE: it checks, reserves and (on PostgreSQL) row-locks."""
-    reserved = RESERVE.row(session, {"sid": study_id, "count": count, "now": utcnow()})
+    return _first_number(session, RESERVE, study_id=study_id, count=count)["first"]
+
+
+class Reserved(NamedTuple):
+    first: int
+    """The first reserved trial number."""
+    fallback_reason: str | None
+    """The study's recorded reason for its last proposal's fallbacks."""
+
+
+def reserve_for_proposal(session: Session, *, study_id: int, count: int) -> Reserved:
+    """:func:`reserve_numbers` for a proposal, in the same one UPDATE of the study row:
+    its recorded proposal failures cleared (the proposal succeeded, or its transaction
+    rolls back) and the fallback reason it holds returned, so an ask clears that only
+    when there is one."""
+    row = _first_number(session, RESERVE_PROPOSING, study_id=study_id, count=count)
+    return Reserved(row["first"], row["proposal_fallback_reason"])
+
+
+def _first_number(
+    session: Session, statement: Prepared, *, study_id: int, count: int
+) -> dict[str, Any]:
+    reserved = statement.row(session, {"sid": study_id, "count": count, "now": utcnow()})
     if reserved is None:
         check_room(get_study(session, study_id=study_id), count=count)
         raise ConflictError(f"study {study_id} takes no new trials")  # changed meanwhile
-    return int(reserved["n_trials"]) - count
+    return {**reserved, "first": int(reserved["n_trials"]) - count}
 
 
 def _new_trial(

@@ -38,7 +38,8 @@ async def lease_job(
     queued trial is one short write that never waits for a proposal; a model-based proposal
     runs in the proposal threads, preferring a study with none under way. A study whose
     proposal fails is recorded and skipped (``proposal_failures``): the same lease goes
-    on to the next study."""
+    on to the next study. The worker is recorded as seen by the write that leases it a
+    trial, or by a write of its own when there is no work."""
     db, configs, locks, proposals = (
         proposing.db,
         proposing.configs,
@@ -116,6 +117,14 @@ async def lease_job(
             continue
         if job is not None:  # None: the template does not expand at its params
             return job
+
+    def idle() -> None:
+        with db.write() as session:
+            lease_repo.record_idle_worker(
+                session, worker_id=worker_id, tasks=tasks, learners=learners
+            )
+
+    await db.run(idle)
     return None
 
 

@@ -8,7 +8,7 @@ before which the lease scheduler skips the study) and raised as
 ``ProposalFailedError``: a lease goes on to the next study, an owner's ask gets a 409
 naming the failure. The proposal's own write transaction was rolled back, so nothing
 of it is stored (no trial, no trial number, no attempt). The next proposal that
-succeeds clears the record (``study_repo.clear_proposal_failures``, in its write).
+succeeds clears the record (``trial_repo.reserve_for_proposal``, in its write).
 """
 
 from __future__ import annotations

@@ -106,14 +106,14 @@ def _record(
         wanted = count - len(claimed)
         if wanted == 0:
             return claimed
-        first = trial_repo.reserve_numbers(session, study_id=config.study_id, count=wanted)
-        study_repo.clear_proposal_failures(session, study_id=config.study_id)
+        reserved = trial_repo.reserve_for_proposal(session, study_id=config.study_id, count=wanted)
+        first = reserved.first
         proposal = propose(first, wanted)
         candidates = config.canonical(proposal.candidates)
         infos = [_in_own_directions(info, config) for info in proposal.info]
         if config.polytope is not None:
             candidates, infos = _inside_spec_constraints(config, candidates, infos)
-        _record_fallbacks(session, config.study_id, infos)
+        _record_fallbacks(session, config.study_id, infos, stored=reserved.fallback_reason)
         return claimed + trial_repo.insert_trials(
             session,
             study_id=config.study_id,
@@ -127,15 +127,20 @@ def _record(
         )
 
 
-def _record_fallbacks(session: Session, study_id: int, infos: list[dict[str, Any]]) -> None:
+def _record_fallbacks(
+    session: Session, study_id: int, infos: list[dict[str, Any]], *, stored: str | None
+) -> None:
     """Count the candidates a budget or a failed model made Sobol points (``DEGRADED``)
-    on the study, with the latest reason; an ask whose model proposed clears the reason.
-    An ask still in its Sobol start records nothing."""
+    on the study, with the latest reason; an ask whose model proposed clears the reason
+    (``stored``: the study's, read by the reservation; nothing to write when None). An
+    ask still in its Sobol start records nothing."""
     degraded = [info for info in infos if info.get(DEGRADED)]
     if degraded:
         reason = str(degraded[-1].get("reason", ""))
         study_repo.record_fallbacks(session, study_id=study_id, count=len(degraded), reason=reason)
-    elif any(not str(info.get("method", "")).startswith("sobol") for info in infos):
+    elif stored is not None and any(
+        not str(info.get("method", "")).startswith("sobol") for info in infos
+    ):
         study_repo.record_fallbacks(session, study_id=study_id, count=0, reason=None)
 
 
