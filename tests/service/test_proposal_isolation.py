@@ -141,10 +141,7 @@ def test_the_memory_budget_refuses_options_and_counts_naming_them(
         assert refused.json()["detail"].startswith("proposer.options.mc_samples: "), refused.text
         assert "AD_ASK_MEMORY_MB" in refused.json()["detail"]
 
-        # 2 local searches a candidate (the memory estimate is the default's, so is
-        # the count that fits): what is checked is the count, not the search
-        options = {"acquisition": "mc", "num_restarts": 2}
-        mc = {"name": "qei", "n_initial": 2, "options": options}
+        mc = {"name": "qei", "n_initial": 2, "options": {"acquisition": "mc"}}
         study = http.post("/api/v1/studies", json={"name": "mc", "space": box(8), "proposer": mc})
         assert study.status_code == 201, study.text
         study_id = study.json()["id"]
