@@ -103,12 +103,14 @@ def main() -> None:
                 thread = threading.Thread(target=ask)
                 thread.start()
                 time.sleep(0.5)
-                queued, statuses = waiting_asks(server.url, study_id, args.waiting)
-                time.sleep(0.5)
-                lease_s, health_s, last = burst(server.url, args.leases)
-                thread.join()
-                for waiting in queued:
-                    waiting.join()
+                unlimited = httpx.Limits(max_connections=None)
+                with httpx.Client(base_url=server.url, timeout=600, limits=unlimited) as http:
+                    queued, statuses = waiting_asks(http, study_id, args.waiting)
+                    time.sleep(0.5)
+                    lease_s, health_s, last = burst(server.url, args.leases)
+                    thread.join()
+                    for waiting in queued:
+                        waiting.join()
                 assert statuses == [409] * args.waiting, statuses
                 if last > outcome["ended"]:
                     print("warning: the heavy ask ended before the leases; use a larger --count")

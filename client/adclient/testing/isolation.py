@@ -53,16 +53,19 @@ def managed_study(http: httpx.Client) -> int:
     return int(study.json()["id"])
 
 
-def waiting_asks(url: str, study_id: int, count: int) -> tuple[list[threading.Thread], list]:
+def waiting_asks(
+    http: httpx.Client, study_id: int, count: int
+) -> tuple[list[threading.Thread], list]:
     """``count`` asks of one point queued behind the study's heavy ask, and their status
     codes: the heavy ask fills the study, so each is refused (409) when its turn comes.
-    Before issue 13 each waited for that turn holding a request thread."""
+    Before issue 13 each waited for that turn holding a request thread. The threads
+    share ``http`` (each ask on a connection of its pool: it must allow ``count`` more
+    at once; a client apiece loads the CA bundle, 50 ms of CPU each)."""
     statuses: list[int] = []
 
     def ask() -> None:
-        with httpx.Client(base_url=url, timeout=600) as http:
-            response = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 1})
-            statuses.append(response.status_code)
+        response = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 1})
+        statuses.append(response.status_code)
 
     threads = [threading.Thread(target=ask) for _ in range(count)]
     for thread in threads:
