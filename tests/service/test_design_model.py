@@ -35,6 +35,10 @@ from adservice.representation import build_representation, search_structure
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TKW: dict[str, Any] = {"dtype": torch.float64}
+FAST = {"raw_samples": 256, "num_restarts": 4, "maxiter": 30}
+"""Smaller acquisition searches for the tests that check what a proposal or a fit is,
+not how good the proposal is (the default: 2048 raw samples, 10 restarts, 100
+iterations)."""
 
 
 def example(name: str) -> tuple[DesignSpace, Representation, SearchStructure]:
@@ -112,7 +116,9 @@ def fitted(
     Z = model_inputs(X, np.asarray(representation.bounds), search)
     y = np.array([y_of(z) for z in Z])
     proposal = get_proposer("qei").propose(
-        design_request(representation, search, X, y, seed=seed, options={"warm_start": False})
+        design_request(
+            representation, search, X, y, seed=seed, options={**FAST, "warm_start": False}
+        )
     )
     return proposal.info[0]
 
@@ -273,7 +279,7 @@ def test_mixed_batches_are_valid_distinct_designs(multi: Any, noisy: bool) -> No
     X = random_vectors(representation, 10, seed=3)
     y = np.random.default_rng(3).random(10)
     proposal = get_proposer("qei").propose(
-        design_request(representation, search, X, y, count=4, noisy=noisy)
+        design_request(representation, search, X, y, count=4, noisy=noisy, options=FAST)
     )
     assert [entry["method"] for entry in proposal.info] == ["LogEI"] + ["LogEI-believer"] * 3
     check_candidates(space, representation, search, proposal.candidates)

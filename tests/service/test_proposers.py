@@ -170,6 +170,11 @@ def test_only_failures_so_far(name: str) -> None:
 # -- qei ---------------------------------------------------------------------------------
 
 
+FAST = {"raw_samples": 256, "num_restarts": 4, "maxiter": 30}
+"""Smaller acquisition searches for the tests that check what a proposal is, not how
+good (the default: 2048 raw samples, 10 restarts, 100 iterations)."""
+
+
 def qei_propose(**kwargs: Any):
     return get_proposer("qei").propose(request(**kwargs))
 
@@ -183,26 +188,27 @@ def test_qei_starts_with_the_studys_sobol_points() -> None:
 
 def test_qei_uses_the_model_after_the_initial_design() -> None:
     X, y = history(8)
-    proposal = qei_propose(X=X, y=y, count=1)
+    proposal = qei_propose(X=X, y=y, count=1, options=FAST)
     (entry,) = proposal.info
     assert entry["method"] == "LogEI"
     assert entry["n_train"] == 8
-    noisy = qei_propose(X=X, y=y, count=1, noisy=True)
+    noisy = qei_propose(X=X, y=y, count=1, noisy=True, options=FAST)
     assert noisy.info[0]["method"] == "LogEI"
-    mc = qei_propose(X=X, y=y, count=2, options={"acquisition": "mc"})
-    assert [entry["method"] for entry in mc.info] == ["qLogEI"] * 2
-    mc_noisy = qei_propose(X=X, y=y, count=1, noisy=True, options={"acquisition": "mc"})
+    mc = {**FAST, "acquisition": "mc"}
+    mc_batch = qei_propose(X=X, y=y, count=2, options=mc)
+    assert [entry["method"] for entry in mc_batch.info] == ["qLogEI"] * 2
+    mc_noisy = qei_propose(X=X, y=y, count=1, noisy=True, options=mc)
     assert mc_noisy.info[0]["method"] == "qLogNEI"
 
 
 def test_qei_batch_of_four_gives_four_distinct_candidates() -> None:
     X, y = history(10)
-    proposal = qei_propose(X=X, y=y, count=4)
+    proposal = qei_propose(X=X, y=y, count=4, options=FAST)
     assert [entry["method"] for entry in proposal.info] == ["LogEI"] + ["LogEI-believer"] * 3
     assert min_pairwise_distance(proposal.candidates) > 1e-3
-    noisy = qei_propose(X=X, y=y, count=4, noisy=True)
+    noisy = qei_propose(X=X, y=y, count=4, noisy=True, options=FAST)
     assert min_pairwise_distance(noisy.candidates) > 1e-3
-    mc = qei_propose(X=X, y=y, count=4, options={"acquisition": "mc"})
+    mc = qei_propose(X=X, y=y, count=4, options={**FAST, "acquisition": "mc"})
     assert min_pairwise_distance(mc.candidates) > 1e-3
 
 
@@ -306,7 +312,7 @@ def test_qei_noisy_proposals_are_seeded_too(acquisition: str) -> None:
     acquisition optimiser are random: both must be seeded."""
     X, y = history(9)
     pending = history(1, seed=8)[0]
-    options = {"acquisition": acquisition}
+    options = {**FAST, "acquisition": acquisition}
     clear_caches()
     first = qei_propose(X=X, y=y, seed=3, count=2, noisy=True, pending=pending, options=options)
     clear_caches()
@@ -434,7 +440,7 @@ def test_qei_through_http_spreads_batches_and_reports_its_method(
                 "name": f"qei-{direction}",
                 "direction": direction,
                 "space": {"type": "box", "params": params},
-                "proposer": {"name": "qei", "n_initial": 4, "seed": 1},
+                "proposer": {"name": "qei", "n_initial": 4, "seed": 1, "options": FAST},
             },
         )
         assert study.status_code == 201, study.text
