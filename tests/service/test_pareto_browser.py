@@ -5,8 +5,8 @@ constraint draws its complete trials, the server's front (as many points as
 shows its picture and clicking a point opens that trial's dialog; the trials table has a
 column per objective and marks infeasible trials; a study of three objectives lets one
 pick the two axes; a study of one objective shows no Pareto panel (and, constrained,
-greys and marks its infeasible trials). One server per database for the whole module,
-and the test process's shared page."""
+greys and marks its infeasible trials). One server and one page (in a browser context of
+its own) per database for the whole module."""
 
 from __future__ import annotations
 
@@ -55,11 +55,10 @@ def server(
 
 @pytest.fixture(scope="module")
 def browser(server: ServerProcess, shared_chromium: SharedChromium) -> Iterator[Chromium]:
-    """The test process's shared page, the module's for each server, left blank before the
-    server stops (a page polling a stopped server logs errors)."""
-    page = shared_chromium.shared_page()
+    """One page per server, closed first (a page polling a stopped server logs errors)."""
+    page = shared_chromium.page()
     yield page
-    page.blank()
+    page.close()
 
 
 @pytest.fixture(scope="module")
