@@ -7,8 +7,8 @@ A ``ChromiumProcess`` is one browser; ``Chromium`` is one page. A page either ha
 browser of its own (``Chromium(executable, profile)``: a profile on disk, stopped at
 close) or a browser context of its own in a shared browser (``Chromium.in_context``:
 cookies, storage and cache of its own, like a new profile's, disposed at close).
-``SharedChromium`` hands out such pages from one browser, and one page that tests take in
-turn, and starts a new browser when the one it has died or stopped answering.
+``SharedChromium`` hands out such pages from one browser and starts a new browser when
+the one it has died or stopped answering.
 """
 
 from __future__ import annotations
@@ -313,15 +313,6 @@ class Chromium:
             raise PageError(f"{expression!r} threw: {polled['error']}")
         return polled.get("value")
 
-    def blank(self) -> None:
-        """Leave the document for about:blank and forget the errors and requests recorded:
-        the next test on a page its module shares starts from an empty page, as on a new
-        one (a page that polls a server stopped after its test would log errors)."""
-        self.navigate("about:blank")
-        self.wait_for("location.href === 'about:blank'")
-        self.errors.clear()
-        self.requested.clear()
-
     def screenshot(self, path: Path) -> None:
         data = self.send("Page.captureScreenshot", format="png")["data"]
         path.write_bytes(base64.b64decode(data))
@@ -356,18 +347,6 @@ class SharedChromium:
         """Seconds a browser has to answer before it counts as hung."""
         self.current: ChromiumProcess | None = None
         self.started = 0
-        self._shared: Chromium | None = None
-
-    def shared_page(self) -> Chromium:
-        """One page that tests take in turn, blank and with nothing recorded (its browser
-        context, so its cookies and storage, live as long as the browser): made on first
-        use and again once its browser was replaced."""
-        if self.current is None or not self.current.responsive(self.answer_within):
-            self._replace()
-        if self._shared is None or self._shared.owner is not self.current:
-            self._shared = self.page()
-        self._shared.blank()
-        return self._shared
 
     def page(self) -> Chromium:
         if self.current is None or not self.current.responsive(self.answer_within):
@@ -388,7 +367,6 @@ class SharedChromium:
         self.current = ChromiumProcess(self.executable, profile)
 
     def close(self) -> None:
-        self._shared = None
         if self.current is not None:
             current, self.current = self.current, None
             if current.process.poll() is None and not current.responsive(timeout=5):

@@ -1,41 +1,15 @@
 """What the dashboard's browser tests share: the scripts that read a rendered page
-(canvas pixels, the table), the colours the charts draw with, studies seeded through
-the API, and the page the test process's tests take in turn (``shared_browser``)."""
+(canvas pixels, the table), the colours the charts draw with, and studies seeded
+through the API."""
 
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
-import pytest
 from PIL import Image
-
-from tests.service.chromium import Chromium, SharedChromium
-
-
-@pytest.fixture(name="browser")
-def shared_browser(shared_chromium: SharedChromium) -> Iterator[Chromium]:
-    """A module that imports this takes as its ``browser`` the page the test process's
-    tests share (``SharedChromium.shared_page``), blank at each test's start and end with
-    no errors or requests recorded, instead of a browser context of its own per test
-    (about 1.7 s of Chromium's CPU each): for tests that neither sign in nor keep
-    anything in the browser's storage. A test there that does takes ``own_browser``."""
-    page = shared_chromium.shared_page()
-    yield page
-    page.blank()  # before the test's server stops: a page polling it would log errors
-
-
-@pytest.fixture
-def own_browser(shared_chromium: SharedChromium) -> Iterator[Chromium]:
-    """A page in a browser context of its own, as tests/conftest.py's ``browser``, for a
-    test of a module whose ``browser`` is the shared page."""
-    page = shared_chromium.page()
-    yield page
-    page.close()
-
 
 PARAMS = ("x", "y", "z")
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

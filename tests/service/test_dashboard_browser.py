@@ -28,16 +28,12 @@ from tests.service.dashboard_pages import (
     TABLE_NUMBERS,
     TABLE_STATES,
     lease,
-    own_browser,
     png,
     score,
     seed_mixed_study,
-    shared_browser,
     tell,
     upload,
 )
-
-__all__ = ["own_browser", "shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
@@ -270,7 +266,7 @@ def test_best_card_of_a_box_study_shows_its_score_link_and_params(
 
 
 def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
-    server_factory: Callable[..., ServerProcess], own_browser: Chromium
+    server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
     server = server_factory(AD_AUTH="true")
     admin, reader = make_token(server, "admin"), make_token(server, "reader", name="rita")
@@ -280,46 +276,44 @@ def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
         seeded = seed_mixed_study(http)
     study_id = seeded["study"]["id"]
 
-    own_browser.navigate(f"{server.url}/#/studies/{study_id}")
-    own_browser.wait_for("!document.querySelector('[data-auth]').hidden")
-    assert "requires a token" in own_browser.evaluate(
+    browser.navigate(f"{server.url}/#/studies/{study_id}")
+    browser.wait_for("!document.querySelector('[data-auth]').hidden")
+    assert "requires a token" in browser.evaluate(
         "document.querySelector('[data-auth]').textContent"
     )
     # Type the token into the form and submit it, as a person does.
-    own_browser.evaluate(
+    browser.evaluate(
         f"(() => {{ const form = document.querySelector('[data-auth] form');"
         f" form.elements.token.value = {json.dumps(reader)}; form.requestSubmit(); }})()"
     )
-    own_browser.wait_for(STUDY_PAGE_READY)
-    assert own_browser.evaluate("document.querySelector('[data-auth]').hidden") is True
-    assert "rita" in own_browser.evaluate("document.querySelector('[data-signed-in]').textContent")
-    assert "by admin" in own_browser.evaluate("document.querySelector('[data-meta]').textContent")
-    assert own_browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 64
-    assert own_browser.evaluate("document.querySelector('[data-trials]').dataset.total") == "13"
+    browser.wait_for(STUDY_PAGE_READY)
+    assert browser.evaluate("document.querySelector('[data-auth]').hidden") is True
+    assert "rita" in browser.evaluate("document.querySelector('[data-signed-in]').textContent")
+    assert "by admin" in browser.evaluate("document.querySelector('[data-meta]').textContent")
+    assert browser.wait_for("document.querySelector('[data-best-image]').naturalWidth") == 64
+    assert browser.evaluate("document.querySelector('[data-trials]').dataset.total") == "13"
 
     # The token is nowhere a page script or a log could find it.
-    assert own_browser.evaluate("document.querySelector('[data-auth] input').value") == ""
-    assert own_browser.evaluate("document.cookie") == ""  # the session cookie is HttpOnly
-    storage = own_browser.evaluate(
+    assert browser.evaluate("document.querySelector('[data-auth] input').value") == ""
+    assert browser.evaluate("document.cookie") == ""  # the session cookie is HttpOnly
+    storage = browser.evaluate(
         "JSON.stringify([{...localStorage}, {...sessionStorage}, location.href])"
     )
     assert reader not in storage and "ad_token" not in storage
-    assert own_browser.requested, "no request was recorded"
-    assert not [url for url in own_browser.requested if reader in url or "token=" in url]
-    assert all(
-        url.startswith(server.url) or url.startswith("data:") for url in own_browser.requested
-    )
+    assert browser.requested, "no request was recorded"
+    assert not [url for url in browser.requested if reader in url or "token=" in url]
+    assert all(url.startswith(server.url) or url.startswith("data:") for url in browser.requested)
 
     # Signing out ends the session on the server: the page asks again.
-    own_browser.evaluate("document.querySelector('[data-sign-out]').click()")
-    own_browser.wait_for("!document.querySelector('[data-auth]').hidden")
-    refused = own_browser.evaluate("fetch('/api/v1/studies').then(r => r.status)")
+    browser.evaluate("document.querySelector('[data-sign-out]').click()")
+    browser.wait_for("!document.querySelector('[data-auth]').hidden")
+    refused = browser.evaluate("fetch('/api/v1/studies').then(r => r.status)")
     assert refused == 401
-    assert all("401" in error for error in own_browser.errors)  # only the refused visits
+    assert all("401" in error for error in browser.errors)  # only the refused visits
 
 
 def test_scripted_artifacts_run_no_script(
-    server_factory: Callable[..., ServerProcess], own_browser: Chromium
+    server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
     """A worker uploads script as an SVG named robot.png and as HTML: opened in the
     dashboard or in a tab of their own, neither runs on the dashboard's origin."""
@@ -338,23 +332,21 @@ def test_scripted_artifacts_run_no_script(
         tell(http, job["trial_id"], value=1.0, worker_id="worker-1")
     base = f"{server.url}/api/v1/trials/{job['trial_id']}/artifacts"
 
-    own_browser.navigate(f"{server.url}/#/studies/{study['id']}")
-    own_browser.wait_for(STUDY_PAGE_READY)
+    browser.navigate(f"{server.url}/#/studies/{study['id']}")
+    browser.wait_for(STUDY_PAGE_READY)
     # The marker mechanism works on this origin (so its absence below means something).
-    own_browser.evaluate("localStorage.setItem('probe', '1')")
-    assert own_browser.evaluate("localStorage.getItem('probe')") == "1"
-    own_browser.evaluate(
-        f"document.querySelector('[data-open-trial=\"{job['trial_id']}\"]')?.click()"
-    )
+    browser.evaluate("localStorage.setItem('probe', '1')")
+    assert browser.evaluate("localStorage.getItem('probe')") == "1"
+    browser.evaluate(f"document.querySelector('[data-open-trial=\"{job['trial_id']}\"]')?.click()")
     for url in (f"{base}/robot.png", f"{base}/page.html"):
-        own_browser.navigate(url)  # "open image in new tab": a download, never a page
+        browser.navigate(url)  # "open image in new tab": a download, never a page
         time.sleep(1.0)
-    own_browser.navigate(f"{server.url}/#/studies/{study['id']}")
-    own_browser.wait_for(STUDY_PAGE_READY)
-    assert own_browser.evaluate("localStorage.getItem('pwned')") is None
-    assert own_browser.evaluate("localStorage.getItem('probe')") == "1"
+    browser.navigate(f"{server.url}/#/studies/{study['id']}")
+    browser.wait_for(STUDY_PAGE_READY)
+    assert browser.evaluate("localStorage.getItem('pwned')") is None
+    assert browser.evaluate("localStorage.getItem('probe')") == "1"
     # And the dashboard itself never wrapped an artifact in a blob or data URL.
-    assert not [url for url in own_browser.requested if url.startswith(("blob:", "data:image/svg"))]
+    assert not [url for url in browser.requested if url.startswith(("blob:", "data:image/svg"))]
 
 
 def test_pruned_trials_in_the_progress_bar_counts_and_filter(

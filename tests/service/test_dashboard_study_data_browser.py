@@ -13,9 +13,6 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.service.chromium import Chromium
-from tests.service.dashboard_pages import own_browser, shared_browser
-
-__all__ = ["own_browser", "shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
@@ -111,7 +108,7 @@ def test_names_and_attributes_are_text_and_a_leased_study_is_deleted_with_force(
 
 
 def test_only_those_who_may_see_delete_and_a_signed_in_owner_deletes(
-    server_factory: Callable[..., ServerProcess], own_browser: Chromium
+    server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
     server = server_factory(AD_AUTH="true")
     owner, reader = make_token(server, "user", name="olga"), make_token(server, "reader")
@@ -120,22 +117,22 @@ def test_only_those_who_may_see_delete_and_a_signed_in_owner_deletes(
         study = http.post("/api/v1/studies", json={**MANAGED, "name": "olga's"}).json()["id"]
 
     def sign_in(token: str) -> None:
-        own_browser.navigate(f"{server.url}/#/studies/{study}")
-        own_browser.wait_for("!document.querySelector('[data-auth]').hidden")
-        own_browser.evaluate(
+        browser.navigate(f"{server.url}/#/studies/{study}")
+        browser.wait_for("!document.querySelector('[data-auth]').hidden")
+        browser.evaluate(
             f"(() => {{ const form = document.querySelector('[data-auth] form');"
             f" form.elements.token.value = {json.dumps(token)}; form.requestSubmit(); }})()"
         )
-        own_browser.wait_for(READY)
+        browser.wait_for(READY)
 
     sign_in(reader)
-    assert own_browser.evaluate("document.querySelector('[data-delete]').hidden") is True
-    own_browser.evaluate("document.querySelector('[data-sign-out]').click()")
+    assert browser.evaluate("document.querySelector('[data-delete]').hidden") is True
+    browser.evaluate("document.querySelector('[data-sign-out]').click()")
 
     sign_in(owner)
-    assert own_browser.evaluate("document.querySelector('[data-delete]').hidden") is False
-    own_browser.evaluate("document.querySelector('[data-delete]').click()")
-    own_browser.evaluate("document.querySelector('[data-delete-confirm]').click()")
-    own_browser.wait_for("location.hash === '#/'")
+    assert browser.evaluate("document.querySelector('[data-delete]').hidden") is False
+    browser.evaluate("document.querySelector('[data-delete]').click()")
+    browser.evaluate("document.querySelector('[data-delete-confirm]').click()")
+    browser.wait_for("location.hash === '#/'")
     with httpx.Client(base_url=server.url, headers=headers, timeout=30) as http:
         assert http.get(f"/api/v1/studies/{study}").status_code == 404
