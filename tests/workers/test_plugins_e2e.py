@@ -163,7 +163,7 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
             assert learners["with"] is not None and "hold" in learners["with"]
             assert learners["without"] is not None and "hold" not in learners["without"]
             assert "fast" in learners["without"]
-            final = study.wait(poll=0.2, timeout=PATIENCE)
+            final = study.wait(poll=1.0, timeout=PATIENCE)
             assert final.n_complete == 3, [trial.message for trial in study.trials]
             for trial in study.trials:
                 assert trial.worker_id == "with"

@@ -59,7 +59,7 @@ def check_resumed(client: Client, trial: Trial, train_steps: int) -> None:
 
 
 def finished(client: Client, study_id: int, worker: WorkerProcess) -> list[Trial]:
-    info = client.get_study(study_id).wait(poll=0.2, timeout=PATIENCE)
+    info = client.get_study(study_id).wait(poll=1.0, timeout=PATIENCE)
     assert info.n_complete + info.n_pruned == 4 and info.n_failed == 0, worker.log()
     return client.get_study(study_id).trials
 
@@ -101,7 +101,9 @@ def test_a_resumed_job_whose_lease_is_lost_resumes_from_the_same_checkpoint(
     worker drops it unreported, leases the trial again and resumes it from the same
     checkpoint, to the end of the budget."""
     # A resumed job long enough to be caught running: 1,792 steps past the rung, 14
-    # reports (each an evaluation episode), seconds of training against a 0.05 s poll.
+    # reports (each an evaluation episode), seconds of training against a 0.25 s poll
+    # (each poll lists the study's trials: 20 a second cost the server more than the
+    # training).
     train_steps = 2048
     with Client(server.url) as client:
         study = client.create_study(promoting("ppo", train_steps))
@@ -112,7 +114,7 @@ def test_a_resumed_job_whose_lease_is_lost_resumes_from_the_same_checkpoint(
                 running = [t for t in study.trials if t.state == "running" and t.checkpoint]
                 return running[0] if running else None
 
-            trial = wait_for(resuming, "a promoted trial to be resumed")
+            trial = wait_for(resuming, "a promoted trial to be resumed", poll=0.25)
             assert isinstance(trial, Trial)
             released = httpx.post(
                 f"{server.url}/api/v1/trials/{trial.id}/release", json={}, headers=SDK_HEADERS

@@ -131,7 +131,7 @@ def test_stand_up_study_completes_on_a_local_ray_cluster(cluster) -> None:
     server, driver, _ = cluster
     with Client(server.url) as client:
         study = stand_up_study(client, max_trials=4, learner="fast", train_steps=256)
-        final = study.wait(poll=0.2, timeout=PATIENCE)
+        final = study.wait(poll=1.0, timeout=PATIENCE)
         assert final.n_complete == 4, [t.message for t in study.trials]
         for trial in study.trials:
             assert trial.worker_id in {"ray-0", "ray-1"}
@@ -165,7 +165,7 @@ def test_killed_ray_worker_process_loses_no_job(cluster) -> None:
         os.kill(pid, signal.SIGKILL)  # the Ray worker process, as a dying node takes it
         assert client.get_trial(trial).state == "running"  # killed mid-job: nothing told
         wait_for(lambda: f"Ray worker {trial.worker_id} died" in driver.log(), "the death seen")
-        final = study.wait(poll=0.2, timeout=PATIENCE)
+        final = study.wait(poll=1.0, timeout=PATIENCE)
         assert final.n_complete == 1, driver.log()
         finished = client.get_trial(trial)
         assert finished.state == "complete"

@@ -162,7 +162,7 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
             def done_again() -> bool:
                 return client.get_trial(queued.id).state == "complete"
 
-            wait_for(done_again, "the released trial to be done again")
+            wait_for(done_again, "the released trial to be done again", poll=0.5)
             assert worker.wait(PATIENCE) == 0, worker.log()
         finally:
             worker.stop()
@@ -233,7 +233,7 @@ def test_warm_started_trials_pause_at_asha_rungs_and_resume_with_their_warm_budg
             plugin_server, tmp_path, "asha", "--no-render", "--idle-exit", "5", env=env
         )
         try:
-            info = study.wait(poll=0.2, timeout=PATIENCE)
+            info = study.wait(poll=1.0, timeout=PATIENCE)
             assert (info.n_complete, info.n_pruned, info.n_failed) == (2, 3, 0), worker.log()
         finally:
             worker.stop()

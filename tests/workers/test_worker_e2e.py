@@ -58,7 +58,7 @@ def test_managed_study_runs_to_completion_with_a_pool_of_workers(server_factory,
     with Client(server.url) as client:
         study = stand_up_study(client, max_trials=4, learner="fast", train_steps=256)
         pool = workers(server, "pool", "--concurrency", "2")
-        final = study.wait(poll=0.2, timeout=PATIENCE)
+        final = study.wait(poll=1.0, timeout=PATIENCE)
         assert final.n_complete == 4, [t.message for t in study.trials]
         assert final.n_failed == 0
         trials = study.trials
@@ -98,7 +98,7 @@ def test_killed_worker_job_is_finished_by_another_after_the_lease_expires(server
         doomed.wait()
         assert client.get_trial(trial).state == "running"  # killed mid-job: nothing told
         rescuer = workers(server, "rescuer")
-        final = study.wait(poll=0.2, timeout=PATIENCE)
+        final = study.wait(poll=1.0, timeout=PATIENCE)
         assert final.n_complete == 1
         finished = client.get_trial(trial)
         assert finished.state == "complete"
@@ -137,7 +137,7 @@ def test_second_sigterm_abandons_the_job_and_gives_the_lease_back(server_factory
         queued = client.get_trial(trial)
         assert queued.state == "queued" and queued.attempts == 0, leaving.log()
         staying = workers(server, "staying")
-        final = study.wait(poll=0.2, timeout=PATIENCE)
+        final = study.wait(poll=1.0, timeout=PATIENCE)
         assert final.n_complete == 1, staying.log()
         finished = client.get_trial(trial)
         assert finished.worker_id == "staying" and finished.attempts == 1
