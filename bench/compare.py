@@ -384,6 +384,9 @@ def main() -> None:
     if options.runs < 1:
         parser.error("--runs takes 1 or more")
     signal.signal(signal.SIGTERM, raise_interrupt)
+    # A shell starts a background job with SIGINT ignored, and Python then leaves it so
+    # (its runs too): an interrupt must stop a comparison however it was started.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         report = compare(options.baseline, options.runs, options.script, options.args)
     except RunFailed as error:
