@@ -41,25 +41,21 @@ from pydantic import BaseModel
 from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adworker import checkpoints
 from adworker.runner import Pruned
-from adworker.starts import SCRATCH, Resume, Start, Warm, from_attributes, no_check
+from adworker.starts import (
+    SCRATCH,
+    Policy,
+    Reporting,
+    Resume,
+    Start,
+    TrainResult,
+    Warm,
+    from_attributes,
+    no_check,
+)
 from adworker.task_metrics import checked_task_metrics
 from adworker.tasks.base import RobotEnv
 
-Policy = Callable[[np.ndarray], np.ndarray]
 log = logging.getLogger("adworker")
-
-
-@dataclass
-class TrainResult:
-    policy: Policy
-    train_steps: int
-    curve: list[dict[str, float]] = field(default_factory=list)
-    """One point per training episode (or candidate): steps so far and its score."""
-    info: dict[str, Any] = field(default_factory=dict)
-    checkpoint: bytes | None = None
-    """The learner's final state, when the worker asked for it (``keep_checkpoint``)."""
-    warm_started: bool = False
-    """It trained on from its ``Warm`` start: another design's controller."""
 
 
 WarmStart = Warm
@@ -75,31 +71,6 @@ class EpisodeResult:
     metric: list[float]
     task_metrics: dict[str, float] = field(default_factory=dict)
     """The task's own metrics of the episode (:mod:`adworker.task_metrics`), checked."""
-
-
-@dataclass
-class Reporting:
-    """Intermediate reports while a learner trains (a study with a pruner): every
-    ``every`` steps the learner scores its current policy (``evaluate``: the task's
-    evaluation episodes on an env of its own) and ``report``s it, which raises
-    ``adworker.runner.Pruned`` when the study's pruner stops the trial there."""
-
-    every: int
-    evaluate: Callable[[Policy], float]
-    report: Callable[[int, float], None]
-    due: int = 0
-
-    def __post_init__(self) -> None:
-        self.due = self.every
-
-    def resume_at(self, steps: int) -> None:
-        """A resumed learner reports next at the first multiple of ``every`` past
-        ``steps``, as it would have without the pause."""
-        self.due = (steps // self.every + 1) * self.every
-
-    def send(self, steps: int, value: float) -> None:
-        self.resume_at(steps)
-        self.report(steps, value)
 
 
 def evaluate_policy(

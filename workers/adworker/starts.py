@@ -1,4 +1,6 @@
-"""Where a learner's training starts, and calling a learner with it.
+"""The contract of one training run: where a learner's training starts, what it
+reports while it trains (:class:`Reporting`) and returns (:class:`TrainResult`, also
+importable from :mod:`adworker.learners`), and calling a learner with it.
 
 A learner's ``train(env, *, steps, seed, check, start, keep_checkpoint, reporting)``
 (:class:`adworker.learners.Learner`) starts from one typed value: :class:`Scratch`,
@@ -15,18 +17,56 @@ import inspect
 import logging
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, cast
+from dataclasses import dataclass, field
+from typing import Any, cast
 
-if TYPE_CHECKING:
-    from adworker.learners import Reporting, TrainResult
+import numpy as np
 
+Policy = Callable[[np.ndarray], np.ndarray]
 log = logging.getLogger("adworker")
 
 
 def no_check() -> None:
     """A ``check`` that never stops training."""
     return None
+
+
+@dataclass
+class TrainResult:
+    policy: Policy
+    train_steps: int
+    curve: list[dict[str, float]] = field(default_factory=list)
+    """One point per training episode (or candidate): steps so far and its score."""
+    info: dict[str, Any] = field(default_factory=dict)
+    checkpoint: bytes | None = None
+    """The learner's final state, when the worker asked for it (``keep_checkpoint``)."""
+    warm_started: bool = False
+    """It trained on from its ``Warm`` start: another design's controller."""
+
+
+@dataclass
+class Reporting:
+    """Intermediate reports while a learner trains (a study with a pruner): every
+    ``every`` steps the learner scores its current policy (``evaluate``: the task's
+    evaluation episodes on an env of its own) and ``report``s it, which raises
+    ``adworker.runner.Pruned`` when the study's pruner stops the trial there."""
+
+    every: int
+    evaluate: Callable[[Policy], float]
+    report: Callable[[int, float], None]
+    due: int = 0
+
+    def __post_init__(self) -> None:
+        self.due = self.every
+
+    def resume_at(self, steps: int) -> None:
+        """A resumed learner reports next at the first multiple of ``every`` past
+        ``steps``, as it would have without the pause."""
+        self.due = (steps // self.every + 1) * self.every
+
+    def send(self, steps: int, value: float) -> None:
+        self.resume_at(steps)
+        self.report(steps, value)
 
 
 @dataclass(frozen=True)
