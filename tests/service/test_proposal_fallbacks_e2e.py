@@ -8,9 +8,6 @@ Real ``adserver`` processes, SQLite and PostgreSQL."""
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,10 +18,10 @@ import pytest
 import yaml
 
 from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import run_adclient
 
 pytestmark = pytest.mark.e2e
 
-ADCLIENT = Path(sys.executable).with_name("adclient")
 BOX = {"type": "box", "params": [{"name": f"x{i}", "low": 0.0, "high": 1.0} for i in range(2)]}
 
 
@@ -64,15 +61,7 @@ def gauge(http: httpx.Client, study: int) -> float:
 
 
 def status_text(server: ServerProcess, study: int) -> str:
-    environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "250"}
-    done = subprocess.run(
-        [str(ADCLIENT), "status", str(study)],
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    done = run_adclient(server, "status", str(study))
     assert done.returncode == 0, done.stderr
     return " ".join(done.stdout.replace("│", " ").split())
 
