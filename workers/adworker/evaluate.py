@@ -181,8 +181,11 @@ def evaluate_job(
     try:
         t = lap("env", t)
         budget = task.train_steps if task.train_steps is not None else learner.default_steps
-        # a promoted trial trains on to the budget it paused under (a warm start's)
-        steps = budget if job.resume is None or job.resume.budget is None else job.resume.budget
+        # a promoted trial trains on to the budget it paused under (a warm start's), never
+        # past the most this study asks of a design (the pause's budget is a worker's word)
+        steps = budget
+        if job.resume is not None and job.resume.budget is not None:
+            steps = min(job.resume.budget, max(budget, task.warm_steps(learner.default_steps)))
         reporting = None
         if report is not None and job.pruner.name != "none":
 
