@@ -23,6 +23,7 @@ from adclient.pruning import (
 )
 from adclient.schemas import (
     MAX_TRIAL_PAGE,
+    MAX_WORKER_PAGE,
     ArtifactInfo,
     AskResponse,
     HeartbeatResponse,
@@ -373,11 +374,14 @@ class ServerCalls(Transport):
         ).json()
         return Trial.model_validate(data)
 
-    def workers(self, study_id: int | None = None) -> list[WorkerInfo]:
+    def workers(
+        self, study_id: int | None = None, *, offset: int = 0, limit: int = MAX_WORKER_PAGE
+    ) -> list[WorkerInfo]:
         """The workers that worked on a study (every worker the server has seen, when
-        None), newest first, with their current leases and the tasks they serve."""
+        None), newest first, with their current leases and the tasks they serve; at most
+        ``limit`` (``MAX_WORKER_PAGE`` at most) after skipping ``offset``."""
         path = "workers" if study_id is None else f"studies/{int(study_id)}/workers"
-        data = self._get_json(f"{API}/{path}")
+        data = self._get_json(f"{API}/{path}", params={"offset": offset, "limit": limit})
         return [WorkerInfo.model_validate(item) for item in data]
 
     def serving(self, study_id: int) -> StudyServing | None:

@@ -9,6 +9,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from adclient.schemas import MAX_WORKER_PAGE
 from adclient.testing.servers import SDK_HEADERS
 from adservice.app import create_app
 from adservice.settings import Settings
@@ -166,3 +167,22 @@ def test_studies_without_a_task_are_never_leased(api: TestClient) -> None:
     body = copy.deepcopy(BOX_STUDY) | {"max_trials": 5}
     api.post("/api/v1/studies", json=body)
     assert lease(api, "w1") is None
+
+
+def test_workers_are_listed_newest_first_a_bounded_page_at_a_time(api: TestClient) -> None:
+    study = managed(api, max_trials=3)
+    for worker in ("w1", "w2", "w3"):
+        assert lease(api, worker) is not None
+
+    def page(path: str, **query: int) -> list[str]:
+        response = api.get(path, params=query)
+        assert response.status_code == 200, response.text
+        return [worker["worker_id"] for worker in response.json()]
+
+    assert page("/api/v1/workers") == ["w3", "w2", "w1"]
+    assert page("/api/v1/workers", limit=2) == ["w3", "w2"]
+    assert page("/api/v1/workers", offset=2, limit=2) == ["w1"]
+    assert page(f"/api/v1/studies/{study['id']}/workers", offset=1, limit=1) == ["w2"]
+    for bad in ({"limit": 0}, {"limit": MAX_WORKER_PAGE + 1}, {"offset": -1}):
+        response = api.get("/api/v1/workers", params=bad)
+        assert response.status_code == 422 and next(iter(bad)) in response.text, response.text

@@ -28,6 +28,9 @@ MAX_ASK = 64
 MAX_TRIAL_PAGE = 1000
 """The most trials one ``GET /studies/{id}/trials`` answers (also its default page); the
 SDK pages through longer studies."""
+MAX_WORKER_PAGE = 1000
+"""The most workers one ``GET /workers`` (or ``/studies/{id}/workers``) answers, newest
+first: a fleet whose pods take new ids on each restart makes more over time."""
 MAX_JSON_DEPTH = 32
 MAX_JSON_BYTES = 64 * 1024
 """Bounds of every free JSON field (study metadata, proposer and task options): deep

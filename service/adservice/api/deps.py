@@ -9,10 +9,11 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, Path, Request
+from fastapi import Depends, Path, Query, Request
 from sqlalchemy.orm import Session
 
 from adclient.ids import MAX_ID
+from adclient.schemas import MAX_WORKER_PAGE
 from adservice.artifacts import ArtifactStore
 from adservice.auth import Principal, Role, require
 from adservice.db import Database
@@ -60,3 +61,7 @@ UserDep = Annotated[Principal, Depends(require(Role.user))]
 
 StudyId = Annotated[int, Path(ge=1, le=MAX_ID, description="A study's id")]
 TrialId = Annotated[int, Path(ge=1, le=MAX_ID, description="A trial's id")]
+PageOffset = Annotated[int, Query(ge=0, le=MAX_ID, description="how many to skip")]
+WorkerLimit = Annotated[
+    int, Query(ge=1, le=MAX_WORKER_PAGE, description="the most workers to answer, newest first")
+]

@@ -240,11 +240,21 @@ def release_lease(
 
 
 def list_workers(
-    session: Session, *, study_id: int | None = None, seen_since: datetime | None = None
+    session: Session,
+    *,
+    study_id: int | None = None,
+    seen_since: datetime | None = None,
+    offset: int = 0,
+    limit: int | None = None,
 ) -> list[WorkerRow]:
-    """All workers, or those that ever held a trial of ``study_id``; with ``seen_since``
-    only those seen then or later."""
-    query = sa.select(WorkerRow).order_by(WorkerRow.last_seen_at.desc())
+    """All workers, or those that ever held a trial of ``study_id``, newest first; with
+    ``seen_since`` only those seen then or later; ``offset`` and ``limit`` page them."""
+    query = (
+        sa.select(WorkerRow)
+        .order_by(WorkerRow.last_seen_at.desc(), WorkerRow.worker_id)
+        .offset(offset)
+        .limit(limit)
+    )
     if study_id is not None:
         get_study(session, study_id=study_id)
         held = sa.select(TrialRow.worker_id).where(TrialRow.study_id == study_id).distinct()

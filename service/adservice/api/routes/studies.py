@@ -11,6 +11,7 @@ from pydantic import AfterValidator
 
 from adclient.schemas import (
     MAX_TRIAL_PAGE,
+    MAX_WORKER_PAGE,
     AskRequest,
     AskResponse,
     Study,
@@ -28,12 +29,14 @@ from adservice.api.deps import (
     MAX_ID,
     ArtifactStoreDep,
     DatabaseDep,
+    PageOffset,
     ProposingDep,
     ReaderDep,
     SessionDep,
     SettingsDep,
     StudyId,
     UserDep,
+    WorkerLimit,
 )
 from adservice.api.responses import model_response
 from adservice.convert import study_schema, trial_schema, worker_schema
@@ -197,8 +200,15 @@ def value_spread(study_id: StudyId, session: SessionDep, _: ReaderDep) -> StudyS
 
 
 @router.get("/{study_id}/workers")
-def study_workers(study_id: StudyId, session: SessionDep, _: ReaderDep) -> list[WorkerInfo]:
-    return [worker_schema(row) for row in lease_repo.list_workers(session, study_id=study_id)]
+def study_workers(
+    study_id: StudyId,
+    session: SessionDep,
+    _: ReaderDep,
+    offset: PageOffset = 0,
+    limit: WorkerLimit = MAX_WORKER_PAGE,
+) -> list[WorkerInfo]:
+    rows = lease_repo.list_workers(session, study_id=study_id, offset=offset, limit=limit)
+    return [worker_schema(row) for row in rows]
 
 
 @router.get("/{study_id}/serving")
