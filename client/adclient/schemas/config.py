@@ -216,6 +216,15 @@ class TaskInfo(BaseModel):
     name: str
     description: str
     options_schema: dict[str, Any] = Field(description="JSON schema of its task.options")
+    fixed_base: bool = Field(
+        default=False,
+        description="its robot's root is fixed where the URDF puts it; false: the robot is "
+        "free, set down on the ground",
+    )
+    templates: bool = Field(
+        default=False,
+        description="it builds its robot from the URDF alone: template studies may use it",
+    )
 
 
 class LearnerInfo(BaseModel):

@@ -1,4 +1,5 @@
-"""The installed tasks: what a study may name, each with its options' JSON schema."""
+"""The installed tasks: what a study may name, each with its options' JSON schema and
+how it holds its robot."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ def _tasks() -> list[TaskInfo]:
             name=name,
             description=spec.description,
             options_schema=spec.options.model_json_schema(),
+            fixed_base=spec.fixed_base,
+            templates=spec.templates,
         )
         for name, spec in sorted(catalogue().tasks.items())
     ]
