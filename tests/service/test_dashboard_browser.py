@@ -265,6 +265,8 @@ def test_best_card_of_a_box_study_shows_its_score_link_and_params(
     assert browser.errors == []
 
 
+# The session's storage: test_ownership_e2e's cookie session test, on both databases.
+@pytest.mark.parametrize("database", ["sqlite"])
 def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
     server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
@@ -312,6 +314,8 @@ def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
     assert all("401" in error for error in browser.errors)  # only the refused visits
 
 
+# Headers, not storage: test_ownership_e2e's artifacts-served-inert test, on both databases.
+@pytest.mark.parametrize("database", ["sqlite"])
 def test_scripted_artifacts_run_no_script(
     server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
@@ -349,6 +353,8 @@ def test_scripted_artifacts_run_no_script(
     assert not [url for url in browser.requested if url.startswith(("blob:", "data:image/svg"))]
 
 
+# Pruned counts, lists and columns: test_pruning_e2e's pruned-tells test, on both databases.
+@pytest.mark.parametrize("database", ["sqlite"])
 def test_pruned_trials_in_the_progress_bar_counts_and_filter(
     live_server: ServerProcess, browser: Chromium
 ) -> None:
@@ -376,6 +382,8 @@ def test_pruned_trials_in_the_progress_bar_counts_and_filter(
         assert "pruned" in options
 
 
+# The typed columns on PostgreSQL: test_dashboard_reads (int and categorical columns).
+@pytest.mark.parametrize("database", ["sqlite"])
 def test_int_and_categorical_params_are_charted_with_their_choices_as_ticks(
     live_server: ServerProcess, browser: Chromium
 ) -> None:

@@ -14,7 +14,13 @@ import pytest
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.service.chromium import Chromium
 
-pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.e2e,
+    pytest.mark.xdist_group("browser"),
+    # PostgreSQL's names, attributes, deletes and owners: test_study_data_e2e, on both.
+    pytest.mark.parametrize("database", ["sqlite"]),
+]
 
 HOSTILE = "<img src=x onerror=alert(1)>"
 NAMES = ["Roboter-Entwurf 設計 v2", "stand up, long budget", "[bold]x[/bold]", HOSTILE]

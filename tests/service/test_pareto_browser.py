@@ -1,12 +1,14 @@
 """The dashboard's Pareto panel (issue 17) in a real headless Chromium against a real
-``adserver``, on SQLite and PostgreSQL: a managed study of two objectives with a
+``adserver``: a managed study of two objectives with a
 constraint draws its complete trials, the server's front (as many points as
 ``/pareto`` answers) and its infeasible trials greyed; hovering a design on the front
 shows its picture and clicking a point opens that trial's dialog; the trials table has a
 column per objective and marks infeasible trials; a study of three objectives lets one
 pick the two axes; a study of one objective shows no Pareto panel (and, constrained,
-greys and marks its infeasible trials). One server and one page (in a browser context of
-its own) per database for the whole module."""
+greys and marks its infeasible trials). One server (conftest's ``shared_server``) and one
+page (in a browser context of its own) for the whole module, on SQLite: what PostgreSQL
+changes, the chart columns and the front, tests/service/test_dashboard_reads.py asserts
+on both databases."""
 
 from __future__ import annotations
 
@@ -18,7 +20,6 @@ import httpx
 import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
-from tests.conftest import DATABASES
 from tests.service.chromium import Chromium, SharedChromium
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,
@@ -29,7 +30,13 @@ from tests.service.dashboard_pages import (
 )
 from tests.service.test_multiobjective_e2e import brute_front
 
-pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.e2e,
+    pytest.mark.xdist_group("browser"),
+    # PostgreSQL's columns and front: test_dashboard_reads (two and three objectives).
+    pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True),
+]
 
 SPACE = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 MASS_LIMIT = 3.0
@@ -39,18 +46,10 @@ CANVAS = "canvas[data-pareto]"
 HIT = f"document.querySelector('{CANVAS}').hit.points"
 
 
-@pytest.fixture(scope="module", params=DATABASES)
-def server(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[ServerProcess]:
-    workdir = tmp_path_factory.mktemp("pareto")
-    if request.param == "postgresql":
-        url = request.getfixturevalue("postgres_cluster").create_database()
-    else:
-        url = f"sqlite:///{workdir / 'studies.db'}"
-    process = ServerProcess(database_url=url, workdir=workdir).start()
-    yield process
-    process.stop()
+@pytest.fixture(scope="module")
+def server(shared_server: ServerProcess) -> ServerProcess:
+    """What the module's browser and client fixtures use: conftest's shared server."""
+    return shared_server
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,13 @@ import pytest
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
 
-pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.e2e,
+    pytest.mark.xdist_group("browser"),
+    # The source on PostgreSQL: test_dashboard_reads (the trials table's marks), on both.
+    pytest.mark.parametrize("database", ["sqlite"]),
+]
 
 
 def test_a_warm_started_trial_names_its_source(
