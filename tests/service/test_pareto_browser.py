@@ -120,11 +120,21 @@ def open_study(browser: Chromium, server: ServerProcess, study: dict[str, Any]) 
     )
 
 
+DRAWN_AT_ITS_SIZE = """((canvas) =>
+  canvas.width === Math.round(canvas.clientWidth * devicePixelRatio)
+  && canvas.height === Math.round(canvas.clientHeight * devicePixelRatio))"""
+"""Whether a chart's points (its ``hit`` map) are where the page shows them: a page that
+grew a scrollbar after drawing a chart shows it narrower and redraws it only a moment
+later (charts.js ``prepare`` sizes the canvas to its box at each draw)."""
+
+
 def point_at(browser: Chromium, number: int) -> tuple[float, float]:
-    """Where trial ``number``'s point is on the screen (the chart scrolled into view)."""
-    x, y = browser.evaluate(
+    """Where trial ``number``'s point is on the screen (the chart scrolled into view),
+    once the chart is drawn at the size it is shown."""
+    x, y = browser.wait_for(
         f"(() => {{ const canvas = document.querySelector('{CANVAS}');"
         " canvas.scrollIntoView({block: 'center'});"
+        f" if (!{DRAWN_AT_ITS_SIZE}(canvas)) return null;"
         " const box = canvas.getBoundingClientRect();"
         f" const p = {HIT}.find((p) => p.number === {number});"
         " return [box.x + p.x, box.y + p.y]; })()"
@@ -224,7 +234,7 @@ def test_two_objectives_front_infeasible_and_table(
     )
 
     # Clicking it opens its trial's dialog, with its picture and values.
-    click(browser, x, y)
+    click(browser, *point_at(browser, number))
     dialog = "document.querySelector('[data-trial-dialog]')"
     browser.wait_for(f"{dialog}.open && {dialog}.textContent.includes('Trial #{number} ')")
     assert (
@@ -346,9 +356,10 @@ def test_one_objective_shows_no_pareto_panel(
     assert heads[:3] == ["#", "State", "Score"]
     assert browser.evaluate("document.querySelector('canvas[data-history]').dataset.points") == "4"
     # Its score chart's hover names a trial and its score, as it always did.
-    x, y = browser.evaluate(
+    x, y = browser.wait_for(
         "(() => { const c = document.querySelector('canvas[data-history]');"
-        " c.scrollIntoView({block: 'center'}); const box = c.getBoundingClientRect();"
+        f" c.scrollIntoView({{block: 'center'}}); if (!{DRAWN_AT_ITS_SIZE}(c)) return null;"
+        " const box = c.getBoundingClientRect();"
         " return [box.x + c.hit.x(2), box.y + c.hit.y(2)]; })()"
     )
     mouse(browser, "mouseMoved", x, y)
