@@ -6,7 +6,7 @@ shows its picture and clicking a point opens that trial's dialog; the trials tab
 column per objective and marks infeasible trials; a study of three objectives lets one
 pick the two axes; a study of one objective shows no Pareto panel (and, constrained,
 greys and marks its infeasible trials). One server (conftest's ``shared_server``) and one
-page (in a browser context of its own) for the whole module, on SQLite: what PostgreSQL
+page (the test process's shared one) for the whole module, on SQLite: what PostgreSQL
 changes, the chart columns and the front, tests/service/test_dashboard_reads.py asserts
 on both databases."""
 
@@ -24,6 +24,7 @@ from tests.service.chromium import Chromium, SharedChromium
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,
     lease,
+    leave,
     png,
     tell,
     upload,
@@ -54,10 +55,11 @@ def server(shared_server: ServerProcess) -> ServerProcess:
 
 @pytest.fixture(scope="module")
 def browser(server: ServerProcess, shared_chromium: SharedChromium) -> Iterator[Chromium]:
-    """One page per server, closed first (a page polling a stopped server logs errors)."""
-    page = shared_chromium.page()
+    """The test process's shared page (``SharedChromium.shared_page``: blank, nothing
+    kept) for the module's tests, left blank before the server stops."""
+    page = shared_chromium.shared_page()
     yield page
-    page.close()
+    leave(page)
 
 
 @pytest.fixture(scope="module")
