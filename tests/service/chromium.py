@@ -7,8 +7,8 @@ A ``ChromiumProcess`` is one browser; ``Chromium`` is one page. A page either ha
 browser of its own (``Chromium(executable, profile)``: a profile on disk, stopped at
 close) or a browser context of its own in a shared browser (``Chromium.in_context``:
 cookies, storage and cache of its own, like a new profile's, disposed at close).
-``SharedChromium`` hands out such pages from one browser and starts a new browser when
-the one it has died or stopped answering.
+``SharedChromium`` hands out such pages from one browser, and one page that tests take in
+turn, and starts a new browser when the one it has died or stopped answering.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import httpx
 from websockets.exceptions import ConnectionClosed
@@ -57,6 +58,12 @@ POLL = """(async () => {
 })()"""
 """Evaluates an expression in the page until its value is truthy as Python sees values
 (null, false, 0, "", [] and {} are not) or the deadline passes."""
+
+
+def _origin(url: str) -> str | None:
+    """An http(s) URL's origin (scheme, host and port), None for any other URL."""
+    parts = urlsplit(url)
+    return f"{parts.scheme}://{parts.netloc}" if parts.scheme in ("http", "https") else None
 
 
 class PageError(AssertionError):
@@ -313,6 +320,22 @@ class Chromium:
             raise PageError(f"{expression!r} threw: {polled['error']}")
         return polled.get("value")
 
+    def blank(self) -> None:
+        """Leave the document for about:blank, clear the cookies, cache and storage (local,
+        session and the rest) of the page's browser context for every origin the page
+        asked anything of, and forget the errors and requests recorded: the next test on
+        a page tests share starts from an empty page with nothing kept, as on a new one
+        (and a page polling a server stopped after its test would log errors)."""
+        self.navigate("about:blank")
+        self.wait_for("location.href === 'about:blank'")
+        origins = {origin for url in self.requested if (origin := _origin(url))}
+        self.send("Network.clearBrowserCookies")
+        self.send("Network.clearBrowserCache")
+        for origin in sorted(origins):
+            self.send("Storage.clearDataForOrigin", origin=origin, storageTypes="all")
+        self.errors.clear()
+        self.requested.clear()
+
     def screenshot(self, path: Path) -> None:
         data = self.send("Page.captureScreenshot", format="png")["data"]
         path.write_bytes(base64.b64decode(data))
@@ -347,6 +370,18 @@ class SharedChromium:
         """Seconds a browser has to answer before it counts as hung."""
         self.current: ChromiumProcess | None = None
         self.started = 0
+        self._shared: Chromium | None = None
+
+    def shared_page(self) -> Chromium:
+        """One page that tests take in turn, blank and with nothing recorded (its browser
+        context, so its cookies and storage, live as long as the browser): made on first
+        use and again once its browser was replaced."""
+        if self.current is None or not self.current.responsive(self.answer_within):
+            self._replace()
+        if self._shared is None or self._shared.owner is not self.current:
+            self._shared = self.page()
+        self._shared.blank()
+        return self._shared
 
     def page(self) -> Chromium:
         if self.current is None or not self.current.responsive(self.answer_within):
@@ -367,6 +402,7 @@ class SharedChromium:
         self.current = ChromiumProcess(self.executable, profile)
 
     def close(self) -> None:
+        self._shared = None
         if self.current is not None:
             current, self.current = self.current, None
             if current.process.poll() is None and not current.responsive(timeout=5):

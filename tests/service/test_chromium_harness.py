@@ -1,6 +1,7 @@
 """The browser tests' Chromium: it leaves nothing in the machine's temporary folder; the
-pages of one shared browser share no cookies, storage or cache; a shared browser that
-died or hung is replaced."""
+pages of one shared browser share no cookies, storage or cache; the page tests take in
+turn is blank with nothing recorded at each take; a shared browser that died or hung is
+replaced."""
 
 from __future__ import annotations
 
@@ -104,6 +105,33 @@ def test_pages_of_one_browser_share_no_cookies_storage_or_cache(
         assert later.process is first.process and shared.started == 1  # one browser
     finally:
         later.close()
+
+
+def test_the_shared_page_is_blank_with_nothing_recorded_at_each_take(
+    shared: SharedChromium, site: LoopbackSite
+) -> None:
+    """The page tests take in turn (``shared_page``) is one page: each take finds it at
+    about:blank, with the last test's errors and requests forgotten and what it stored
+    or cached gone (cookies, local and session storage, the cache), as a new page's;
+    once its browser was replaced, it is a page of the new one."""
+    page = shared.shared_page()
+    assert visit(page, site) == {"cookie": "", "stored": None, "session": None}
+    assert visit(page, site) == {"cookie": "kept=1", "stored": "1", "session": "1"}
+    assert site.hits["/cached"] == 1  # the second fetch came from the cache
+    page.evaluate("setTimeout(() => { throw new Error('late'); }, 0)")
+    page.wait_for("true")
+    assert page.requested and page.errors
+    again = shared.shared_page()
+    assert again is page and shared.started == 1
+    assert again.evaluate("location.href") == "about:blank"
+    assert again.errors == [] and again.requested == []
+    assert visit(again, site) == {"cookie": "", "stored": None, "session": None}
+    assert site.hits["/cached"] == 2
+    page.owner.process.kill()
+    page.owner.process.wait()
+    after = shared.shared_page()
+    assert after is not page and shared.started == 2
+    assert after.evaluate("location.href") == "about:blank"
 
 
 @pytest.mark.parametrize("how", ["killed", "hung"])

@@ -15,7 +15,10 @@ import pytest
 
 from adclient.testing.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium
+from tests.service.dashboard_pages import shared_browser
 from tests.service.sites import LoopbackSite
+
+__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
@@ -51,6 +54,8 @@ window.attack = async () => {{
 </script></body></html>"""
 
 
+# Refused before storage: test_ownership_e2e's cross-site and cookie session tests, on both.
+@pytest.mark.parametrize("database", ["sqlite"])
 @pytest.mark.parametrize("auth", [False, True], ids=["auth-off", "auth-on"])
 def test_a_page_of_another_origin_changes_nothing(
     server_factory: Callable[..., ServerProcess], browser: Chromium, auth: bool
@@ -89,6 +94,8 @@ def test_a_page_of_another_origin_changes_nothing(
         assert stopped.status_code == 200 and stopped.json()["state"] == "stopped"
 
 
+# A request without a body, not storage: test_study_data_e2e deletes on both databases.
+@pytest.mark.parametrize("database", ["sqlite"])
 @pytest.mark.parametrize("auth", [False, True], ids=["auth-off", "auth-on"])
 def test_curl_deletes_a_study_with_a_plain_delete(
     server_factory: Callable[..., ServerProcess], auth: bool

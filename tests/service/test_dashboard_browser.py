@@ -31,9 +31,12 @@ from tests.service.dashboard_pages import (
     png,
     score,
     seed_mixed_study,
+    shared_browser,
     tell,
     upload,
 )
+
+__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
@@ -228,16 +231,17 @@ def test_study_page_draws_the_study_and_follows_it_live(
     assert browser.errors == []
 
 
-@pytest.mark.parametrize("database", ["sqlite"])
+# One server for the three (each looks at its own study): conftest's, on SQLite.
+@pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True)
 def test_best_card_of_a_box_study_shows_its_score_link_and_params(
-    live_server: ServerProcess, browser: Chromium
+    shared_server: ServerProcess, browser: Chromium
 ) -> None:
     """An ask/tell box study has no image and no URDF: the card shows the best score, the
     trial's link and its params where a reader sees them, not a missing image. (They once
     went into the history canvas, whose data-best attribute the card's lookup found first;
     a test reading `[data-best]` from the document could not tell.)"""
     body = {key: value for key, value in MANAGED_BOX.items() if key not in ("task", "max_trials")}
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         study = http.post("/api/v1/studies", json=dict(body, name="plain-box")).raise_for_status()
         study_id = study.json()["id"]
         asked = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 4}).json()["trials"]
@@ -245,7 +249,7 @@ def test_best_card_of_a_box_study_shows_its_score_link_and_params(
             tell(http, trial["id"], value=score(trial["params"]))
         best = http.get(f"/api/v1/studies/{study_id}/best").raise_for_status().json()
 
-    browser.navigate(f"{live_server.url}/#/studies/{study_id}")
+    browser.navigate(f"{shared_server.url}/#/studies/{study_id}")
     browser.wait_for(STUDY_PAGE_READY)
     card = "document.querySelector('[data-best-card]')"
     text = browser.evaluate(f"{card}.innerText")
@@ -265,6 +269,8 @@ def test_best_card_of_a_box_study_shows_its_score_link_and_params(
     assert browser.errors == []
 
 
+# The session's storage: test_ownership_e2e's cookie session test, on both databases.
+@pytest.mark.parametrize("database", ["sqlite"])
 def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
     server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
@@ -312,6 +318,8 @@ def test_sign_in_keeps_the_token_out_of_urls_and_page_scripts(
     assert all("401" in error for error in browser.errors)  # only the refused visits
 
 
+# Headers, not storage: test_ownership_e2e's artifacts-served-inert test, on both databases.
+@pytest.mark.parametrize("database", ["sqlite"])
 def test_scripted_artifacts_run_no_script(
     server_factory: Callable[..., ServerProcess], browser: Chromium
 ) -> None:
@@ -349,10 +357,13 @@ def test_scripted_artifacts_run_no_script(
     assert not [url for url in browser.requested if url.startswith(("blob:", "data:image/svg"))]
 
 
+# Pruned counts, lists and columns: test_pruning_e2e's pruned-tells test, on both databases.
+# One server for the three (each looks at its own study): conftest's, on SQLite.
+@pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True)
 def test_pruned_trials_in_the_progress_bar_counts_and_filter(
-    live_server: ServerProcess, browser: Chromium
+    shared_server: ServerProcess, browser: Chromium
 ) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         body = {**MANAGED_BOX, "name": "pruned-box", "max_trials": 10}
         body["pruner"] = {"name": "median", "options": {"n_startup_trials": 1}}
         study_id = http.post("/api/v1/studies", json=body).raise_for_status().json()["id"]
@@ -361,7 +372,7 @@ def test_pruned_trials_in_the_progress_bar_counts_and_filter(
         for trial in asked[1:3]:
             http.post(f"/api/v1/trials/{trial['id']}/report", json={"step": 5, "value": 0.25})
             tell(http, trial["id"], state="pruned")
-        browser.navigate(f"{live_server.url}/#/studies/{study_id}")
+        browser.navigate(f"{shared_server.url}/#/studies/{study_id}")
         browser.wait_for(STUDY_PAGE_READY)
         counts = browser.evaluate("document.querySelector('[data-counts]').textContent")
         assert "2 pruned" in counts and "1 complete" in counts
@@ -376,8 +387,11 @@ def test_pruned_trials_in_the_progress_bar_counts_and_filter(
         assert "pruned" in options
 
 
+# The typed columns on PostgreSQL: test_dashboard_reads (int and categorical columns).
+# One server for the three (each looks at its own study): conftest's, on SQLite.
+@pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True)
 def test_int_and_categorical_params_are_charted_with_their_choices_as_ticks(
-    live_server: ServerProcess, browser: Chromium
+    shared_server: ServerProcess, browser: Chromium
 ) -> None:
     """A categorical param is an axis of the parallel coordinates and a slice plot whose
     ticks are its choices (in the space's order), an int param an axis of its own; the
@@ -390,7 +404,7 @@ def test_int_and_categorical_params_are_charted_with_their_choices_as_ticks(
             {"name": "activation", "type": "categorical", "choices": choices},
         ],
     }
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
         body = {"name": "typed", "space": space, "proposer": {"name": "random", "seed": 4}}
         study_id = http.post("/api/v1/studies", json=body).raise_for_status().json()["id"]
         trials = http.post(f"/api/v1/studies/{study_id}/ask", json={"count": 12}).json()["trials"]
@@ -402,7 +416,7 @@ def test_int_and_categorical_params_are_charted_with_their_choices_as_ticks(
     assert series["params"]["width"] == [t["params"]["width"] for t in trials]
     assert {t["params"]["activation"] for t in trials} == set(choices)  # all three vary
 
-    browser.navigate(f"{live_server.url}/#/studies/{study_id}")
+    browser.navigate(f"{shared_server.url}/#/studies/{study_id}")
     browser.wait_for(STUDY_PAGE_READY)
     parallel = "document.querySelector('[data-parallel]')"
     assert browser.evaluate(f"{parallel}.dataset.lines") == "12"

@@ -6,9 +6,10 @@ two most important params, and its selects redraw it over the pair picked; too f
 get a message, not a chart, until enough are told; a param of one value has importance
 0; a design study's params are its spec names, as the chart columns have them.
 
-One server per kind of database and one browser serve the module (conftest's
-``shared_server``; the Pareto tests' browser and client fixtures): each test makes its
-own studies.
+One server and one browser serve the module (conftest's ``shared_server``; the Pareto
+tests' browser and client fixtures): each test makes its own studies. SQLite alone: the
+page computes from the chart columns, which tests/service/test_dashboard_api.py and
+test_dashboard_reads.py (a design study's spec names) assert on both databases.
 """
 
 from __future__ import annotations
@@ -42,7 +43,13 @@ from tests.service.test_pareto_browser import browser, http
 
 __all__ = ["browser", "http"]  # the fixtures, shared (on `server` here)
 
-pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.e2e,
+    pytest.mark.xdist_group("browser"),
+    # PostgreSQL's columns: test_dashboard_api (box) and test_dashboard_reads (design).
+    pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True),
+]
 
 CHOICES = ["relu", "tanh", "gelu"]
 SPACE = {
@@ -117,7 +124,7 @@ def optuna_importances(
 
 @pytest.fixture(scope="module")
 def server(shared_server: ServerProcess) -> ServerProcess:
-    """What the shared browser and client fixtures use: conftest's, one per database."""
+    """What the shared browser and client fixtures use: conftest's."""
     return shared_server
 
 

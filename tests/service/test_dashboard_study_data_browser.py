@@ -13,8 +13,17 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.service.chromium import Chromium
+from tests.service.dashboard_pages import shared_browser
 
-pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.e2e,
+    pytest.mark.xdist_group("browser"),
+    # PostgreSQL's names, attributes, deletes and owners: test_study_data_e2e, on both.
+    pytest.mark.parametrize("database", ["sqlite"]),
+]
 
 HOSTILE = "<img src=x onerror=alert(1)>"
 NAMES = ["Roboter-Entwurf 設計 v2", "stand up, long budget", "[bold]x[/bold]", HOSTILE]

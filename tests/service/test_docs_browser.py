@@ -7,11 +7,14 @@ import pytest
 
 from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
+from tests.service.dashboard_pages import shared_browser
+
+__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 
 
-@pytest.mark.parametrize("database", ["sqlite"])
+@pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True)  # one for both pages
 @pytest.mark.parametrize(
     ("page", "rendered"),
     [
@@ -20,12 +23,12 @@ pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("bro
     ],
 )
 def test_docs_render_from_the_servers_own_files(
-    live_server: ServerProcess, browser: Chromium, page: str, rendered: str
+    shared_server: ServerProcess, browser: Chromium, page: str, rendered: str
 ) -> None:
-    browser.navigate(live_server.url + page)
+    browser.navigate(shared_server.url + page)
     assert browser.wait_for(rendered, timeout=60)
     assert "activedesign" in browser.evaluate("document.body.innerText")
     fetched = [url for url in browser.requested if not url.startswith("data:")]
-    elsewhere = [url for url in fetched if not url.startswith(live_server.url)]
+    elsewhere = [url for url in fetched if not url.startswith(shared_server.url)]
     assert elsewhere == []
     assert browser.errors == []

@@ -1,12 +1,14 @@
 """The dashboard's Pareto panel (issue 17) in a real headless Chromium against a real
-``adserver``, on SQLite and PostgreSQL: a managed study of two objectives with a
+``adserver``: a managed study of two objectives with a
 constraint draws its complete trials, the server's front (as many points as
 ``/pareto`` answers) and its infeasible trials greyed; hovering a design on the front
 shows its picture and clicking a point opens that trial's dialog; the trials table has a
 column per objective and marks infeasible trials; a study of three objectives lets one
 pick the two axes; a study of one objective shows no Pareto panel (and, constrained,
-greys and marks its infeasible trials). One server and one page (in a browser context of
-its own) per database for the whole module."""
+greys and marks its infeasible trials). One server (conftest's ``shared_server``) and one
+page (the test process's shared one) for the whole module, on SQLite: what PostgreSQL
+changes, the chart columns and the front, tests/service/test_dashboard_reads.py asserts
+on both databases."""
 
 from __future__ import annotations
 
@@ -18,18 +20,24 @@ import httpx
 import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
-from tests.conftest import DATABASES
 from tests.service.chromium import Chromium, SharedChromium
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,
     lease,
+    leave,
     png,
     tell,
     upload,
 )
 from tests.service.test_multiobjective_e2e import brute_front
 
-pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.e2e,
+    pytest.mark.xdist_group("browser"),
+    # PostgreSQL's columns and front: test_dashboard_reads (two and three objectives).
+    pytest.mark.parametrize("shared_server", ["sqlite"], indirect=True),
+]
 
 SPACE = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 MASS_LIMIT = 3.0
@@ -39,26 +47,19 @@ CANVAS = "canvas[data-pareto]"
 HIT = f"document.querySelector('{CANVAS}').hit.points"
 
 
-@pytest.fixture(scope="module", params=DATABASES)
-def server(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[ServerProcess]:
-    workdir = tmp_path_factory.mktemp("pareto")
-    if request.param == "postgresql":
-        url = request.getfixturevalue("postgres_cluster").create_database()
-    else:
-        url = f"sqlite:///{workdir / 'studies.db'}"
-    process = ServerProcess(database_url=url, workdir=workdir).start()
-    yield process
-    process.stop()
+@pytest.fixture(scope="module")
+def server(shared_server: ServerProcess) -> ServerProcess:
+    """What the module's browser and client fixtures use: conftest's shared server."""
+    return shared_server
 
 
 @pytest.fixture(scope="module")
 def browser(server: ServerProcess, shared_chromium: SharedChromium) -> Iterator[Chromium]:
-    """One page per server, closed first (a page polling a stopped server logs errors)."""
-    page = shared_chromium.page()
+    """The test process's shared page (``SharedChromium.shared_page``: blank, nothing
+    kept) for the module's tests, left blank before the server stops."""
+    page = shared_chromium.shared_page()
     yield page
-    page.close()
+    leave(page)
 
 
 @pytest.fixture(scope="module")
@@ -121,11 +122,21 @@ def open_study(browser: Chromium, server: ServerProcess, study: dict[str, Any]) 
     )
 
 
+DRAWN_AT_ITS_SIZE = """((canvas) =>
+  canvas.width === Math.round(canvas.clientWidth * devicePixelRatio)
+  && canvas.height === Math.round(canvas.clientHeight * devicePixelRatio))"""
+"""Whether a chart's points (its ``hit`` map) are where the page shows them: a page that
+grew a scrollbar after drawing a chart shows it narrower and redraws it only a moment
+later (charts.js ``prepare`` sizes the canvas to its box at each draw)."""
+
+
 def point_at(browser: Chromium, number: int) -> tuple[float, float]:
-    """Where trial ``number``'s point is on the screen (the chart scrolled into view)."""
-    x, y = browser.evaluate(
+    """Where trial ``number``'s point is on the screen (the chart scrolled into view),
+    once the chart is drawn at the size it is shown."""
+    x, y = browser.wait_for(
         f"(() => {{ const canvas = document.querySelector('{CANVAS}');"
         " canvas.scrollIntoView({block: 'center'});"
+        f" if (!{DRAWN_AT_ITS_SIZE}(canvas)) return null;"
         " const box = canvas.getBoundingClientRect();"
         f" const p = {HIT}.find((p) => p.number === {number});"
         " return [box.x + p.x, box.y + p.y]; })()"
@@ -225,7 +236,7 @@ def test_two_objectives_front_infeasible_and_table(
     )
 
     # Clicking it opens its trial's dialog, with its picture and values.
-    click(browser, x, y)
+    click(browser, *point_at(browser, number))
     dialog = "document.querySelector('[data-trial-dialog]')"
     browser.wait_for(f"{dialog}.open && {dialog}.textContent.includes('Trial #{number} ')")
     assert (
@@ -347,9 +358,10 @@ def test_one_objective_shows_no_pareto_panel(
     assert heads[:3] == ["#", "State", "Score"]
     assert browser.evaluate("document.querySelector('canvas[data-history]').dataset.points") == "4"
     # Its score chart's hover names a trial and its score, as it always did.
-    x, y = browser.evaluate(
+    x, y = browser.wait_for(
         "(() => { const c = document.querySelector('canvas[data-history]');"
-        " c.scrollIntoView({block: 'center'}); const box = c.getBoundingClientRect();"
+        f" c.scrollIntoView({{block: 'center'}}); if (!{DRAWN_AT_ITS_SIZE}(c)) return null;"
+        " const box = c.getBoundingClientRect();"
         " return [box.x + c.hit.x(2), box.y + c.hit.y(2)]; })()"
     )
     mouse(browser, "mouseMoved", x, y)

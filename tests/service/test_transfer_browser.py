@@ -9,8 +9,17 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
+from tests.service.dashboard_pages import shared_browser
 
-pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
+__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.e2e,
+    pytest.mark.xdist_group("browser"),
+    # The source on PostgreSQL: test_dashboard_reads (the trials table's marks), on both.
+    pytest.mark.parametrize("database", ["sqlite"]),
+]
 
 
 def test_a_warm_started_trial_names_its_source(
