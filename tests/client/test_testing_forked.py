@@ -135,6 +135,8 @@ def test_the_fork_server_preloads_every_module_a_server_imports_to_start(
 
 PROBE = """
 import gc, os, signal, subprocess, sys, tempfile, torch
+import gymnasium
+from stable_baselines3 import PPO
 
 FRESH = "import sys; print(*sys.path[1:], sep=chr(10))"
 EXECD = [os.path.dirname(sys.executable), *subprocess.run(
@@ -144,7 +146,11 @@ EXECD = [os.path.dirname(sys.executable), *subprocess.run(
 
 def probe(job):
     \"\"\"What the worker process is like when it runs a job (torch is preloaded when forked).\"\"\"
+    before = set(sys.modules)
+    PPO("MlpPolicy", gymnasium.make("Pendulum-v1"), n_steps=64, batch_size=64, device="cpu")
+    torch_modules = {name for name in sys.modules if name.split(".")[0] in ("torch", "sympy")}
     return {
+        "torch_modules_a_model_imports": float(len(torch_modules - before)),
         "value": job.params["x"],
         "torch_threads": torch.get_num_threads(),
         "own_tmpdir": float(tempfile.gettempdir() == os.environ["TMPDIR"]),
@@ -163,7 +169,8 @@ def test_a_forked_worker_starts_as_an_execd_one(
     OMP_NUM_THREADS (1 where unset); the temporary folder is the worker's own TMPDIR; the
     environment and ``sys.path`` are its own; SIGTERM reaches the worker's handler and
     ends it with 0; the objects the fork server made are frozen (the worker's
-    collections do not copy their pages)."""
+    collections do not copy their pages); what a learner's first model imports is
+    preloaded."""
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     app, tmp = tmp_path / "app", tmp_path / "tmp"
     app.mkdir()
@@ -195,6 +202,9 @@ def test_a_forked_worker_starts_as_an_execd_one(
             assert trial.metrics["handles_sigterm"] == 1.0
             assert trial.metrics["preloaded_frozen"] == 1.0  # its collections skip them
             assert trial.metrics["path_as_execd"] == 1.0  # not pytest's sys.path
+            # A learner's first model (its optimizer) imports nothing of torch's (its
+            # compiler, 1.7 s of CPU, was imported there in every worker).
+            assert trial.metrics["torch_modules_a_model_imports"] == 0
             worker.signal(signal.SIGTERM)
             assert worker.wait() == 0, worker.log()
     finally:

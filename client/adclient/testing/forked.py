@@ -2,7 +2,8 @@
 
 An ``adserver`` process spends about 1.8 of its 2.5 s of start-up CPU importing
 FastAPI, SQLAlchemy, pydantic, Alembic and the service, an ``adworker`` about 3.5 s importing
-torch, stable-baselines3 and PyBullet; a test run starts hundreds. Here a
+torch, stable-baselines3 and PyBullet (and 1.7 s more at its first stable-baselines3 job:
+torch's compiler); a test run starts hundreds. Here a
 ``multiprocessing`` fork server per program imports its modules once (``PRELOAD``, by
 name), and each process is a fresh one forked from it that runs the installed program's
 entry point (found with ``importlib.metadata``, as its console script finds it) with its
@@ -80,6 +81,7 @@ PRELOAD = {
         "adworker.tasks",
         "stable_baselines3",
         "torch",
+        "torch._dynamo",  # torch.optim imports it at a learner's first optimizer: 1.7 s
         "pybullet",
     ),
     "adclient": ("adclient.cli",),
