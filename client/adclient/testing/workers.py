@@ -11,7 +11,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -92,14 +92,30 @@ class WorkerProcess:
             self.process.wait()
 
 
-def wait_for(condition: Callable[[], object], what: str, poll: float = 0.05) -> object:
+def wait_for(condition: Callable[[], object], what: str, poll: float = 0.25) -> object:
+    """``condition()``'s first true value: checked at once, then after each of
+    :func:`pauses` (``poll`` at most); an AssertionError naming ``what`` after
+    ``PATIENCE`` seconds."""
     deadline = time.monotonic() + PATIENCE
-    while time.monotonic() < deadline:
+    for pause in pauses(poll):
         value = condition()
         if value:
             return value
-        time.sleep(poll)
+        if time.monotonic() >= deadline:
+            break
+        time.sleep(pause)
     raise AssertionError(f"gave up waiting for {what}")
+
+
+def pauses(poll: float) -> Iterator[float]:
+    """A wait's pauses between checks: from 0.05 s, half as long again each time, up to
+    ``poll``. What shows at once is seen soon, and a longer wait checks 4 times a second
+    (0.25), not 20: a check that asks the server costs it CPU each time (the trials of a
+    study, 5 ms), and what a test waits to catch lasts seconds."""
+    pause = min(0.05, poll)
+    while True:
+        yield pause
+        pause = min(poll, pause * 1.5)
 
 
 def completed_trials(study: Any, count: int) -> list[Any]:
