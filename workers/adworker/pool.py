@@ -6,7 +6,10 @@ worker's jobs import (the installed tasks' and learners' modules: torch,
 stable-baselines3, PyBullet), once: a child then starts without importing them again
 (about 3.5 s of CPU each when every child was a fresh interpreter). A ``--function``
 pool imports nothing of the function's in its own process (a module may start threads
-as it is imported, which a fork would not carry over): each child imports it."""
+as it is imported, which a fork would not carry over): each child imports it. A pool
+whose learners train on a GPU starts each child as a fresh interpreter instead: the
+pool's process asked torch whether it has the GPU, and CUDA, once initialised there,
+cannot be used in a forked child."""
 
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adclient.plugins import LearnerSpec, TaskSpec, catalogue
 from adworker.runner import factory_problem
 from adworker.worker import (
@@ -101,8 +105,8 @@ def preload_jobs(config: WorkerConfig) -> None:
 
 
 def _child_main(config: WorkerConfig, budget: Any, log_level: int) -> None:
-    """Entry point of one pool process, forked with the stop signals blocked: it takes
-    a fresh interpreter's handlers (not the pool's) before it lets them in."""
+    """Entry point of one pool process, started with the stop signals blocked: it takes
+    a fresh interpreter's handlers (a forked one has the pool's) before it lets them in."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
@@ -127,8 +131,10 @@ def run_pool(config: WorkerConfig, concurrency: int, log_level: int = logging.IN
     """
     import multiprocessing
 
-    preload_jobs(config)
-    context = multiprocessing.get_context("fork")
+    forking = os.environ.get(LEARNER_DEVICE_VARIABLE, "cpu") == "cpu"  # not after CUDA
+    if forking:
+        preload_jobs(config)
+    context: Any = multiprocessing.get_context("fork" if forking else "spawn")
     budget = context.Value("i", config.max_jobs) if config.max_jobs is not None else None
     children: dict[int, Any] = {}
     signals_seen = 0
