@@ -7,9 +7,11 @@ AD_TESTING_EXEC=1 starts it by command."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import httpx
@@ -19,7 +21,15 @@ from adclient import Client
 from adclient.testing import forked
 from adclient.testing.forked import ForkedProcess, run_adserver
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, free_port
-from adclient.testing.workers import ADCLIENT, ADWORKER, PATIENCE, WorkerProcess, run_adclient
+from adclient.testing.workers import (
+    ADCLIENT,
+    ADWORKER,
+    PATIENCE,
+    WorkerProcess,
+    plugin_path,
+    run_adclient,
+    run_adworker,
+)
 
 pytestmark = pytest.mark.e2e
 
@@ -60,6 +70,49 @@ def test_exec_is_used_when_asked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
         assert isinstance(server.process, subprocess.Popen)
     finally:
         server.stop()
+
+
+PLUGIN = Path(__file__).resolve().parents[1] / "workers" / "plugin_fixture"
+
+
+def installed_plugin(site: Path) -> Path:
+    """tests/workers/plugin_fixture as ``pip install --target site`` leaves it: the
+    package, and its dist-info with the entry points."""
+    shutil.copytree(PLUGIN / "adplugin_reach", site / "adplugin_reach")
+    info = site / "adplugin_reach-0.1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: adplugin-reach\nVersion: 0.1.0\n")
+    project = tomllib.loads((PLUGIN / "pyproject.toml").read_text())["project"]
+    (info / "entry_points.txt").write_text(
+        "".join(
+            f"[{group}]\n" + "".join(f"{name} = {value}\n" for name, value in points.items())
+            for group, points in project["entry-points"].items()
+        )
+    )
+    return site
+
+
+def test_a_program_with_a_plugin_folder_is_forked_and_finds_the_plugin(tmp_path: Path) -> None:
+    """A plugin installed in a folder of its own, before this process's PYTHONPATH: the
+    forked adworker lists its tasks as the command does; a folder holding a module or a
+    distribution this process finds elsewhere means the command."""
+    env = plugin_path(installed_plugin(tmp_path / "site"))
+    assert forked.can_fork({**os.environ, **env}, "adworker")
+    done = run_adworker("tasks", **env)
+    command = subprocess.run(
+        [str(ADWORKER), "tasks"], env={**os.environ, **env}, capture_output=True, text=True
+    )
+    pybullet_says = "pybullet build time"  # as it is imported: the fork server's, forked
+    said = [line for line in command.stderr.splitlines() if pybullet_says not in line]
+    assert (done.returncode, done.stdout, done.stderr.splitlines()) == (
+        command.returncode,
+        command.stdout,
+        said,
+    )
+    assert any(line.split()[:1] == ["reach-up"] for line in done.stdout.splitlines()), done.stdout
+    for shadowing in ("yaml", "pydantic-2.0.dist-info"):
+        (tmp_path / f"with-{shadowing}" / shadowing).mkdir(parents=True)
+        assert not forked.can_fork({**os.environ, **plugin_path(tmp_path / f"with-{shadowing}")})
 
 
 def test_a_fork_server_that_cannot_start_falls_back_to_the_command(tmp_path: Path) -> None:
@@ -135,6 +188,8 @@ def test_the_fork_server_preloads_every_module_a_server_imports_to_start(
 
 PROBE = """
 import gc, os, signal, subprocess, sys, tempfile, torch
+import gymnasium
+from stable_baselines3 import PPO
 
 FRESH = "import sys; print(*sys.path[1:], sep=chr(10))"
 EXECD = [os.path.dirname(sys.executable), *subprocess.run(
@@ -144,7 +199,11 @@ EXECD = [os.path.dirname(sys.executable), *subprocess.run(
 
 def probe(job):
     \"\"\"What the worker process is like when it runs a job (torch is preloaded when forked).\"\"\"
+    before = set(sys.modules)
+    PPO("MlpPolicy", gymnasium.make("Pendulum-v1"), n_steps=64, batch_size=64, device="cpu")
+    torch_modules = {name for name in sys.modules if name.split(".")[0] in ("torch", "sympy")}
     return {
+        "torch_modules_a_model_imports": float(len(torch_modules - before)),
         "value": job.params["x"],
         "torch_threads": torch.get_num_threads(),
         "own_tmpdir": float(tempfile.gettempdir() == os.environ["TMPDIR"]),
@@ -163,7 +222,8 @@ def test_a_forked_worker_starts_as_an_execd_one(
     OMP_NUM_THREADS (1 where unset); the temporary folder is the worker's own TMPDIR; the
     environment and ``sys.path`` are its own; SIGTERM reaches the worker's handler and
     ends it with 0; the objects the fork server made are frozen (the worker's
-    collections do not copy their pages)."""
+    collections do not copy their pages); what a learner's first model imports is
+    preloaded."""
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     app, tmp = tmp_path / "app", tmp_path / "tmp"
     app.mkdir()
@@ -195,6 +255,9 @@ def test_a_forked_worker_starts_as_an_execd_one(
             assert trial.metrics["handles_sigterm"] == 1.0
             assert trial.metrics["preloaded_frozen"] == 1.0  # its collections skip them
             assert trial.metrics["path_as_execd"] == 1.0  # not pytest's sys.path
+            # A learner's first model (its optimizer) imports nothing of torch's (its
+            # compiler, 1.7 s of CPU, was imported there in every worker).
+            assert trial.metrics["torch_modules_a_model_imports"] == 0
             worker.signal(signal.SIGTERM)
             assert worker.wait() == 0, worker.log()
     finally:

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from adclient import Client
-from adclient.testing.servers import ServerProcess, free_port, refused_at_start
-from adclient.testing.workers import ADWORKER, WorkerProcess
+from adclient.testing.servers import ServerProcess, free_port
+from adclient.testing.workers import WorkerProcess, run_adworker
 from tests.workers.robots import example_study
 
 pytestmark = pytest.mark.e2e
@@ -43,6 +43,9 @@ def test_a_worker_asked_for_cuda_without_a_gpu_exits_saying_why(how: str) -> Non
     args, env = ["--learner-device", "cuda"], {}
     if how == "environment":
         args, env = [], {"AD_LEARNER_DEVICE": "cuda"}
-    said = refused_at_start([str(ADWORKER), "--server", server, *args], 3, **env)
+    done = run_adworker("--server", server, *args, **env)  # forked: torch is preloaded
+    assert done.returncode == 3, done.stderr
+    said = done.stderr
+    assert "Traceback" not in said + done.stdout
     assert said.startswith("adworker: --learner-device cuda cannot be used: ")
     assert "--learner-device cpu" in said

@@ -140,8 +140,8 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
     result is not taken, the worker leases it again, starts again from the same source
     checkpoint (unchanged) and trains its whole warm budget. The study holds these two
     designs only (max_trials), so the worker leases no third one once it is done; the
-    warm budget (two PPO rollouts of 512 steps) is seconds of training against a 0.05 s
-    poll."""
+    warm budget (two PPO rollouts of 512 steps) is seconds of training against a wait
+    that checks 4 times a second."""
     with Client(server.url) as client:
         study = client.create_study({**study_body("ppo", 256, 1024), "max_trials": 2})
         (source,) = run(server, tmp_path, client, study.id, design(CHAIN, 1.0))

@@ -46,6 +46,19 @@ def stand_up_study(client: Client, *, max_trials: int, **task: object):
     return client.create_study(body)
 
 
+def children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid``."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            stat = (entry / "stat").read_text() if entry.name.isdigit() else ""
+        except OSError:  # it ended meanwhile
+            continue
+        if stat and int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            found.append(int(entry.name))
+    return found
+
+
 def running_trial(client: Client, study_id: int, worker_id: str) -> Trial | None:
     for trial in client.trials(study_id, state="running"):
         if trial.worker_id == worker_id:
@@ -82,6 +95,11 @@ def test_managed_study_runs_to_completion_with_a_pool_of_workers(server_factory,
         assert client.get_artifact(best, "robot.png").startswith(b"\x89PNG")
         curve = json.loads(client.get_artifact(best, "curve.json"))
         assert len(curve["evaluation"]) == 3
+    # Its two workers are forks of its process (which imported torch, stable-baselines3
+    # and PyBullet once), not fresh interpreters that import them again.
+    command = Path(f"/proc/{pool.process.pid}/cmdline").read_bytes()
+    forks = [Path(f"/proc/{pid}/cmdline").read_bytes() for pid in children(pool.process.pid)]
+    assert forks == [command, command], forks
     pool.signal(signal.SIGTERM)
     assert pool.wait() == 0, pool.log()
     assert "jobs/min" in pool.log()

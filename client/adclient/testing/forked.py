@@ -2,7 +2,8 @@
 
 An ``adserver`` process spends about 1.8 of its 2.5 s of start-up CPU importing
 FastAPI, SQLAlchemy, pydantic, Alembic and the service, an ``adworker`` about 3.5 s importing
-torch, stable-baselines3 and PyBullet; a test run starts hundreds. Here a
+torch, stable-baselines3 and PyBullet (and 1.7 s more at its first stable-baselines3 job:
+torch's compiler); a test run starts hundreds. Here a
 ``multiprocessing`` fork server per program imports its modules once (``PRELOAD``, by
 name), and each process is a fresh one forked from it that runs the installed program's
 entry point (found with ``importlib.metadata``, as its console script finds it) with its
@@ -19,9 +20,11 @@ temporary folder, ``functools.cache`` values of the project's modules, the root
 logger's handlers), ``sys.path`` is the command's, the signal handlers are the
 defaults, its ``atexit`` functions run, an uncaught exception is printed and is exit
 status 1 (a ``KeyboardInterrupt`` ends it by SIGINT), and ``sys.exit`` sets its status.
-A process whose ``PYTHONPATH`` differs from this one's (a plugin folder), or any run
-when ``AD_TESTING_EXEC=1``, is started by command instead (:func:`can_fork`), as is
-anything the caller knows cannot be faithful (``adworker --ray``: Ray's own processes).
+A process whose ``PYTHONPATH`` puts a plugin's folder before this one's is forked too,
+with the exec'd one's ``sys.path``, where nothing in that folder has a name this process
+finds. Any other ``PYTHONPATH``, or any run when ``AD_TESTING_EXEC=1``, is started by
+command instead (:func:`can_fork`), as is anything the caller knows cannot be faithful
+(``adworker --ray``: Ray's own processes).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import gc
+import importlib.util
 import io
 import logging
 import os
@@ -38,7 +42,7 @@ import sys
 import tempfile
 from collections.abc import Mapping
 from functools import cache
-from importlib.metadata import EntryPoint, entry_points
+from importlib.metadata import EntryPoint, PackageNotFoundError, distribution, entry_points
 from multiprocessing import forkserver, popen_forkserver, reduction, spawn, util
 from multiprocessing.context import ForkServerProcess, set_spawning_popen
 from pathlib import Path
@@ -80,6 +84,7 @@ PRELOAD = {
         "adworker.tasks",
         "stable_baselines3",
         "torch",
+        "torch._dynamo",  # torch.optim imports it at a learner's first optimizer: 1.7 s
         "pybullet",
     ),
     "adclient": ("adclient.cli",),
@@ -102,14 +107,45 @@ def _program(name: str) -> EntryPoint | None:
 
 
 def can_fork(env: Mapping[str, str], program: str = "adserver") -> bool:
-    """Whether ``program`` with ``env`` may be forked: it must see the modules this
-    process sees (its ``PYTHONPATH`` is this one's), and the environment has not asked
-    for real executions (``AD_TESTING_EXEC=1``)."""
+    """Whether ``program`` with ``env`` may be forked: it must find the modules an
+    exec'd one would (:func:`_added_folders`), and the environment has not asked for
+    real executions (``AD_TESTING_EXEC=1``)."""
     if env.get("AD_TESTING_EXEC") == "1" or os.environ.get("AD_TESTING_EXEC") == "1":
         return False
     if _program(program) is None or _BROKEN:
         return False
-    return env.get("PYTHONPATH", "") == os.environ.get("PYTHONPATH", "")
+    return _added_folders(env.get("PYTHONPATH", "")) is not None
+
+
+METADATA = (".dist-info", ".egg-info")
+
+
+@cache
+def _added_folders(pythonpath: str) -> tuple[str, ...] | None:
+    """The folders ``pythonpath`` puts before this process's ``PYTHONPATH`` (a plugin
+    installed in a folder of its own), or None when a process with it cannot be forked:
+    it is not those folders then this one's, or one of them holds a module or a
+    distribution's metadata of a name this process finds, which the fork server has
+    (or may have) imported or read from elsewhere. Modules and distributions of new
+    names are found where the exec'd process finds them: the forked one's ``sys.path``
+    is the exec'd one's, and a plugin's are imported and read after the fork."""
+    own = os.environ.get("PYTHONPATH", "")
+    if pythonpath == own:
+        return ()
+    head = pythonpath.removesuffix(os.pathsep + own) if own else pythonpath
+    if head == pythonpath and own:
+        return None
+    folders = tuple(folder for folder in head.split(os.pathsep) if folder)
+    for folder in folders:
+        for entry in Path(folder).iterdir() if Path(folder).is_dir() else ():
+            name, suffix = os.path.splitext(entry.name)
+            if suffix in METADATA:
+                with contextlib.suppress(PackageNotFoundError):
+                    distribution(name.split("-")[0])
+                    return None
+            elif entry.name != "__pycache__" and importlib.util.find_spec(entry.name.split(".")[0]):
+                return None
+    return folders
 
 
 _BROKEN: list[str] = []
@@ -117,12 +153,16 @@ _BROKEN: list[str] = []
 
 
 @cache
-def _exec_path() -> list[str]:
-    """The ``sys.path`` a program started by command has: its script's folder (this
-    interpreter's), then what a fresh interpreter with this environment finds; the fork
-    servers have this process's, to which pytest adds its own folders."""
+def _exec_path(pythonpath: str) -> list[str]:
+    """The ``sys.path`` a program started by command with ``pythonpath`` has: its
+    script's folder (this interpreter's), then what a fresh interpreter with this
+    environment and that ``PYTHONPATH`` finds; the fork servers have this process's, to
+    which pytest adds its own folders."""
     fresh = "import sys; print(*sys.path[1:], sep=chr(10))"
-    done = subprocess.run([sys.executable, "-c", fresh], capture_output=True, text=True, check=True)
+    env = {**os.environ, "PYTHONPATH": pythonpath}
+    done = subprocess.run(
+        [sys.executable, "-c", fresh], capture_output=True, text=True, check=True, env=env
+    )
     return [str(Path(sys.executable).parent), *done.stdout.splitlines()]
 
 
@@ -252,11 +292,12 @@ class ForkedProcess:
         """``PROGRAM ARGV``, its stdout and stderr appended to ``output`` (stderr to
         ``errors`` where given)."""
         outputs = [str(output), str(errors or output)]
+        path = _exec_path(env.get("PYTHONPATH", ""))
         entry = _program(program)
         assert entry is not None  # can_fork checked it
         self._process = _ProgramProcess(
             target=_run,
-            args=(program, argv, dict(env), str(cwd), outputs, _exec_path(), entry.value),
+            args=(program, argv, dict(env), str(cwd), outputs, path, entry.value),
             daemon=False,
         )
         try:

@@ -11,7 +11,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -92,14 +92,30 @@ class WorkerProcess:
             self.process.wait()
 
 
-def wait_for(condition: Callable[[], object], what: str, poll: float = 0.05) -> object:
+def wait_for(condition: Callable[[], object], what: str, poll: float = 0.25) -> object:
+    """``condition()``'s first true value: checked at once, then after each of
+    :func:`pauses` (``poll`` at most); an AssertionError naming ``what`` after
+    ``PATIENCE`` seconds."""
     deadline = time.monotonic() + PATIENCE
-    while time.monotonic() < deadline:
+    for pause in pauses(poll):
         value = condition()
         if value:
             return value
-        time.sleep(poll)
+        if time.monotonic() >= deadline:
+            break
+        time.sleep(pause)
     raise AssertionError(f"gave up waiting for {what}")
+
+
+def pauses(poll: float) -> Iterator[float]:
+    """A wait's pauses between checks: from 0.05 s, half as long again each time, up to
+    ``poll``. What shows at once is seen soon, and a longer wait checks 4 times a second
+    (0.25), not 20: a check that asks the server costs it CPU each time (the trials of a
+    study, 5 ms), and what a test waits to catch lasts seconds."""
+    pause = min(0.05, poll)
+    while True:
+        yield pause
+        pause = min(poll, pause * 1.5)
 
 
 def completed_trials(study: Any, count: int) -> list[Any]:
@@ -117,26 +133,36 @@ def run_adclient(server: ServerProcess, *args: str) -> subprocess.CompletedProce
     from preloaded imports where it can be, :mod:`.forked`)."""
     environment = {**os.environ, "AD_SERVER_URL": server.url, "NO_COLOR": "1", "COLUMNS": "200"}
     environment.pop("AD_TOKEN", None)
-    if can_fork(environment, "adclient"):
+    return _run(ADCLIENT, list(args), environment)
+
+
+def run_adworker(*args: str, **env: str) -> subprocess.CompletedProcess[str]:
+    """``adworker ARGS`` run to its end (one that stops at start), ``env`` added to the
+    environment, its output read back (forked from preloaded imports where it can be:
+    one that checks a GPU would import torch first)."""
+    return _run(ADWORKER, list(args), {**os.environ, **env})
+
+
+def _run(command: Path, argv: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """``COMMAND ARGV`` to its end as ``subprocess.run`` with ``capture_output`` and
+    ``text`` runs it, forked where it can be."""
+    if can_fork(env, command.name):
         with contextlib.suppress(ForkUnavailable):
-            return _forked_adclient(list(args), environment)
+            return _forked(command, argv, env)
     return subprocess.run(
-        [str(ADCLIENT), *args],
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=PATIENCE,
-        check=False,
+        [str(command), *argv], env=env, capture_output=True, text=True, timeout=PATIENCE
     )
 
 
-def _forked_adclient(argv: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
-    """``adclient ARGV`` forked, its stdout and stderr read back as ``subprocess.run``
+def _forked(
+    command: Path, argv: list[str], env: dict[str, str]
+) -> subprocess.CompletedProcess[str]:
+    """``COMMAND ARGV`` forked, its stdout and stderr read back as ``subprocess.run``
     with ``capture_output`` and ``text`` reads them."""
-    with tempfile.TemporaryDirectory(prefix="adclient-") as folder:
+    with tempfile.TemporaryDirectory(prefix=f"{command.name}-") as folder:
         out, err = Path(folder, "stdout"), Path(folder, "stderr")
         process = ForkedProcess(
-            argv, env=env, cwd=Path.cwd(), output=out, errors=err, program="adclient"
+            argv, env=env, cwd=Path.cwd(), output=out, errors=err, program=command.name
         )
         try:
             code = process.wait(timeout=PATIENCE)
@@ -145,4 +171,4 @@ def _forked_adclient(argv: list[str], env: dict[str, str]) -> subprocess.Complet
             process.wait()
             raise
         read = [path.read_text() if path.exists() else "" for path in (out, err)]
-    return subprocess.CompletedProcess([str(ADCLIENT), *argv], code, *read)
+    return subprocess.CompletedProcess([str(command), *argv], code, *read)
