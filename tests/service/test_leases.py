@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 
 from adclient.testing.servers import SDK_HEADERS
 from adservice.app import create_app
+from adservice.repository import promotion
 from adservice.settings import Settings
 from tests.service.conftest import BOX_STUDY, LOCAL
 
@@ -166,3 +167,13 @@ def test_studies_without_a_task_are_never_leased(api: TestClient) -> None:
     body = copy.deepcopy(BOX_STUDY) | {"max_trials": 5}
     api.post("/api/v1/studies", json=body)
     assert lease(api, "w1") is None
+
+
+def test_a_lease_settles_spent_studies_with_one_expression_built_once(api: TestClient) -> None:
+    """Every lease settles the spent studies' paused trials first: the condition of a
+    spent study is one expression for them all, not one built per lease (1.5 ms each)."""
+    managed(api, max_trials=2)
+    spent = promotion._spent()
+    assert lease(api, "a") is not None and lease(api, "b") is not None
+    assert lease(api, "c") is None
+    assert promotion._spent() is spent
