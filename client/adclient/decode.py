@@ -18,6 +18,7 @@ structure with x's specs.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -175,7 +176,24 @@ def used_slots(
     return np.array([slot_used(key, members, children, ties or {}) for key in names], dtype=bool)
 
 
+_LAYOUTS: dict[int, SpecLayout] = {}
+"""Each live space's layout, by ``id`` (dropped when the space is collected)."""
+
+
 def spec_layout(space: DesignSpace) -> SpecLayout:
+    """The layout of ``space``, computed once per space object: a validated space is
+    not changed afterwards (its trees are kept the same way), and a server decodes and
+    encodes every trial of a study through the study's one space several times. The
+    layout's arrays are read-only, being shared. Kept outside the model: a pydantic
+    model's private attributes take part in its ``==``."""
+    layout = _LAYOUTS.get(id(space))
+    if layout is None:
+        layout = _LAYOUTS[id(space)] = _new_layout(space)
+        weakref.finalize(space, _LAYOUTS.pop, id(space), None)
+    return layout
+
+
+def _new_layout(space: DesignSpace) -> SpecLayout:
     slots = space.free_specs()
     fixed: dict[str, float] = {}
     chooses: dict[str, str] = {}
@@ -201,16 +219,21 @@ def spec_layout(space: DesignSpace) -> SpecLayout:
                 fixed[f"{instance.name}.joint.{spec}"] = float(value)
     return SpecLayout(
         names=[key for key, _ in slots],
-        low=np.array([bound.low for _, bound in slots], dtype=np.float64),
-        high=np.array([bound.high for _, bound in slots], dtype=np.float64),
+        low=_read_only(np.array([bound.low for _, bound in slots], dtype=np.float64)),
+        high=_read_only(np.array([bound.high for _, bound in slots], dtype=np.float64)),
         fixed=fixed,
         structures=[list(s) for s in space.tree_structures()],
-        log=np.array([bound.log for _, bound in slots], dtype=bool),
+        log=_read_only(np.array([bound.log for _, bound in slots], dtype=bool)),
         ties=space.ties(),
         chooses=chooses,
         catalogues={name: dict(c) for name, c in space.catalogues.items()},
         placeholders=frozenset(placeholders),
     )
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.setflags(write=False)
+    return array
 
 
 def identity_representation(space: DesignSpace) -> Representation:

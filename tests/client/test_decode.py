@@ -3,9 +3,11 @@ fused ones."""
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import re
+import weakref
 from typing import Any
 
 import numpy as np
@@ -411,3 +413,29 @@ def test_a_density_space_round_trips_bit_for_bit(vector: list[float]) -> None:
     assert json.loads(json.dumps(params)) == params
     assert decode(space, representation, encode(space, representation, params)) == design
     assert decode(space, representation, encode(space, representation, design)) == design
+
+
+def test_a_spaces_layout_is_computed_once_shared_read_only_and_dropped_with_it() -> None:
+    """A server decodes and encodes every trial of a study through its one space: the
+    layout (3 ms of a design space's free specs) is the same object each time, its
+    arrays cannot be changed through one caller, an equal space of its own gets its own,
+    and it goes with its space."""
+    body = {
+        "type": "design",
+        "parts": {"link": {"length": {"low": 0.1, "high": 0.5}, "radius": 0.04}},
+        "instances": [{"name": "a", "part": "link"}, {"name": "b", "part": "link"}],
+        "structures": [[["a", "b"]]],
+    }
+    space, twin = DesignSpace.model_validate(body), DesignSpace.model_validate(body)
+    layout = spec_layout(space)
+    assert spec_layout(space) is layout
+    decode(space, identity_representation(space), [0.5] * layout.size)
+    assert spec_layout(space) is layout
+    assert spec_layout(twin) is not layout and spec_layout(twin).names == layout.names
+    for array in (layout.low, layout.high, layout.log):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = array[0]
+    collected = weakref.ref(layout)
+    del space, layout
+    gc.collect()
+    assert collected() is None
