@@ -31,7 +31,7 @@ def secured(server_factory: Callable[..., ServerProcess]) -> ServerProcess:
 
 def client(server: ServerProcess, token: str | None = None) -> httpx.Client:
     headers = {"Authorization": f"Bearer {token}"} if token else {}
-    return httpx.Client(base_url=server.url, headers=headers, timeout=30)
+    return httpx.Client(base_url=server.url, headers=headers, timeout=30, verify=False)
 
 
 def test_roles_gate_every_kind_of_call(secured: ServerProcess) -> None:

@@ -18,7 +18,7 @@ BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 
 def test_concurrent_leases_and_tells_lose_and_duplicate_nothing(live_server: ServerProcess) -> None:
     n_workers, n_trials = 8, 120
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=live_server.url, timeout=30, verify=False) as http:
         study = http.post(
             "/api/v1/studies",
             json={
@@ -35,7 +35,7 @@ def test_concurrent_leases_and_tells_lose_and_duplicate_nothing(live_server: Ser
     guard = threading.Lock()
 
     def work(worker: str) -> None:
-        with httpx.Client(base_url=live_server.url, timeout=30) as http:
+        with httpx.Client(base_url=live_server.url, timeout=30, verify=False) as http:
             while True:
                 response = http.post("/api/v1/jobs/lease", json={"worker_id": worker})
                 if response.status_code == 204:
@@ -64,7 +64,7 @@ def test_concurrent_leases_and_tells_lose_and_duplicate_nothing(live_server: Ser
 
     assert errors == []
     assert len(leased) == n_trials and max(Counter(leased).values()) == 1
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=live_server.url, timeout=30, verify=False) as http:
         trials = http.get(f"/api/v1/studies/{study['id']}/trials").json()
         info = http.get(f"/api/v1/studies/{study['id']}").json()
     assert len(trials) == n_trials
@@ -74,7 +74,7 @@ def test_concurrent_leases_and_tells_lose_and_duplicate_nothing(live_server: Ser
 
 
 def test_concurrent_asks_on_one_study_get_distinct_trials(live_server: ServerProcess) -> None:
-    with httpx.Client(base_url=live_server.url, timeout=30) as http:
+    with httpx.Client(base_url=live_server.url, timeout=30, verify=False) as http:
         study = http.post(
             "/api/v1/studies", json={"name": "s", "space": BOX, "proposer": {"name": "sobol"}}
         ).json()
@@ -82,7 +82,7 @@ def test_concurrent_asks_on_one_study_get_distinct_trials(live_server: ServerPro
     guard = threading.Lock()
 
     def client() -> None:
-        with httpx.Client(base_url=live_server.url, timeout=30) as http:
+        with httpx.Client(base_url=live_server.url, timeout=30, verify=False) as http:
             for _ in range(10):
                 trials = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 2}).json()[
                     "trials"

@@ -29,7 +29,7 @@ def one_trial(http: httpx.Client) -> dict[str, Any]:
 
 def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., ServerProcess]) -> None:
     server = server_factory()
-    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS, verify=False) as http:
         study = http.post(
             "/api/v1/studies", json={"name": "crash", "space": BOX, "proposer": {"name": "random"}}
         ).json()
@@ -42,7 +42,9 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
     stop = threading.Event()
 
     def stream(offset: int) -> None:
-        with httpx.Client(base_url=server.url, timeout=5, headers=SDK_HEADERS) as http:
+        with httpx.Client(
+            base_url=server.url, timeout=5, headers=SDK_HEADERS, verify=False
+        ) as http:
             for trial in trials[offset::4]:
                 if stop.is_set():
                     return
@@ -66,7 +68,7 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
     assert 40 <= len(acknowledged) < len(trials)
 
     server.start()
-    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS, verify=False) as http:
         stored = http.get(f"/api/v1/studies/{study['id']}/trials").json()
         info = http.get(f"/api/v1/studies/{study['id']}").json()
     values = {t["id"]: t["value"] for t in stored if t["state"] == "complete"}
@@ -75,7 +77,9 @@ def test_acknowledged_tells_survive_sigkill(server_factory: Callable[..., Server
 
 
 def test_interrupted_upload_is_never_served(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(
+        base_url=shared_server.url, timeout=10, headers=SDK_HEADERS, verify=False
+    ) as http:
         trial = one_trial(http)
     path = f"/api/v1/trials/{trial['id']}/artifacts/robot.png"
     # Declare 100 kB, send 10 kB, hang up: the upload never completes.
@@ -87,7 +91,9 @@ def test_interrupted_upload_is_never_served(shared_server: ServerProcess) -> Non
             + b"\x89PNG" * 2500
         )
         time.sleep(0.3)
-    with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(
+        base_url=shared_server.url, timeout=10, headers=SDK_HEADERS, verify=False
+    ) as http:
         assert http.get(path).status_code == 404
         assert http.get(f"/api/v1/trials/{trial['id']}/artifacts").json() == []
         image = b"\x89PNG\r\n\x1a\n" * 5
@@ -101,7 +107,9 @@ def test_interrupted_upload_is_never_served(shared_server: ServerProcess) -> Non
 
 
 def test_truncated_artifact_file_is_not_served(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(
+        base_url=shared_server.url, timeout=10, headers=SDK_HEADERS, verify=False
+    ) as http:
         trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/curve.json"
         http.put(path, content=b'{"curve": [1, 2, 3]}')
@@ -117,7 +125,9 @@ def test_artifact_names_cannot_escape(shared_server: ServerProcess, name: str) -
     """On the module's server: these cases put an artifact holding ``x`` there (the
     module's other tests upload other bytes), and all are refused, so no file under its
     folder holds their content."""
-    with httpx.Client(base_url=shared_server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(
+        base_url=shared_server.url, timeout=10, headers=SDK_HEADERS, verify=False
+    ) as http:
         trial = one_trial(http)
         response = http.put(f"/api/v1/trials/{trial['id']}/artifacts/{name}", content=b"x")
         assert response.status_code in (404, 405, 422)
@@ -131,7 +141,7 @@ def test_oversized_artifact_is_413_and_not_stored(
     server_factory: Callable[..., ServerProcess],
 ) -> None:
     server = server_factory(AD_MAX_ARTIFACT_BYTES="1000")
-    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS) as http:
+    with httpx.Client(base_url=server.url, timeout=10, headers=SDK_HEADERS, verify=False) as http:
         trial = one_trial(http)
         path = f"/api/v1/trials/{trial['id']}/artifacts/big.bin"
         assert http.put(path, content=b"x" * 5000).status_code == 413

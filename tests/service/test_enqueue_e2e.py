@@ -43,7 +43,7 @@ def params(i: int) -> dict[str, Any]:
 
 
 def test_enqueued_trials_come_first_in_order_then_proposals(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = study(http)["id"]
         added = http.post(
             f"/api/v1/studies/{sid}/trials", json=[{"params": params(i)} for i in range(3)]
@@ -71,7 +71,7 @@ def test_enqueued_trials_come_first_in_order_then_proposals(shared_server: Serve
 
 def test_concurrent_asks_take_each_enqueued_trial_once(shared_server: ServerProcess) -> None:
     n_queued, n_clients, asks_each = 24, 6, 6
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = study(http)["id"]
         added = http.post(
             f"/api/v1/studies/{sid}/trials", json=[{"params": params(i)} for i in range(n_queued)]
@@ -81,7 +81,7 @@ def test_concurrent_asks_take_each_enqueued_trial_once(shared_server: ServerProc
     guard = threading.Lock()
 
     def asker() -> None:
-        with httpx.Client(base_url=shared_server.url, timeout=60) as http:
+        with httpx.Client(base_url=shared_server.url, timeout=60, verify=False) as http:
             for _ in range(asks_each):
                 answer = http.post(f"/api/v1/studies/{sid}/ask", json={"count": 1})
                 with guard:
@@ -101,12 +101,12 @@ def test_concurrent_asks_take_each_enqueued_trial_once(shared_server: ServerProc
     enqueued = {t["id"] for t in added}
     assert enqueued <= set(ids)  # every enqueued trial handed out
     assert len(ids) - len(enqueued) == n_clients * asks_each - n_queued  # the rest proposed
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         assert http.get(f"/api/v1/studies/{sid}").json()["n_trials"] == n_clients * asks_each
 
 
 def test_evaluated_trials_warm_start_the_model(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=60, verify=False) as http:
         sid = study(http, proposer={"name": "qei", "n_initial": 4}, direction="minimize")["id"]
         known = [{"params": params(i), "value": (i - 4) ** 2 / 10} for i in range(8)]
         known.append({"params": params(40), "state": "failed", "message": "fell over"})
@@ -124,7 +124,7 @@ def test_evaluated_trials_warm_start_the_model(shared_server: ServerProcess) -> 
 
 
 def test_duplicates_are_kept_unless_skipped(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = study(http)["id"]
         url = f"/api/v1/studies/{sid}/trials"
         first = http.post(url, json={"params": params(5)}).json()
@@ -172,7 +172,7 @@ def test_duplicates_are_kept_unless_skipped(shared_server: ServerProcess) -> Non
 def test_a_bad_trial_is_named_and_nothing_is_stored(
     shared_server: ServerProcess, body: Any, named: str
 ) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = study(http)["id"]
         answer = http.post(f"/api/v1/studies/{sid}/trials", json=body)
         assert answer.status_code == 422, answer.text
@@ -181,7 +181,7 @@ def test_a_bad_trial_is_named_and_nothing_is_stored(
 
 
 def test_no_room_or_a_stopped_study_is_409_and_stores_nothing(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = study(http, max_trials=3)["id"]
         url = f"/api/v1/studies/{sid}/trials"
         full = http.post(url, json=[{"params": params(i)} for i in range(4)])
@@ -198,7 +198,7 @@ def test_no_room_or_a_stopped_study_is_409_and_stores_nothing(shared_server: Ser
 
 def test_a_managed_study_leases_its_enqueued_trials_first(shared_server: ServerProcess) -> None:
     lease = {"worker_id": "w", "tasks": ["enqueued-first"]}  # this study's jobs alone
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = study(http, task={"name": "enqueued-first", "external": True}, max_trials=5)["id"]
         queued = http.post(f"/api/v1/studies/{sid}/trials", json={"params": params(3)}).json()
         job = http.post("/api/v1/jobs/lease", json=lease).json()
@@ -219,6 +219,7 @@ def test_only_the_owner_hands_trials_to_a_study(
             base_url=server.url,
             headers={"Authorization": f"Bearer {token}", "X-Activedesign-Client": "test"},
             timeout=30,
+            verify=False,
         )
 
     with as_token("user") as owner, as_token("user") as other, as_token("worker") as worker:
@@ -234,7 +235,7 @@ def test_a_design_is_enqueued_by_its_specs(shared_server: ServerProcess) -> None
     body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
     body.pop("task")
     body |= {"proposer": {"name": "random"}, "max_trials": 8}
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = http.post("/api/v1/studies", json=body).json()["id"]
         asked = http.post(f"/api/v1/studies/{sid}/ask", json={"count": 1}).json()["trials"][0]
         url = f"/api/v1/studies/{sid}/trials"

@@ -56,7 +56,7 @@ def ask(http: httpx.Client, sid: int, count: int) -> list[dict[str, Any]]:
 def test_proposals_spread_a_log_spec_log_uniformly(
     shared_server: ServerProcess, proposer: str
 ) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=60, verify=False) as http:
         sid = create(http, proposer)
         trials = ask(http, sid, 64) + ask(http, sid, 64)
     masses = [t["params"][f"{link}.mass"] for t in trials for link in "ab"]
@@ -82,7 +82,7 @@ def test_proposals_spread_a_log_spec_log_uniformly(
 
 
 def test_an_enqueued_log_design_round_trips(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=60, verify=False) as http:
         sid = create(http, "random")
         asked = ask(http, sid, 4)
         url = f"/api/v1/studies/{sid}/trials"
@@ -120,7 +120,7 @@ def test_an_enqueued_log_design_round_trips(shared_server: ServerProcess) -> Non
 
 def test_a_log_spec_needs_low_above_zero(shared_server: ServerProcess) -> None:
     space = {**SPACE, "joint": {"effort": {"low": 0.0, "high": 10.0, "log": True}}}
-    with httpx.Client(base_url=shared_server.url, timeout=60) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=60, verify=False) as http:
         before = http.get("/api/v1/studies").json()
         refused = http.post("/api/v1/studies", json={"name": "bad log", "space": space})
         assert refused.status_code == 422

@@ -60,7 +60,7 @@ def test_metrics_move_with_the_work_and_agree_with_the_database(
     before = scrape(server.url)
     assert count(before, "activedesign_tells_total") == 0
     assert count(before, "activedesign_leases_active") == 0
-    with httpx.Client(base_url=server.url, timeout=60) as http:
+    with httpx.Client(base_url=server.url, timeout=60, verify=False) as http:
         asked = http.post("/api/v1/studies", json=ASK_TELL).json()["id"]
         managed = http.post("/api/v1/studies", json=MANAGED).json()["id"]
         trials = http.post(f"/api/v1/studies/{asked}/ask", json={"count": 3}).json()["trials"]
@@ -130,8 +130,8 @@ def test_two_servers_on_one_postgres_report_the_same_database_gauges(
     own, and sum to the work done through both."""
     first, second = two_servers
     with (
-        httpx.Client(base_url=first.url, timeout=60) as one,
-        httpx.Client(base_url=second.url, timeout=60) as other,
+        httpx.Client(base_url=first.url, timeout=60, verify=False) as one,
+        httpx.Client(base_url=second.url, timeout=60, verify=False) as other,
     ):
         study = one.post("/api/v1/studies", json=MANAGED | {"max_trials": 8}).json()["id"]
         jobs = [
@@ -159,10 +159,13 @@ def test_metrics_need_a_reader_token_when_auth_is_on(
 ) -> None:
     server = server_factory(AD_AUTH="true")
     reader = make_token(server, "reader")
-    missing = httpx.get(f"{server.url}/metrics", timeout=30)
+    missing = httpx.get(f"{server.url}/metrics", timeout=30, verify=False)
     assert missing.status_code == 401 and missing.headers["WWW-Authenticate"] == "Bearer"
     forged = httpx.get(
-        f"{server.url}/metrics", headers={"Authorization": "Bearer adt_forged"}, timeout=30
+        f"{server.url}/metrics",
+        headers={"Authorization": "Bearer adt_forged"},
+        timeout=30,
+        verify=False,
     )
     assert forged.status_code == 401
     samples = scrape(server.url, reader)

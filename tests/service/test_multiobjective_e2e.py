@@ -51,7 +51,7 @@ def brute_front(points: dict[int, list[float]], signs: list[float]) -> set[int]:
 
 def test_values_pareto_and_best(shared_server: ServerProcess) -> None:
     rng = random.Random(7)
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         study = create(
             http,
             directions=["maximize", "minimize", "maximize"],
@@ -114,7 +114,7 @@ def test_values_pareto_and_best(shared_server: ServerProcess) -> None:
 
 
 def test_constraints_mark_infeasible_trials(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = create(
             http,
             direction="maximize",
@@ -153,7 +153,7 @@ def test_constraints_mark_infeasible_trials(shared_server: ServerProcess) -> Non
 def test_objectives_read_from_told_metrics(shared_server: ServerProcess) -> None:
     """A managed study's workers tell the task score as the value and its metrics
     beside it; ``objectives`` picks the objectives from them."""
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         study = create(
             http,
             objectives=[
@@ -182,7 +182,7 @@ def test_objectives_read_from_told_metrics(shared_server: ServerProcess) -> None
 
 
 def test_warm_start_with_values(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         sid = create(http, directions=["minimize", "minimize"])["id"]
         bad = http.post(
             f"/api/v1/studies/{sid}/trials",
@@ -240,7 +240,7 @@ def test_warm_start_with_values(shared_server: ServerProcess) -> None:
 def test_bad_objective_settings_store_nothing(
     shared_server: ServerProcess, fields: dict[str, Any], words: str
 ) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         before = len(http.get("/api/v1/studies").json())
         body = {"name": "bad", "space": SPACE, "proposer": {"name": "random"}} | fields
         refused = http.post("/api/v1/studies", json=body)
@@ -257,7 +257,7 @@ def test_qei_proposes_for_several_objectives_under_a_constraint(
     objectives and a constraint asks through analytic LogEHVI, the told outcomes in the model.
     (A time budget far past any machine's fit: the model path is what is checked.)"""
     server = server_factory(AD_ASK_SECONDS="600")
-    with httpx.Client(base_url=server.url, timeout=900) as http:
+    with httpx.Client(base_url=server.url, timeout=900, verify=False) as http:
         sid = create(
             http,
             directions=["maximize", "minimize"],

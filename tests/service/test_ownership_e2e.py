@@ -69,6 +69,7 @@ def as_token(server: ServerProcess, token: str) -> httpx.Client:
         base_url=server.url,
         headers={"Authorization": f"Bearer {token}", "X-Activedesign-Client": "test"},
         timeout=30,
+        verify=False,
     )
 
 
@@ -243,7 +244,7 @@ def test_dashboard_sign_in_is_a_cookie_session_with_csrf(
     secured: ServerProcess, token: Callable[..., str]
 ) -> None:
     carol = token("user", name="carol")
-    with httpx.Client(base_url=secured.url, timeout=30) as browser:
+    with httpx.Client(base_url=secured.url, timeout=30, verify=False) as browser:
         assert browser.get("/api/v1/session").json() == {
             "auth": True,
             "signed_in": False,
@@ -274,14 +275,16 @@ def test_dashboard_sign_in_is_a_cookie_session_with_csrf(
         browser.cookies.clear()
     # The old cookie is dead on the server too, not only forgotten by the browser.
     old = signed.cookies.get("ad_session")
-    with httpx.Client(base_url=secured.url, timeout=30, cookies={"ad_session": old}) as replay:
+    with httpx.Client(
+        base_url=secured.url, timeout=30, cookies={"ad_session": old}, verify=False
+    ) as replay:
         assert replay.get("/api/v1/studies").status_code == 401
 
 
 def test_a_simple_cross_site_request_changes_nothing(shared_server: ServerProcess) -> None:
     """Auth off (loopback): what a page on another origin can send unasked, a form post or
     a no-cors fetch, has neither a JSON type nor a custom header, and is refused."""
-    with httpx.Client(base_url=shared_server.url, timeout=30) as browser_like:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as browser_like:
         study = browser_like.post("/api/v1/studies", json=ASKED).json()  # JSON: allowed
         url = f"/api/v1/studies/{study['id']}"
         for headers, body in (
@@ -305,7 +308,7 @@ def test_a_simple_cross_site_request_changes_nothing(shared_server: ServerProces
 
 
 def test_every_answer_carries_security_headers(shared_server: ServerProcess) -> None:
-    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+    with httpx.Client(base_url=shared_server.url, timeout=30, verify=False) as http:
         for path in ("/", "/index.html", "/healthz", "/docs"):  # pages
             answer = http.get(path)
             assert answer.headers["x-content-type-options"] == "nosniff", path
@@ -329,7 +332,7 @@ def test_every_answer_carries_security_headers(shared_server: ServerProcess) -> 
 def test_host_header_must_name_the_server(server_factory: Callable[..., ServerProcess]) -> None:
     """DNS rebinding: a page whose name now points at 127.0.0.1 still sends its own name."""
     server = server_factory(AD_PUBLIC_URL="https://design.example.org")
-    with httpx.Client(base_url=server.url, timeout=30) as http:
+    with httpx.Client(base_url=server.url, timeout=30, verify=False) as http:
         for host in (f"127.0.0.1:{server.port}", "localhost", "design.example.org"):
             assert http.get("/api/v1/studies", headers={"Host": host}).status_code == 200, host
         for host in ("attacker.example", f"rebound.attacker.example:{server.port}"):
@@ -344,7 +347,7 @@ def test_an_upload_refused_at_its_end_leaves_the_artifact_as_it_was(
     """The lease is lost while a new version streams in: the old version stays served,
     and once a version is replaced its file is gone from disk."""
     http = httpx.Client(
-        base_url=shared_server.url, timeout=30, headers={"X-Activedesign-Client": "t"}
+        base_url=shared_server.url, timeout=30, headers={"X-Activedesign-Client": "t"}, verify=False
     )
     study = http.post("/api/v1/studies", json=managed("refused-upload")).json()
     lease = {"worker_id": "w", "tasks": ["refused-upload"]}

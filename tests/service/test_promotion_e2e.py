@@ -42,7 +42,9 @@ def managed(pruner: dict[str, Any], max_trials: int, task: str = "curve") -> dic
 def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
     """The module's server: a test leases only its own task's jobs and looks only at its
     own studies."""
-    with httpx.Client(base_url=shared_server.url, headers=SDK_HEADERS, timeout=30) as client:
+    with httpx.Client(
+        base_url=shared_server.url, headers=SDK_HEADERS, timeout=30, verify=False
+    ) as client:
         yield client
 
 
@@ -227,6 +229,7 @@ def test_only_the_lease_holders_token_pauses(
             base_url=secured.url,
             headers={"Authorization": f"Bearer {token}", **SDK_HEADERS},
             timeout=30,
+            verify=False,
         )
         for token in tokens
     )
@@ -251,7 +254,7 @@ def test_the_sweeper_ends_paused_trials_of_a_spent_study_without_any_worker_aski
     """The last running trial is told, not paused: no report can reach the rung any
     more, and with no worker polling for work the server's own sweep ends the wait."""
     server = server_factory(AD_SWEEP_SECONDS="0.2")
-    with httpx.Client(base_url=server.url, headers=SDK_HEADERS, timeout=30) as http:
+    with httpx.Client(base_url=server.url, headers=SDK_HEADERS, timeout=30, verify=False) as http:
         study = create(http, managed(PROMOTION, max_trials=2))
         a = lease(http, "wa")
         assert a is not None
@@ -286,6 +289,7 @@ def test_only_a_workers_checkpoint_of_the_pausing_lease_is_resumed_from(
             base_url=secured.url,
             headers={"Authorization": f"Bearer {make_token(secured, role)}", **SDK_HEADERS},
             timeout=30,
+            verify=False,
         )
         for role in ("user", "worker")
     )

@@ -33,7 +33,9 @@ def box_study(pruner: dict[str, Any] | None, **extra: Any) -> dict[str, Any]:
 @pytest.fixture
 def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
     """The module's server: each test looks only at its own study."""
-    with httpx.Client(base_url=shared_server.url, headers=SDK_HEADERS, timeout=30) as client:
+    with httpx.Client(
+        base_url=shared_server.url, headers=SDK_HEADERS, timeout=30, verify=False
+    ) as client:
         yield client
 
 
@@ -187,7 +189,7 @@ def secured(server_factory: Callable[..., ServerProcess]) -> ServerProcess:
 
 def client(server: ServerProcess, token: str) -> httpx.Client:
     headers = {"Authorization": f"Bearer {token}", **SDK_HEADERS}
-    return httpx.Client(base_url=server.url, headers=headers, timeout=30)
+    return httpx.Client(base_url=server.url, headers=headers, timeout=30, verify=False)
 
 
 def test_only_the_lease_holder_reports_and_a_lost_lease_is_409(secured: ServerProcess) -> None:

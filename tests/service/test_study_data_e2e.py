@@ -40,7 +40,7 @@ def raw(server: ServerProcess, token: str | None = None) -> httpx.Client:
     headers = dict(SDK_HEADERS)
     if token is not None:
         headers["Authorization"] = f"Bearer {token}"
-    return httpx.Client(base_url=server.url, headers=headers, timeout=30)
+    return httpx.Client(base_url=server.url, headers=headers, timeout=30, verify=False)
 
 
 def test_names_are_free_text_and_control_characters_are_refused(

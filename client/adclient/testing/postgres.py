@@ -192,6 +192,12 @@ class PostgresCluster:
         name = f"{prefix}_{os.getpid()}_{next(self._names)}"
         copy = f' TEMPLATE "{template.rsplit("/", 1)[1]}"' if template is not None else ""
         with psycopg.connect(self.dsn("postgres"), autocommit=True) as connection:
+            if connection.info.server_version >= 150000:
+                # Copy the template's files: PostgreSQL 15's default (WAL_LOG) writes every
+                # block of the copy, system catalogs included, to the WAL, about four
+                # times the server CPU of a file copy and its two checkpoints (cheap
+                # here: small databases, and no fsync in a test cluster).
+                copy += " STRATEGY FILE_COPY"
             connection.execute(f'CREATE DATABASE "{name}"{copy}')  # names are ours: no user text
         return self.url(name)
 
