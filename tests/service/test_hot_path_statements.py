@@ -131,4 +131,3 @@ def test_a_lease_that_proposes_commits_one_write(traced: tuple[Database, list[st
         assert idle[:3] == (None, ["noop"], None) and idle[3] > seen[3]
     finally:
         proposing.runner.shutdown()
-
