@@ -313,3 +313,18 @@ def test_a_forked_adclient_answers_as_the_command_does(tmp_path: Path) -> None:
     refused = run_adclient(server, "submit", missing)
     assert refused.returncode != 0 and "missing.yaml" in refused.stderr
     assert refused.stdout == ""
+
+
+def test_every_module_a_fork_server_preloads_is_installed() -> None:
+    """A fork server skips a name that does not import, silently: a misspelt one would
+    make every forked process import it again."""
+    import importlib.util
+
+    optional = {"uvicorn.loops.uvloop"}  # uvloop is not a dependency
+    missing = [
+        name
+        for names in forked.PRELOAD.values()
+        for name in names
+        if name not in optional and importlib.util.find_spec(name) is None
+    ]
+    assert not missing, missing
