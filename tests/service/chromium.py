@@ -66,6 +66,16 @@ def _origin(url: str) -> str | None:
     return f"{parts.scheme}://{parts.netloc}" if parts.scheme in ("http", "https") else None
 
 
+def leave(page: Chromium) -> None:
+    """Blank the shared page before its test's server stops (a page polling a stopped
+    server would log errors); a browser that does not answer is marked broken, to be
+    replaced at the next take, instead of failing a test that is over."""
+    try:
+        page.blank()
+    except (*BROKEN, AssertionError):
+        page.owner.broken = True
+
+
 class PageError(AssertionError):
     """JavaScript evaluated in the page threw."""
 

@@ -1,43 +1,15 @@
 """What the dashboard's browser tests share: the scripts that read a rendered page
-(canvas pixels, the table), the colours the charts draw with, studies seeded through
-the API (over HTTP or in-process: anything with httpx's ``get`` and ``post``), and the
-page the test process's tests take in turn (``shared_browser``)."""
+(canvas pixels, the table), the colours the charts draw with, and studies seeded
+through the API (over HTTP or in-process: anything with httpx's ``get`` and ``post``)."""
 
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
-import pytest
 from PIL import Image
-
-from tests.service.chromium import BROKEN, Chromium, SharedChromium
-
-
-@pytest.fixture(name="browser")
-def shared_browser(shared_chromium: SharedChromium) -> Iterator[Chromium]:
-    """A module that imports this takes as its ``browser`` the page the test process's
-    tests share (``SharedChromium.shared_page``), at each test's start and end blank,
-    with nothing recorded and nothing kept (cookies, storage, cache), instead of a
-    browser context of its own per test: a dashboard visit in a new context cost about
-    1.5 s of Chromium's CPU, on the shared page about 0.8 s."""
-    page = shared_chromium.shared_page()
-    yield page
-    leave(page)
-
-
-def leave(page: Chromium) -> None:
-    """Blank the shared page before its test's server stops (a page polling a stopped
-    server would log errors); a browser that does not answer is marked broken, to be
-    replaced at the next take, instead of failing a test that is over."""
-    try:
-        page.blank()
-    except (*BROKEN, AssertionError):
-        page.owner.broken = True
-
 
 PARAMS = ("x", "y", "z")
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

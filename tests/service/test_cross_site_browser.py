@@ -15,10 +15,7 @@ import pytest
 
 from adclient.testing.servers import ServerProcess, make_token
 from tests.service.chromium import Chromium
-from tests.service.dashboard_pages import shared_browser
 from tests.service.sites import LoopbackSite
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

@@ -11,9 +11,7 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.dashboard_pages import seed_curves, shared_browser
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
+from tests.service.dashboard_pages import seed_curves
 
 pytestmark = [
     pytest.mark.browser,

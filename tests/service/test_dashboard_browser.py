@@ -31,12 +31,9 @@ from tests.service.dashboard_pages import (
     png,
     score,
     seed_mixed_study,
-    shared_browser,
     tell,
     upload,
 )
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

@@ -17,11 +17,8 @@ from tests.service.dashboard_pages import (
     MANAGED_BOX,
     ROBOT_PIXELS,
     STUDY_PAGE_READY,
-    shared_browser,
     tell,
 )
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

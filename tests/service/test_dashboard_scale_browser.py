@@ -26,11 +26,8 @@ from tests.service.dashboard_pages import (
     TABLE_NUMBERS,
     TABLE_STATES,
     score,
-    shared_browser,
     tell,
 )
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

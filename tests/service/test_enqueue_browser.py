@@ -9,9 +9,6 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.dashboard_pages import shared_browser
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
 
 pytestmark = [
     pytest.mark.browser,

@@ -20,11 +20,10 @@ import httpx
 import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
-from tests.service.chromium import Chromium, SharedChromium
+from tests.service.chromium import Chromium, SharedChromium, leave
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,
     lease,
-    leave,
     png,
     tell,
     upload,

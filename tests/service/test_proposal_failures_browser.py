@@ -13,9 +13,7 @@ import pytest
 from adclient.testing.servers import ServerProcess
 from tests.failing_proposals import ERROR, design_study, unfit_representation, update_study
 from tests.service.chromium import Chromium
-from tests.service.dashboard_pages import STUDY_PAGE_READY, shared_browser
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
+from tests.service.dashboard_pages import STUDY_PAGE_READY
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

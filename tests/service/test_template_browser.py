@@ -14,9 +14,7 @@ import yaml
 
 from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.dashboard_pages import ROBOT_PIXELS, STUDY_PAGE_READY, shared_browser, tell
-
-__all__ = ["shared_browser"]  # fixtures: the module's browser is the shared page
+from tests.service.dashboard_pages import ROBOT_PIXELS, STUDY_PAGE_READY, tell
 
 # The group: the test process that runs the other browser tests runs it, on its Chromium.
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
