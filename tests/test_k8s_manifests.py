@@ -28,7 +28,7 @@ from adservice.metrics import DATABASE_GAUGES
 from adservice.security import BrowserEdge
 from adservice.settings import Settings
 from tests.kustomize import Resource, load_documents, render
-from tests.test_docker_files import check_command, check_environment
+from tests.program_checks import check_command, check_environment
 
 REPO = Path(__file__).resolve().parents[1]
 K8S = REPO / "deploy" / "k8s"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_docker_files import check_command, check_environment
+from tests.program_checks import check_command, check_environment
 
 SCRIPT = Path(__file__).resolve().parents[1] / "deploy" / "slurm" / "adworkers.sbatch"
 TOKEN = "adt_slurm-test-token"

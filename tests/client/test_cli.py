@@ -6,59 +6,20 @@ import csv
 import io
 import json
 import threading
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import pytest
 import yaml
-from typer.testing import CliRunner, Result
+from typer.testing import Result
 
 from adclient import Client, Conflict
-from adclient.cli import app
 from adclient.client import StudyHandle
 from adclient.testing.servers import ServerProcess
+from tests.client.cli_harness import failed_with, ok, run, write_study
 from tests.client.scripted_server import Reply, ScriptedServer, refused_url
 
 BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
-    workdir = tmp_path_factory.mktemp("cli-server")
-    process = ServerProcess(
-        database_url=f"sqlite:///{workdir / 'studies.db'}", workdir=workdir
-    ).start()
-    yield process
-    process.stop()
-
-
-def run(server_url: str, *args: str, env: dict[str, str] | None = None) -> Result:
-    """Invoke the CLI in-process; wide columns so rich tables do not wrap the values."""
-    runner = CliRunner()
-    environment = {"COLUMNS": "250", "AD_SERVER_URL": "", "AD_TOKEN": "", **(env or {})}
-    argv = ["--server", server_url, *args] if server_url else list(args)
-    return runner.invoke(app, argv, env=environment)
-
-
-def ok(result: Result) -> Result:
-    assert result.exit_code == 0, (result.stdout, result.stderr, result.exception)
-    return result
-
-
-def failed_with(result: Result, message: str, code: int = 1) -> None:
-    """A clean failure: the message on stderr, one line, no traceback."""
-    assert result.exit_code == code, (result.stdout, result.stderr, result.exception)
-    assert isinstance(result.exception, SystemExit)
-    assert message in result.stderr
-    assert "Traceback" not in result.stderr + result.stdout
-    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
-
-
-def write_study(tmp_path: Path, body: Mapping[str, object], suffix: str = ".yaml") -> Path:
-    path = tmp_path / f"study{suffix}"
-    text = json.dumps(body) if suffix == ".json" else yaml.safe_dump(body)
-    path.write_text(text)
-    return path
 
 
 def make_study(client: Client, name: str, **fields: object) -> int:

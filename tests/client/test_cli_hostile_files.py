@@ -20,9 +20,6 @@ from adclient.export import INERT_FIRST, formula_safe, unescaped
 from adclient.importing import EXPORT_DEPTH
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import run_adclient
-from tests.client.test_cli import server
-
-__all__ = ["server"]  # the module's adserver, shared
 
 FORMULAS = [
     "=cmd|' /C calc'!A0",

@@ -14,9 +14,7 @@ from adclient import Client
 from adclient.errors import Invalid
 from adclient.importing import ImportFileError, read_import
 from adclient.testing.servers import ServerProcess
-from tests.client.test_cli import failed_with, ok, run, server
-
-__all__ = ["server"]  # the module's adserver, shared
+from tests.client.cli_harness import failed_with, ok, run
 
 SPACE = {
     "type": "box",

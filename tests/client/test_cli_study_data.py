@@ -11,9 +11,7 @@ from typer.testing import CliRunner, Result
 from adclient import Client
 from adclient.cli import app
 from adclient.testing.servers import ServerProcess
-from tests.client.test_cli import failed_with, ok, run, server
-
-__all__ = ["server"]  # the module's adserver, shared
+from tests.client.cli_harness import failed_with, ok, run
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 NAMES = ["Roboter-Entwurf 設計 v2", "stand up, long budget", "[bold]x[/bold]", "<img src=x>"]

@@ -16,7 +16,7 @@ import pytest
 
 from adclient import Client
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
-from tests.client.test_cli import ok, run, write_study
+from tests.client.cli_harness import ok, run, write_study
 
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 

@@ -10,7 +10,7 @@ import subprocess
 import sys
 import threading
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import optuna
@@ -30,16 +30,6 @@ GUIDE = Path(__file__).resolve().parents[2] / "docs" / "optuna.md"
 RANDOM = {"name": "random", "seed": 5}
 CHEAP_QEI = {"num_restarts": 2, "raw_samples": 64, "maxiter": 20}
 KINDS = {"a": 1.0, "b": 0.0, "c": 2.0}
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
-    workdir = tmp_path_factory.mktemp("optuna-server")
-    process = ServerProcess(
-        database_url=f"sqlite:///{workdir / 'studies.db'}", workdir=workdir
-    ).start()
-    yield process
-    process.stop()
 
 
 def quadratic(trial: optuna.Trial) -> float:

@@ -6,26 +6,15 @@ from __future__ import annotations
 import csv
 import io
 import json
-from collections.abc import Iterator
 
 import pytest
 
 from adclient import Client, Conflict, Invalid, LiveTrial, TrialPruned
 from adclient.testing.servers import ServerProcess
-from tests.client.test_cli import ok, run
+from tests.client.cli_harness import ok, run
 
 BOX = {"type": "box", "params": [{"name": "x", "low": -2.0, "high": 2.0}]}
 MEDIAN = {"name": "median", "options": {"n_startup_trials": 2}}
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
-    workdir = tmp_path_factory.mktemp("pruning-server")
-    process = ServerProcess(
-        database_url=f"sqlite:///{workdir / 'studies.db'}", workdir=workdir
-    ).start()
-    yield process
-    process.stop()
 
 
 def test_report_should_stop_and_optimize_tells_pruned(

@@ -69,6 +69,15 @@ def two_servers(
 
 
 @pytest.fixture(scope="module")
+def http(server: ServerProcess) -> Iterator[httpx.Client]:
+    """An SDK-headed HTTP client on the test module's own ``server`` fixture, for the
+    module's tests and its module-scoped data (a module without ``server`` defines its
+    own ``http``)."""
+    with httpx.Client(base_url=server.url, headers=SDK_HEADERS, timeout=30) as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
 def module_http(tmp_path_factory: pytest.TempPathFactory) -> Iterator[httpx.Client]:
     """A real adserver on a SQLite file of its own, shared by one module's tests (each
     looks at the studies it made), reached over HTTP."""

@@ -20,9 +20,6 @@ import yaml
 from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import EXAMPLES, STUDY_PAGE_READY, tell
-from tests.service.test_pareto_browser import browser, http
-
-__all__ = ["browser", "http"]  # the fixtures, shared (on `server` here)
 
 pytestmark = [
     pytest.mark.browser,

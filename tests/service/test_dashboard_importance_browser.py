@@ -39,9 +39,6 @@ from tests.service.dashboard_pages import (
     STUDY_PAGE_READY,
     tell,
 )
-from tests.service.test_pareto_browser import browser, http
-
-__all__ = ["browser", "http"]  # the fixtures, shared (on `server` here)
 
 pytestmark = [
     pytest.mark.browser,

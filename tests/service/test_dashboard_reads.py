@@ -16,7 +16,7 @@ import yaml
 from fastapi.testclient import TestClient
 
 from tests.service.dashboard_pages import EXAMPLES, seed_curves
-from tests.service.test_multiobjective_e2e import brute_front
+from tests.service.fronts import brute_front
 
 SPACE = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
 

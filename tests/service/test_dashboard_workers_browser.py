@@ -23,9 +23,6 @@ import pytest
 from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import MANAGED_BOX, STUDY_PAGE_READY, tell
-from tests.service.test_pareto_browser import browser, http
-
-__all__ = ["browser", "http"]  # the fixtures, shared (on `server` here)
 
 pytestmark = [pytest.mark.browser, pytest.mark.e2e, pytest.mark.xdist_group("browser")]
 

@@ -13,6 +13,7 @@ import httpx
 import pytest
 
 from adclient.testing.servers import ServerProcess
+from tests.service.fronts import brute_front
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("multiobjective")]
 """One xdist worker runs the module: the tests on ``shared_server`` share its two servers."""
@@ -35,18 +36,6 @@ def ask(http: httpx.Client, sid: int, count: int = 1) -> list[dict[str, Any]]:
 
 def tell(http: httpx.Client, trial_id: int, **body: Any) -> httpx.Response:
     return http.post(f"/api/v1/trials/{trial_id}/tell", json=body)
-
-
-def brute_front(points: dict[int, list[float]], signs: list[float]) -> set[int]:
-    def dominates(a: list[float], b: list[float]) -> bool:
-        pairs = [(s * x, s * y) for s, x, y in zip(signs, a, b, strict=True)]
-        return all(x >= y for x, y in pairs) and any(x > y for x, y in pairs)
-
-    return {
-        i
-        for i, p in points.items()
-        if not any(dominates(q, p) for j, q in points.items() if j != i)
-    }
 
 
 def test_values_pareto_and_best(shared_server: ServerProcess) -> None:

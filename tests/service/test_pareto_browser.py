@@ -13,14 +13,13 @@ on both databases."""
 from __future__ import annotations
 
 import random
-from collections.abc import Iterator
 from typing import Any
 
 import httpx
 import pytest
 
-from adclient.testing.servers import SDK_HEADERS, ServerProcess
-from tests.service.chromium import Chromium, SharedChromium, leave
+from adclient.testing.servers import ServerProcess
+from tests.service.chromium import Chromium
 from tests.service.dashboard_pages import (
     COUNT_PIXELS,
     lease,
@@ -28,7 +27,7 @@ from tests.service.dashboard_pages import (
     tell,
     upload,
 )
-from tests.service.test_multiobjective_e2e import brute_front
+from tests.service.fronts import brute_front
 
 pytestmark = [
     pytest.mark.browser,
@@ -50,21 +49,6 @@ HIT = f"document.querySelector('{CANVAS}').hit.points"
 def server(shared_server: ServerProcess) -> ServerProcess:
     """What the module's browser and client fixtures use: conftest's shared server."""
     return shared_server
-
-
-@pytest.fixture(scope="module")
-def browser(server: ServerProcess, shared_chromium: SharedChromium) -> Iterator[Chromium]:
-    """The test process's shared page (``SharedChromium.shared_page``: blank, nothing
-    kept) for the module's tests, left blank before the server stops."""
-    page = shared_chromium.shared_page()
-    yield page
-    leave(page)
-
-
-@pytest.fixture(scope="module")
-def http(server: ServerProcess) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, headers=SDK_HEADERS, timeout=30) as client:
-        yield client
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import httpx
 import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
-from tests.client.test_cli import run
+from tests.client.cli_harness import run
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("promotion")]
 

@@ -58,7 +58,7 @@ class TrialColumns(BaseModel):
     number: list[int]
     state: list[TrialState]
     value: list[float | None]
-    params: dict[str, list[float | str | bool | None]] = Field(
+    params: dict[str, list[str | bool | int | float | None]] = Field(
         description="each param that has a number (or, for a box's categorical param, a "
         "choice) in some trial of the page: its values (null where a trial has none)"
     )
