@@ -431,3 +431,13 @@ def test_an_instance_override_replaces_its_parts_mass_spec() -> None:
     message = error_of(body)
     assert "instances[2] ('c'): overrides gives both mass (0.5) and density (900.0)" in message
     assert "override only one" in message
+
+
+def test_a_space_equals_its_copy_after_its_trees_are_listed() -> None:
+    """The cached trees (and the tied-instance table) are not part of what a space is."""
+    body = space_with(structures="all")
+    used = DesignSpace.model_validate(body)
+    assert len(used.tree_structures()) == 3 and used.uses_offsets() is False
+    fresh = DesignSpace.model_validate(body)
+    assert used == fresh and fresh == used
+    assert used != DesignSpace.model_validate(space_with(structures=[[["a", "b"], ["b", "c"]]]))
