@@ -9,12 +9,13 @@ random points (the study a cheap simulator or a function worker makes) is given 
 ``QLogEIProposer`` in process, and ``--asks`` asks of q = 1 follow, each told its true
 value. The arms:
 
-- ``trust``: the default under the default memory budget (1024 MB): past 2048
-  observations, a GP of the 1024 nearest the best, searched in a trust region around it;
-- ``trust-N``: the same with ``max_train`` N (the GP trains on the N nearest);
-- ``subset``: ``large_history: subset``, the model before the trust region: a GP of a
-  subset (best, nearest the best, random rest) of the most the budget holds, at most 2048,
-  searched over the whole box (``subset-N``: ``max_train`` N);
+- ``default``: qei's defaults under the default memory budget (1024 MB): past 2048
+  observations on cpu, the ``subset`` model, and past 20,000 of them the ``trust`` one;
+- ``trust``: ``large_history: trust-region``, past 2048 observations a GP of the 1024
+  best, searched in a trust region around the best (``trust-N``: the N best);
+- ``subset``: ``large_history: subset``, a GP of a subset (best, nearest the best, random
+  rest) of the most the budget holds, at most 2048, searched over the whole box
+  (``subset-N``: ``max_train`` N);
 - ``full``: ``max_train = n`` (every observation, with the memory budget it needs);
 - ``random``: uniform points, what a fall back to Sobol points gave.
 
@@ -109,9 +110,13 @@ def arm_options(arm: str, n: int, asks: int) -> dict[str, Any]:
     """qei's options of an arm (see the module docstring)."""
     if arm == "full":
         return {"max_train": n + asks}
-    options: dict[str, Any] = {"large_history": "subset"} if arm.startswith("subset") else {}
-    size = arm.partition("-")[2]
-    return {**options, "max_train": int(size)} if size else options
+    model, _, size = arm.partition("-")
+    options: dict[str, Any] = {}
+    if model in ("trust", "subset"):
+        options["large_history"] = "trust-region" if model == "trust" else "subset"
+    if size:
+        options["max_train"] = int(size)
+    return options
 
 
 def run(name: str, n: int, seed: int, arm: str, asks: int) -> dict[str, Any]:
@@ -184,7 +189,9 @@ def main() -> None:
     parser.add_argument("--functions", nargs="+", default=list(FUNCTIONS))
     parser.add_argument("--full-up-to", type=int, default=3000, help="skip the full arm past it")
     parser.add_argument(
-        "--arms", nargs="+", help="only these arms (trust, trust-N, subset, subset-N, full, random)"
+        "--arms",
+        nargs="+",
+        help="only these arms (default, trust, trust-N, subset, subset-N, full, random)",
     )
     args = parser.parse_args()
     print(
@@ -196,7 +203,7 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for name in args.functions:
         for n in args.n:
-            arms = args.arms or ["trust", "subset", "full", "random"]
+            arms = args.arms or ["default", "trust", "subset", "full", "random"]
             for arm in [a for a in arms if a != "full" or n <= args.full_up_to]:
                 runs = [run(name, n, seed, arm, args.asks) for seed in range(args.seeds)]
                 methods = [m for r in runs for m in r["methods"]]

@@ -1,6 +1,7 @@
 """An ask's peak memory, estimated before it runs from its options and sizes, so the
 service can refuse (or fall back) within ``AD_ASK_MEMORY_MB`` instead of running out.
-The factors are measured peaks (bench/RESULTS.md, issues 13 and 17)."""
+The factors are measured peaks (bench/RESULTS.md, issues 13, 17 and 37); on cuda the
+budget is a share of the GPU's memory (``device_budget``)."""
 
 from __future__ import annotations
 
@@ -54,9 +55,9 @@ def memory_need(
     conditioned = n_train + n_pending + count
     parts = {
         "raw_samples": _FLOAT * raw * (dim + 1) * 6 + _FLOAT * batch * (conditioned + dim) * 10,
-        # measured peaks: 112 to 135 MB at 1024 observations, 184 to 285 at 2048 to 2246,
-        # 361 to 374 at 3000, 640 to 660 at 4096 (bench/RESULTS.md, issue 37); the
-        # estimate is 1.0 to 1.6x those (16 n^2 + 6 c^2 floats before: 4 to 5x)
+        # the most an ask added, measured (bench/RESULTS.md, issue 37): 43 MB at 512
+        # observations, 151 at 1024, 285 at 2048 to 2246, 374 at 3000, 660 at 4096; the
+        # estimate is 0.8 to 1.6 times those (16 n^2 + 6 c^2 floats before: 4 to 5 times)
         "observations": _FLOAT * (3 * n_train**2 + 2 * conditioned**2),
     }
     sizes = f"{raw} raw samples of {dim} dimensions, {n_train} observations, {n_pending} pending"

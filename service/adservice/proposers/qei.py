@@ -41,9 +41,12 @@ What a caller can rely on:
 - **Budgets.** Past ``request.seconds`` the fit and the search stop at their best so
   far and the rest of the batch are fallbacks (``budget: time``).
   ``memory.memory_need`` estimates an ask's peak memory; the service refuses an ask
-  whose count or options exceed ``request.memory_bytes``; past ``max_train``
-  observations (by default the most that budget holds) the model trains on a subset
-  (``subset``), and the ask's info gives ``n_train`` of ``n_observed``.
+  whose count or options exceed ``request.memory_bytes`` (on cuda,
+  ``memory.device_budget``); past ``max_train`` observations (by default the most that
+  budget holds, at most ``subset.CPU_TRAIN`` on cpu) the model is a GP of a subset
+  (``subset``), or past ``trust_region.TRUST_FROM`` observations of a continuous box
+  with one outcome a trust region (``trust_region``); the ask's info gives ``model``
+  (``exact``, ``trust-region`` or ``subset``) and ``n_train`` of ``n_observed``.
 - **Determinism.** Every random stream is seeded from ``(seed, n_issued)``; nothing
   draws from torch's global generator. An identical request reuses the exact fit and
   gives bit-identical candidates; the next ask of a study warm-starts its fit from the
@@ -87,8 +90,8 @@ from adservice.proposers.qei_shared import (
     limit_threads,
 )
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
-from adservice.proposers.subset import MAX_TRAIN, train_size, training_subset
-from adservice.proposers.trust_region import LOCAL_FROM, LOCAL_TRAIN, applies, local_training
+from adservice.proposers.subset import CPU_TRAIN, MAX_TRAIN, train_size, training_subset
+from adservice.proposers.trust_region import LOCAL_TRAIN, TRUST_FROM, applies, local_training
 
 if TYPE_CHECKING:
     import torch
@@ -266,11 +269,12 @@ class QLogEIProposer:
         device = options.device or PROPOSER_DEVICE
         budget = device_budget(request.memory_bytes, device, GPU_MEMORY_SHARE)
         limit = options.max_train or train_size(
-            lambda n: need(n).bytes, budget, MAX_TRAIN if device == "cuda" else LOCAL_FROM
+            lambda n: need(n).bytes, budget, MAX_TRAIN if device == "cuda" else CPU_TRAIN
         )
+        mode = options.large_history or ("trust-region" if n_observed > TRUST_FROM else "subset")
         local = (
             n_observed > limit
-            and options.large_history == "trust-region"
+            and mode == "trust-region"
             and applies(structure=request.structure, box=request.box, n_outcomes=outcomes.shape[1])
         )
         if local:

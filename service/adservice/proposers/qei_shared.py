@@ -87,12 +87,13 @@ class QEIOptions(ProposerOptions):
         "region (large_history). Default: the most the ask's memory budget "
         "(AD_ASK_MEMORY_MB) holds, at most 2048 on cpu and 4096 on cuda",
     )
-    large_history: Literal["trust-region", "subset"] = Field(
-        default="trust-region",
+    large_history: Literal["trust-region", "subset"] | None = Field(
+        default=None,
         description="past max_train observations of a continuous box with one outcome: "
-        "a GP of the observations nearest the best, searched in a trust region around it "
+        "a GP of the best observations searched in a trust region around the best "
         "(adservice.proposers.trust_region), or a GP of a subset searched over the whole "
-        "box (adservice.proposers.subset, what other studies get)",
+        "box (adservice.proposers.subset, what other studies get). Default: the subset, "
+        "the trust region past 20,000 observations",
     )
     device: Literal["cpu", "cuda"] | None = Field(
         default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"
