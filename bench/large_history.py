@@ -21,7 +21,9 @@ value. The arms:
 
 Reported per (function, n, arm): how many asks were the model's, the wall seconds per
 ask (median, and the most of the asks after each study's first, cold one; and the first
-asks' most), the most memory one ask added (resident, sampled every 2 ms) beside
+asks' most), the process's CPU seconds per ask (what a quiet machine's wall time would
+be: torch runs one thread; on a machine others load, the wall time is longer), the most
+memory one ask added (resident, sampled every 2 ms) beside
 ``memory.memory_need``'s estimate for its training size, where the best asked point
 falls among the history's values (percentile: 100 is better than every one) and the
 fraction of the gap between the history's best and the optimum the asks closed (0:
@@ -126,11 +128,11 @@ def run(name: str, n: int, seed: int, arm: str, asks: int) -> dict[str, Any]:
     dim = X.shape[1]
     best_before = float(y.max())
     gpfit.clear_caches()  # each arm's study starts cold; its later asks warm-start
-    methods, seconds, memory, estimates = [], [], [], []
+    methods, seconds, cpu, memory, estimates = [], [], [], [], []
     rng = np.random.default_rng([seed, n, 7])
     options = arm_options(arm, n, asks)
     for k in range(asks):
-        started = time.perf_counter()
+        started, cpu_started = time.perf_counter(), time.process_time()
         with PeakMemory() as peak:
             if arm == "random":
                 candidate = rng.random((1, dim))
@@ -162,6 +164,7 @@ def run(name: str, n: int, seed: int, arm: str, asks: int) -> dict[str, Any]:
                     )
                     estimates.append(need.bytes / 2**20)
         seconds.append(time.perf_counter() - started)
+        cpu.append(time.process_time() - cpu_started)
         memory.append(peak.added)
         X = np.vstack([X, candidate])
         y = np.append(y, scaled(name, candidate))
@@ -171,6 +174,7 @@ def run(name: str, n: int, seed: int, arm: str, asks: int) -> dict[str, Any]:
         "percentile": 100.0 * float(np.mean(y[:n] < asked)),
         "methods": methods,
         "seconds": seconds,
+        "cpu": cpu,
         "memory": memory,
         "estimates": estimates,
         "closed": (float(y.max()) - best_before) / gap,
@@ -196,11 +200,11 @@ def main() -> None:
     args = parser.parse_args()
     print(
         "| function | n | arm | model asks (Sobol: other) | s per ask: median / most after "
-        "the first / most of the first | MB an ask adds (estimate) | best asked, "
-        "percentile of the history: median / lower quartile | gap closed: median / lower "
-        "quartile |"
+        "the first / most of the first | CPU s per ask: median / most | MB an ask adds "
+        "(estimate) | best asked, percentile of the history: median / lower quartile | gap "
+        "closed: median / lower quartile |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for name in args.functions:
         for n in args.n:
             arms = args.arms or ["default", "trust", "subset", "full", "random"]
@@ -212,6 +216,7 @@ def main() -> None:
                 seconds = [t for r in runs for t in r["seconds"]]
                 later = [t for r in runs for t in r["seconds"][1:]] or [0.0]
                 first = [r["seconds"][0] for r in runs]
+                cpu = [t for r in runs for t in r["cpu"]]
                 memory = max(m for r in runs for m in r["memory"])
                 estimate = max((e for r in runs for e in r["estimates"]), default=0.0)
                 closed = [r["closed"] for r in runs]
@@ -220,6 +225,7 @@ def main() -> None:
                     f"| {name} | {n} | {arm} | {model} of {len(methods)}"
                     + (f" ({', '.join(other)})" if other else "")
                     + f" | {np.median(seconds):.2f} / {max(later):.2f} / {max(first):.2f} "
+                    f"| {np.median(cpu):.2f} / {max(cpu):.2f} "
                     f"| {memory:.0f} ({estimate:.0f}) "
                     f"| {np.median(ranks):.2f} / {np.percentile(ranks, 25):.2f} "
                     f"| {np.median(closed):.3f} / {np.percentile(closed, 25):.3f} |",
