@@ -153,10 +153,9 @@ def fit_outcome(
         kernel,
         outcome,
         unit_prior,
-        # the first observations: two studies of one box and seed are not one study (the
-        # history's, not the training subset's: those change from one ask to the next)
-        np.asarray(request.X, dtype=np.float64).reshape(-1, request.dim)[:2].tobytes(),
-        np.asarray(request.y, dtype=np.float64).reshape(-1)[:2].tobytes(),
+        # the first observations: two studies of one box and seed are not one study
+        X[:2].tobytes(),
+        y[:2].tobytes(),
     )
     use_warm = options.warm_start
 
