@@ -403,8 +403,8 @@ class QLogEIProposer:
         local_of: int | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Up to q candidates (fewer when the time budget ran out) and what to record;
-        ``local_of``: the search stays in the trust region of the observations ``X``
-        nearest the best of that many (``trust_region``)."""
+        ``local_of``: ``X`` are the best of that many observations, and the search stays
+        in the trust region around the best (``trust_region``)."""
         import torch
         from botorch.acquisition.logei import (
             qLogExpectedImprovement,
