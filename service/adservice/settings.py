@@ -29,6 +29,9 @@ class Settings(BaseSettings):
     ask_memory_mb: float | None = Field(default=1024.0, gt=0)
     """The memory one ask may take by its estimate: a study whose options, or an ask
     whose count, would exceed it is refused (422 naming it). None: no limit."""
+    ask_gpu_memory_share: float = Field(default=0.5, gt=0, le=1)
+    """An ask on cuda may take the larger of ``ask_memory_mb`` and this share of the GPU's
+    memory (``memory.device_budget``): a GPU is not held to a CPU budget."""
     proposal_backoff_seconds: float = Field(default=5.0, gt=0)
     """After a study's proposal fails, workers' leases skip the study this long, doubled
     with each failure in a row up to ``proposal_backoff_max_seconds``; a success resets it."""

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     import torch
 
     from adservice.proposers.qei_shared import QEIOptions
+    from adservice.proposers.trust_region import TrustBox
 
 DEFAULT_RESTARTS = 10
 """Local searches per candidate (GPSampler's n_local_search)."""
@@ -70,6 +71,8 @@ class Greedy:
     """The study's number of the candidate after this ask's last."""
     n_start: int = 0
     """The study's initial designs (``initial.initial_count``)."""
+    trust: TrustBox | None = None
+    """A long history's trust region: the search stays inside it (``trust_region``)."""
 
     @classmethod
     def of(
@@ -155,23 +158,31 @@ class Greedy:
                     counts[round(float(z[0]))] += 1
                 number = self.end_number - q + step
                 structures = second_look(counts, number, self.n_start)
+            taken = None if self.taken is None else np.concatenate([self.taken, *new])
+            acqf, screen, incumbents = current.acqf, current.screen, self.incumbents
+            if self.trust is not None:
+                acqf, screen = self.trust.wrap(acqf, self.tkw), self.trust.wrap(screen, self.tkw)
+                incumbents = self.trust.to_unit(incumbents)
+                taken = None if taken is None else self.trust.to_unit(taken, clip=False)
             optimum = maximise(
-                current.acqf,
+                acqf,
                 self.domain,
                 raw_count=self.raw_count,
                 num_restarts=self.num_restarts,
                 maxiter=self.maxiter,
                 seed=step_seed,
-                incumbents=self.incumbents,
+                incumbents=incumbents,
                 tkw=self.tkw,
                 deadline=self.deadline,
-                taken=None if self.taken is None else np.concatenate([self.taken, *new]),
-                screen=current.screen,
+                taken=taken,
+                screen=screen,
                 n_incumbents=self.n_incumbents,
                 region=self.region,
                 structures=structures,
             )
-            found.chosen.append(optimum.z)
+            found.chosen.append(
+                optimum.z if self.trust is None else self.trust.from_unit(optimum.z)
+            )
             found.methods.append(current.method)
             found.values.append(optimum.value)
             found.second_looks.append(structures is not None)

@@ -1,9 +1,11 @@
 """An ask's peak memory, estimated before it runs from its options and sizes, so the
 service can refuse (or fall back) within ``AD_ASK_MEMORY_MB`` instead of running out.
-The factors are measured peaks (bench/RESULTS.md, issues 13 and 17)."""
+The factors are measured peaks (bench/RESULTS.md, issues 13, 17 and 37); on cuda the
+budget is a share of the GPU's memory (``device_budget``)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from adservice.proposers.greedy import DEFAULT_RAW_SAMPLES, DEFAULT_RESTARTS
@@ -53,7 +55,10 @@ def memory_need(
     conditioned = n_train + n_pending + count
     parts = {
         "raw_samples": _FLOAT * raw * (dim + 1) * 6 + _FLOAT * batch * (conditioned + dim) * 10,
-        "observations": _FLOAT * (16 * n_train**2 + 6 * conditioned**2),
+        # the most an ask added, measured (bench/RESULTS.md, issue 37): 43 MB at 512
+        # observations, 151 at 1024, 285 at 2048 to 2246, 374 at 3000, 660 at 4096; the
+        # estimate is 0.8 to 1.6 times those (16 n^2 + 6 c^2 floats before: 4 to 5 times)
+        "observations": _FLOAT * (3 * n_train**2 + 2 * conditioned**2),
     }
     sizes = f"{raw} raw samples of {dim} dimensions, {n_train} observations, {n_pending} pending"
     if options.acquisition == "mc":
@@ -98,3 +103,26 @@ def memory_need(
         sizes += f", {outcomes} outcomes"
     driver = max(parts, key=lambda name: parts[name])
     return MemoryNeed(bytes=int(sum(parts.values())), driver=driver, sizes=sizes)
+
+
+def device_budget(
+    budget: int | None,
+    device: str,
+    share: float,
+    device_bytes: Callable[[], int] | None = None,
+) -> int | None:
+    """The bytes an ask may take on ``device`` (None: no limit): ``budget``
+    (``AD_ASK_MEMORY_MB``) on cpu; on cuda the larger of it and ``share``
+    (``AD_ASK_GPU_MEMORY_SHARE``) of the GPU's memory, ``device_bytes()`` (by default
+    torch's total memory of the current GPU). The cuda path has not run on a GPU here:
+    its arithmetic is tested with a given ``device_bytes``."""
+    if budget is None or device != "cuda":
+        return budget
+    total = (device_bytes or _cuda_total_bytes)()
+    return max(budget, int(share * total))
+
+
+def _cuda_total_bytes() -> int:
+    import torch
+
+    return int(torch.cuda.get_device_properties(torch.cuda.current_device()).total_memory)

@@ -18,6 +18,7 @@ MC_LOCK = threading.Lock()
 _THREAD = threading.local()
 TORCH_THREADS = get_settings().torch_threads
 PROPOSER_DEVICE = get_settings().proposer_device
+GPU_MEMORY_SHARE = get_settings().ask_gpu_memory_share
 
 MO_RAW_SAMPLES = 1024
 """Sobol points the starts of a multi-objective or constrained acquisition come from,
@@ -82,8 +83,17 @@ class QEIOptions(ProposerOptions):
         ge=16,
         le=100_000,
         description="observations the model trains on at most: past it, the best, those "
-        "nearest the best and a random rest (adservice.proposers.subset). Default: the "
-        "most the ask's memory budget (AD_ASK_MEMORY_MB) holds, at most 4096",
+        "nearest the best and a random rest (adservice.proposers.subset), or a trust "
+        "region (large_history). Default: the most the ask's memory budget "
+        "(AD_ASK_MEMORY_MB) holds, at most 2048 on cpu and 4096 on cuda",
+    )
+    large_history: Literal["trust-region", "subset"] | None = Field(
+        default=None,
+        description="past max_train observations of a continuous box with one outcome: "
+        "a GP of the best observations searched in a trust region around the best "
+        "(adservice.proposers.trust_region), or a GP of a subset searched over the whole "
+        "box (adservice.proposers.subset, what other studies get). Default: the subset, "
+        "the trust region past 20,000 observations",
     )
     device: Literal["cpu", "cuda"] | None = Field(
         default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"

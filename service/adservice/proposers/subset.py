@@ -2,10 +2,10 @@
 
 An exact GP's fit costs n^3 time and n^2 memory: past a few thousand observations an
 ask would not fit the memory budget, and would take minutes. Past ``max_train``
-observations (by default the most the ask's memory budget holds, at most
-``MAX_TRAIN``: ``train_size``) the model trains on a subset of that size, chosen to
-keep what expected improvement needs (a subset of data, in the manner of TuRBO's
-local models, Eriksson et al. 2019):
+observations (by default the most the ask's memory budget holds, ``train_size``, at
+most ``MAX_TRAIN``, and on cpu at most ``CPU_TRAIN``) the model trains on a subset of
+that size, chosen to keep what expected improvement over the whole box needs (past
+``trust_region.TRUST_FROM`` observations of a continuous box, a trust region instead):
 
 - the best quarter by the first outcome (the incumbent's neighbourhood in value; with
   several objectives, the observed Pareto front first, up to half),
@@ -29,6 +29,9 @@ from adservice.proposers.simple import derived_seed
 MAX_TRAIN = 4096
 """Observations an ask's model trains on at most unless ``options.max_train`` says; fewer
 when the ask's memory budget holds fewer (``train_size``)."""
+CPU_TRAIN = 2048
+"""On cpu, the most observations a GP trains on by default: a time bound (an exact ask of
+2,000 to 3,000 observations took 3 to 6 s on two cores, bench/RESULTS.md)."""
 MIN_TRAIN = 256
 """The smallest subset ``train_size`` offers: below it the ask falls back instead."""
 
