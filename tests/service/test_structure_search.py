@@ -23,17 +23,17 @@ import torch
 from adclient.decode import decode
 from adclient.design import DesignSpace
 from adclient.designs import Design
-from adclient.testing.design_objectives import limbs5_space, spec_dominated
+from adclient.testing.design_objectives import OBJECTIVES, limbs5_space, spec_dominated
 from adservice.proposers import get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
 from adservice.proposers.gpfit import fit_outcome
-from adservice.proposers.initial import structure_order
+from adservice.proposers.initial import LOOK_CHANCE, structure_order
 from adservice.proposers.posterior import Posterior
 from adservice.proposers.qei_shared import QEIOptions
 from adservice.representation import build_representation, search_structure
 
 TKW: dict[str, Any] = {"dtype": torch.float64, "device": torch.device("cpu")}
-LOOKS = {"second_looks": True}
+LOOKS = {"second_looks": "always"}
 CHAINS = [
     [["a", "b"]],
     [["a", "b"], ["b", "c"]],
@@ -235,3 +235,47 @@ def test_second_looks_choose_among_the_trees_seen_once() -> None:
     look, free = proposal.info
     assert look["second_look"] is True and "second_look" not in free, proposal.info
     assert seen[int(proposal.candidates[0, 0])] == 1
+
+
+@pytest.mark.parametrize(
+    ("objective", "seed", "looks"),
+    [("trap", 1, True), ("additive-trap", 0, False)],
+)
+def test_the_default_looks_again_only_where_one_design_cannot_rank_the_trees(
+    objective: str, seed: int, looks: bool
+) -> None:
+    """The tree judgement (the default ``second_looks: judged``) at the first look turn
+    after a start of one design per tree (the ninth model-phase candidate): on the
+    spec-dominated trap the trees' first designs are close and the model, judging each
+    tree seen once without its one random design, gives some a fair chance of beating
+    the incumbent, so the ask is a second look among those; on additive-trap the
+    incumbent's tree leads by far more than one design's spread and no tree gets that
+    chance, so the ask is a free choice, as without looks."""
+    if objective == "trap":
+        space_dict, score = limbs5_space(), spec_dominated(1, 0.05, 0.35, 0.03)
+    else:
+        space_dict, score = OBJECTIVES[objective].space, OBJECTIVES[objective].score
+    space = DesignSpace.model_validate(space_dict)
+    representation = build_representation(space)
+    search = search_structure(space, representation)
+    assert search is not None
+    bounds = np.asarray(representation.bounds, dtype=np.float64)
+    proposer = get_proposer("qei")
+    X: list[np.ndarray] = []
+    y: list[float] = []
+    for _ in range(9):
+        asked = request(search, bounds, np.array(X), np.array(y), seed=seed)
+        X.append(proposer.propose(asked).candidates[0])
+        y.append(score(decode(space, representation, X[-1])))
+    proposal = proposer.propose(request(search, bounds, np.array(X), np.array(y), seed=seed))
+    (info,) = proposal.info
+    chances = info["tree_chances"]
+    once = np.flatnonzero(np.bincount(np.asarray(X)[:, 0].astype(int), minlength=8) == 1)
+    assert sorted(int(tree) for tree in chances) == once.tolist()
+    if looks:
+        assert info.get("second_look") is True, info
+        assert max(chances.values()) >= LOOK_CHANCE
+        assert chances[str(int(proposal.candidates[0, 0]))] >= LOOK_CHANCE, chances
+    else:
+        assert "second_look" not in info, info
+        assert max(chances.values()) < LOOK_CHANCE, chances
