@@ -279,3 +279,16 @@ def test_the_default_looks_again_only_where_one_design_cannot_rank_the_trees(
     else:
         assert "second_look" not in info, info
         assert max(chances.values()) < LOOK_CHANCE, chances
+
+
+def test_second_looks_take_three_named_choices_and_the_old_flags() -> None:
+    """``second_looks`` is ``judged`` unless a study says ``always`` or ``off`` (stored
+    studies' ``true`` and ``false`` mean those); anything else is refused, naming it."""
+    assert QEIOptions().second_looks == "judged"
+    assert QEIOptions.model_validate({"second_looks": True}).second_looks == "always"
+    assert QEIOptions.model_validate({"second_looks": False}).second_looks == "off"
+    assert QEIOptions.model_validate({"second_looks": "off"}).second_looks == "off"
+    with pytest.raises(ValueError, match="second_looks"):
+        QEIOptions.model_validate({"second_looks": "sometimes"})
+    with pytest.raises(ValueError, match="second_looks"):
+        QEIOptions.model_validate({"second_looks": 1})

@@ -42,43 +42,49 @@ def tree_chances(
     """Each of ``trees``' chance that its best beats ``incumbent`` (see the module
     docstring); ``best_known``: model inputs of the best observed designs, best first."""
     rng = np.random.default_rng([seed, 37])
-    chances = np.zeros(len(trees))
     observed = posterior.points[:, 0].round().long().cpu().numpy()
     keep = ~np.isin(observed, trees)
     if keep.any():
         posterior = posterior.keeping(torch.as_tensor(keep, device=posterior.points.device))
-    for k, tree in enumerate(trees):
+    points, normals = [], []
+    for tree in trees:
         moved = best_known[:LOOK_INCUMBENTS].copy()
         moved[:, 0] = tree
         random = raw_samples(domain, LOOK_POINTS - len(moved), rng, np.array([tree]))
-        points = np.concatenate([domain.canonical(moved), random])
-        mean, covariance = joint_posterior(posterior, torch.as_tensor(points, **tkw))
-        draws = sample_normal(mean, covariance, LOOK_DRAWS, rng)
+        points.append(np.concatenate([domain.canonical(moved), random]))
+        normals.append(rng.standard_normal((LOOK_DRAWS, len(points[-1]))))
+    blocks = joint_posterior(posterior, [torch.as_tensor(block, **tkw) for block in points])
+    chances = np.zeros(len(trees))
+    for k, ((mean, covariance), normal) in enumerate(zip(blocks, normals, strict=True)):
+        draws = mean + normal @ covariance_root(covariance).T
         chances[k] = float(np.mean(draws.max(axis=1) > incumbent))
     return chances
 
 
-def joint_posterior(posterior: Posterior, Z: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-    """The posterior mean and covariance (in the outcome's scale) of the rows of Z."""
+def joint_posterior(
+    posterior: Posterior, blocks: list[torch.Tensor]
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each block of points' posterior mean and covariance (in the outcome's scale), the
+    blocks' cross-covariances left out."""
+    kernel = posterior.kernel
     with torch.no_grad():
-        embedded = posterior.kernel.embed(Z)
-        cross = posterior.kernel.from_embeddings(embedded, posterior.embedded)
-        mean = posterior.constant + cross @ posterior.alpha
+        Z = torch.cat(blocks)
+        cross = kernel.from_embeddings(kernel.embed(Z), posterior.embedded)
+        mean = posterior.offset + posterior.scale * (posterior.constant + cross @ posterior.alpha)
         solved = torch.linalg.solve_triangular(posterior.cholesky, cross.T, upper=False)
-        prior = posterior.kernel.from_embeddings(embedded, embedded)
-        covariance = prior - solved.T @ solved
-        scale = posterior.scale
-        return (
-            (posterior.offset + scale * mean).cpu().numpy(),
-            (scale**2 * covariance).cpu().numpy(),
-        )
+        out, start = [], 0
+        for block in blocks:
+            part = slice(start, start + len(block))
+            start = part.stop
+            embedded = kernel.embed(block)
+            prior = kernel.from_embeddings(embedded, embedded)
+            covariance = posterior.scale**2 * (prior - solved[:, part].T @ solved[:, part])
+            out.append((mean[part].cpu().numpy(), covariance.cpu().numpy()))
+        return out
 
 
-def sample_normal(
-    mean: np.ndarray, covariance: np.ndarray, count: int, rng: np.random.Generator
-) -> np.ndarray:
-    """``count`` draws (rows) of a multivariate normal, through its eigen-decomposition
-    (a posterior covariance is often singular to rounding)."""
+def covariance_root(covariance: np.ndarray) -> np.ndarray:
+    """A matrix R with R R^T = ``covariance``, through its eigen-decomposition (a
+    posterior covariance is often singular to rounding)."""
     values, vectors = np.linalg.eigh((covariance + covariance.T) / 2)
-    root = vectors * np.sqrt(np.clip(values, 0.0, None))
-    return mean + rng.standard_normal((count, len(mean))) @ root.T
+    return vectors * np.sqrt(np.clip(values, 0.0, None))
