@@ -1,8 +1,10 @@
 """The greedy batch search of ``qei``'s model phases (one objective in ``qei``, several
 objectives or constraints in ``multiobjective``): each step maximises its acquisition
 over the mixed domain (``acquisition.maximise``) with the previous steps' candidates
-pending; with ``second_looks``, a step that is a second look (``initial.second_look``)
-maximises it over the structures observed once. Imported only when a proposal is computed."""
+pending; a step that is a second look (``initial.second_look``) maximises it over the
+structures observed once: with ``second_looks: judged`` over those the tree
+judgement (``looks``) gives a chance of beating the incumbent, with ``always`` over
+all of them. Imported only when a proposal is computed."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from adservice.proposers.base import ProposalRequest, SpecRegion, model_inputs, search_vectors
-from adservice.proposers.initial import initial_count, second_look
+from adservice.proposers.initial import LOOK_CHANCE, initial_count, second_look
 from adservice.proposers.simple import derived_seed
 
 if TYPE_CHECKING:
@@ -47,6 +49,8 @@ class Found:
     values: list[float]
     switched: int
     second_looks: list[bool]
+    chances: list[dict[str, float] | None]
+    """Per step, the judged trees' chances (``looks.tree_chances``), None if none judged."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,8 @@ class Greedy:
     """The study's initial designs (``initial.initial_count``)."""
     trust: TrustBox | None = None
     """A long history's trust region: the search stays inside it (``trust_region``)."""
+    judged: bool = True
+    """A look chooses among the trees the judgement passes (``second_looks: judged``)."""
 
     @classmethod
     def of(
@@ -110,7 +116,7 @@ class Greedy:
         )
         pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
         counts = None
-        if options.second_looks and search is not None and search.n_structures > 1:
+        if options.second_looks != "off" and search is not None and search.n_structures > 1:
             trees = np.concatenate([Z[:, 0], pending_Z[:, 0]]).round().astype(np.int64)
             counts = np.bincount(trees, minlength=search.n_structures)
         return cls(
@@ -130,18 +136,25 @@ class Greedy:
             structure_counts=counts,
             end_number=request.n_issued + request.count,
             n_start=initial_count(request),
+            judged=options.second_looks == "judged",
         )
 
     def run(
-        self, q: int, seed: int, acquisition_at: Callable[[int, torch.Tensor | None], Step]
+        self,
+        q: int,
+        seed: int,
+        acquisition_at: Callable[[int, torch.Tensor | None], Step],
+        judge: Callable[[np.ndarray, int], np.ndarray] | None = None,
     ) -> Found:
         """Up to q candidates (fewer past the deadline); ``acquisition_at(step_seed,
-        pending)`` gives each step's acquisition."""
+        pending)`` gives each step's acquisition; ``judge(trees, step_seed)`` each
+        tree's chance of beating the incumbent (``looks.tree_chances``; without it a
+        judged look is a free choice)."""
         import torch
 
         from adservice.proposers.acquisition import maximise, past
 
-        found = Found(chosen=[], methods=[], values=[], switched=0, second_looks=[])
+        found = Found(chosen=[], methods=[], values=[], switched=0, second_looks=[], chances=[])
         switched = 0
         for step in range(q):
             if step and past(self.deadline):
@@ -158,6 +171,17 @@ class Greedy:
                     counts[round(float(z[0]))] += 1
                 number = self.end_number - q + step
                 structures = second_look(counts, number, self.n_start)
+            chances = None
+            if structures is not None and self.judged:
+                if judge is None:
+                    structures = None
+                else:
+                    odds = judge(structures, step_seed)
+                    chances = {
+                        str(t): round(float(c), 3) for t, c in zip(structures, odds, strict=True)
+                    }
+                    structures = structures[odds >= LOOK_CHANCE]
+                    structures = structures if len(structures) else None
             taken = None if self.taken is None else np.concatenate([self.taken, *new])
             acqf, screen, incumbents = current.acqf, current.screen, self.incumbents
             if self.trust is not None:
@@ -186,8 +210,11 @@ class Greedy:
             found.methods.append(current.method)
             found.values.append(optimum.value)
             found.second_looks.append(structures is not None)
+            found.chances.append(chances)
             switched += optimum.structures_switched
-        return Found(found.chosen, found.methods, found.values, switched, found.second_looks)
+        return Found(
+            found.chosen, found.methods, found.values, switched, found.second_looks, found.chances
+        )
 
     def rows(
         self,
@@ -221,4 +248,5 @@ class Greedy:
             extra["structure_correlation"] = structure_correlation(model, search, self.tkw)
             extra["structures_switched"] = found.switched
             extra["second_looks"] = found.second_looks
+            extra["tree_chances"] = found.chances
         return rows_np, extra

@@ -7,11 +7,13 @@ an unseen choice to be average. So the start is long enough to try each, up to
 ``COVERED_CHOICES``, and deals them to its points.
 
 One random design per tree does not rank the trees either when the specs matter more
-than the tree: the best tree's one design can be poor. With ``second_looks`` (a qei
-option, off by default) every ``SECOND_LOOK_EVERY``-th model ask after the start
-(``second_look``) is a second look: it chooses among the structures observed only
-once, its specs by the acquisition within them, until each has been looked at twice
-(docs/method.md, "The model's choices").
+than the tree: the best tree's one design can be poor. So every
+``SECOND_LOOK_EVERY``-th model ask after the start (``second_look``) is a look turn
+while a structure has only one design: with qei's ``second_looks: judged`` the
+ask is a second look among the structures seen once whose chance of beating the
+incumbent (``looks.tree_chances``) is at least ``LOOK_CHANCE``, and a free choice when
+none has; with ``always`` among every structure seen once (docs/method.md, "The
+model's choices").
 """
 
 from __future__ import annotations
@@ -28,6 +30,9 @@ initial design makes sure to try."""
 
 SECOND_LOOK_EVERY = 2
 """Every this many model asks after the start, one is a second look (``second_look``)."""
+LOOK_CHANCE = 0.2
+"""A judged second look goes to the trees seen once whose chance of beating the incumbent
+(``looks.tree_chances``) is at least this."""
 
 
 def initial_points(request: ProposalRequest, bounds: np.ndarray, count: int) -> np.ndarray:

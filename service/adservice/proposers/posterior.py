@@ -48,6 +48,13 @@ class Posterior:
         believer.beliefs = beliefs
         return believer
 
+    def keeping(self, keep: torch.Tensor) -> Posterior:
+        """This posterior conditioned only on the observations ``keep`` (a mask) holds."""
+        kept = copy.copy(self)
+        with torch.no_grad():
+            kept._factor(self.points[keep], self.targets[keep], self.noise[keep])
+        return kept
+
     def _factor(self, points: torch.Tensor, targets: torch.Tensor, noise: torch.Tensor) -> None:
         self.points, self.targets, self.noise = points, targets, noise
         self.embedded = self.kernel.embed(points)

@@ -11,11 +11,15 @@ What a caller can rely on:
   scrambled Sobol sequence (``initial``); a design space's start covers its structures,
   one per structure up to ``initial.COVERED_CHOICES``, as a typed box's categorical
   choices are covered.
-- **Second looks** (``options["second_looks"]``, off by default). After the start,
-  every second model candidate of a design space is a second look while any structure
-  has exactly one design (observed, failed or pending): the acquisition is maximised
-  over those structures alone, so no tree is judged by its one random design
-  (``initial.second_look``); its info says ``second_look: true``.
+- **Second looks** (``options["second_looks"]``). After the start, every second model
+  candidate of a design space is a look turn while any structure has exactly one
+  design (observed, failed or pending; ``initial.second_look``). By default
+  (``judged``) the tree judgement (``looks.tree_chances``) gives each such structure
+  its chance of beating the incumbent, and the acquisition is maximised over those
+  with a chance of at least ``initial.LOOK_CHANCE`` alone; with none, the candidate
+  is a free choice. ``always`` looks among every such structure, ``off`` never.
+  A look's info says ``second_look: true``, a judged turn's ``tree_chances``. Several
+  objectives or outcome constraints have no single incumbent: ``judged`` looks never.
 - **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
   (structure index and normalised specs, or a box scaled to the unit box), outcomes
   standardised, hyperparameters by maximum a posteriori (``gpmodel.fit_map``), the
@@ -66,6 +70,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -362,6 +367,7 @@ class QLogEIProposer:
             )
         methods = extra.pop("methods")
         looks = extra.pop("second_looks", [])
+        chances = extra.pop("tree_chances", [])
         infos: list[dict[str, Any]] = []
         rows_Z = model_inputs(rows, bounds, request.structure)
         taken = [observed_Z, model_inputs(X_pending, bounds, request.structure)]
@@ -375,6 +381,8 @@ class QLogEIProposer:
                 infos.append({**sobol_info[i], **extra, "method": "sobol-fallback"})
             else:
                 look = {"second_look": True} if i < len(looks) and looks[i] else {}
+                if i < len(chances) and chances[i] is not None:
+                    look["tree_chances"] = chances[i]
                 infos.append({"proposer": self.name, **extra, "method": methods[i], **look})
         if len(rows) < q:
             done = len(rows)
@@ -482,7 +490,7 @@ class QLogEIProposer:
                 )
                 return Step(plain, "qLogEI")
 
-            found = greedy.run(q, seed, acquisition_at)
+            found = greedy.run(q, seed, acquisition_at, _judge(greedy, model, analytic, y, tkw))
         extra: dict[str, Any] = {
             "fit": fit_source,
             "fit_seconds": round(fit_seconds, 4),
@@ -490,6 +498,28 @@ class QLogEIProposer:
             **region,
         }
         return greedy.rows(found, request, bounds, model, extra)
+
+
+def _judge(
+    greedy: Greedy, model: Any, analytic: Any, y: np.ndarray, tkw: dict[str, Any]
+) -> Callable[[np.ndarray, int], np.ndarray] | None:
+    """The tree judgement of a judged second look (``looks.tree_chances``) on this
+    ask's fitted model, against the acquisition's incumbent; None where no ask of this
+    study looks."""
+    if greedy.structure_counts is None or not greedy.judged:
+        return None
+    from adservice.proposers.looks import tree_chances
+    from adservice.proposers.posterior import Posterior
+
+    posterior = analytic.posterior if analytic is not None else Posterior(model)
+    incumbent = analytic.incumbent if analytic is not None else float(y.max())
+
+    def judge(trees: np.ndarray, step_seed: int) -> np.ndarray:
+        return tree_chances(
+            posterior, greedy.domain, trees, greedy.incumbents, incumbent, step_seed, tkw
+        )
+
+    return judge
 
 
 def _outcomes(request: ProposalRequest, y: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import threading
 from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from adservice.proposers.base import ProposerOptions
 from adservice.settings import get_settings
@@ -73,10 +73,13 @@ class QEIOptions(ProposerOptions):
         "Monte Carlo qLogEI / qLogNEI with pending points",
     )
     warm_start: bool = True
-    second_looks: bool = Field(
-        default=False,
-        description="design spaces: after the start, every second model candidate "
-        "chooses among the structures with one design so far (initial.second_look)",
+    second_looks: Literal["off", "judged", "always"] = Field(
+        default="off",
+        description="design spaces: after the start, every second model candidate is a "
+        "second look while a structure has one design so far (initial.second_look): "
+        "judged, among those whose best may beat the incumbent (looks.tree_chances); "
+        "always, among all of them; off (the default: neither measured better over "
+        "every objective, bench/RESULTS.md), never (true and false: always and off)",
     )
     max_train: int | None = Field(
         default=None,
@@ -98,6 +101,13 @@ class QEIOptions(ProposerOptions):
     device: Literal["cpu", "cuda"] | None = Field(
         default=None, description="Default: the server's AD_PROPOSER_DEVICE (cpu unless set)"
     )
+
+    @field_validator("second_looks", mode="before")
+    @classmethod
+    def _looks_flag(cls, value: Any) -> Any:
+        if value is True:
+            return "always"
+        return "off" if value is False else value
 
     @model_validator(mode="after")
     def _enough_raw_samples(self) -> QEIOptions:
