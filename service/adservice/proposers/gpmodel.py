@@ -136,18 +136,24 @@ class SpecFeatures:
         )
 
     @staticmethod
-    def _angle(u: torch.Tensor, table: tuple[torch.Tensor, ...]) -> torch.Tensor:
-        """Every axis's angle in radians (... x A): fixed, or its slot denormalised."""
+    def _angle(
+        u: torch.Tensor, table: tuple[torch.Tensor, ...]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Every axis's angle in radians (... x A): fixed, or its slot denormalised; and
+        its derivative with respect to its slot (0 when fixed)."""
         column, searched, fixed, start, width, log = (t.to(u.device) for t in table)
-        angle = start.to(u.dtype) + u[..., column] * width.to(u.dtype)
+        width = width.to(u.dtype)
+        angle = start.to(u.dtype) + u[..., column] * width
+        rate = width.expand_as(angle)
         if bool(log.any()):
-            angle = torch.where(log, torch.exp(angle), angle)
-        return torch.where(searched, angle, fixed.to(u.dtype))
+            grown = torch.exp(angle)
+            angle, rate = torch.where(log, grown, angle), torch.where(log, grown * width, rate)
+        return torch.where(searched, angle, fixed.to(u.dtype)), torch.where(searched, rate, 0.0)
 
     def __call__(self, u: torch.Tensor) -> torch.Tensor:
         parts = [u[..., self.plain]]
         if self.axes:
-            theta, phi = self._angle(u, self.angles[0]), self._angle(u, self.angles[1])
+            theta, phi = self._angle(u, self.angles[0])[0], self._angle(u, self.angles[1])[0]
             sin_theta = torch.sin(theta)
             x, y, z = sin_theta * torch.cos(phi), sin_theta * torch.sin(phi), torch.cos(theta)
             invariant = self.invariant.to(u.device)
@@ -174,6 +180,44 @@ class SpecFeatures:
             one_hot = torch.nn.functional.one_hot(index, count).to(u.dtype)
             parts.append(one_hot / math.sqrt(2.0))
         return torch.cat(parts, dim=-1)
+
+    def pullback(self, u: torch.Tensor, slopes: torch.Tensor) -> torch.Tensor:
+        """The gradient with respect to ``u`` of a function whose gradient with respect
+        to the features ``self(u)`` is ``slopes``, in closed form: plain specs pass it
+        on, an axis through its unit vector's (or line's) derivatives in its angles, a
+        category's one-hot vector not at all (its choice is rounded), as autograd."""
+        gradient = torch.zeros_like(u)
+        gradient[..., self.plain] = slopes[..., : len(self.plain)]
+        if not self.axes:
+            return gradient
+        (theta, theta_rate), (phi, phi_rate) = (self._angle(u, table) for table in self.angles)
+        sin_theta, cos_theta = torch.sin(theta), torch.cos(theta)
+        sin_phi, cos_phi = torch.sin(phi), torch.cos(phi)
+        x, y, z = sin_theta * cos_phi, sin_theta * sin_phi, cos_theta
+        per_x, per_y, per_z = torch.zeros_like(x), torch.zeros_like(x), torch.zeros_like(x)
+        invariant = self.invariant.to(u.device)
+        offset = len(self.plain)
+        keep = ~invariant
+        if bool(keep.any()):
+            count = int(keep.sum())
+            block = slopes[..., offset : offset + 3 * count].reshape(*x.shape[:-1], count, 3) / 2.0
+            per_x[..., keep], per_y[..., keep], per_z[..., keep] = block.unbind(-1)
+            offset += 3 * count
+        if bool(invariant.any()):
+            count = int(invariant.sum())
+            root2 = math.sqrt(2.0)
+            b = (
+                slopes[..., offset : offset + 6 * count].reshape(*x.shape[:-1], count, 6) / root2
+            ).unbind(-1)
+            xi, yi, zi = x[..., invariant], y[..., invariant], z[..., invariant]
+            per_x[..., invariant] = 2.0 * xi * b[0] + root2 * (yi * b[3] + zi * b[4])
+            per_y[..., invariant] = 2.0 * yi * b[1] + root2 * (xi * b[3] + zi * b[5])
+            per_z[..., invariant] = 2.0 * zi * b[2] + root2 * (xi * b[4] + yi * b[5])
+        per_theta = (per_x * cos_phi + per_y * sin_phi) * cos_theta - per_z * sin_theta
+        per_phi = (per_y * cos_phi - per_x * sin_phi) * sin_theta
+        gradient.index_add_(-1, self.angles[0][0].to(u.device), per_theta * theta_rate)
+        gradient.index_add_(-1, self.angles[1][0].to(u.device), per_phi * phi_rate)
+        return gradient
 
 
 class SpecKernel(Kernel):
@@ -217,6 +261,16 @@ class SpecKernel(Kernel):
             return torch.exp(-0.5 * squared)
         root5 = math.sqrt(5.0) * squared.clamp_min(1e-30).sqrt()
         return (1.0 + root5 + root5**2 / 3.0) * torch.exp(-root5)
+
+    def with_slope(self, squared: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The kernel at these squared distances and its derivative with respect to
+        them: -k / 2 (RBF); -5/6 (1 + sqrt(5) r) exp(-sqrt(5) r) (Matern-5/2)."""
+        if self.rbf:
+            value = torch.exp(-0.5 * squared)
+            return value, -0.5 * value
+        root5 = math.sqrt(5.0) * squared.clamp_min(1e-30).sqrt()
+        decay = torch.exp(-root5)
+        return (1.0 + root5 + root5**2 / 3.0) * decay, (-5.0 / 6.0) * (1.0 + root5) * decay
 
     def forward(
         self, x1: torch.Tensor, x2: torch.Tensor, diag: bool = False, **params: object
