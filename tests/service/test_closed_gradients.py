@@ -122,7 +122,55 @@ def test_log_ei_gradient_is_autograds(case: str, kernel: str, believing: bool) -
     expected_values = acquisition(tracked.unsqueeze(1))
     (expected,) = torch.autograd.grad(expected_values.sum(), tracked)
     values, gradient = acquisition.value_and_grad(points)
-    torch.testing.assert_close(values, expected_values.detach(), rtol=1e-12, atol=1e-12)
+    # at the observed point the variance is a difference of nearly equal numbers
+    torch.testing.assert_close(values, expected_values.detach(), rtol=1e-8, atol=1e-10)
     scale = float(expected.abs().max())
     assert scale > 0.0 and math.isfinite(scale)
     torch.testing.assert_close(gradient, expected, rtol=1e-7, atol=1e-9 * scale)
+
+
+def reference_log_posterior(model: Any) -> torch.Tensor:
+    """The fit's log posterior by autograd through gpytorch's own kernel call."""
+    train = model.train_inputs[0]
+    noise = model.likelihood.noise.reshape(-1)
+    K = model.covar_module(train, train).to_dense()
+    K = K + torch.diag(noise.expand(len(train)))
+    factor = torch.linalg.cholesky(K)
+    residual = model.train_targets - model.mean_module.constant
+    alpha = torch.cholesky_solve(residual.unsqueeze(-1), factor).squeeze(-1)
+    value = -0.5 * (residual * alpha).sum() - torch.log(torch.diagonal(factor)).sum()
+    for _, module, prior, closure, _ in model.named_priors():
+        value = value + prior.log_prob(closure(module)).sum()
+    return value
+
+
+@pytest.mark.parametrize("case", ["box", "typed-box", "multi-structure", "joint-kinds"])
+@pytest.mark.parametrize("noise", ["floor", "inferred", "fixed"])
+def test_log_posterior_gradient_is_autograds(case: str, noise: str) -> None:
+    from adservice.proposers.likelihood import LogPosterior
+
+    request = request_for(case, 14, seed=5)
+    model, _ = fit_outcome(
+        request,
+        QEIOptions(noise=noise, kernel="matern" if case != "box" else "rbf", warm_start=False),
+        request.bounds,
+        request.X,
+        request.y,
+        TKW,
+        None,
+    )
+    model.train()
+    parameters = [p for p in model.parameters() if p.requires_grad]
+    with torch.no_grad():  # away from the optimum, where every gradient is 0
+        for number, parameter in enumerate(parameters):
+            parameter.mul_(1.0 + 0.1 * (number % 3 + 1))
+    expected_value = reference_log_posterior(model)
+    expected = torch.autograd.grad(expected_value, parameters, allow_unused=True)
+    value = LogPosterior(model)()
+    assert value is not None
+    gradient = torch.autograd.grad(value, parameters, allow_unused=True)
+    torch.testing.assert_close(value, expected_value, rtol=1e-10, atol=1e-10)
+    assert len(parameters) >= 2
+    for ours, theirs in zip(gradient, expected, strict=True):
+        assert theirs is not None and ours is not None
+        torch.testing.assert_close(ours, theirs, rtol=1e-7, atol=1e-8)

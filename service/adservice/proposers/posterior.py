@@ -55,6 +55,19 @@ class Posterior:
         self.cholesky = torch.linalg.cholesky(K)
         residual = (targets - self.constant).unsqueeze(-1)
         self.alpha = torch.cholesky_solve(residual, self.cholesky).squeeze(-1)
+        self._structure_rows: torch.Tensor | None = None
+
+    def structure_rows(self) -> torch.Tensor:
+        """The structure kernel between every structure and the points (S x n): a
+        local search moves specs only, so its candidates' rows are looked up."""
+        structure = self.kernel.structure
+        assert structure is not None and self.embedded[1] is not None
+        if self._structure_rows is None:
+            with torch.no_grad():
+                self._structure_rows = structure.from_embeddings(
+                    structure.scaled(structure.coords), self.embedded[1]
+                )
+        return self._structure_rows
 
     def mean_sigma(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and standard deviation at the rows of X (b x D)."""
@@ -72,7 +85,7 @@ class Posterior:
         """LogEI over ``best_f`` at the rows of X (b x D) and its gradient with respect
         to them, in closed form: the chain rule written out through LogEI, the mean and
         variance, the cross-covariance and the squared distances of the spec
-        embeddings, and the spec features (``SpecFeatures.pullback``). Autograd's
+        embeddings, and the spec features (``SpecFeatures.with_pullback``). Autograd's
         backward pass over the same few small matrices cost more than the forward one,
         and a local search evaluates this a hundred times an ask. The structure column
         (rounded to an index) gets no gradient, as under autograd."""
@@ -82,18 +95,16 @@ class Posterior:
         features_of = spec.features
         u = X[..., 1:]
         with torch.no_grad():
-            features = features_of(u)
-            scales = spec.lengthscale.reshape(-1)[features_of.group_index.to(X.device)]
+            features, pullback = features_of.with_pullback(u)
+            scales = spec.lengthscale.reshape(-1)[features_of.group_index]
             embedded = features / scales
             trained = self.embedded[0]
             squared = squared_distances(embedded, trained)
             cross, slope = spec.with_slope(squared)
             prior: torch.Tensor | float = 1.0
             if kernel.structure is not None:
-                assert self.embedded[1] is not None
-                structure = kernel.structure.from_embeddings(
-                    kernel.structure.embed(X), self.embedded[1]
-                )
+                rows = self.structure_rows()
+                structure = rows[X[..., 0].round().clamp(0, len(rows) - 1).long()]
                 a, b, c = kernel.weights
                 mix = b + c * structure
                 cross, slope = a * structure + mix * cross, mix * slope
@@ -120,7 +131,7 @@ class Posterior:
                 embedded * per_squared.sum(-1, keepdim=True) - per_squared @ trained
             )
             gradient = torch.zeros_like(X)
-            gradient[..., 1:] = features_of.pullback(u, per_embedded / scales)
+            gradient[..., 1:] = pullback(per_embedded / scales)
         return value, gradient
 
 

@@ -18,7 +18,7 @@ What a caller can rely on:
   (``initial.second_look``); its info says ``second_look: true``.
 - **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
   (structure index and normalised specs, or a box scaled to the unit box), outcomes
-  standardised, hyperparameters by maximum a posteriori (``gpmodel.fit_map``), the
+  standardised, hyperparameters by maximum a posteriori (``likelihood.fit_map``), the
   covariance ``gpmodel.design_kernel``. Several objectives or outcome constraints
   (``request.objectives``, ``slacks``): one GP per outcome and LogEHVI or constrained
   LogEI (``multiobjective``).
