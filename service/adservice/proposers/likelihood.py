@@ -26,116 +26,119 @@ space at n = 30, with the same candidates."""
 
 class LogPosterior:
     """A ``SingleTaskGP``'s log marginal likelihood (without its constant) plus its
-    hyperparameters' log priors, at their current values, with a gradient that is
-    exact: the likelihood's by the identity d/dK = (alpha alpha^T - K^-1) / 2 carried
-    through the ``DesignKernel`` by hand (its weights, the structure length scale, each
-    spec length-scale group, the noise and the mean), the priors' by autograd over a
-    few scalars. Autograd through the covariance matrix cost twice the forward pass
-    and ran a hundred times a fit.
+    hyperparameters' log priors, at their current values, and its gradient with
+    respect to each raw parameter, in closed form: the likelihood's by the identity
+    d/dK = (alpha alpha^T - K^-1) / 2 carried through the ``DesignKernel`` by hand (its
+    weights, the structure length scale, each spec length-scale group, the noise and
+    the mean), each log-normal prior's written out. No autograd: its backward pass
+    through the covariance matrix cost twice the forward one, a hundred times a fit.
 
-    What no hyperparameter changes is computed once: each spec group's squared
-    distances between the training points (n x n x groups) and the structures'."""
+    Every parameter must be its own value (its constraint's ``transform=None``, the
+    bounds kept by the optimiser), which the models of ``gpfit`` are, and every prior
+    log-normal; anything else is a TypeError. What no hyperparameter changes is
+    computed once: each spec group's squared distances between the training points
+    (n x n x groups) and the structures'."""
 
     def __init__(self, model: Any) -> None:
         self.model = model
         kernel: DesignKernel = model.covar_module
         self.kernel = kernel
         self.targets = model.train_targets
-        self.priors = list(model.named_priors())
+        for name, constraint in model.named_constraints():
+            if constraint.enforced:
+                raise TypeError(f"{name} transforms its parameter: LogPosterior needs none")
+        self.parameters = {id(p) for p in model.parameters() if p.requires_grad}
+        self.priors = []
+        for name, module, prior, closure, _ in model.named_priors():
+            if type(prior) is not LogNormalPrior or getattr(prior, "_transform", None):
+                raise TypeError(f"{name}: LogPosterior writes out log-normal priors only")
+            self.priors.append((module, prior, closure))
         train = model.train_inputs[0]
         with torch.no_grad():
             features = kernel.spec.inputs(train)
             gaps = (features[:, None, :] - features[None, :, :]) ** 2
-            groups = kernel.spec.features.group_index.to(train.device)
             self.spec_parts = torch.zeros(
                 (*gaps.shape[:2], kernel.spec.features.n_groups),
                 dtype=gaps.dtype,
                 device=gaps.device,
-            ).index_add_(-1, groups, gaps)
+            ).index_add_(-1, kernel.spec.features.group_index, gaps)
             self.structure_squared = None
             if kernel.structure is not None:
                 coords = kernel.structure.inputs(train)
                 self.structure_squared = ((coords[:, None, :] - coords[None, :, :]) ** 2).sum(-1)
 
-    def __call__(self) -> torch.Tensor | None:
-        """The log posterior as a tensor whose ``backward`` gives the raw parameters'
-        gradients; None where the covariance is not positive definite."""
+    @torch.no_grad()
+    def __call__(self) -> tuple[float, dict[int, torch.Tensor]] | None:
+        """The log posterior and its gradient by parameter (keyed by ``id``; one that
+        nothing depends on is absent); None where the covariance is not positive
+        definite."""
         model, kernel = self.model, self.kernel
         spec, structure = kernel.spec, kernel.structure
-        lengthscale = spec.lengthscale.reshape(-1)
-        noise = model.likelihood.noise.reshape(-1)
-        constant = model.mean_module.constant.reshape(())
-        structure_scale = structure.lengthscale.reshape(()) if structure is not None else None
-        weights = kernel.weights if structure is not None else None
-        derived: list[tuple[torch.Tensor, torch.Tensor]] = []
-        with torch.no_grad():
-            squared = self.spec_parts @ lengthscale.pow(-2)
-            spec_k, spec_slope = spec.with_slope(squared)
-            structure_k = None
-            if structure is None:
-                K = spec_k.clone()
-            else:
-                assert self.structure_squared is not None
-                assert structure_scale is not None and weights is not None
-                structure_k = torch.exp(-0.5 * self.structure_squared / structure_scale**2)
-                a, b, c = weights
-                K = a * structure_k + (b + c * structure_k) * spec_k
-            K.diagonal().add_(noise.expand(len(K)))
-            factor, info = torch.linalg.cholesky_ex(K)
-            if int(info) != 0:
-                return None
-            residual = self.targets - constant
-            alpha = torch.cholesky_solve(residual.unsqueeze(-1), factor).squeeze(-1)
-            log_likelihood = (
-                -0.5 * (residual * alpha).sum() - torch.log(torch.diagonal(factor)).sum()
+        lengthscale = spec.lengthscale
+        scales = lengthscale.reshape(-1)
+        noise = model.likelihood.noise
+        constant = model.mean_module.constant
+        squared = self.spec_parts @ scales.pow(-2)
+        spec_k, spec_slope = spec.with_slope(squared)
+        if structure is None:
+            K = spec_k.clone()
+        else:
+            assert self.structure_squared is not None
+            structure_scale = structure.lengthscale
+            structure_k = torch.exp(
+                -0.5 * self.structure_squared / structure_scale.reshape(()) ** 2
             )
-            # d log_likelihood / dK
-            half = 0.5 * (alpha[:, None] * alpha[None, :] - torch.cholesky_inverse(factor))
-            per_spec = half
-            if structure_k is not None:
-                per_spec = half * (b + c * structure_k)
-                per_structure = (
-                    half * (a + c * spec_k) * structure_k * self.structure_squared
+            weights = kernel.weights
+            a, b, c = weights
+            K = a * structure_k + (b + c * structure_k) * spec_k
+        K.diagonal().add_(noise.reshape(-1).expand(len(K)))
+        factor, info = torch.linalg.cholesky_ex(K)
+        if int(info) != 0:
+            return None
+        residual = self.targets - constant.reshape(())
+        alpha = torch.cholesky_solve(residual.unsqueeze(-1), factor).squeeze(-1)
+        value = -0.5 * (residual * alpha).sum() - torch.log(torch.diagonal(factor)).sum()
+        # d value / dK
+        half = 0.5 * (alpha[:, None] * alpha[None, :] - torch.cholesky_inverse(factor))
+        gradients: dict[int, torch.Tensor] = {}
+
+        def add(parameter: torch.Tensor, gradient: torch.Tensor) -> None:
+            if id(parameter) in self.parameters:
+                gradient = gradient.reshape(parameter.shape)
+                known = gradients.get(id(parameter))
+                gradients[id(parameter)] = gradient if known is None else known + gradient
+
+        per_spec = half
+        if structure is not None:
+            per_spec = half * (b + c * structure_k)
+            per_structure = half * (a + c * spec_k) * structure_k * self.structure_squared
+            add(structure_scale, per_structure.sum() / structure_scale**3)
+            per_weight = [
+                (half * structure_k).sum(),
+                (half * spec_k).sum(),
+                (half * structure_k * spec_k).sum(),
+            ]
+            add(weights, torch.stack(per_weight))
+        per_squared = per_spec * spec_slope
+        add(lengthscale, -2.0 * torch.einsum("ij,ijg->g", per_squared, self.spec_parts) / scales**3)
+        diagonal = half.diagonal()
+        add(noise, diagonal.sum() if noise.numel() == 1 else diagonal)
+        add(constant, alpha.sum())
+        for module, prior, closure in self.priors:
+            at = closure(module)
+            logged = torch.log(at)
+            spread = prior.scale**2
+            value = (
+                value
+                + (
+                    -((logged - prior.loc) ** 2) / (2.0 * spread)
+                    - torch.log(prior.scale)
+                    - 0.5 * math.log(2.0 * math.pi)
+                    - logged
                 ).sum()
-                derived.append((structure_scale, per_structure / structure_scale**3))
-                per_weight = [
-                    (half * structure_k).sum(),
-                    (half * spec_k).sum(),
-                    (half * structure_k * spec_k).sum(),
-                ]
-                derived.append((weights, torch.stack(per_weight)))
-            per_squared = per_spec * spec_slope
-            per_scale = (
-                -2.0 * torch.einsum("ij,ijg->g", per_squared, self.spec_parts) / lengthscale**3
             )
-            derived.append((lengthscale, per_scale))
-            diagonal = half.diagonal()
-            derived.append((noise, diagonal.sum().reshape(1) if noise.numel() == 1 else diagonal))
-            derived.append((constant, alpha.sum()))
-        # the value is the log posterior; the gradient of each derived quantity is its own
-        total = log_likelihood
-        for quantity, gradient in derived:
-            if quantity.requires_grad:
-                total = total + (gradient * (quantity - quantity.detach())).sum()
-        for _, module, prior, closure, _ in self.priors:
-            total = total + log_prior(prior, closure(module)).sum()
-        return total
-
-
-def log_prior(prior: Any, value: torch.Tensor) -> torch.Tensor:
-    """A prior's log density at ``value``: a log-normal's written out (torch's
-    transformed distribution takes a dozen operations and a validation), others by
-    their own ``log_prob``."""
-    if type(prior) is LogNormalPrior and getattr(prior, "_transform", None) is None:
-        logged = torch.log(value)
-        scale = prior.scale
-        return (
-            -((logged - prior.loc) ** 2) / (2.0 * scale**2)
-            - torch.log(scale)
-            - 0.5 * math.log(2.0 * math.pi)
-            - logged
-        )
-    return prior.log_prob(value)
+            add(at, -((logged - prior.loc) / spread + 1.0) / at)
+        return float(value), gradients
 
 
 def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) -> int:
@@ -166,7 +169,7 @@ def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) ->
             for tensor, (_, hi) in zip(tensors, limits, strict=True)
         ]
     )
-    log_posterior_of = LogPosterior(model)
+    log_posterior = LogPosterior(model)
     count = len(model.train_targets)
     evaluations = 0
     best: tuple[float, np.ndarray | None] = (math.inf, None)
@@ -185,22 +188,17 @@ def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) ->
             raise OutOfTime
         evaluations += 1
         load(flat)
-        for tensor in tensors:
-            tensor.grad = None
-        log_posterior = log_posterior_of()
-        if log_posterior is None:
+        found = log_posterior()
+        if found is None or not math.isfinite(found[0]):
             return 1e10, np.zeros_like(flat)
-        loss = -log_posterior / count
-        if not torch.isfinite(loss):
-            return 1e10, np.zeros_like(flat)
-        loss.backward()
-        if float(loss.detach()) < best[0]:
-            best = (float(loss.detach()), flat.copy())
+        loss = -found[0] / count
+        if loss < best[0]:
+            best = (loss, flat.copy())
         gradient = [
-            (tensor.grad if tensor.grad is not None else torch.zeros_like(tensor)).reshape(-1)
+            found[1].get(id(tensor), torch.zeros_like(tensor)).reshape(-1) / -count
             for tensor in tensors
         ]
-        return float(loss.item()), torch.cat(gradient).detach().cpu().numpy().astype(np.float64)
+        return loss, torch.cat(gradient).cpu().numpy().astype(np.float64)
 
     start = np.concatenate([tensor.detach().cpu().reshape(-1).numpy() for tensor in tensors])
     model.train()
@@ -219,6 +217,4 @@ def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) ->
     except OutOfTime:
         final = best[1] if best[1] is not None else np.clip(start, low, high)
     load(final)
-    for tensor in tensors:
-        tensor.grad = None
     return evaluations
