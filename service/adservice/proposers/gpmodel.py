@@ -90,7 +90,7 @@ class SpecFeatures:
         skip = on_axis | {column for column, _ in self.categories}
         self.plain = [k for k in range(spec_dim) if k not in skip]
         self.axes = axes
-        device = tkw.get("device")
+        device = torch.device(str(tkw.get("device") or "cpu"))
         self.plain_index = torch.as_tensor(self.plain, dtype=torch.long, device=device)
         self.angles = [
             self._angle_table(search, axes, "theta", device),
