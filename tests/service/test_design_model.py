@@ -374,7 +374,7 @@ def test_fit_map_reaches_botorchs_optimum(multi: Any, noise: str) -> None:
     from gpytorch.likelihoods import GaussianLikelihood
     from gpytorch.mlls import ExactMarginalLogLikelihood
 
-    from adservice.proposers.gpmodel import fit_map
+    from adservice.proposers.likelihood import fit_map
 
     _, representation, search = multi
     X = random_vectors(representation, 30, seed=2)

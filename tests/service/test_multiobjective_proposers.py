@@ -330,7 +330,8 @@ def _fitted(X: np.ndarray, columns: np.ndarray) -> list[Any]:
     from botorch.models import SingleTaskGP
     from botorch.models.transforms.outcome import Standardize
 
-    from adservice.proposers.gpmodel import design_kernel, fit_map
+    from adservice.proposers.gpmodel import design_kernel
+    from adservice.proposers.likelihood import fit_map
 
     Z = torch.as_tensor(np.column_stack([np.zeros(len(X)), X]))
     models = []

@@ -188,7 +188,9 @@ class MixedDomain:
 
 
 Acquisition = Callable[[torch.Tensor], torch.Tensor]
-"""b x 1 x D model inputs -> b values."""
+"""b x 1 x D model inputs -> b values. One that also has ``value_and_grad`` (b x D ->
+values, their gradient with respect to the inputs) is searched through it instead of
+autograd (``posterior.LogEI``)."""
 
 
 @dataclass(frozen=True)
@@ -281,9 +283,13 @@ def _local(
         if evaluations and past(deadline):
             raise OutOfTime
         evaluations += 1
-        values_t = torch.as_tensor(free, **tkw).requires_grad_(True)
+        closed = getattr(acqf, "value_and_grad", None)
+        values_t = torch.as_tensor(free, **tkw).requires_grad_(closed is None)
         points = full.masked_scatter(mask, values_t)
-        values = acqf(points.unsqueeze(1))
+        if closed is not None:
+            values, by_point = closed(points)
+        else:
+            values = acqf(points.unsqueeze(1))
         loss = -values.sum()
         if not torch.isfinite(loss):
             return 1e10, np.zeros_like(free)
@@ -292,7 +298,10 @@ def _local(
             better = current > best_values
             best_free[better[owner]] = free[better[owner]]
             best_values[better] = current[better]
-        (gradient,) = torch.autograd.grad(loss, values_t)
+        if closed is not None:
+            gradient = -by_point[mask]
+        else:
+            (gradient,) = torch.autograd.grad(loss, values_t)
         return float(loss.item()), gradient.detach().cpu().numpy().astype(np.float64)
 
     try:

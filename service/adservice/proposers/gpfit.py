@@ -73,7 +73,7 @@ def fit_outcome(
 ) -> tuple[Any, str]:
     """A ``SingleTaskGP`` on one outcome ``y`` of the points ``X`` (the study's model:
     ``gpmodel.design_kernel``, the noise mode, outcomes standardised) with its
-    hyperparameters fitted by ``gpmodel.fit_map`` through the fit caches, in eval mode;
+    hyperparameters fitted by ``likelihood.fit_map`` through the fit caches, in eval mode;
     and where its fit came from (cached, warm, cold; ``-subset-N`` when a long history's
     hyperparameters were fitted on N of its observations, ``fit_subset``; ``-stopped``
     past the deadline).
@@ -85,7 +85,8 @@ def fit_outcome(
     from botorch.models.transforms.outcome import Standardize
 
     from adservice.proposers.acquisition import past
-    from adservice.proposers.gpmodel import design_kernel, fit_map
+    from adservice.proposers.gpmodel import design_kernel
+    from adservice.proposers.likelihood import fit_map
 
     search = request.structure
     device = tkw["device"]

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -43,7 +44,6 @@ from gpytorch.kernels import Kernel
 from gpytorch.priors import LogNormalPrior
 from linear_operator.utils.warnings import NumericalWarning
 
-from adservice.proposers.acquisition import OutOfTime, past
 from adservice.proposers.base import AxisColumns, SearchStructure
 
 STRUCTURE_LENGTHSCALE_PRIOR = (math.log(0.5), 1.0)
@@ -61,11 +61,6 @@ sampling the corners: median hypervolume after 40 evaluations 0.087 over 10 seed
 3 of them 0; with this prior 0.150 (one 0), and ZDT1 120.63 and 120.62
 (bench/RESULTS.md). One objective keeps the dimension-scaled prior, with
 which its benchmarks were measured."""
-FIT_GTOL = 1e-2
-"""The fit stops when no gradient of the log posterior (summed over the observations)
-exceeds this: Optuna's GPSampler's tolerance. BoTorch's scipy default (1e-5 here on the
-mean per observation) cost 100 to 220 likelihood evaluations a fit on the 8-tree suite
-space at n = 30, with the same candidates."""
 WEIGHT_PRIOR = (math.log(1.0 / 3.0), 1.0)
 """(loc, scale) of each component weight's log-normal prior (outcomes are standardised)."""
 
@@ -95,11 +90,35 @@ class SpecFeatures:
         skip = on_axis | {column for column, _ in self.categories}
         self.plain = [k for k in range(spec_dim) if k not in skip]
         self.axes = axes
+        device = torch.device(str(tkw.get("device") or "cpu"))
+        self.plain_index = torch.as_tensor(self.plain, dtype=torch.long, device=device)
         self.angles = [
-            self._angle_table(search, axes, "theta"),
-            self._angle_table(search, axes, "phi"),
+            self._angle_table(search, axes, "theta", device),
+            self._angle_table(search, axes, "phi", device),
         ]
-        self.invariant = torch.as_tensor([axis.sign_invariant for axis in axes], dtype=torch.bool)
+        # which angles are all searched, and which some on a log scale
+        self.angle_kinds = [(bool(t[1].all()), bool(t[5].any())) for t in self.angles]
+        signs = [axis.sign_invariant for axis in axes]
+        self.arrows = torch.as_tensor(
+            [a for a, invariant in enumerate(signs) if not invariant],
+            dtype=torch.long,
+            device=device,
+        )
+        self.lines = torch.as_tensor(
+            [a for a, invariant in enumerate(signs) if invariant], dtype=torch.long, device=device
+        )
+        # a line's features: the products unit[first] * unit[second] (the outer product
+        # u u^T's upper triangle) times weight
+        self.first, self.second = (
+            torch.as_tensor(index, dtype=torch.long, device=device)
+            for index in ([0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2])
+        )
+        root2 = math.sqrt(2.0)
+        self.weight = torch.as_tensor(
+            [1.0 / root2, 1.0 / root2, 1.0 / root2, 1.0, 1.0, 1.0],
+            dtype=torch.float64,
+            device=device,
+        )
         groups = list(range(len(self.plain)))
         for sign_invariant in (False, True):
             for number, axis in enumerate(axes):
@@ -108,11 +127,14 @@ class SpecFeatures:
         for number, (_, count) in enumerate(self.categories):
             groups += [len(self.plain) + len(axes) + number] * count
         self.n_groups = len(self.plain) + len(axes) + len(self.categories)
-        self.group_index = torch.as_tensor(groups, dtype=torch.long)
+        self.group_index = torch.as_tensor(groups, dtype=torch.long, device=device)
 
     @staticmethod
     def _angle_table(
-        search: SearchStructure | None, axes: tuple[AxisColumns, ...], which: str
+        search: SearchStructure | None,
+        axes: tuple[AxisColumns, ...],
+        which: str,
+        device: Any,
     ) -> tuple[torch.Tensor, ...]:
         """Per axis: the slot of its angle (clamped to 0 when fixed), whether it is
         searched, its fixed value, the slot's start and width in radians, whether it
@@ -125,55 +147,89 @@ class SpecFeatures:
             for c in columns
         ]
         return (
-            torch.as_tensor([max(c, 0) for c in columns], dtype=torch.long),
-            torch.as_tensor([c >= 0 for c in columns], dtype=torch.bool),
+            torch.as_tensor([max(c, 0) for c in columns], dtype=torch.long, device=device),
+            torch.as_tensor([c >= 0 for c in columns], dtype=torch.bool, device=device),
             torch.as_tensor(
-                [getattr(axis, f"{which}_fixed") for axis in axes], dtype=torch.float64
+                [getattr(axis, f"{which}_fixed") for axis in axes],
+                dtype=torch.float64,
+                device=device,
             ),
-            torch.as_tensor([scale[0] for scale in scales], dtype=torch.float64),
-            torch.as_tensor([scale[1] for scale in scales], dtype=torch.float64),
-            torch.as_tensor([scale[2] for scale in scales], dtype=torch.bool),
+            torch.as_tensor([scale[0] for scale in scales], dtype=torch.float64, device=device),
+            torch.as_tensor([scale[1] for scale in scales], dtype=torch.float64, device=device),
+            torch.as_tensor([scale[2] for scale in scales], dtype=torch.bool, device=device),
         )
 
-    @staticmethod
-    def _angle(u: torch.Tensor, table: tuple[torch.Tensor, ...]) -> torch.Tensor:
-        """Every axis's angle in radians (... x A): fixed, or its slot denormalised."""
-        column, searched, fixed, start, width, log = (t.to(u.device) for t in table)
-        angle = start.to(u.dtype) + u[..., column] * width.to(u.dtype)
-        if bool(log.any()):
-            angle = torch.where(log, torch.exp(angle), angle)
-        return torch.where(searched, angle, fixed.to(u.dtype))
+    def _angle(self, u: torch.Tensor, which: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Every axis's theta (``which`` 0) or phi (1) in radians (... x A): fixed, or its
+        slot denormalised; and its derivative with respect to its slot (0 when fixed)."""
+        column, searched, fixed, start, width, log = self.angles[which]
+        all_searched, any_log = self.angle_kinds[which]
+        angle = start + u[..., column] * width
+        rate = width.expand_as(angle)
+        if any_log:
+            grown = torch.exp(angle)
+            angle, rate = torch.where(log, grown, angle), torch.where(log, grown * width, rate)
+        if all_searched:
+            return angle, rate
+        return torch.where(searched, angle, fixed), torch.where(searched, rate, 0.0)
 
     def __call__(self, u: torch.Tensor) -> torch.Tensor:
-        parts = [u[..., self.plain]]
+        return self.with_pullback(u)[0]
+
+    def with_pullback(
+        self, u: torch.Tensor
+    ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
+        """The features of ``u``, and the pullback: the gradient with respect to ``u``
+        of a function whose gradient with respect to the features is ``slopes``, in
+        closed form (plain specs pass it on, an axis through its unit vector's or
+        line's derivatives in its angles, a category's one-hot vector not at all: its
+        choice is rounded), as autograd would give it."""
+        parts = [u[..., self.plain_index]]
         if self.axes:
-            theta, phi = self._angle(u, self.angles[0]), self._angle(u, self.angles[1])
-            sin_theta = torch.sin(theta)
-            x, y, z = sin_theta * torch.cos(phi), sin_theta * torch.sin(phi), torch.cos(theta)
-            invariant = self.invariant.to(u.device)
+            (theta, theta_rate), (phi, phi_rate) = self._angle(u, 0), self._angle(u, 1)
+            sin_theta, cos_theta = torch.sin(theta), torch.cos(theta)
+            sin_phi, cos_phi = torch.sin(phi), torch.cos(phi)
+            # ... x A x 3: each axis's unit vector
+            unit = torch.stack([sin_theta * cos_phi, sin_theta * sin_phi, cos_theta], -1)
             shape = (*u.shape[:-1], -1)
-            if not bool(invariant.all()):
-                keep = ~invariant
+            if len(self.arrows):
+                parts.append(unit[..., self.arrows, :].reshape(shape) / 2.0)
+            if len(self.lines):
+                line = unit[..., self.lines, :]
                 parts.append(
-                    torch.stack([x[..., keep], y[..., keep], z[..., keep]], -1).reshape(shape) / 2.0
+                    (line[..., self.first] * line[..., self.second] * self.weight).reshape(shape)
                 )
-            if bool(invariant.any()):
-                xi, yi, zi = x[..., invariant], y[..., invariant], z[..., invariant]
-                root2 = math.sqrt(2.0)
-                line = [
-                    xi * xi,
-                    yi * yi,
-                    zi * zi,
-                    root2 * xi * yi,
-                    root2 * xi * zi,
-                    root2 * yi * zi,
-                ]
-                parts.append(torch.stack(line, -1).reshape(shape) / root2)
         for column, count in self.categories:
             index = (u[..., column] * count - 0.5).round().clamp(0, count - 1).long()
             one_hot = torch.nn.functional.one_hot(index, count).to(u.dtype)
             parts.append(one_hot / math.sqrt(2.0))
-        return torch.cat(parts, dim=-1)
+
+        def pullback(slopes: torch.Tensor) -> torch.Tensor:
+            gradient = torch.zeros_like(u)
+            gradient[..., self.plain_index] = slopes[..., : len(self.plain)]
+            if not self.axes:
+                return gradient
+            per_unit = torch.zeros_like(unit)
+            offset = len(self.plain)
+            if len(self.arrows):
+                block = slopes[..., offset : offset + 3 * len(self.arrows)]
+                per_unit[..., self.arrows, :] = block.reshape(*unit.shape[:-2], -1, 3) / 2.0
+                offset += 3 * len(self.arrows)
+            if len(self.lines):
+                block = slopes[..., offset : offset + 6 * len(self.lines)]
+                weighted = block.reshape(*unit.shape[:-2], -1, 6) * self.weight
+                per_line = torch.zeros_like(line)
+                per_line.index_add_(-1, self.first, weighted * line[..., self.second])
+                per_line.index_add_(-1, self.second, weighted * line[..., self.first])
+                per_unit[..., self.lines, :] = per_line
+            per_x, per_y, per_z = per_unit.unbind(-1)
+            per_theta = (per_x * cos_phi + per_y * sin_phi) * cos_theta - per_z * sin_theta
+            per_phi = (per_y * cos_phi - per_x * sin_phi) * sin_theta
+            gradient.index_add_(-1, self.angles[0][0], per_theta * theta_rate)
+            gradient.index_add_(-1, self.angles[1][0], per_phi * phi_rate)
+            return gradient
+
+        return torch.cat(parts, dim=-1), pullback
 
 
 class SpecKernel(Kernel):
@@ -204,7 +260,7 @@ class SpecKernel(Kernel):
     def scaled(self, features: torch.Tensor) -> torch.Tensor:
         """Features divided by their length scales: the kernel is a function of the
         distance between two embeddings."""
-        return features / self.lengthscale[..., self.features.group_index.to(features.device)]
+        return features / self.lengthscale[..., self.features.group_index]
 
     def embed(self, x: torch.Tensor) -> torch.Tensor:
         return self.scaled(self.inputs(x))
@@ -217,6 +273,16 @@ class SpecKernel(Kernel):
             return torch.exp(-0.5 * squared)
         root5 = math.sqrt(5.0) * squared.clamp_min(1e-30).sqrt()
         return (1.0 + root5 + root5**2 / 3.0) * torch.exp(-root5)
+
+    def with_slope(self, squared: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The kernel at these squared distances and its derivative with respect to
+        them: -k / 2 (RBF); -5/6 (1 + sqrt(5) r) exp(-sqrt(5) r) (Matern-5/2)."""
+        if self.rbf:
+            value = torch.exp(-0.5 * squared)
+            return value, -0.5 * value
+        root5 = math.sqrt(5.0) * squared.clamp_min(1e-30).sqrt()
+        decay = torch.exp(-root5)
+        return (1.0 + root5 + root5**2 / 3.0) * decay, (-5.0 / 6.0) * (1.0 + root5) * decay
 
     def forward(
         self, x1: torch.Tensor, x2: torch.Tensor, diag: bool = False, **params: object
@@ -313,7 +379,7 @@ class DesignKernel(Kernel):
 
     def inputs(self, x: torch.Tensor) -> Embedding:
         """What ``embed`` scales: the part of the embedding that no hyperparameter
-        changes (``fit_map`` computes it once per fit)."""
+        changes."""
         return (
             self.spec.inputs(x),
             self.structure.inputs(x) if self.structure is not None else None,
@@ -384,105 +450,3 @@ def structure_correlation(model: Any, search: SearchStructure, tkw: dict[str, An
 def structure_lengthscale(model: Any) -> float:
     structure = model.covar_module.structure
     return round(float(structure.lengthscale.detach().cpu().reshape(-1)[0]), 6)
-
-
-def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) -> int:
-    """Fit the hyperparameters by maximum a posteriori marginal likelihood, as BoTorch's
-    ``fit_gpytorch_mll`` does (L-BFGS-B on the raw parameters, within their
-    constraints' bounds, from their current values), with the likelihood computed
-    straight from ``DesignKernel.forward`` and one Cholesky factor, without
-    gpytorch's lazy kernel and distribution objects. Same optimum (tested); the
-    median fit of ``bench/asklatency.py`` at n = 50, d = 6 fell from 0.087 s to
-    0.069 s (bench/RESULTS.md). Past ``deadline`` (``time.monotonic()``) it
-    stops with the best parameters evaluated so far (the ask's time budget).
-    Returns the number of likelihood evaluations."""
-    from botorch.optim.utils import get_parameters_and_bounds
-    from scipy.optimize import minimize
-
-    params, bounds = get_parameters_and_bounds(model, requires_grad=True)
-    tensors = list(params.values())
-    limits = [bounds.get(name, (None, None)) for name in params]
-    low = np.concatenate(
-        [
-            np.full(tensor.numel(), -np.inf if lo is None else float(lo))
-            for tensor, (lo, _) in zip(tensors, limits, strict=True)
-        ]
-    )
-    high = np.concatenate(
-        [
-            np.full(tensor.numel(), np.inf if hi is None else float(hi))
-            for tensor, (_, hi) in zip(tensors, limits, strict=True)
-        ]
-    )
-    train = model.train_inputs[0]
-    kernel = model.covar_module
-    inputs = kernel.inputs(train) if isinstance(kernel, DesignKernel) else None
-    targets = model.train_targets
-    count = len(targets)
-    priors = list(model.named_priors())
-    evaluations = 0
-    best: tuple[float, np.ndarray | None] = (math.inf, None)
-
-    def load(flat: np.ndarray) -> None:
-        offset = 0
-        with torch.no_grad():
-            for tensor in tensors:
-                size = tensor.numel()
-                tensor.copy_(torch.as_tensor(flat[offset : offset + size]).reshape(tensor.shape))
-                offset += size
-
-    def objective(flat: np.ndarray) -> tuple[float, np.ndarray]:
-        nonlocal evaluations, best
-        if evaluations and past(deadline):
-            raise OutOfTime
-        evaluations += 1
-        load(flat)
-        for tensor in tensors:
-            tensor.grad = None
-        noise = model.likelihood.noise.reshape(-1)
-        if inputs is not None:
-            embedded = kernel.scaled(inputs)
-            covariance = kernel.from_embeddings(embedded, embedded)
-        else:
-            covariance = kernel.forward(train, train)
-        K = covariance + torch.diag(noise.expand(count) if noise.numel() == 1 else noise)
-        residual = targets - model.mean_module.constant
-        factor, info = torch.linalg.cholesky_ex(K)
-        if int(info) != 0:
-            return 1e10, np.zeros_like(flat)
-        alpha = torch.cholesky_solve(residual.unsqueeze(-1), factor).squeeze(-1)
-        log_posterior = -0.5 * (residual * alpha).sum() - torch.log(torch.diagonal(factor)).sum()
-        for _, module, prior, closure, _ in priors:
-            log_posterior = log_posterior + prior.log_prob(closure(module)).sum()
-        loss = -log_posterior / count
-        if not torch.isfinite(loss):
-            return 1e10, np.zeros_like(flat)
-        loss.backward()
-        if float(loss.detach()) < best[0]:
-            best = (float(loss.detach()), flat.copy())
-        gradient = [
-            (tensor.grad if tensor.grad is not None else torch.zeros_like(tensor)).reshape(-1)
-            for tensor in tensors
-        ]
-        return float(loss.item()), torch.cat(gradient).detach().cpu().numpy().astype(np.float64)
-
-    start = np.concatenate([tensor.detach().cpu().reshape(-1).numpy() for tensor in tensors])
-    model.train()
-    try:
-        result = minimize(
-            objective,
-            np.clip(start, low, high),
-            jac=True,
-            method="L-BFGS-B",
-            bounds=list(zip(low, high, strict=True)),
-            # Optuna's GPSampler stops its fit at a gradient of 1e-2 of the (unscaled) log
-            # posterior; this loss is that divided by n
-            options={"maxiter": maxiter, "gtol": FIT_GTOL / count},
-        )
-        final = result.x
-    except OutOfTime:
-        final = best[1] if best[1] is not None else np.clip(start, low, high)
-    load(final)
-    for tensor in tensors:
-        tensor.grad = None
-    return evaluations

@@ -22,7 +22,7 @@ What a caller can rely on:
   objectives or outcome constraints have no single incumbent: ``judged`` looks never.
 - **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
   (structure index and normalised specs, or a box scaled to the unit box), outcomes
-  standardised, hyperparameters by maximum a posteriori (``gpmodel.fit_map``), the
+  standardised, hyperparameters by maximum a posteriori (``likelihood.fit_map``), the
   covariance ``gpmodel.design_kernel``. Several objectives or outcome constraints
   (``request.objectives``, ``slacks``): one GP per outcome and LogEHVI or constrained
   LogEI (``multiobjective``).

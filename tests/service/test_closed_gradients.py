@@ -1,0 +1,178 @@
+"""The closed-form gradients of qei's hot loops equal autograd's: LogEI's with respect to
+the model inputs (``Posterior.log_ei_with_gradient``, through the structure kernel, the
+spec kernel and every kind of spec feature: plain, axes with and without sign, on a log
+scale, categories), with and without pending points believed; and the fit's log
+posterior's with respect to every hyperparameter (``likelihood.LogPosterior``), in each
+noise mode."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from adclient.boxspace import BoxEncoding
+from adclient.design import DesignSpace
+from adclient.schemas import StudyCreate
+from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
+from adservice.proposers.gpfit import fit_outcome
+from adservice.proposers.posterior import LogEI, Posterior
+from adservice.proposers.qei_shared import QEIOptions
+from adservice.representation import build_representation, search_structure
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+TKW: dict[str, Any] = {"dtype": torch.float64, "device": torch.device("cpu")}
+LOG_AXES = {
+    "type": "design",
+    "parts": {"link": {"length": {"low": 0.1, "high": 0.5}}},
+    "joint": {
+        "axis_theta": {"low": 0.05, "high": 3.0, "log": True},
+        "axis_phi": {"low": 0.01, "high": 6.0, "log": True},
+        "lower": -1.0,
+    },
+    "instances": [{"name": "a", "part": "link"}, {"name": "b", "part": "link"}],
+    "structures": [[["a", "b"]]],
+}
+TYPED_BOX = {
+    "type": "box",
+    "params": [
+        {"name": "x", "low": -2.0, "high": 2.0},
+        {"name": "width", "type": "int", "low": 1, "high": 64, "log": True},
+        {"name": "activation", "type": "categorical", "choices": ["relu", "tanh", "gelu"]},
+        {"name": "y", "low": 0.0, "high": 3.0},
+    ],
+}
+
+
+def request_for(case: str, n: int, seed: int) -> ProposalRequest:
+    """n random observations of a smooth function in one of the spaces."""
+    box = None
+    search = None
+    if case == "typed-box":
+        box = BoxEncoding.of(TYPED_BOX)
+        bounds = box.bounds
+    elif case == "box":
+        bounds = np.array([[-1.0, 0.0, -3.0], [1.0, 2.0, 3.0]])
+    else:
+        if case == "log-axes":
+            space = DesignSpace.model_validate(LOG_AXES)
+        else:
+            body = yaml.safe_load((EXAMPLES / f"{case}.yaml").read_text())
+            parsed = StudyCreate.model_validate(body).space
+            assert isinstance(parsed, DesignSpace)
+            space = parsed
+        representation = build_representation(space)
+        search = search_structure(space, representation)
+        bounds = np.asarray(representation.bounds)
+    rng = np.random.default_rng(seed)
+    dim = bounds.shape[1]
+    X = bounds[0] + rng.random((n, dim)) * (bounds[1] - bounds[0])
+    if box is not None:
+        X = box.snap(X)
+    y = np.sin(3.0 * model_inputs(X, bounds, search)).sum(axis=1) + 0.1 * rng.random(n)
+    return ProposalRequest(
+        bounds=bounds,
+        count=1,
+        seed=seed,
+        n_issued=n,
+        X=X,
+        y=y,
+        failed=empty_history(dim),
+        pending=empty_history(dim),
+        structure=search,
+        box=box,
+    )
+
+
+CASES = ["box", "typed-box", "multi-structure", "joint-kinds", "log-axes"]
+
+
+@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("kernel", ["matern", "rbf"])
+@pytest.mark.parametrize("believing", [False, True])
+def test_log_ei_gradient_is_autograds(case: str, kernel: str, believing: bool) -> None:
+    request = request_for(case, 16, seed=3)
+    model, _ = fit_outcome(
+        request,
+        QEIOptions(kernel=kernel, warm_start=False),
+        request.bounds,
+        request.X,
+        request.y,
+        TKW,
+        None,
+    )
+    posterior = Posterior(model)
+    probe = request_for(case, 9, seed=4)
+    points = torch.as_tensor(model_inputs(probe.X, request.bounds, request.structure), **TKW)
+    if believing:
+        posterior = posterior.believing(points[:2])
+        points = points[2:]
+    acquisition = LogEI(posterior, float(request.y.max()) + 0.05)
+    # one probe at an observed point: its variance at the floor, its gradient still right
+    points = torch.cat(
+        [
+            points,
+            torch.as_tensor(model_inputs(request.X[:1], request.bounds, request.structure), **TKW),
+        ]
+    )
+    tracked = points.clone().requires_grad_(True)
+    expected_values = acquisition(tracked.unsqueeze(1))
+    (expected,) = torch.autograd.grad(expected_values.sum(), tracked)
+    values, gradient = acquisition.value_and_grad(points)
+    # at the observed point the variance is a difference of nearly equal numbers
+    torch.testing.assert_close(values, expected_values.detach(), rtol=1e-8, atol=1e-10)
+    scale = float(expected.abs().max())
+    assert scale > 0.0 and math.isfinite(scale)
+    torch.testing.assert_close(gradient, expected, rtol=1e-7, atol=1e-9 * scale)
+
+
+def reference_log_posterior(model: Any) -> torch.Tensor:
+    """The fit's log posterior by autograd through gpytorch's own kernel call."""
+    train = model.train_inputs[0]
+    noise = model.likelihood.noise.reshape(-1)
+    K = model.covar_module(train, train).to_dense()
+    K = K + torch.diag(noise.expand(len(train)))
+    factor = torch.linalg.cholesky(K)
+    residual = model.train_targets - model.mean_module.constant
+    alpha = torch.cholesky_solve(residual.unsqueeze(-1), factor).squeeze(-1)
+    value = -0.5 * (residual * alpha).sum() - torch.log(torch.diagonal(factor)).sum()
+    for _, module, prior, closure, _ in model.named_priors():
+        value = value + prior.log_prob(closure(module)).sum()
+    return value
+
+
+@pytest.mark.parametrize("case", ["box", "typed-box", "multi-structure", "joint-kinds"])
+@pytest.mark.parametrize("noise", ["floor", "inferred", "fixed"])
+def test_log_posterior_gradient_is_autograds(case: str, noise: str) -> None:
+    from adservice.proposers.likelihood import LogPosterior
+
+    request = request_for(case, 14, seed=5)
+    model, _ = fit_outcome(
+        request,
+        QEIOptions(noise=noise, kernel="matern" if case != "box" else "rbf", warm_start=False),
+        request.bounds,
+        request.X,
+        request.y,
+        TKW,
+        None,
+    )
+    model.train()
+    parameters = [p for p in model.parameters() if p.requires_grad]
+    with torch.no_grad():  # away from the optimum, where every gradient is 0
+        for number, parameter in enumerate(parameters):
+            parameter.mul_(1.0 + 0.1 * (number % 3 + 1))
+    expected_value = reference_log_posterior(model)
+    expected = torch.autograd.grad(expected_value, parameters, allow_unused=True)
+    found = LogPosterior(model)()
+    assert found is not None
+    value, gradients = found
+    assert value == pytest.approx(float(expected_value), rel=1e-10, abs=1e-10)
+    assert len(parameters) >= 2
+    for parameter, theirs in zip(parameters, expected, strict=True):
+        assert theirs is not None
+        torch.testing.assert_close(gradients[id(parameter)], theirs, rtol=1e-7, atol=1e-8)
