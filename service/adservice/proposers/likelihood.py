@@ -146,9 +146,8 @@ def fit_map(model: Any, *, maxiter: int = 200, deadline: float | None = None) ->
     ``fit_gpytorch_mll`` does (L-BFGS-B on the raw parameters, within their
     constraints' bounds, from their current values), with the log posterior and its
     gradient from ``LogPosterior``, without gpytorch's lazy kernel and distribution
-    objects. Same optimum (tested); the
-    median fit of ``bench/asklatency.py`` at n = 50, d = 6 fell from 0.087 s to
-    0.069 s (bench/RESULTS.md). Past ``deadline`` (``time.monotonic()``) it
+    objects, which cost more than the arithmetic at small n (bench/RESULTS.md). Same
+    optimum (tested). Past ``deadline`` (``time.monotonic()``) it
     stops with the best parameters evaluated so far (the ask's time budget).
     Returns the number of likelihood evaluations."""
     from botorch.optim.utils import get_parameters_and_bounds
