@@ -41,7 +41,7 @@ reported the files together (a run appears once however many files hold it):
     cat bench/results/design_suite-i37*.jsonl > /tmp/i37.jsonl
     .venv/bin/python bench/design_suite.py --report --results /tmp/i37.jsonl --no-write
 
-The judged second looks (issue 37's default since) ran this branch's server alone, two
+The judged second looks (an option, off by default) ran this branch's server alone, two
 halves side by side, and were reported with the runs of main before them (its
 spec-dominated runs and issue 26's qei runs relabelled ``qei-main``, GPSampler's and
 random search's) gathered into one file, as bench/RESULTS.md's wrong-tree section says:

@@ -15,7 +15,7 @@ from adclient import Client
 from adclient.errors import Unavailable
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess
-from tests.workers.test_worker_e2e import stand_up_study
+from tests.workers.robots import stand_up_study
 
 pytestmark = pytest.mark.e2e
 

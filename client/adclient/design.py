@@ -143,13 +143,10 @@ class DesignSpace(StrictModel):
     _turned: bool | None = PrivateAttr(default=None)
 
     def __eq__(self, other: object) -> bool:
-        """Equal by fields: the private attributes are caches and ties derived from them,
-        so a space whose trees were listed still equals a fresh copy."""
+        """Equal by fields: the private attributes are caches and ties derived from them."""
         if not isinstance(other, DesignSpace):
             return NotImplemented
         return type(self) is type(other) and self.__dict__ == other.__dict__
-
-    __hash__ = None  # type: ignore[assignment]  # mutable, as pydantic's models are
 
     @model_validator(mode="after")
     def _check(self) -> DesignSpace:

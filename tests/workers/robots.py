@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from adclient import Client
+from adclient.client import StudyHandle
 from adclient.designs import Design
+from adclient.schemas import Trial
 
 
 def _fallback_urdf(design: Design, robot_name: str = "robot") -> str:
@@ -66,6 +69,25 @@ def example_study(name: str):
     from adclient.schemas import StudyCreate
 
     return StudyCreate.model_validate(yaml.safe_load((EXAMPLES / f"{name}.yaml").read_text()))
+
+
+def stand_up_study(client: Client, *, max_trials: int, **task: object) -> StudyHandle:
+    """The example stand-up study, as its file sets it, with a budget, task changes and
+    the random proposer: the tests that use it are about workers and leases, not
+    proposals, and qei would fit a model in the server for every ask past its first two."""
+    body = example_study("stand-up").model_dump(mode="json", exclude_unset=True)
+    body["max_trials"] = max_trials
+    body["proposer"] = {"name": "random", "seed": 0}
+    body["task"].update(task)
+    return client.create_study(body)
+
+
+def running_trial(client: Client, study_id: int, worker_id: str) -> Trial | None:
+    """The study's running trial that ``worker_id`` holds, if any."""
+    for trial in client.trials(study_id, state="running"):
+        if trial.worker_id == worker_id:
+            return trial
+    return None
 
 
 def make_job(example: str, specs: dict[str, float], trial_id: int = 1, **task: object):

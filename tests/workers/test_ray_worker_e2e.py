@@ -26,8 +26,7 @@ import pytest
 from adclient import Client
 from adclient.testing.servers import ServerProcess, free_port
 from adclient.testing.workers import ADWORKER, PATIENCE, WorkerProcess, wait_for
-from tests.workers.robots import example_study
-from tests.workers.test_worker_e2e import running_trial
+from tests.workers.robots import running_trial, stand_up_study
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("ray")]
 
@@ -105,17 +104,6 @@ def cluster(
     finally:
         stop(driver)
         server.stop()
-
-
-def stand_up_study(client: Client, *, max_trials: int, **task: object):
-    """The example stand-up study, as its file sets it, with a budget, task changes and
-    the random proposer: these tests are about Ray workers, not proposals, and qei would
-    fit a model in the server for every ask past its first two."""
-    body = example_study("stand-up").model_dump(mode="json", exclude_unset=True)
-    body["max_trials"] = max_trials
-    body["proposer"] = {"name": "random", "seed": 0}
-    body["task"].update(task)
-    return client.create_study(body)
 
 
 def actor_pids(driver: WorkerProcess) -> dict[str, int]:

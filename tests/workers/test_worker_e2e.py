@@ -11,10 +11,9 @@ from pathlib import Path
 import pytest
 
 from adclient import Client
-from adclient.schemas import Trial
 from adclient.testing.servers import ServerProcess, refused_at_start
 from adclient.testing.workers import ADWORKER, PATIENCE, wait_for
-from tests.workers.robots import example_study
+from tests.workers.robots import running_trial, stand_up_study
 
 pytestmark = pytest.mark.e2e
 
@@ -35,17 +34,6 @@ def server_factory(tmp_path: Path) -> Iterator[Callable[..., ServerProcess]]:
         server.stop()
 
 
-def stand_up_study(client: Client, *, max_trials: int, **task: object):
-    """The example stand-up study with a budget and task changes, and the random
-    proposer: these tests are about workers and leases, not proposals, and qei would fit
-    a model in the server for every ask past its first two."""
-    body = example_study("stand-up").model_dump(mode="json")
-    body["max_trials"] = max_trials
-    body["proposer"] = {"name": "random", "seed": 0}
-    body["task"].update(task)
-    return client.create_study(body)
-
-
 def children(pid: int) -> list[int]:
     """The processes whose parent is ``pid``."""
     found = []
@@ -57,13 +45,6 @@ def children(pid: int) -> list[int]:
         if stat and int(stat.rsplit(")", 1)[1].split()[1]) == pid:
             found.append(int(entry.name))
     return found
-
-
-def running_trial(client: Client, study_id: int, worker_id: str) -> Trial | None:
-    for trial in client.trials(study_id, state="running"):
-        if trial.worker_id == worker_id:
-            return trial
-    return None
 
 
 def test_managed_study_runs_to_completion_with_a_pool_of_workers(server_factory, workers):

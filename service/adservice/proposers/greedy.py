@@ -77,7 +77,7 @@ class Greedy:
     """The study's initial designs (``initial.initial_count``)."""
     trust: TrustBox | None = None
     """A long history's trust region: the search stays inside it (``trust_region``)."""
-    judged: bool = True
+    judged: bool = False
     """A look chooses among the trees the judgement passes (``second_looks: judged``)."""
 
     @classmethod

@@ -40,7 +40,10 @@ def tree_chances(
     tkw: dict,
 ) -> np.ndarray:
     """Each of ``trees``' chance that its best beats ``incumbent`` (see the module
-    docstring); ``best_known``: model inputs of the best observed designs, best first."""
+    docstring); ``best_known``: model inputs of the best observed designs, best first.
+    The posterior leaves out the observations of ``trees``; where every observation is
+    of one of them (a start that did not cover the other trees) it keeps them all, as
+    there is nothing else to judge by."""
     rng = np.random.default_rng([seed, 37])
     observed = posterior.points[:, 0].round().long().cpu().numpy()
     keep = ~np.isin(observed, trees)

@@ -13,11 +13,11 @@ What a caller can rely on:
   choices are covered.
 - **Second looks** (``options["second_looks"]``). After the start, every second model
   candidate of a design space is a look turn while any structure has exactly one
-  design (observed, failed or pending; ``initial.second_look``). By default
-  (``judged``) the tree judgement (``looks.tree_chances``) gives each such structure
-  its chance of beating the incumbent, and the acquisition is maximised over those
-  with a chance of at least ``initial.LOOK_CHANCE`` alone; with none, the candidate
-  is a free choice. ``always`` looks among every such structure, ``off`` never.
+  design (observed, failed or pending; ``initial.second_look``), unless the option is
+  ``off`` (the default). With ``judged`` the tree judgement (``looks.tree_chances``)
+  gives each such structure its chance of beating the incumbent, and the acquisition is
+  maximised over those with a chance of at least ``initial.LOOK_CHANCE`` alone; with
+  none, the candidate is a free choice. ``always`` looks among every such structure.
   A look's info says ``second_look: true``, a judged turn's ``tree_chances``. Several
   objectives or outcome constraints have no single incumbent: ``judged`` looks never.
 - **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
@@ -45,8 +45,9 @@ What a caller can rely on:
 - **Budgets.** Past ``request.seconds`` the fit and the search stop at their best so
   far and the rest of the batch are fallbacks (``budget: time``).
   ``memory.memory_need`` estimates an ask's peak memory; the service refuses an ask
-  whose count or options exceed ``request.memory_bytes`` (on cuda,
-  ``memory.device_budget``); past ``max_train`` observations (by default the most that
+  whose count or options exceed ``request.memory_bytes`` (the server's CPU budget, also
+  for a cuda study); the model itself keeps to ``memory.device_budget`` (on cuda, a
+  share of the GPU's memory); past ``max_train`` observations (by default the most that
   budget holds, at most ``subset.CPU_TRAIN`` on cpu) the model is a GP of a subset
   (``subset``), or past ``trust_region.TRUST_FROM`` observations of a continuous box
   with one outcome a trust region (``trust_region``); the ask's info gives ``model``
