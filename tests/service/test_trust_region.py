@@ -87,6 +87,34 @@ def test_the_search_coordinates_map_onto_the_box_and_back() -> None:
     assert box.wrap(None, tkw) is None
 
 
+class _Smooth:
+    """An acquisition with a closed-form gradient: the sum of sin over the spec columns."""
+
+    def __call__(self, Z: torch.Tensor) -> torch.Tensor:
+        return torch.sin(Z[..., 1:]).sum(dim=-1)
+
+    def value_and_grad(self, Z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        gradient = torch.cos(Z)
+        gradient[..., 0] = 0.0
+        return self(Z), gradient
+
+
+def test_the_box_carries_a_closed_form_gradient_through_its_coordinates() -> None:
+    """The local searches take ``value_and_grad`` where an acquisition has one: seen from
+    the box's coordinates it is the model-input gradient times the box's widths, as
+    autograd finds through the wrapped call; an acquisition without one stays without."""
+    box = trust_box(np.array([0.0, 0.3, 0.6]), np.array([0.5, 2.0]), n_train=1, n_observed=8)
+    tkw = {"dtype": torch.float64, "device": torch.device("cpu")}
+    wrapped = box.wrap(_Smooth(), tkw)
+    U = torch.as_tensor([[0.0, 0.1, 0.9], [0.0, 0.5, 0.2]], **tkw).requires_grad_(True)
+    wrapped(U).sum().backward()
+    assert U.grad is not None
+    values, gradient = wrapped.value_and_grad(U.detach())
+    assert values.numpy() == pytest.approx(wrapped(U.detach()).numpy())
+    assert gradient.numpy() == pytest.approx(U.grad.numpy())
+    assert not hasattr(box.wrap(lambda Z: Z[..., 1:].sum(dim=-1), tkw), "value_and_grad")
+
+
 def test_only_a_continuous_box_with_one_outcome_gets_the_trust_region() -> None:
     assert applies(structure=None, box=None, n_outcomes=1)
     assert not applies(structure=None, box=None, n_outcomes=2)

@@ -30,9 +30,12 @@ no torch at import.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import torch
 
 TRUST_FROM = 20_000
 """Past this many observations a continuous box's default model is the trust region (below
@@ -92,18 +95,14 @@ class TrustBox:
         return out
 
     def wrap(self, acqf: Any, tkw: dict[str, Any]) -> Any:
-        """``acqf`` of model inputs as a function of the search's coordinates."""
+        """``acqf`` of model inputs as a function of the search's coordinates, with its
+        closed-form ``value_and_grad`` (``acquisition.Acquisition``) carried over."""
         if acqf is None:
             return None
         import torch
 
-        low = torch.as_tensor(self.low, **tkw)
-        width = torch.as_tensor(self.width, **tkw)
-
-        def in_box(U: torch.Tensor) -> torch.Tensor:
-            return acqf(torch.cat([U[..., :1], low + U[..., 1:] * width], dim=-1))
-
-        return in_box
+        kind = InBox if getattr(acqf, "value_and_grad", None) is None else InBoxWithGradient
+        return kind(acqf, torch.as_tensor(self.low, **tkw), torch.as_tensor(self.width, **tkw))
 
     def describe(self) -> dict[str, Any]:
         """What the ask's info says of it (in the unit box of the model inputs)."""
@@ -115,6 +114,34 @@ class TrustBox:
                 "volume": float(np.prod(self.width)),
             }
         }
+
+
+class InBox:
+    """An acquisition of model inputs seen from the trust region's coordinates: spec
+    column j is ``low[j] + u[j] * width[j]``, so its gradient there is ``width[j]``
+    times the acquisition's."""
+
+    def __init__(self, acqf: Any, low: torch.Tensor, width: torch.Tensor) -> None:
+        self.acqf, self.low, self.width = acqf, low, width
+
+    def points(self, U: torch.Tensor) -> torch.Tensor:
+        import torch
+
+        return torch.cat([U[..., :1], self.low + U[..., 1:] * self.width], dim=-1)
+
+    def __call__(self, U: torch.Tensor) -> torch.Tensor:
+        return self.acqf(self.points(U))
+
+
+class InBoxWithGradient(InBox):
+    """``InBox`` of an acquisition with a closed-form gradient (``acquisition.Acquisition``),
+    which the local searches then take instead of autograd's."""
+
+    def value_and_grad(self, U: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        import torch
+
+        values, gradient = self.acqf.value_and_grad(self.points(U))
+        return values, torch.cat([gradient[..., :1], gradient[..., 1:] * self.width], dim=-1)
 
 
 def trust_box(
