@@ -5,9 +5,12 @@ search stays in a trust region around the best (issue 37,
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 import torch
+from fastapi.testclient import TestClient
 
 from adclient.boxspace import BoxEncoding
 from adservice.proposers import gpfit
@@ -204,3 +207,43 @@ def test_the_budget_of_an_ask_on_cuda_is_a_share_of_the_gpu() -> None:
     assert device_budget(cpu, "cuda", 0.5, lambda: 80 * 2**30) == 40 * 2**30
     assert device_budget(cpu, "cuda", 0.5, lambda: 1 * 2**30) == cpu  # never below AD_ASK_MEMORY_MB
     assert device_budget(None, "cuda", 0.5, lambda: 80 * 2**30) is None
+
+
+@pytest.mark.parametrize(
+    ("space", "outcomes", "reason"),
+    [
+        (
+            {"type": "box", "params": [{"name": "n", "type": "int", "low": 1, "high": 9}]},
+            {},
+            "int, stepped or categorical params",
+        ),
+        (
+            {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]},
+            {"objectives": [{"metric": "a"}, {"metric": "b", "direction": "minimize"}]},
+            "several objectives",
+        ),
+        (
+            {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]},
+            {"constraints": [{"metric": "mass", "op": "<=", "bound": 3.0}]},
+            "outcome constraints",
+        ),
+    ],
+)
+def test_a_trust_region_asked_where_it_cannot_apply_is_refused_at_creation(
+    api: TestClient, space: dict[str, Any], outcomes: dict[str, Any], reason: str
+) -> None:
+    """Accepted, ``large_history: trust-region`` would be ignored there; refused, nothing
+    is stored, and the same study with ``subset`` (or on a continuous box) is accepted."""
+    body = {"name": "tr", "space": space, "proposer": {"name": "qei"}, **outcomes}
+    body["proposer"]["options"] = {"large_history": "trust-region"}
+    refused = api.post("/api/v1/studies", json=body)
+    assert refused.status_code == 422, refused.text
+    detail = refused.json()["detail"]
+    assert "proposer.options.large_history: trust-region" in detail and reason in detail, detail
+    assert api.get("/api/v1/studies").json() == []
+    body["proposer"]["options"] = {"large_history": "subset"}
+    assert api.post("/api/v1/studies", json=body).status_code == 201
+    box = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
+    plain = {"name": "plain", "space": box, "proposer": {"name": "qei"}}
+    plain["proposer"]["options"] = {"large_history": "trust-region"}
+    assert api.post("/api/v1/studies", json=plain).status_code == 201

@@ -62,6 +62,7 @@ def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | No
     if proposes:
         _check_proposer_device(body.proposer)
         _check_proposer_outcomes(body)
+        _check_large_history(body)
     representation = None
     if isinstance(body.space, DesignSpace):
         from adservice.representation import build_representation
@@ -96,6 +97,28 @@ def _check_proposer_device(config: ProposerConfig) -> None:
             f"proposer.options.device: {device} cannot be used on this server: {problem}; "
             "leave device out (the server's AD_PROPOSER_DEVICE) or set it to cpu"
         )
+
+
+def _check_large_history(body: StudyCreate) -> None:
+    """``large_history: trust-region`` is a model of a continuous box with one outcome
+    (``adservice.proposers.trust_region``): on any other study it would be ignored, so it
+    is refused, naming why."""
+    if body.proposer.options.get("large_history") != "trust-region":
+        return
+    outcomes = body.outcomes()
+    if isinstance(body.space, DesignSpace):
+        reason = "a design space (its structures are discrete)"
+    elif any(p.type != "float" or p.step is not None for p in body.space.params):
+        reason = "a space with int, stepped or categorical params"
+    elif outcomes.count + len(outcomes.constraints) > 1:
+        reason = "a study of several objectives or with outcome constraints"
+    else:
+        return
+    raise InvalidError(
+        f"proposer.options.large_history: trust-region is for a box of continuous params "
+        f"with one objective and no outcome constraints, not {reason}; leave it out (the "
+        "subset) or set it to subset"
+    )
 
 
 def _check_template_task(body: StudyCreate) -> None:
