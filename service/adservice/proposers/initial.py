@@ -10,11 +10,10 @@ One random design per tree does not rank the trees either when the specs matter 
 than the tree: the best tree's one design can be poor. So, unless qei's
 ``second_looks`` is ``off`` (the default), every ``SECOND_LOOK_EVERY``-th model ask
 after the start (``second_look``) is a look turn while a structure has only one
-design: with ``judged`` the
-ask is a second look among the structures seen once whose chance of beating the
-incumbent (``looks.tree_chances``) is at least ``LOOK_CHANCE``, and a free choice when
-none has; with ``always`` among every structure seen once (docs/method.md, "The
-model's choices").
+design: with ``judged`` the ask is a second look among the structures seen once whose
+chance of beating the incumbent (``looks.tree_chances``) is at least ``LOOK_CHANCE``,
+and a free choice when none has; with ``always`` among every structure seen once
+(docs/method.md, "The model's choices").
 """
 
 from __future__ import annotations
