@@ -13,6 +13,8 @@ import torch
 from fastapi.testclient import TestClient
 
 from adclient.boxspace import BoxEncoding
+from adclient.schemas import ProposerConfig
+from adservice.errors import InvalidError
 from adservice.proposers import gpfit
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
 from adservice.proposers.memory import device_budget, memory_need
@@ -27,6 +29,7 @@ from adservice.proposers.trust_region import (
     local_training,
     trust_box,
 )
+from adservice.services.budget import check_options_memory
 
 
 def test_the_local_gp_trains_on_the_best_in_trial_order() -> None:
@@ -207,6 +210,19 @@ def test_the_budget_of_an_ask_on_cuda_is_a_share_of_the_gpu() -> None:
     assert device_budget(cpu, "cuda", 0.5, lambda: 80 * 2**30) == 40 * 2**30
     assert device_budget(cpu, "cuda", 0.5, lambda: 1 * 2**30) == cpu  # never below AD_ASK_MEMORY_MB
     assert device_budget(None, "cuda", 0.5, lambda: 80 * 2**30) is None
+
+
+def test_the_service_checks_an_ask_against_the_budget_of_its_device() -> None:
+    """A cuda study's options are held to the GPU's share, as its asks are
+    (``memory.device_budget``), not to the CPU budget alone; on cpu nothing changes."""
+    options = {"acquisition": "mc", "mc_samples": 4096}
+    budget = 64 * 2**20
+    with pytest.raises(InvalidError, match=r"proposer\.options\.mc_samples"):
+        check_options_memory(ProposerConfig(name="qei", options=options), dim=8, budget=budget)
+    on_gpu = ProposerConfig(name="qei", options={**options, "device": "cuda"})
+    check_options_memory(on_gpu, dim=8, budget=budget, device_bytes=lambda: 80 * 2**30)
+    with pytest.raises(InvalidError, match="AD_ASK_GPU_MEMORY_SHARE"):
+        check_options_memory(on_gpu, dim=8, budget=budget, device_bytes=lambda: 2**27)
 
 
 @pytest.mark.parametrize(

@@ -45,9 +45,9 @@ What a caller can rely on:
 - **Budgets.** Past ``request.seconds`` the fit and the search stop at their best so
   far and the rest of the batch are fallbacks (``budget: time``).
   ``memory.memory_need`` estimates an ask's peak memory; the service refuses an ask
-  whose count or options exceed ``request.memory_bytes`` (the server's CPU budget, also
-  for a cuda study); the model itself keeps to ``memory.device_budget`` (on cuda, a
-  share of the GPU's memory); past ``max_train`` observations (by default the most that
+  whose count or options exceed the budget of the device it runs on
+  (``memory.device_budget``: ``request.memory_bytes`` on cpu, on cuda at least a share
+  of the GPU's memory); past ``max_train`` observations (by default the most that
   budget holds, at most ``subset.CPU_TRAIN`` on cpu) the model is a GP of a subset
   (``subset``), or past ``trust_region.TRUST_FROM`` observations of a continuous box
   with one outcome a trust region (``trust_region``); the ask's info gives ``model``
