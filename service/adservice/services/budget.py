@@ -12,7 +12,6 @@ from adclient.objectives import Outcomes
 from adclient.schemas import ProposerConfig
 from adservice.errors import InvalidError
 from adservice.proposers import options_model, proposer_class
-from adservice.proposers.memory import device_budget
 from adservice.repository.studies import History
 from adservice.services.configs import StudyConfig
 from adservice.settings import get_settings
@@ -58,6 +57,8 @@ def _over_budget(need: Any, budget: int) -> str:
 def _on_device(config: ProposerConfig, budget: int, device_bytes: Callable[[], int] | None) -> int:
     """The budget an ask of ``config`` keeps to on the device its model runs on (the
     study's ``device`` option, else ``AD_PROPOSER_DEVICE``), as the proposer does."""
+    from adservice.proposers.memory import device_budget  # reads settings at import
+
     settings = get_settings()
     device = str(config.options.get("device") or settings.proposer_device)
     share = settings.ask_gpu_memory_share
