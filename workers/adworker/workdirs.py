@@ -9,6 +9,7 @@ import logging
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
 
 log = logging.getLogger("adworker")
@@ -16,6 +17,10 @@ log = logging.getLogger("adworker")
 WORKDIR_PREFIX = "adworker-"
 WORKDIR_LOCK = ".lock"
 """In a worker's temporary folder: a file locked (flock) while the worker lives."""
+STAGING_GRACE = 60.0
+"""Seconds after which a folder still holding only its unlocked staging lock file
+(``.lock.new``: its worker died while making it) counts as abandoned; a live worker
+locks that file the moment it creates it."""
 
 
 def make_workdir(*, lock: bool = True) -> tuple[Path, int | None]:
@@ -34,15 +39,26 @@ def make_workdir(*, lock: bool = True) -> tuple[Path, int | None]:
     return path, descriptor
 
 
-def remove_abandoned_workdirs() -> list[Path]:
-    """Remove the temporary folders of this machine's workers that died without
-    cleaning up (SIGKILL, the out-of-memory killer): those whose lock file no process
-    holds. Folders without one (being made, kept with ``--keep-files``, or another
-    program's) are left alone. Returns what it removed (logged)."""
+def remove_abandoned_workdirs(root: Path | None = None) -> list[Path]:
+    """Remove the temporary folders of this machine's workers (in ``root``, by default
+    the temporary folder) that died without cleaning up (SIGKILL, the out-of-memory
+    killer): those whose lock file no process holds, and those whose worker died while
+    making them (a staging lock file older than ``STAGING_GRACE`` that no process
+    holds). Folders without either (kept with ``--keep-files``, or another program's)
+    and those being made are left alone. Returns what it removed (logged)."""
     removed = []
-    for path in Path(tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*"):
+    for path in Path(root or tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*"):
+        lock = path / WORKDIR_LOCK
+        staging = path / f"{WORKDIR_LOCK}.new"
+        if not lock.exists():
+            try:
+                if time.time() - staging.stat().st_mtime < STAGING_GRACE:
+                    continue
+            except OSError:
+                continue
+            lock = staging
         try:
-            descriptor = os.open(path / WORKDIR_LOCK, os.O_RDWR)
+            descriptor = os.open(lock, os.O_RDWR)
         except OSError:
             continue
         try:
