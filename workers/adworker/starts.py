@@ -42,6 +42,12 @@ class TrainResult:
     """The learner's final state, when the worker asked for it (``keep_checkpoint``)."""
     warm_started: bool = False
     """It trained on from its ``Warm`` start: another design's controller."""
+    shared: dict[str, np.ndarray] | None = None
+    """A ``Shared`` start's weights after training: this design's update of the study's
+    shared controller."""
+    shared_start: dict[str, np.ndarray] | None = None
+    """The shared weights it started from (the given version's, or the study's initial
+    ones): what its update is measured against when versions are merged."""
 
 
 @dataclass
@@ -94,9 +100,24 @@ class Warm:
     steps: int
 
 
-Start = Scratch | Resume | Warm
+@dataclass(frozen=True)
+class Shared:
+    """Start from the study's shared controller (``task.transfer: shared``): a policy
+    whose weights fit every design of the study (:mod:`adworker.modular`). ``weights``:
+    its current version's (:mod:`adworker.shared_weights`), or None before the first
+    version or when that version does not load: then the study's initial weights,
+    the same on every worker for ``seed``. Trains ``steps`` and returns its weights as
+    ``TrainResult.shared`` (and those it started from as ``shared_start``)."""
+
+    weights: dict[str, np.ndarray] | None
+    steps: int
+    seed: int
+    version: int | None = None
+
+
+Start = Scratch | Resume | Warm | Shared
 """Where a learner's training starts: one value, so a resume and a warm start can never
-both be asked for. A shared controller (issue 38) is to be a fourth kind here."""
+both be asked for."""
 
 SCRATCH = Scratch()
 
