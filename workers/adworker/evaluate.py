@@ -294,7 +294,9 @@ def evaluate_job(
         timings=timings,
         episodes=episodes,
         train=trained,
-        transfer_from=_transfer_from(job) if trained.warm_started else None,
+        transfer_from=_transfer_from(job)
+        if trained.warm_started and isinstance(start, Warm)
+        else None,
         shared_start=(
             None if trained.shared_start is None else shared_weights.encode(trained.shared_start)
         ),
