@@ -18,6 +18,10 @@ run's seed, and ``--workers`` adworker processes. Arms:
 - ``shared``: ``transfer: shared`` (issue 38): one controller for the whole study, whose
   weights fit every tree; every design after the first starts from its current version
   and trains the default warm budget (a quarter);
+- ``shared+screen``: the same with screening: a median pruner that judges each design by
+  the shared controller's score on it at step 0, before training (``n_startup_trials``
+  4, reports only at step 0), so a design it rates below the complete designs' median
+  is not trained;
 - ``optuna-sb3``: what a user would write without this service: Optuna's GPSampler
   (seeded, its defaults) proposing the same space (the tree as a categorical, every spec
   a float in its range) and stable-baselines3 training every design from scratch, on
@@ -77,7 +81,16 @@ EXAMPLES = {
     "lift-highest": "multi-structure.yaml",
     "walk-forward": "walk-forward.yaml",
 }
-ARMS = ["scratch", "nearest", "nearest/8", "scratch+asha", "nearest+asha", "shared", "optuna-sb3"]
+ARMS = [
+    "scratch",
+    "nearest",
+    "nearest/8",
+    "scratch+asha",
+    "nearest+asha",
+    "shared",
+    "shared+screen",
+    "optuna-sb3",
+]
 REACHED = 0.95
 
 
@@ -95,6 +108,9 @@ def study_body(task: str, learner: str, arm: str, seed: int, args: argparse.Name
     }
     body["max_trials"] = args.trials
     body["pruner"] = pruner_of("asha" if arm.endswith("+asha") else "none", args.train_steps)
+    if arm.endswith("+screen"):
+        screen = {"n_startup_trials": 4, "n_warmup_steps": 0}
+        body["pruner"] = {"name": "median", "options": screen, "report_every": args.train_steps}
     return body
 
 
@@ -295,6 +311,7 @@ COLOURS = {
     "nearest/8": "tab:purple",
     "nearest+asha": "tab:orange",
     "shared": "tab:blue",
+    "shared+screen": "tab:cyan",
     "optuna-sb3": "tab:green",
 }
 

@@ -7,6 +7,7 @@ tests/service/test_shared_controller.py's.)"""
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ import yaml
 from adclient import Client
 from adclient.schemas import SHARED_ARTIFACT, Trial
 from adclient.testing.servers import ServerProcess
-from adclient.testing.workers import WorkerProcess
+from adclient.testing.workers import WorkerProcess, plugin_path
 from adworker import shared_weights
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
@@ -107,7 +108,7 @@ def test_every_design_starts_from_the_shared_controller_and_updates_it(
         assert all(set(update) == names for update in updates)
         assert all(
             any((before[name] != after[name]).any() for name in names)
-            for before, after in zip(updates, updates[1:], strict=False)
+            for before, after in itertools.pairwise(updates)
         )
 
 
@@ -160,3 +161,66 @@ def test_a_version_that_does_not_load_means_the_initial_weights(
         assert current is not None and current.trial_id == second.id
         assert shared_weights.decode(client.get_artifact(second, SHARED_ARTIFACT))
         assert first.info["shared"]["version"] == 1
+
+
+def arm(length: float) -> dict[str, Any]:
+    """Params of diagonal-gesture's arm (a chain of three links) with links of
+    ``length``: arm-length scores it 3 * length, whatever its controller does."""
+    params: dict[str, Any] = {f"{link}.length": length for link in "abc"}
+    for child in "bc":
+        params[f"{child}.joint.axis_theta"] = 1.0
+        params[f"{child}.joint.axis_phi"] = 1.0
+    return params
+
+
+def test_a_design_the_shared_controller_scores_poorly_is_screened_before_training(
+    plugin_server: ServerProcess, plugin_site: Path, tmp_path: Path
+) -> None:
+    """With a pruner, a design that starts from a version first reports the shared
+    controller's score on it, untrained, at step 0; the median pruner stops one that
+    scores below the complete designs' there, before any training, and the proposer is
+    told that score. arm-length scores a design 3 x its link length whatever the
+    controller, so which design is screened out is known: the first has no version to
+    be scored by, the second (1.65) has no complete design's step-0 score to be judged
+    against, the third (0.9) is below the second's and stops at step 0, the fourth
+    (1.74) trains."""
+    body = yaml.safe_load((EXAMPLES / "diagonal-gesture.yaml").read_text())
+    body["space"]["parts"]["link"]["length"] = {"low": 0.2, "high": 0.6}
+    body["task"] = {
+        "name": "arm-length",
+        "learner": "ppo",
+        "train_steps": BUDGET,
+        "eval_episodes": 1,
+        "transfer": "shared",
+        "transfer_steps": WARM,
+    }
+    options = {"n_startup_trials": 1, "n_warmup_steps": 0}
+    body["pruner"] = {"name": "median", "options": options, "report_every": BUDGET}
+    lengths = [0.5, 0.55, 0.3, 0.58]
+    with Client(plugin_server.url) as client:
+        study = client.create_study({**body, "name": "screening", "max_trials": len(lengths)})
+        client.add_trials(study.id, [{"params": arm(length)} for length in lengths])
+        worker = WorkerProcess(
+            plugin_server,
+            tmp_path,
+            "screen",
+            "--no-render",
+            "--max-jobs",
+            str(len(lengths)),
+            env=plugin_path(plugin_site),
+        )
+        try:
+            assert worker.wait() == 0, worker.log()
+        finally:
+            worker.stop()
+        first, second, poor, fourth = sorted(client.trials(study.id), key=lambda t: t.number)
+        assert [report.step for report in client.reports(first)] == []
+        for trial, value in ((second, 1.65), (fourth, 1.74)):
+            assert trial.state == "complete", worker.log()
+            assert [(r.step, r.value) for r in client.reports(trial)] == [(0, pytest.approx(value))]
+            assert trial.metrics["train_steps"] == WARM
+        assert poor.state == "pruned" and poor.value == pytest.approx(0.9), worker.log()
+        assert poor.metrics["train_steps"] == 0 and "shared" not in poor.info
+        assert [report.step for report in client.reports(poor)] == [0]
+        current = client.shared_controller(study.id)
+        assert current is not None and (current.version, current.trial_id) == (3, fourth.id)

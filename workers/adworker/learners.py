@@ -391,6 +391,11 @@ class StableBaselinesLearner(Learner):
             model = self.make_model(env, steps=steps, seed=seed)
         resumed_at = int(model.num_timesteps)
         try:
+            screened = isinstance(start, Shared) and start.weights is not None
+            if screened and reporting is not None and self.warm_problem is None:
+                # Screening: the study's shared controller scored on this design before
+                # any training, reported at step 0 for the study's pruner to judge.
+                reporting.send(0, reporting.evaluate(_deterministic(model)))
             if steps > resumed_at:
                 model.learn(
                     total_timesteps=steps - resumed_at,
