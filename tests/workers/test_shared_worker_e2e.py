@@ -19,22 +19,16 @@ from adclient.schemas import SHARED_ARTIFACT, Trial
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import WorkerProcess, plugin_path
 from adworker import shared_weights
+from tests.workers.robots import CHAIN, STAR, arm, tree_design, two_tree_body
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-CHAIN, STAR = 0, 1
-"""The two trees: a chain of three links (two joints), a star of four (three joints):
-one set of shared weights drives both."""
 BUDGET, WARM = 256, 128
 
 
 def study_body(max_trials: int = 20) -> dict[str, Any]:
-    body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
-    body["space"]["structures"] = [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"], ["a", "d"]]]
-    body["space"]["instances"] = body["space"]["instances"][:4]
-    body["proposer"] = {"name": "random", "seed": 3}
-    body["task"] = {
+    task = {
         "name": "lift-highest",
         "learner": "ppo",
         "train_steps": BUDGET,
@@ -42,17 +36,7 @@ def study_body(max_trials: int = 20) -> dict[str, Any]:
         "transfer": "shared",
         "transfer_steps": WARM,
     }
-    return {**body, "name": "shared", "max_trials": max_trials}
-
-
-def design(tree: int, angle: float) -> dict[str, Any]:
-    """Params of a design of ``tree`` with every joint axis at (angle, angle)."""
-    children = ["b", "c"] if tree == CHAIN else ["b", "c", "d"]
-    params: dict[str, Any] = {"structure_index": tree}
-    for child in children:
-        params[f"{child}.joint.axis_theta"] = angle
-        params[f"{child}.joint.axis_phi"] = angle
-    return params
+    return two_tree_body(task, "shared", max_trials)
 
 
 def run(
@@ -87,10 +71,10 @@ def test_every_design_starts_from_the_shared_controller_and_updates_it(
             tmp_path,
             client,
             study.id,
-            design(CHAIN, 1.0),
-            design(STAR, 1.0),
-            design(CHAIN, 1.2),
-            design(STAR, 0.8),
+            tree_design(CHAIN, 1.0),
+            tree_design(STAR, 1.0),
+            tree_design(CHAIN, 1.2),
+            tree_design(STAR, 0.8),
         )
         first = trials[0]
         assert first.metrics["shared_from"] == 0 and first.metrics["train_steps"] >= BUDGET
@@ -147,12 +131,12 @@ def test_a_version_that_does_not_load_means_the_initial_weights(
     the next version in place of the broken one."""
     with Client(server.url) as client:
         study = client.create_study(study_body())
-        (first,) = run(server, tmp_path, client, study.id, design(CHAIN, 1.0))
+        (first,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         stored = sorted(server.artifact_dir.rglob(f"{SHARED_ARTIFACT}.*"))
         assert len(stored) == 1
         stored[0].write_bytes(b"\0" * stored[0].stat().st_size)  # corrupt, same size
 
-        (second,) = run(server, tmp_path, client, study.id, design(STAR, 1.0))
+        (second,) = run(server, tmp_path, client, study.id, tree_design(STAR, 1.0))
         log = (tmp_path / f"w{second.id}.log").read_text()
         assert "shared controller version 1 does not load" in log, log
         assert second.metrics["shared_from"] == 0 and second.metrics["train_steps"] >= BUDGET
@@ -161,16 +145,6 @@ def test_a_version_that_does_not_load_means_the_initial_weights(
         assert current is not None and current.trial_id == second.id
         assert shared_weights.decode(client.get_artifact(second, SHARED_ARTIFACT))
         assert first.info["shared"]["version"] == 1
-
-
-def arm(length: float) -> dict[str, Any]:
-    """Params of diagonal-gesture's arm (a chain of three links) with links of
-    ``length``: arm-length scores it 3 * length, whatever its controller does."""
-    params: dict[str, Any] = {f"{link}.length": length for link in "abc"}
-    for child in "bc":
-        params[f"{child}.joint.axis_theta"] = 1.0
-        params[f"{child}.joint.axis_phi"] = 1.0
-    return params
 
 
 def test_a_design_the_shared_controller_scores_poorly_is_screened_before_training(
