@@ -253,3 +253,32 @@ def test_a_seeded_search_on_arrays_finds_the_torch_paths_candidate(case: str) ->
     assert found[0].z[0] == found[1].z[0]
     np.testing.assert_allclose(found[0].z, found[1].z, atol=1e-4)
     assert found[0].value == pytest.approx(found[1].value, abs=1e-6)
+
+
+@pytest.mark.parametrize("case", ["box", "typed-box", "multi-structure", "joint-kinds"])
+@pytest.mark.parametrize("noise", ["floor", "inferred", "fixed"])
+def test_log_posterior_on_arrays_is_the_torch_paths(case: str, noise: str) -> None:
+    from botorch.optim.utils import get_parameters_and_bounds
+
+    from adservice.proposers.likelihood import ArrayLogPosterior, LogPosterior
+
+    model = fitted(request_for(case, 14, seed=9), noise=noise)
+    model.train()
+    tensors = list(get_parameters_and_bounds(model, requires_grad=True)[0].values())
+    with torch.no_grad():  # away from the optimum, where every gradient is 0
+        for number, parameter in enumerate(tensors):
+            parameter.mul_(1.0 - 0.1 * (number % 3 + 1))
+    found = LogPosterior(model)()
+    assert found is not None
+    expected_value, by_tensor = found
+    expected = torch.cat(
+        [by_tensor.get(id(t), torch.zeros_like(t)).reshape(-1) for t in tensors]
+    ).numpy()
+    flat = np.concatenate([t.detach().reshape(-1).numpy() for t in tensors])
+    on_arrays = ArrayLogPosterior(LogPosterior(model), tensors)(flat)
+    assert on_arrays is not None
+    value, gradient = on_arrays
+    # inferred noise shrunk to near its floor: K's log determinant agrees to ~1e-8 only
+    assert value == pytest.approx(expected_value, rel=1e-7)
+    assert np.abs(expected).max() > 0.0
+    np.testing.assert_allclose(gradient, expected, rtol=1e-6, atol=1e-8 * np.abs(expected).max())

@@ -1,6 +1,7 @@
 """LogEI and its gradient on a CPU posterior in NumPy: the same arithmetic as
 ``Posterior.log_ei_with_gradient`` and ``LogEI.__call__`` (equal within rounding,
-tested), for the acquisition's local searches and raw-sample screens.
+tested), for the acquisition's local searches and raw-sample screens; and the spec
+kernel's ``with_slope``, which the fit's ``likelihood.ArrayLogPosterior`` also uses.
 
 At n = 30 on the 8-tree, 13-spec space one evaluation is about a hundred operations on
 matrices of a few hundred numbers, and an ask makes a hundred or more: torch's dispatch
@@ -48,6 +49,17 @@ def log_ei_helper(u: np.ndarray) -> np.ndarray:
     log1mexp = np.where(w > -math.log(2.0), np.log(-np.expm1(w)), np.log1p(-np.exp(w)))
     tail = np.where(u > _NEG_INV_SQRT_EPS, log1mexp, -2.0 * np.log(np.abs(lower)))
     return np.where(u > -1.0, log_upper, -0.5 * u**2 - _LOG_SQRT_2PI + tail)
+
+
+def with_slope(squared: np.ndarray, *, rbf: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``SpecKernel.with_slope`` in NumPy: the kernel at these squared distances and its
+    derivative with respect to them."""
+    if rbf:
+        value = np.exp(-0.5 * squared)
+        return value, -0.5 * value
+    root5 = math.sqrt(5.0) * np.sqrt(np.maximum(squared, 1e-30))
+    decay = np.exp(-root5)
+    return (1.0 + root5 + root5**2 / 3.0) * decay, (-5.0 / 6.0) * (1.0 + root5) * decay
 
 
 class ArrayFeatures:
@@ -153,15 +165,6 @@ class ArrayPosterior:
             posterior.arrays = ArrayPosterior(posterior)
         return posterior.arrays
 
-    def _kernel(self, squared: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``SpecKernel.with_slope`` in NumPy."""
-        if self.rbf:
-            value = np.exp(-0.5 * squared)
-            return value, -0.5 * value
-        root5 = math.sqrt(5.0) * np.sqrt(np.maximum(squared, 1e-30))
-        decay = np.exp(-root5)
-        return (1.0 + root5 + root5**2 / 3.0) * decay, (-5.0 / 6.0) * (1.0 + root5) * decay
-
     def _cross(
         self, X: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, Callable[[np.ndarray], np.ndarray]]:
@@ -174,7 +177,7 @@ class ArrayPosterior:
             (embedded**2).sum(-1)[:, None] - 2.0 * embedded @ self.trained.T + self.trained_norms,
             0.0,
         )
-        cross, slope = self._kernel(squared)
+        cross, slope = with_slope(squared, rbf=self.rbf)
         a, b, c = self.weights
         prior = 1.0
         if self.structure_rows is not None:
