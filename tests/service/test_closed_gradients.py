@@ -3,7 +3,9 @@ the model inputs (``Posterior.log_ei_with_gradient``, through the structure kern
 spec kernel and every kind of spec feature: plain, axes with and without sign, on a log
 scale, categories), with and without pending points believed; and the fit's log
 posterior's with respect to every hyperparameter (``likelihood.LogPosterior``), in each
-noise mode."""
+noise mode. Their NumPy forms on the CPU (``arrays.ArrayPosterior`` through
+``LogEI.on_arrays``, ``likelihood.ArrayLogPosterior``) equal the torch forms, and a
+seeded search through them finds the torch path's candidate."""
 
 from __future__ import annotations
 
