@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -26,7 +26,9 @@ from scipy.special import erfcx, log_ndtr, ndtr
 
 if TYPE_CHECKING:
     from adservice.proposers.gpmodel import SpecFeatures
-    from adservice.proposers.posterior import Posterior
+
+Posterior = Any
+"""A ``posterior.Posterior`` (which imports this module: not imported back)."""
 
 _VARIANCE_FLOOR = 1e-12
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
