@@ -6,9 +6,14 @@ with the default ``qei`` asks and tells 30 designs one at a time, as
 bench/design_suite.py does; the last three asks are timed and their trials' info read:
 the proposer's fit and acquisition seconds and its thread CPU seconds, so the rest of
 the wall time is the server's and HTTP's. The code measured is whatever is first on
-PYTHONPATH (the server inherits it): run it once per checkout to compare two.
+PYTHONPATH (the server inherits it): run it once per checkout to compare two, or
+through bench/compare.py, which alternates two checkouts' runs and collects the medians
+this prints as ``BENCH`` lines (wall, fit, acquisition and proposer CPU seconds).
 
-Run: ``.venv/bin/python bench/design_asklatency.py`` (``--seeds 2``).
+Run: ``OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python bench/design_asklatency.py``
+(``--seeds 2``); against main, alternating:
+``OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python bench/compare.py --baseline main
+--runs 5 -- bench/design_asklatency.py``.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from adclient.design import DesignSpace  # noqa: E402
 from adclient.testing.design_objectives import OBJECTIVES  # noqa: E402
+from adclient.testing.figures import emit  # noqa: E402
 from adclient.testing.servers import ServerProcess  # noqa: E402
 from bench.design_suite import BUDGET, design_from_params  # noqa: E402
 
@@ -93,6 +99,13 @@ def main() -> int:
         f"{len(rows)} asks at n = {BUDGET - LATE} to {BUDGET - 1}, medians: wall {wall:.3f} s, "
         f"fit {fit:.3f} s, acquisition {acquisition:.3f} s, proposer CPU {cpu:.3f} s"
     )
+    for metric, value in (
+        ("ask wall", wall),
+        ("fit", fit),
+        ("acquisition", acquisition),
+        ("proposer CPU", cpu),
+    ):
+        emit(metric, float(value), higher_is_better=False, unit="s")
     return 0
 
 

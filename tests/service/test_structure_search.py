@@ -209,7 +209,9 @@ def test_a_tree_whose_one_random_design_is_poor_is_still_found() -> None:
     assert start[2] < 0.5 * max(start.values()), start
     assert trees[8:].count(2) >= 2, trees
     best = int(np.argmax(y))
-    assert trees[best] == 2 and y[best] > 0.65, (trees, y)
+    # above every other tree's ceiling (0.632); where the narrow optimum is met is the
+    # optimisers' rounding's: 0.652 with torch's arithmetic, 0.645 with NumPy's
+    assert trees[best] == 2 and y[best] > 0.64, (trees, y)
 
 
 def test_second_looks_choose_among_the_trees_seen_once() -> None:

@@ -190,7 +190,9 @@ class MixedDomain:
 Acquisition = Callable[[torch.Tensor], torch.Tensor]
 """b x 1 x D model inputs -> b values. One that also has ``value_and_grad`` (b x D ->
 values, their gradient with respect to the inputs) is searched through it instead of
-autograd (``posterior.LogEI``)."""
+autograd (``posterior.LogEI``); one whose ``on_arrays`` is not None is scored and
+searched through that instead, on NumPy arrays (``posterior.OnArrays``): the same
+values and gradients, without a tensor per operation."""
 
 
 @dataclass(frozen=True)
@@ -205,10 +207,14 @@ def _evaluate(
 ) -> np.ndarray:
     """Values at the rows of Z; past ``deadline``, the chunks after the first are -inf."""
     out = np.full(len(Z), -np.inf)
+    arrays = getattr(acqf, "on_arrays", None)
     with torch.no_grad():
         for start in range(0, len(Z), _CHUNK):
             if start and past(deadline):
                 break
+            if arrays is not None:
+                out[start : start + _CHUNK] = arrays.values(Z[start : start + _CHUNK])
+                continue
             chunk = torch.as_tensor(Z[start : start + _CHUNK], **tkw).unsqueeze(1)
             out[start : start + _CHUNK] = acqf(chunk).detach().cpu().numpy().reshape(-1)
     return np.where(np.isfinite(out), out, -np.inf)
@@ -278,11 +284,33 @@ def _local(
     best_free, best_values = initial.copy(), np.full(b, -np.inf)
     evaluations = 0
 
+    arrays = getattr(acqf, "on_arrays", None)
+    points_np = starts.copy()
+
+    def track(current: np.ndarray, free: np.ndarray) -> None:
+        """Each start's best point so far (a deadline stops the search)."""
+        better = current > best_values
+        best_free[better[owner]] = free[better[owner]]
+        best_values[better] = current[better]
+
+    def on_arrays(free: np.ndarray) -> tuple[float, np.ndarray]:
+        assert arrays is not None
+        points_np[:, 1:][used] = free
+        values, by_point = arrays.with_gradient(points_np)
+        loss = -values.sum()
+        if not np.isfinite(loss):
+            return 1e10, np.zeros_like(free)
+        if deadline is not None:
+            track(values, free)
+        return float(loss), -by_point[:, 1:][used]
+
     def objective(free: np.ndarray) -> tuple[float, np.ndarray]:
         nonlocal evaluations
         if evaluations and past(deadline):
             raise OutOfTime
         evaluations += 1
+        if arrays is not None:
+            return on_arrays(free)
         closed = getattr(acqf, "value_and_grad", None)
         values_t = torch.as_tensor(free, **tkw).requires_grad_(closed is None)
         points = full.masked_scatter(mask, values_t)
@@ -294,10 +322,7 @@ def _local(
         if not torch.isfinite(loss):
             return 1e10, np.zeros_like(free)
         if deadline is not None:
-            current = values.detach().cpu().numpy().reshape(-1)
-            better = current > best_values
-            best_free[better[owner]] = free[better[owner]]
-            best_values[better] = current[better]
+            track(values.detach().cpu().numpy().reshape(-1), free)
         if closed is not None:
             gradient = -by_point[mask]
         else:

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from adservice.proposers.arrays import ArrayPosterior
 from adservice.proposers.gpmodel import DesignKernel, squared_distances
 
 
@@ -63,6 +64,8 @@ class Posterior:
         residual = (targets - self.constant).unsqueeze(-1)
         self.alpha = torch.cholesky_solve(residual, self.cholesky).squeeze(-1)
         self._structure_rows: torch.Tensor | None = None
+        self.arrays: ArrayPosterior | None = None
+        """This posterior in NumPy (``arrays.ArrayPosterior.of``), built on first use."""
 
     def structure_rows(self) -> torch.Tensor:
         """The structure kernel between every structure and the points (S x n): a
@@ -145,10 +148,13 @@ class Posterior:
 class LogEI:
     """Analytic LogEI (Ament et al., 2023) on ``posterior``: b x 1 x D -> b; its
     ``value_and_grad`` (b x D -> values, gradient) is what the local searches call
-    (``Posterior.log_ei_with_gradient``)."""
+    (``Posterior.log_ei_with_gradient``). On the CPU it also has ``on_arrays``, the
+    same in NumPy (``arrays``), which the search calls instead (``acquisition``)."""
 
     def __init__(self, posterior: Posterior, best_f: float) -> None:
         self.posterior, self.best_f = posterior, best_f
+        arrays = ArrayPosterior.of(posterior)
+        self.on_arrays = None if arrays is None else OnArrays(arrays, best_f)
 
     def __call__(self, Z: torch.Tensor) -> torch.Tensor:
         from botorch.acquisition.analytic import _log_ei_helper
@@ -158,6 +164,20 @@ class LogEI:
 
     def value_and_grad(self, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.posterior.log_ei_with_gradient(X, self.best_f)
+
+
+class OnArrays:
+    """LogEI on a posterior's arrays: ``values`` (b x D -> b) and ``with_gradient``
+    (b x D -> values, gradient), float64 NumPy arrays in and out."""
+
+    def __init__(self, arrays: ArrayPosterior, best_f: float) -> None:
+        self.arrays, self.best_f = arrays, best_f
+
+    def values(self, X: np.ndarray) -> np.ndarray:
+        return self.arrays.log_ei(X, self.best_f)
+
+    def with_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.arrays.log_ei_with_gradient(X, self.best_f)
 
 
 class AnalyticLogEI:
