@@ -27,7 +27,8 @@ Control Them All", ICML 2020): one encoder shared by all joints (its block plus 
 global block) and one for the root (the global block), then a few rounds of messages
 along the tree (each node adds what its children and its parent send), a per-joint
 action head (one action per joint), a critic pooled over the joints plus the root, and
-one log-std shared by all joints. Actor and critic have networks of their own. Every
+one log-std shared by all joints. Actor and critic have networks of their own, computed
+together as two heads of stacked weights (:class:`StackedLinear`). Every
 parameter's shape is independent of the joint count, so the same weights
 (:func:`shared_weights_of`, in :mod:`adworker.shared_weights`' format) load into the
 model of any design of the study; the model takes the env's raw observation, so its
@@ -278,42 +279,76 @@ class Blocks(nn.Module):
         return joints, overall
 
 
-class TreeNet(nn.Module):
-    """Encoders, then ``rounds`` of messages along the tree; ``[batch, nodes, hidden]``
-    out (node 0 the root)."""
+class StackedLinear(nn.Module):
+    """``heads`` linear layers of one size, applied in one batched product: ``[heads or
+    1, rows, size_in]`` -> ``[heads, rows, size_out]``. The actor's and the critic's
+    networks are such heads: separate weights, half the operations per step (a policy
+    acting on one observation at a time pays per operation, not per number)."""
 
-    def __init__(self, joint_size: int, global_size: int, hidden: int, rounds: int) -> None:
+    def __init__(self, heads: int, size_in: int, size_out: int) -> None:
         super().__init__()
-        self.joint_in = nn.Linear(joint_size + global_size, hidden)
-        self.root_in = nn.Linear(global_size, hidden)
-        self.hidden = hidden
-        self.message = nn.ModuleList(nn.Linear(hidden, 2 * hidden) for _ in range(rounds))
+        self.weight = nn.Parameter(torch.empty(heads, size_in, size_out))
+        self.bias = nn.Parameter(torch.zeros(heads, 1, size_out))
+        bound = 1.0 / math.sqrt(size_in)  # nn.Linear's default
+        nn.init.uniform_(self.weight, -bound, bound)
+        nn.init.uniform_(self.bias, -bound, bound)
+
+    def orthogonal(self, gain: float) -> None:
+        """Each head's weights orthogonal, its bias zero (SB3's ``ortho_init``)."""
+        with torch.no_grad():
+            for head in self.weight:
+                nn.init.orthogonal_(head, gain=gain)
+            self.bias.zero_()
+
+    def forward(self, values: torch.Tensor) -> torch.Tensor:
+        heads = self.weight.shape[0]
+        return torch.baddbmm(self.bias, values.expand(heads, -1, -1), self.weight)
+
+
+class TreeNet(nn.Module):
+    """Encoders, then ``rounds`` of messages along the tree, for ``heads`` networks at
+    once (the actor's and the critic's); ``[heads, batch, nodes, hidden]`` out (node 0
+    the root)."""
+
+    def __init__(
+        self, joint_size: int, global_size: int, hidden: int, rounds: int, heads: int = 2
+    ) -> None:
+        super().__init__()
+        self.joint_in = StackedLinear(heads, joint_size + global_size, hidden)
+        self.root_in = StackedLinear(heads, global_size, hidden)
+        self.hidden, self.heads = hidden, heads
+        self.message = nn.ModuleList(
+            StackedLinear(heads, hidden, 2 * hidden) for _ in range(rounds)
+        )
         """Per round, what a node sends up to its parent and down to its children."""
-        self.update = nn.ModuleList(nn.Linear(3 * hidden, hidden) for _ in range(rounds))
+        self.update = nn.ModuleList(StackedLinear(heads, 3 * hidden, hidden) for _ in range(rounds))
 
     def forward(
         self, joints: torch.Tensor, overall: torch.Tensor, parent: torch.Tensor
     ) -> torch.Tensor:
-        count = joints.shape[1]
+        batch, count = joints.shape[:2]
+        heads, hidden, nodes = self.heads, self.hidden, count + 1
         everywhere = overall[:, None, :].expand(-1, count, -1)
+        inputs = torch.cat((joints, everywhere), dim=-1).reshape(1, batch * count, -1)
         state = torch.cat(
             (
-                torch.tanh(self.root_in(overall))[:, None, :],
-                torch.tanh(self.joint_in(torch.cat((joints, everywhere), dim=-1))),
+                torch.tanh(self.root_in(overall[None])).reshape(heads, batch, 1, hidden),
+                torch.tanh(self.joint_in(inputs)).reshape(heads, batch, count, hidden),
             ),
-            dim=1,
+            dim=2,
         )
         for message, update in zip(self.message, self.update, strict=True):
-            up, down = message(state).split(self.hidden, dim=-1)
-            from_children = torch.matmul(parent.T, up)
-            from_parent = torch.matmul(parent, down)
-            state = state + torch.tanh(update(torch.cat((state, from_children, from_parent), -1)))
+            sent = message(state.reshape(heads, batch * nodes, hidden))
+            up, down = sent.reshape(heads, batch, nodes, 2 * hidden).split(hidden, dim=-1)
+            gathered = torch.cat((state, parent.T @ up, parent @ down), dim=-1)
+            change = update(gathered.reshape(heads, batch * nodes, 3 * hidden))
+            state = state + torch.tanh(change.reshape(heads, batch, nodes, hidden))
         return state
 
 
 class ModularExtractor(nn.Module):
     """The policy's ``mlp_extractor``: per-joint latents for the actor, a pooled one
-    for the critic."""
+    for the critic, from one :class:`TreeNet` of two heads (actor 0, critic 1)."""
 
     parent: torch.Tensor
 
@@ -325,28 +360,22 @@ class ModularExtractor(nn.Module):
         for j, p in enumerate(layout.parents):
             parent[j + 1, p] = 1.0
         self.register_buffer("parent", parent, persistent=False)
-        sizes = (layout.joint_size, layout.global_size, hidden, rounds)
-        self.actor = TreeNet(*sizes)
-        self.critic = TreeNet(*sizes)
+        self.tree = TreeNet(layout.joint_size, layout.global_size, hidden, rounds)
         self.pool = nn.Linear(2 * hidden, hidden)
         self.latent_dim_pi = hidden
         self.latent_dim_vf = hidden
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        blocks = self.blocks(features)
-        return self._actor(*blocks), self._critic(*blocks)
+        state = self.tree(*self.blocks(features), self.parent)
+        return state[0, :, 1:], self._pooled(state[1])
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
-        return self._actor(*self.blocks(features))
+        return self.forward(features)[0]
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
-        return self._critic(*self.blocks(features))
+        return self.forward(features)[1]
 
-    def _actor(self, joints: torch.Tensor, overall: torch.Tensor) -> torch.Tensor:
-        return self.actor(joints, overall, self.parent)[:, 1:]
-
-    def _critic(self, joints: torch.Tensor, overall: torch.Tensor) -> torch.Tensor:
-        state = self.critic(joints, overall, self.parent)
+    def _pooled(self, state: torch.Tensor) -> torch.Tensor:
         pooled = torch.cat((state[:, 1:].mean(dim=1), state[:, 0]), dim=-1)
         return torch.tanh(self.pool(pooled))
 
@@ -394,6 +423,9 @@ class ModularPolicy(ActorCriticPolicy):
             gains = {self.mlp_extractor: math.sqrt(2), self.action_net: 0.01, self.value_net: 1.0}
             for module, gain in gains.items():
                 module.apply(functools.partial(self.init_weights, gain=gain))
+            for part in self.mlp_extractor.modules():
+                if isinstance(part, StackedLinear):
+                    part.orthogonal(math.sqrt(2))
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
             self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
         )
