@@ -21,8 +21,8 @@ from adservice.db import Prepared
 from adservice.errors import ConflictError, NotFoundError
 from adservice.models import StudyRow, TrialRow, utcnow
 from adservice.repository._shared import (
+    BEST,
     CLAIM_QUEUED,
-    COUNT,
     INSERT_TRIALS,
     RESERVE,
     RESERVE_PROPOSING,
@@ -30,7 +30,7 @@ from adservice.repository._shared import (
     locking,
     touch_worker,
 )
-from adservice.repository.studies import get_study
+from adservice.repository.studies import finish_if_done, get_study
 
 TRIAL_ORDERS = {
     "number": TrialRow.number,
@@ -210,9 +210,11 @@ def add_trials(
     outcomes: Sequence[Outcome | None],
 ) -> list[Trial]:
     """Trials a user hands over, numbered from ``first_number``: queued ones wait for an
-    ask or a lease; finished ones count in the study's counters and best, as a tell of
-    them would (``info.source`` says which: ``enqueued`` or ``added``). ``outcomes``: a
-    complete one's outcome under the study's objectives and constraints."""
+    ask or a lease; finished ones count in the study's counts and best, and towards its
+    ``max_trials``, as a tell of them would (``info.source`` says which: ``enqueued`` or
+    ``added``). ``outcomes``: a complete one's outcome under the study's objectives and
+    constraints. The caller reserved the numbers in this transaction (the study's row
+    is locked)."""
     now = utcnow()
     values = [
         _new_trial(
@@ -236,11 +238,11 @@ def add_trials(
     ]
     ids = [row["id"] for row in INSERT_TRIALS.rows(session, values)]
     for trial_id, add, outcome in zip(ids, adds, outcomes, strict=True):
-        if add.state is not None and add.state != TrialState.queued:
-            value = counted_value(outcome) if outcome else add.value
-            COUNT[add.state].rows(
-                session, [{"sid": study_id, "tid": trial_id, "value": value, "now": now}]
-            )
+        value = counted_value(outcome) if outcome else add.value
+        if add.state == TrialState.complete and value is not None:
+            BEST.rows(session, [{"sid": study_id, "tid": trial_id, "value": value, "now": now}])
+    if any(add.state not in (None, TrialState.queued) for add in adds):
+        finish_if_done(session, study_id=study_id)  # the numbers' reservation locked the row
     return [
         Trial.model_validate({"id": trial_id, **row})
         for trial_id, row in zip(ids, values, strict=True)
