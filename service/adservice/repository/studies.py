@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -81,6 +81,13 @@ def state_counts(session: Session, *, study_ids: Sequence[int]) -> dict[int, dic
     for study_id, state, count in rows:
         counts[study_id][state] = count
     return counts
+
+
+def last_finished_at(session: Session, *, study_id: int) -> datetime | None:
+    """When the study's latest trial finished (None: none has)."""
+    return session.scalar(
+        sa.select(sa.func.max(TrialRow.finished_at)).where(TrialRow.study_id == study_id)
+    )
 
 
 def stop_study(session: Session, *, study_id: int, caller: Principal) -> StudyRow:
