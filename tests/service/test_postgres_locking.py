@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from datetime import timedelta
+from typing import Any
 
 import pytest
 import sqlalchemy as sa
@@ -12,12 +13,15 @@ from sqlalchemy.orm import Session
 
 from adclient.schemas import StudyCreate, TellRequest
 from adservice.db import Database, upgrade_to_head
+from adservice.locks import StudyLocks
 from adservice.models import utcnow
 from adservice.principals import OPEN_ADMIN
 from adservice.repository import leases as lease_repo
 from adservice.repository import studies as study_repo
 from adservice.repository import tell as tell_repo
 from adservice.repository import trials as trial_repo
+from adservice.services.configs import StudyConfigs
+from adservice.services.trials import propose_trials
 
 pytestmark = pytest.mark.postgres
 
@@ -146,3 +150,37 @@ def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Da
         states = [t.state for t in trial_repo.list_trials(session, study_id=study_id)[0]]
     assert states == ["failed", "failed"]
     assert _counts(db, study_id) == ({"failed": 2}, "complete", None)
+
+
+def test_a_lease_frees_the_study_row_before_its_flush_and_records_its_worker_after(
+    db: Database,
+) -> None:
+    """A worker's lease proposes, reserves the number (locking the study's row) and
+    inserts the trial in a transaction committed without waiting for its WAL flush;
+    the worker is recorded as seen, holding the trial, in the next transaction, whose
+    commit waits for the flush (of both). Before, one transaction held the study's row
+    through the worker's write and the flush."""
+    study_id, _ = _study(db, max_trials=3, workers=0)
+    statements: list[str] = []
+
+    @sa.event.listens_for(db.engine, "before_cursor_execute")
+    def _statement(*args: Any) -> None:
+        statements.append(" ".join(str(args[2]).split()[:3]).upper())
+
+    @sa.event.listens_for(db.engine, "commit")
+    def _commit(*_: Any) -> None:
+        statements.append("<commit>")
+
+    configs = StudyConfigs(db)
+    (trial,) = propose_trials(
+        db, configs, StudyLocks(), study_id=study_id, count=1, caller=OPEN_ADMIN, worker_id="w9"
+    )
+    transactions = " ".join(statements).split("<commit>")
+    (leased,) = [t for t in transactions if "INSERT INTO TRIALS" in t]
+    assert "SET LOCAL SYNCHRONOUS_COMMIT" in leased and "UPDATE STUDIES SET" in leased
+    assert "WORKERS" not in leased
+    after = transactions[transactions.index(leased) + 1 :]
+    assert any("UPDATE WORKERS SET" in t or "INSERT INTO WORKERS" in t for t in after)
+    with db.read() as session:
+        (worker,) = lease_repo.list_workers(session)
+    assert (worker.worker_id, worker.current_trial_id) == ("w9", trial.id)

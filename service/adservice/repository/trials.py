@@ -142,10 +142,13 @@ def insert_trials(
     worker_id: str | None = None,
     lease_token_id: int | None = None,
     lease_seconds: float = 60.0,
+    record_worker: bool = True,
 ) -> list[Trial]:
     """New trials numbered from ``first_number`` (see :func:`reserve_numbers`), in state
-    ``running`` and leased to ``worker_id`` (and its token) when given. A ``Prepared``
-    statement in the session's transaction: no ORM bookkeeping per trial."""
+    ``running`` and leased to ``worker_id`` (and its token) when given, the worker
+    recorded as seen holding the first (unless ``record_worker`` is False: the caller
+    does so with :func:`record_leased`). A ``Prepared`` statement in the session's
+    transaction: no ORM bookkeeping per trial."""
     now = utcnow()
     lease: dict[str, Any] = {}
     if worker_id:
@@ -172,12 +175,28 @@ def insert_trials(
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
     ids = [row["id"] for row in INSERT_TRIALS.rows(session, values)]
-    if worker_id:
+    if worker_id and record_worker:
         touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
     return [
         Trial.model_validate({"id": trial_id, **row})
         for trial_id, row in zip(ids, values, strict=True)
     ]
+
+
+def record_leased(session: Session, *, worker_id: str, trial_id: int) -> None:
+    """The worker seen now, holding the trial just leased to it (:func:`insert_trials`
+    with ``record_worker`` False)."""
+    touch_worker(session, worker_id=worker_id, now=utcnow(), current_trial_id=trial_id)
+
+
+def commit_without_flush(session: Session) -> None:
+    """On PostgreSQL, this transaction's commit returns before its WAL reaches the disk
+    (``synchronous_commit`` off for it alone): its row locks are released without that
+    wait. Durable once any later transaction's commit waits for its own flush (WAL is
+    flushed in order); until then a crash of the database may undo it, whole. The
+    caller commits such a transaction before telling anyone of it."""
+    if locking(session):
+        session.execute(sa.text("SET LOCAL synchronous_commit TO OFF"))
 
 
 def claim_queued(session: Session, *, study_id: int, count: int) -> list[Trial]:
