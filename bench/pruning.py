@@ -43,6 +43,7 @@ from typing import Any
 import yaml
 
 from adclient import Client
+from adclient.schemas import Trial
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import WorkerProcess
 
@@ -87,6 +88,26 @@ def study_body(task: str, variant: str, seed: int, args: argparse.Namespace) -> 
     return body
 
 
+def trial_records(trials: list[Trial]) -> list[dict[str, Any]]:
+    """A study's trials as the records a results file keeps."""
+    return [
+        {
+            "number": t.number,
+            "state": t.state.value,
+            "value": t.value,
+            "seconds": t.metrics.get("time_total_s"),
+            "cpu_seconds": t.metrics.get("time_cpu_s"),
+            "resumed_from_step": t.metrics.get("resumed_from_step"),
+            "train_steps": t.metrics.get("train_steps"),
+            "transfer_from": t.info.get("transfer_from"),
+            "transfer_distance": t.metrics.get("transfer_distance"),
+            "shared_from": t.metrics.get("shared_from"),
+            "finished_at": t.finished_at.isoformat() if t.finished_at else None,
+        }
+        for t in trials
+    ]
+
+
 def run_study(body: dict[str, Any], *, workers: int, timeout: float) -> tuple[Any, list, float]:
     """A managed study end to end on a fresh server (a SQLite file) with ``workers``
     adworker processes: (its final info, its trials as records, wall seconds)."""
@@ -105,21 +126,7 @@ def run_study(body: dict[str, Any], *, workers: int, timeout: float) -> tuple[An
                 ]
                 info = study.wait(poll=1.0, timeout=timeout)
                 wall = time.monotonic() - started
-                trials = [
-                    {
-                        "number": t.number,
-                        "state": t.state.value,
-                        "value": t.value,
-                        "seconds": t.metrics.get("time_total_s"),
-                        "cpu_seconds": t.metrics.get("time_cpu_s"),
-                        "resumed_from_step": t.metrics.get("resumed_from_step"),
-                        "train_steps": t.metrics.get("train_steps"),
-                        "transfer_from": t.info.get("transfer_from"),
-                        "transfer_distance": t.metrics.get("transfer_distance"),
-                        "finished_at": t.finished_at.isoformat() if t.finished_at else None,
-                    }
-                    for t in study.trials
-                ]
+                trials = trial_records(study.trials)
         finally:
             for process in processes:
                 process.stop()

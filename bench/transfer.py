@@ -15,6 +15,19 @@ run's seed, and ``--workers`` adworker processes. Arms:
 - ``nearest/8``: the same with an eighth of the budget (``transfer_steps``);
 - ``scratch+asha``, ``nearest+asha``: the same with the ASHA pruner of bench/pruning.py
   (rungs from a fifth of the budget, reduction factor 3).
+- ``shared``: ``transfer: shared`` (issue 38): one controller for the whole study, whose
+  weights fit every tree; every design after the first starts from its current version
+  and trains the default warm budget (a quarter);
+- ``shared+screen``: the same with screening: a median pruner that judges each design by
+  the shared controller's score on it at step 0, before training (``n_startup_trials``
+  4, reports only at step 0), so a design it rates below the complete designs' median
+  is not trained;
+- ``optuna-sb3``: what a user would write without this service: Optuna's GPSampler
+  (seeded, its defaults) proposing the same space (the tree as a categorical, every spec
+  a float in its range) and stable-baselines3 training every design from scratch, on
+  ``--workers`` processes. The service only keeps the trials (each one enqueued, leased
+  and told by this script, never proposed by the service): each design is trained and
+  scored by the same code an adworker runs (``adworker.evaluate.evaluate_job``).
 
 Measured per trial as in bench/pruning.py: worker CPU seconds (``time_cpu_s``) and the
 score. Per run: the best score and the worker CPU spent until the best so far first
@@ -28,7 +41,7 @@ report and the PNG (best so far against cumulative worker CPU) come from ``--rep
 
 Run: ``.venv/bin/python bench/transfer.py`` (all of it: days on two cores);
 ``--tasks stand-up --learners ppo --seeds 2 --arms scratch nearest`` for a part;
-``--quick`` to check it runs.
+``--quick`` to check it runs (``--quick --arms shared optuna-sb3`` those arms).
 """
 
 from __future__ import annotations
@@ -38,6 +51,8 @@ import json
 import math
 import statistics
 import sys
+import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -47,11 +62,17 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
+from adclient import Client  # noqa: E402
+from adclient.decode import spec_layout  # noqa: E402
+from adclient.design import DesignSpace  # noqa: E402
+from adclient.schemas import Job  # noqa: E402
+from adclient.testing.servers import ServerProcess  # noqa: E402
 from bench.pruning import (  # noqa: E402
     plot_best_against_cpu,
     pruner_of,
     run_study,
     time_to_target,
+    trial_records,
 )
 
 RESULTS = ROOT / "bench" / "results" / "transfer.jsonl"
@@ -60,7 +81,16 @@ EXAMPLES = {
     "lift-highest": "multi-structure.yaml",
     "walk-forward": "walk-forward.yaml",
 }
-ARMS = ["scratch", "nearest", "nearest/8", "scratch+asha", "nearest+asha"]
+ARMS = [
+    "scratch",
+    "nearest",
+    "nearest/8",
+    "scratch+asha",
+    "nearest+asha",
+    "shared",
+    "shared+screen",
+    "optuna-sb3",
+]
 REACHED = 0.95
 
 
@@ -73,12 +103,22 @@ def study_body(task: str, learner: str, arm: str, seed: int, args: argparse.Name
         "learner": learner,
         "train_steps": args.train_steps,
         "seed": seed,
-        "transfer": "nearest" if arm.startswith("nearest") else "none",
+        "transfer": transfer_of(arm),
         "transfer_steps": warm_steps(arm, args.train_steps),
     }
     body["max_trials"] = args.trials
     body["pruner"] = pruner_of("asha" if arm.endswith("+asha") else "none", args.train_steps)
+    if arm.endswith("+screen"):
+        screen = {"n_startup_trials": 4, "n_warmup_steps": 0}
+        body["pruner"] = {"name": "median", "options": screen, "report_every": args.train_steps}
     return body
+
+
+def transfer_of(arm: str) -> str:
+    for kind in ("nearest", "shared"):
+        if arm.startswith(kind):
+            return kind
+    return "none"
 
 
 def warm_steps(arm: str, train_steps: int) -> int | None:
@@ -90,7 +130,10 @@ def warm_steps(arm: str, train_steps: int) -> int | None:
 def run_one(task: str, learner: str, arm: str, seed: int, args: argparse.Namespace) -> dict:
     """One study end to end; its trials as records."""
     body = study_body(task, learner, arm, seed, args)
-    info, trials, wall = run_study(body, workers=args.workers, timeout=args.timeout)
+    if arm == "optuna-sb3":
+        info, trials, wall = run_optuna_sb3(body, seed=seed, workers=args.workers)
+    else:
+        info, trials, wall = run_study(body, workers=args.workers, timeout=args.timeout)
     return {
         "task": task,
         "learner": learner,
@@ -103,10 +146,85 @@ def run_one(task: str, learner: str, arm: str, seed: int, args: argparse.Namespa
         "best": info.best_value,
         "n_pruned": info.n_pruned,
         "n_failed": info.n_failed,
-        "n_transferred": sum(1 for t in trials if t["transfer_from"] is not None),
+        "n_transferred": sum(
+            1 for t in trials if t["transfer_from"] is not None or (t.get("shared_from") or 0) > 0
+        ),
         "wall_s": wall,
         "worker_cpu_s": sum(t["cpu_seconds"] or 0.0 for t in trials),
     }
+
+
+def run_optuna_sb3(body: dict[str, Any], *, seed: int, workers: int) -> tuple[Any, list, float]:
+    """The ``optuna-sb3`` arm: GPSampler asks, ``workers`` processes train and score each
+    design from scratch (``evaluate_job``, as adworker does), GPSampler is told; a
+    server on a SQLite file keeps the trials so they are recorded as every arm's are."""
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    layout = spec_layout(DesignSpace.model_validate(body["space"]))
+    task = body["task"]["name"]
+    with tempfile.TemporaryDirectory(prefix="bench-optuna-") as folder:
+        work = Path(folder)
+        # leases outlive any training here: this script sends no heartbeats
+        env = {"AD_LEASE_SECONDS": str(7 * 24 * 3600)}
+        server = ServerProcess(
+            database_url=f"sqlite:///{work / 'studies.db'}", workdir=work, env=env
+        ).start()
+        try:
+            spawn = multiprocessing.get_context("spawn")
+            with Client(server.url) as client, ProcessPoolExecutor(workers, spawn) as pool:
+                study = client.create_study(body)
+                sampler = optuna.samplers.GPSampler(seed=seed)
+                proposer = optuna.create_study(direction="maximize", sampler=sampler)
+                running: dict[Future, tuple[optuna.trial.Trial, int]] = {}
+                asked, started = 0, time.monotonic()
+                while asked < body["max_trials"] or running:
+                    while asked < body["max_trials"] and len(running) < workers:
+                        trial = proposer.ask()
+                        params: dict[str, Any] = {
+                            "structure_index": trial.suggest_categorical(
+                                "structure_index", list(range(len(layout.structures)))
+                            )
+                        }
+                        for k, name in enumerate(layout.names):
+                            params[name] = trial.suggest_float(
+                                name,
+                                float(layout.low[k]),
+                                float(layout.high[k]),
+                                log=bool(layout.log[k]),
+                            )
+                        client.add_trials(study.id, [{"params": params}])
+                        job = client.lease("optuna-sb3", tasks=[task])
+                        assert job is not None and job.study_id == study.id
+                        folder_of_job = str(work / f"trial-{job.trial_id}")
+                        future = pool.submit(evaluate_design, job.model_dump_json(), folder_of_job)
+                        running[future] = (trial, job.trial_id)
+                        asked += 1
+                    done, _ = wait(running, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        trial, trial_id = running.pop(future)
+                        value, metrics = future.result()
+                        client.tell(trial_id, value, metrics=metrics, worker_id="optuna-sb3")
+                        proposer.tell(trial, value)
+                wall = time.monotonic() - started
+                info = client.study_info(study.id)
+                trials = trial_records(client.trials(study.id))
+        finally:
+            server.stop()
+    return info, trials, wall
+
+
+def evaluate_design(job_json: str, workdir: str) -> tuple[float, dict[str, float]]:
+    """Train and score one design from scratch in this process, as adworker would; its
+    value, and its metrics with the process's CPU seconds (``time_cpu_s``)."""
+    from adworker.evaluate import evaluate_job
+
+    started = time.process_time()
+    evaluation = evaluate_job(Job.model_validate_json(job_json), Path(workdir), render=False)
+    return evaluation.value, {**evaluation.metrics, "time_cpu_s": time.process_time() - started}
 
 
 def cpu_to_reach(run: dict[str, Any], target: float) -> float:
@@ -192,6 +310,9 @@ COLOURS = {
     "scratch+asha": "tab:gray",
     "nearest/8": "tab:purple",
     "nearest+asha": "tab:orange",
+    "shared": "tab:blue",
+    "shared+screen": "tab:cyan",
+    "optuna-sb3": "tab:green",
 }
 
 
@@ -240,7 +361,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         args.tasks, args.learners, args.seeds, args.trials = ["stand-up"], ["ppo"], 1, 4
-        args.train_steps, args.arms = 512, ["scratch", "nearest"]
+        args.train_steps = 512
+        args.arms = ["scratch", "nearest"] if args.arms == ARMS else args.arms
     if not args.report:
         done = {_key(run) for run in load(args)}
         for seed in range(args.first_seed, args.first_seed + args.seeds):

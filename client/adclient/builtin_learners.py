@@ -49,4 +49,5 @@ PPO = LearnerSpec(
     factory="adworker.learners:PPOLearner",
     options=StableBaselinesOptions,
     transfers=True,
+    shares=True,
 )

@@ -29,6 +29,8 @@ from adclient.schemas import (
     HeartbeatResponse,
     Job,
     LearnerInfo,
+    SharedUpdate,
+    SharedVersion,
     Study,
     StudyServing,
     StudySpread,
@@ -299,6 +301,32 @@ class ServerCalls(Transport):
             idempotent=True,
         ).json()
         return Trial.model_validate(data)
+
+    def shared_controller(self, study_id: int) -> SharedVersion | None:
+        """The study's current shared controller (``task.transfer: shared``): its
+        version and the trial whose ``SHARED_ARTIFACT`` holds its weights; None before
+        its first version."""
+        data = self._get_json(f"{API}/studies/{int(study_id)}/shared-controller")
+        return None if data is None else SharedVersion.model_validate(data)
+
+    def advance_shared(
+        self, trial: TrialRef, *, worker_id: str, base_version: int | None
+    ) -> SharedVersion:
+        """Make the update the held trial uploaded as ``SHARED_ARTIFACT`` its study's next
+        shared version, if the study is still at ``base_version`` (None: none yet);
+        :class:`Conflict` when it moved on (merge onto the current version, upload, and
+        ask again) or the lease is lost. A repeat once done answers the same version."""
+        try:
+            body = SharedUpdate(worker_id=worker_id, base_version=base_version)
+        except ValidationError as exc:
+            raise Invalid(None, "invalid", validation_message(exc)) from exc
+        data = self.request(
+            "POST",
+            f"{API}/trials/{trial_id_of(trial)}/shared-controller",
+            json_body=body.model_dump(mode="json"),
+            idempotent=True,
+        ).json()
+        return SharedVersion.model_validate(data)
 
     def reports(self, trial: TrialRef) -> list[TrialReport]:
         """A trial's reported curve, in order of step."""

@@ -145,13 +145,20 @@ class LearnerSpec:
     the server: a worker's
     upload, but still to be read as data only (``torch.load(weights_only=True)``,
     ``np.load(allow_pickle=False)``, JSON; never ``pickle`` or SB3's ``Model.load``),
-    filling a model built from the job's own settings (docs/plugins.md)."""
+    filling a model built from the job's own settings (docs/plugins.md).
+
+    ``shares``: it takes part in ``task.transfer: shared``: it trains from a
+    ``start=Shared(weights, steps, seed, version)`` (named float32 arrays that fit every
+    design of the study, or None for the study's initial ones) and returns the weights
+    it ends with as ``TrainResult.shared`` and those it started from as
+    ``TrainResult.shared_start`` (docs/plugins.md)."""
 
     name: str
     description: str
     factory: Factory = field(repr=False)
     options: type[BaseModel] | None = None
     transfers: bool = False
+    shares: bool = False
 
     def load_factory(self) -> Callable[..., Any]:
         return _resolve(self.factory, f"learner {self.name!r}")

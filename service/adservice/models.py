@@ -179,6 +179,21 @@ class ArtifactRow(Base):
     upload (no lease)."""
 
 
+class SharedControllerRow(Base):
+    """A study's current shared controller (``task.transfer: shared``): its version and
+    the trial whose uploaded ``SHARED_ARTIFACT`` holds it. A row of its own, so that
+    advancing it (a compare-and-set on ``version``) never locks the study's row."""
+
+    __tablename__ = "shared_controllers"
+
+    study_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("studies.id", ondelete="CASCADE"), primary_key=True
+    )
+    version: Mapped[int]
+    trial_id: Mapped[int] = mapped_column(sa.ForeignKey("trials.id", ondelete="CASCADE"))
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
 class TrialURDFRow(Base):
     """A trial's URDF, expanded once from its study's template when its params were
     fixed; reads serve this text instead of expanding again. Exactly one of ``urdf``

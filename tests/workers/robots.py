@@ -7,6 +7,9 @@ following the geometry conventions of adclient.design.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from adclient import Client
 from adclient.client import StudyHandle
@@ -127,3 +130,41 @@ def stand_up_specs(theta: float, phi: float, length: float = 0.4) -> dict[str, f
         "c.joint.axis_theta": theta,
         "c.joint.axis_phi": phi,
     }
+
+
+CHAIN, STAR = 0, 1
+"""The trees of :func:`two_tree_body`: a chain of three links (two joints), a star of
+four (three joints), so their controllers' observation and action spaces differ."""
+
+
+def two_tree_body(task: dict[str, Any], name: str, max_trials: int = 20) -> dict[str, Any]:
+    """examples/multi-structure.yaml cut to two trees (``CHAIN``, ``STAR``), proposed at
+    random, with ``task``."""
+    body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
+    body["space"]["structures"] = [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"], ["a", "d"]]]
+    body["space"]["instances"] = body["space"]["instances"][:4]
+    body["proposer"] = {"name": "random", "seed": 3}
+    body["task"] = task
+    return {**body, "name": name, "max_trials": max_trials}
+
+
+def tree_design(tree: int, angle: float) -> dict[str, Any]:
+    """Params of a design of ``tree`` (:func:`two_tree_body`) with every joint axis at
+    (angle, angle)."""
+    children = ["b", "c"] if tree == CHAIN else ["b", "c", "d"]
+    params: dict[str, Any] = {"structure_index": tree}
+    for child in children:
+        params[f"{child}.joint.axis_theta"] = angle
+        params[f"{child}.joint.axis_phi"] = angle
+    return params
+
+
+def arm(length: float) -> dict[str, Any]:
+    """Params of diagonal-gesture's arm (a chain of three links) with links of
+    ``length``: the plugin's arm-length task scores it 3 * length, whatever its
+    controller does."""
+    params: dict[str, Any] = {f"{link}.length": length for link in "abc"}
+    for child in "bc":
+        params[f"{child}.joint.axis_theta"] = 1.0
+        params[f"{child}.joint.axis_phi"] = 1.0
+    return params

@@ -23,21 +23,15 @@ from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Trial
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess, plugin_path, wait_for
+from tests.workers.robots import CHAIN, STAR, arm, tree_design, two_tree_body
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-CHAIN, STAR = 0, 1
-"""The two trees: a chain of three links (two joints), a star of four (three joints),
-so their controllers' observation and action spaces differ."""
 
 
 def study_body(learner: str, train_steps: int, transfer_steps: int) -> dict[str, Any]:
-    body = yaml.safe_load((EXAMPLES / "multi-structure.yaml").read_text())
-    body["space"]["structures"] = [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"], ["a", "d"]]]
-    body["space"]["instances"] = body["space"]["instances"][:4]
-    body["proposer"] = {"name": "random", "seed": 3}
-    body["task"] = {
+    task = {
         "name": "lift-highest",
         "learner": learner,
         "train_steps": train_steps,
@@ -45,17 +39,7 @@ def study_body(learner: str, train_steps: int, transfer_steps: int) -> dict[str,
         "transfer": "nearest",
         "transfer_steps": transfer_steps,
     }
-    return {**body, "name": f"transfer-{learner}", "max_trials": 20}
-
-
-def design(tree: int, angle: float) -> dict[str, Any]:
-    """Params of a design of ``tree`` with every joint axis at (angle, angle)."""
-    children = ["b", "c"] if tree == CHAIN else ["b", "c", "d"]
-    params: dict[str, Any] = {"structure_index": tree}
-    for child in children:
-        params[f"{child}.joint.axis_theta"] = angle
-        params[f"{child}.joint.axis_phi"] = angle
-    return params
+    return two_tree_body(task, f"transfer-{learner}")
 
 
 def run(
@@ -95,10 +79,10 @@ def test_a_design_starts_from_its_trees_checkpoint_and_keeps_its_replay_buffer(
             tmp_path,
             client,
             study.id,
-            design(CHAIN, 1.0),
-            design(STAR, 1.0),
-            design(CHAIN, 1.2),
-            design(STAR, 0.8),
+            tree_design(CHAIN, 1.0),
+            tree_design(STAR, 1.0),
+            tree_design(CHAIN, 1.2),
+            tree_design(STAR, 0.8),
         )
         for first in (chain, star):
             assert "transfer_from" not in first.info and first.metrics["train_steps"] == 256
@@ -115,19 +99,19 @@ def test_a_corrupt_or_missing_source_checkpoint_means_training_from_scratch(
 ) -> None:
     with Client(server.url) as client:
         study = client.create_study(study_body("ppo", 256, 64))
-        run(server, tmp_path, client, study.id, design(CHAIN, 1.0))
+        run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         stored = sorted(server.artifact_dir.rglob(f"{CHECKPOINT_ARTIFACT}.*"))
         assert len(stored) == 1
         stored[0].write_bytes(b"\0" * stored[0].stat().st_size)  # corrupt, same size
 
-        (corrupt,) = run(server, tmp_path, client, study.id, design(CHAIN, 1.1))
+        (corrupt,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.1))
         log = (tmp_path / f"w{corrupt.id}.log").read_text()
         assert "warm start refused" in log and "training from scratch" in log, log
         assert "transfer_from" not in corrupt.info and corrupt.metrics["train_steps"] >= 256
 
         for path in server.artifact_dir.rglob(f"{CHECKPOINT_ARTIFACT}.*"):
             path.unlink()
-        (missing,) = run(server, tmp_path, client, study.id, design(CHAIN, 0.9))
+        (missing,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 0.9))
         log = (tmp_path / f"w{missing.id}.log").read_text()
         assert "not downloaded" in log and "training from scratch" in log, log
         assert "transfer_from" not in missing.info and missing.metrics["train_steps"] >= 256
@@ -144,9 +128,9 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
     that checks 4 times a second."""
     with Client(server.url) as client:
         study = client.create_study({**study_body("ppo", 256, 1024), "max_trials": 2})
-        (source,) = run(server, tmp_path, client, study.id, design(CHAIN, 1.0))
+        (source,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         before = hashlib.sha256(client.get_artifact(source, CHECKPOINT_ARTIFACT)).hexdigest()
-        (queued,) = client.add_trials(study.id, [{"params": design(CHAIN, 1.1)}])
+        (queued,) = client.add_trials(study.id, [{"params": tree_design(CHAIN, 1.1)}])
         worker = WorkerProcess(server, tmp_path, "w", "--no-render", "--idle-exit", "3")
         try:
 
@@ -175,16 +159,6 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
         assert log.count(f"trial {queued.id}: starting from trial {source.id}'s") == 2, log
         after = hashlib.sha256(client.get_artifact(source, CHECKPOINT_ARTIFACT)).hexdigest()
         assert after == before
-
-
-def arm(length: float) -> dict[str, Any]:
-    """Params of diagonal-gesture's arm (a chain of three links) with links of
-    ``length``: arm-length scores it 3 * length, whatever its controller does."""
-    params: dict[str, Any] = {f"{link}.length": length for link in "abc"}
-    for child in "bc":
-        params[f"{child}.joint.axis_theta"] = 1.0
-        params[f"{child}.joint.axis_phi"] = 1.0
-    return params
 
 
 LENGTHS = [0.5, 0.4, 0.3, 0.25, 0.22]

@@ -35,7 +35,8 @@ from adclient.design import DesignSpace
 from adclient.designs import Design
 from adclient.plugins import PluginError, TaskOptions, catalogue
 from adclient.pruning import CHECKPOINT_ARTIFACT
-from adclient.schemas import Job, TaskConfig
+from adclient.schemas import SHARED_ARTIFACT, Job, TaskConfig
+from adworker import shared_weights
 from adworker.job_robots import job_robot
 from adworker.learners import (
     EpisodeResult,
@@ -46,6 +47,7 @@ from adworker.learners import (
     evaluate_policy,
 )
 from adworker.runner import (
+    SHARED_FILE,
     TRANSFER_FILE,
     Artifact,
     JobError,
@@ -55,7 +57,7 @@ from adworker.runner import (
     factory_problem,
     no_report,
 )
-from adworker.starts import SCRATCH, Resume, Start, Warm, train_learner
+from adworker.starts import SCRATCH, Resume, Shared, Start, Warm, train_learner
 from adworker.task_metrics import merge_task_metrics
 
 log = logging.getLogger("adworker")
@@ -81,6 +83,8 @@ class Evaluation:
     train: TrainResult | None = None
     transfer_from: int | None = None
     """The trial whose controller this one started from (``job.transfer``), if it did."""
+    shared_start: bytes | None = None
+    """A shared-controller job: the weights it started from (``Outcome.shared_start``)."""
 
 
 def evaluation_seeds(task: TaskConfig) -> list[int]:
@@ -169,6 +173,8 @@ def evaluate_job(
     elif job.transfer is not None and (workdir / TRANSFER_FILE).exists():
         checkpoint = (workdir / TRANSFER_FILE).read_bytes()
         start = Warm(checkpoint, task.warm_steps(learner.default_steps))
+    elif task.transfer == "shared":
+        start = shared_start(job, workdir, learner)
 
     t = time.perf_counter()
     design, urdf_text = job_robot(job)
@@ -183,7 +189,7 @@ def evaluate_job(
         budget = task.train_steps if task.train_steps is not None else learner.default_steps
         # a promoted trial trains on to the budget it paused under (a warm start's), never
         # past the most this study asks of a design (the pause's budget is a worker's word)
-        steps = budget
+        steps = start.steps if isinstance(start, Shared) else budget
         if job.resume is not None and job.resume.budget is not None:
             steps = min(job.resume.budget, max(budget, task.warm_steps(learner.default_steps)))
         reporting = None
@@ -210,7 +216,7 @@ def evaluate_job(
                 seed=task.seed,
                 check=check,
                 start=start,
-                keep_checkpoint=task.transfer != "none",
+                keep_checkpoint=task.transfer == "nearest",
                 reporting=reporting,
             )
         except Pruned as stopped:
@@ -232,6 +238,9 @@ def evaluate_job(
         ]
         if trained.checkpoint is not None:
             artifacts.append(Artifact(CHECKPOINT_ARTIFACT, "application/zip", trained.checkpoint))
+        if trained.shared is not None and trained.shared_start is not None:
+            update = shared_weights.encode(trained.shared)
+            artifacts.append(Artifact(SHARED_ARTIFACT, "application/octet-stream", update))
         if render:
             # The last evaluation episode has just ended: its final pose.
             artifacts.append(Artifact("robot.png", "image/png", _png(env.render_image())))
@@ -261,6 +270,9 @@ def evaluate_job(
     }
     if trained.warm_started and isinstance(start, Warm):
         metrics.update(_transfer_metrics(job, start))
+    if isinstance(start, Shared):
+        metrics["shared_from"] = float(start.version or 0)
+        metrics["transfer_steps"] = float(start.steps)
     if meter is not None:
         metrics["effort"] = float(meter.effort)
         metrics["energy"] = float(meter.energy)
@@ -282,7 +294,42 @@ def evaluate_job(
         timings=timings,
         episodes=episodes,
         train=trained,
-        transfer_from=_transfer_from(job) if trained.warm_started else None,
+        transfer_from=_transfer_from(job)
+        if trained.warm_started and isinstance(start, Warm)
+        else None,
+        shared_start=(
+            None if trained.shared_start is None else shared_weights.encode(trained.shared_start)
+        ),
+    )
+
+
+def shared_start(job: Job, workdir: Path, learner: Learner) -> Shared:
+    """Where a ``task.transfer: shared`` job starts: the version the worker downloaded
+    (``SHARED_FILE``) for the warm budget, else (none yet, or one that does not load:
+    the reason logged) the study's initial weights for the full budget."""
+    task = job.task
+    weights = None
+    path = workdir / SHARED_FILE
+    if job.shared is not None and path.exists():
+        try:
+            weights = shared_weights.decode(path.read_bytes())
+        except shared_weights.SharedWeightsError as error:
+            log.warning(
+                "trial %s: shared controller version %d does not load (%s): starting from "
+                "the study's initial weights",
+                job.trial_id,
+                job.shared.version,
+                error,
+            )
+    if weights is None:
+        budget = task.train_steps if task.train_steps is not None else learner.default_steps
+        return Shared(weights=None, steps=budget, seed=task.seed)
+    assert job.shared is not None
+    return Shared(
+        weights=weights,
+        steps=task.warm_steps(learner.default_steps),
+        seed=task.seed,
+        version=job.shared.version,
     )
 
 
@@ -349,6 +396,7 @@ class TaskRunner:
             evaluation.artifacts,
             summary=f"score {evaluation.value:.4f} ± {spread:.4f} ({timings} s)",
             transfer_from=evaluation.transfer_from,
+            shared_start=evaluation.shared_start,
         )
 
 

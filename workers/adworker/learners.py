@@ -8,7 +8,8 @@ budgets sized so one evaluation takes about 10 s on one CPU core per worker proc
 A learner gets a built env, a step budget (environment control steps; the task
 config's ``train_steps`` overrides the learner's default), a seed and where it starts
 (:mod:`adworker.starts`: from scratch, its own paused state, or another design's
-controller), and returns a deterministic policy plus its training curve. Evaluation is separate (see
+controller, or the study's shared controller: PPO alone, :mod:`adworker.modular`), and
+returns a deterministic policy plus its training curve. Evaluation is separate (see
 :func:`evaluate_policy`) and identical for every learner.
 
 Default budgets (control steps at 10 Hz; an episode is 32 steps), CPU time of one
@@ -46,6 +47,7 @@ from adworker.starts import (
     Policy,
     Reporting,
     Resume,
+    Shared,
     Start,
     TrainResult,
     Warm,
@@ -307,10 +309,22 @@ class StableBaselinesLearner(Learner):
         super().__init__(options)
         self.overrides = options.model_dump() if options is not None else {}
 
-    def make_model(self, env: Any, *, steps: int, seed: int) -> Any:
+    def make_model(
+        self,
+        env: Any,
+        *,
+        steps: int,
+        seed: int,
+        policy: Any = "MlpPolicy",
+        policy_kwargs: dict[str, Any] | None = None,
+    ) -> Any:
+        """A fresh model of this learner's settings for ``env``: an MLP of ``net_arch``
+        unless ``policy`` and its ``policy_kwargs`` are given (the modular policy)."""
         import stable_baselines3
 
         kwargs = {**self.hyperparameters, **self.overrides}
+        if policy_kwargs is not None:
+            kwargs["policy_kwargs"] = policy_kwargs
         kwargs.setdefault("policy_kwargs", {"net_arch": list(self.net_arch)})
         if "buffer_size" in kwargs:
             kwargs["buffer_size"] = max(int(kwargs["buffer_size"]), steps, 1000)
@@ -323,7 +337,7 @@ class StableBaselinesLearner(Learner):
         if noise is not None:
             kwargs["action_noise"] = _action_noise(env, **noise)
         cls = getattr(stable_baselines3, self.algorithm)
-        model = cls("MlpPolicy", env, seed=seed, device=learner_device(), verbose=0, **kwargs)
+        model = cls(policy, env, seed=seed, device=learner_device(), verbose=0, **kwargs)
         return _without_log_folder(model)
 
     def train(
@@ -363,7 +377,11 @@ class StableBaselinesLearner(Learner):
 
         resuming = isinstance(start, Resume)
         warm = self._warm_model(env, start, seed=seed) if isinstance(start, Warm) else None
-        if isinstance(start, Resume):
+        shared_start = None
+        if isinstance(start, Shared):
+            model, shared_start = self._shared_model(env, start, steps=steps, seed=seed)
+            steps = start.steps if shared_start is not None else steps
+        elif isinstance(start, Resume):
             model = self.load_checkpoint(env, start.checkpoint, steps=steps, seed=seed)
             if reporting is not None:
                 reporting.resume_at(int(model.num_timesteps))
@@ -373,6 +391,11 @@ class StableBaselinesLearner(Learner):
             model = self.make_model(env, steps=steps, seed=seed)
         resumed_at = int(model.num_timesteps)
         try:
+            screened = isinstance(start, Shared) and start.weights is not None
+            if screened and reporting is not None and self.warm_problem is None:
+                # Screening: the study's shared controller scored on this design before
+                # any training, reported at step 0 for the study's pruner to judge.
+                reporting.send(0, reporting.evaluate(_deterministic(model)))
             if steps > resumed_at:
                 model.learn(
                     total_timesteps=steps - resumed_at,
@@ -384,7 +407,7 @@ class StableBaselinesLearner(Learner):
             if stopped.pause:
                 stopped.checkpoint = self.checkpoint(model)
             raise
-        return TrainResult(
+        result = TrainResult(
             policy=_deterministic(model),
             train_steps=int(model.num_timesteps),
             curve=curve,
@@ -392,6 +415,23 @@ class StableBaselinesLearner(Learner):
             checkpoint=self.checkpoint(model) if keep_checkpoint else None,
             warm_started=warm is not None,
         )
+        if isinstance(start, Shared) and shared_start is not None:
+            from adworker.modular import shared_weights_of
+
+            result.shared, result.shared_start = shared_weights_of(model), shared_start
+            result.info["policy"] = "modular"
+            result.warm_started = self.warm_problem is None and start.weights is not None
+        return result
+
+    def _shared_model(
+        self, env: Any, start: Shared, *, steps: int, seed: int
+    ) -> tuple[Any, dict[str, np.ndarray] | None]:
+        """The model of a ``Shared`` start and the weights it starts from; a learner
+        without a modular policy (all but PPO) says so in ``warm_problem`` and gives a
+        fresh model of its own to train from scratch at ``steps`` (its start None)."""
+        self.warm_problem = f"the {self.name} learner has no shared controller (ppo has)"
+        log.warning("shared start refused (%s): training from scratch", self.warm_problem)
+        return self.make_model(env, steps=steps, seed=seed), None
 
     def _warm_model(self, env: Any, start: Warm, *, seed: int) -> Any:
         """The model of a ``Warm`` start on this design's env, its step count at zero and
@@ -526,3 +566,33 @@ class PPOLearner(StableBaselinesLearner):
         "gamma": 0.95,
         "gae_lambda": 0.9,
     }
+
+    def _shared_model(
+        self, env: Any, start: Shared, *, steps: int, seed: int
+    ) -> tuple[Any, dict[str, np.ndarray] | None]:
+        """The modular policy of this design (:mod:`adworker.modular`) loaded with the
+        start's weights, or with the study's initial ones for ``start.seed`` when it
+        has none or they do not load (the reason in ``warm_problem``, logged): the
+        model and the weights it starts from, to train ``start.steps``."""
+        from adworker import modular
+        from adworker.shared_weights import SharedWeightsError
+
+        model = self.make_model(
+            env,
+            steps=start.steps,
+            seed=seed,
+            policy=modular.ModularPolicy,
+            policy_kwargs=modular.policy_kwargs(env),
+        )
+        weights = start.weights
+        if weights is not None:
+            try:
+                modular.load_shared(model, weights)
+            except SharedWeightsError as error:
+                self.warm_problem = f"shared weights of version {start.version}: {error}"
+                log.warning("%s: starting from the initial weights", self.warm_problem)
+                weights = None
+        if weights is None:
+            weights = modular.initial_weights(model, start.seed)
+            modular.load_shared(model, weights)
+        return model, modular.shared_weights_of(model)

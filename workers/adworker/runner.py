@@ -19,6 +19,8 @@ from adclient.schemas import Job
 
 TRANSFER_FILE = "transfer-source.zip"
 """Where the worker puts the checkpoint a job's controller starts from (``job.transfer``)."""
+SHARED_FILE = "shared-source.npz"
+"""Where the worker puts the shared controller's version a job starts from (``job.shared``)."""
 
 
 class Cancelled(Exception):
@@ -76,6 +78,9 @@ class Outcome:
     summary: str = ""
     transfer_from: int | None = None
     """The trial of the same study whose controller this job started from, if any."""
+    shared_start: bytes | None = None
+    """A ``task.transfer: shared`` job: the weights it started from (its update, the
+    ``SHARED_ARTIFACT`` among ``artifacts``, is merged against them)."""
 
 
 class Runner(Protocol):

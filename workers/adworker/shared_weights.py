@@ -21,10 +21,12 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from adclient.schemas import SHARED_ARTIFACT
+
 Weights = dict[str, np.ndarray]
 
-SHARED_ARTIFACT = "shared-controller.npz"
-"""The artifact name of a trial's update of its study's shared controller."""
+__all__ = ["SHARED_ARTIFACT", "SharedWeightsError", "Weights", "decode", "encode", "merge"]
+
 MAX_ARRAYS = 256
 MAX_BYTES = 64 << 20
 """The most a file's arrays may unpack to, all together (the built-in modular policy is

@@ -55,9 +55,10 @@ from typing import Any
 from adclient.client import Client
 from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized, Unavailable
 from adclient.pruning import CHECKPOINT_ARTIFACT, ReportResponse
-from adclient.schemas import Job
+from adclient.schemas import SHARED_ARTIFACT, Job
 from adworker.heartbeat import Heartbeat
-from adworker.runner import TRANSFER_FILE, Artifact, Cancelled, Pruned, Runner
+from adworker.runner import TRANSFER_FILE, Artifact, Cancelled, Outcome, Pruned, Runner
+from adworker.sharing import advance_shared, fetch_shared
 from adworker.workdirs import make_workdir, remove_abandoned_workdirs
 
 log = logging.getLogger("adworker")
@@ -312,6 +313,8 @@ class Worker:
                     self._fetch_checkpoint(job, jobdir)
                 elif job.transfer is not None:
                     self._fetch_transfer(job, jobdir)
+                elif job.shared is not None:
+                    fetch_shared(self.client, job, jobdir)
                 outcome = self.runner(job, jobdir, check, report)
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
@@ -377,7 +380,8 @@ class Worker:
                 self.rates.sim_steps += outcome.metrics.get("sim_steps", 0.0)
                 self.rates.busy_seconds += busy
                 result = "complete"
-                self._upload(job, heartbeat, label, outcome.artifacts)
+                if self._upload(job, heartbeat, label, outcome.artifacts):
+                    self._share(job, label, outcome)
                 cpu = time.process_time() - cpu_started
                 unreported = not self._report(
                     job,
@@ -458,6 +462,24 @@ class Worker:
             source,
             job.transfer.distance,
         )
+
+    def _share(self, job: Job, label: str, outcome: Outcome) -> None:
+        """A ``task.transfer: shared`` job's update (uploaded with its artifacts) made
+        the study's next shared controller, before the tell ends the lease."""
+        mine = next((a.data for a in outcome.artifacts if a.name == SHARED_ARTIFACT), None)
+        if mine is None or outcome.shared_start is None:
+            return
+        try:
+            advance_shared(
+                self.client,
+                job,
+                worker_id=self.config.worker_id,
+                mine=mine,
+                start=outcome.shared_start,
+                label=label,
+            )
+        except (Unauthorized, Forbidden) as exc:
+            raise AuthError(str(exc)) from exc
 
     def _release(self, job: Job, label: str) -> None:
         """Hand the lease back so the trial is queued now, not when the lease expires."""

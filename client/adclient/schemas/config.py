@@ -60,11 +60,13 @@ class TaskConfig(Strict):
     episode_steps: int | None = Field(default=None, ge=1, le=100_000)
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
     options: StoredJsonObject = Field(default_factory=dict)
-    transfer: Literal["none", "nearest"] = Field(
+    transfer: Literal["none", "nearest", "shared"] = Field(
         default="none",
         description="nearest: a design starts its controller from the checkpoint of the "
         "nearest of the study's best evaluated designs of the same tree and trains "
-        "transfer_steps (docs/worker.md); none: every design trains from scratch",
+        "transfer_steps; shared: one controller for the whole study, whose weights fit "
+        "every tree, that each design starts from, trains transfer_steps and updates "
+        "(docs/worker.md); none: every design trains from scratch",
     )
     transfer_steps: int | None = Field(
         default=None,
@@ -195,11 +197,19 @@ class NewTaskConfig(TaskConfig):
     def _learner_transfers(cls, transfer: str, info: ValidationInfo) -> str:
         learner = catalogue().learners.get(str(info.data.get("learner")))
         external = info.data.get("external")
-        if transfer != "none" and not external and learner is not None and not learner.transfers:
+        if external or learner is None:
+            return transfer
+        if transfer == "nearest" and not learner.transfers:
             takes = [name for name, spec in catalogue().learners.items() if spec.transfers]
             raise ValueError(
                 f"learner {learner.name!r} cannot start from another design's controller "
                 f"(transfer: none; learners that can: {', '.join(takes)})"
+            )
+        if transfer == "shared" and not learner.shares:
+            takes = [name for name, spec in catalogue().learners.items() if spec.shares]
+            raise ValueError(
+                f"learner {learner.name!r} cannot train a controller shared by the study's "
+                f"designs (transfer: none or nearest; learners that can: {', '.join(takes)})"
             )
         return transfer
 

@@ -186,6 +186,12 @@ class StudyCreate(Strict):
             return self
         if self.max_trials is None:
             raise ValueError("max_trials is required for a study with a task (a managed study)")
+        if self.task.transfer == "shared" and self.pruner.options.get("promotion"):
+            raise ValueError(
+                "task.transfer: shared with pruner.options.promotion: a paused design would "
+                "resume outside the study's shared controller; use promotion false or "
+                "transfer nearest"
+            )
         if self.task.external:
             return self
         if isinstance(self.space, TemplateSpace):

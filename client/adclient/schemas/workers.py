@@ -80,6 +80,13 @@ class Job(BaseModel):
         description="start the controller from this trial's checkpoint and train "
         "transfer.steps instead of the task's budget from scratch",
     )
+    shared: SharedVersion | None = Field(
+        default=None,
+        description="a study with task.transfer shared, once its shared controller has a "
+        "version: start from that version's weights (the artifact of the trial that made "
+        "it) and train the warm budget; None in such a study: start from the study's "
+        "initial weights at the full budget",
+    )
     urdf: str | None = Field(
         default=None,
         description="a template study's robot: its template expanded at the params, once, "
@@ -95,6 +102,34 @@ class TransferSource(BaseModel):
     trial_id: int = Field(description="the trial whose checkpoint the job starts from")
     artifact: str = Field(description="that trial's artifact holding the learner's state")
     distance: float = Field(description="its spec distance to the job's design (0 to 1)")
+
+
+SHARED_ARTIFACT = "shared-controller.npz"
+"""The artifact in which a trial's worker uploads its update of the study's shared
+controller (``task.transfer: shared``; its format: ``adworker.shared_weights``)."""
+
+
+class SharedVersion(BaseModel):
+    """A version of a study's shared controller (``task.transfer: shared``): the
+    ``SHARED_ARTIFACT`` of the trial whose update made it (docs/worker.md, "A shared
+    controller")."""
+
+    version: int = Field(ge=1, description="1 for the first update, then one more each")
+    trial_id: int = Field(description="the trial whose artifact holds its weights")
+    artifact: str = Field(default=SHARED_ARTIFACT, description="that artifact's name")
+    updated_at: datetime | None = None
+
+
+class SharedUpdate(Strict):
+    """``POST /trials/{id}/shared-controller``: make the trial's uploaded
+    ``SHARED_ARTIFACT`` the study's next shared version, if the study is still at
+    ``base_version`` (null: it has none yet); else 409 naming the current version, so
+    the worker merges onto it and asks again."""
+
+    worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
+    base_version: int | None = Field(
+        ge=1, description="the version the update was made from, or against (null: none)"
+    )
 
 
 class ArtifactInfo(BaseModel):

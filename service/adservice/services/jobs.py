@@ -17,7 +17,7 @@ from adservice.repository import urdfs as urdf_repo
 from adservice.services import urdfs
 from adservice.services.configs import StudyConfigs
 from adservice.services.proposal_failures import failures_recorded
-from adservice.services.transfer import transfer_source
+from adservice.services.transfer import shared_version, transfer_source
 from adservice.services.trials import Proposing, propose_trials, proposes_instantly
 
 log = logging.getLogger("adservice")
@@ -131,8 +131,9 @@ async def lease_job(
 def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
     """The job of a leased trial, read after the lease's write (so the lease never waits
     on it): a promoted trial's resume point while a worker's (``resume_point``); for a
-    study with ``task.transfer``, its source, left out with the reason logged when it
-    cannot be chosen (the lease stands: the design trains from scratch); for a template
+    study with ``task.transfer: nearest``, its source, left out with the reason logged
+    when it cannot be chosen (the lease stands: the design trains from scratch); with
+    ``shared``, the study's current shared controller; for a template
     study, with its stored URDF (none yet for a trial just proposed: see
     ``urdfs.with_urdf``); for a study of one design, the task with the trial's own seed
     (``StudyConfig.repeat_seed``), so its repeats differ."""
@@ -157,7 +158,10 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
                 "it: it trains from scratch",
                 trial.id,
             )
-    if config.task.transfer != "none":
+    shared = None
+    if config.task.transfer == "shared":
+        shared = shared_version(db, study_id=trial.study_id)
+    elif config.task.transfer != "none":
         try:
             transfer = transfer_source(db, trial=trial, config=config)
         except Exception as error:
@@ -182,6 +186,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
             "pruner": config.pruner,
             "resume": resume,
             "transfer": transfer,
+            "shared": shared,
             "urdf": urdf,
         }
     )

@@ -1,5 +1,5 @@
-"""Controller transfer (``task.transfer: nearest``): which evaluated design a job's
-controller starts from.
+"""Controller transfer: which evaluated design a job's controller starts from
+(``task.transfer: nearest``), and the study's shared controller (``shared``).
 
 The repository (:mod:`adservice.repository.transfer`) returns the candidate sources,
 rows of the study's complete, feasible trials whose checkpoint a worker uploaded under
@@ -9,6 +9,10 @@ design's own tree (so the same observation and action spaces), the ``transfer_am
 best (for several objectives: the non-dominated ones), and of those the nearest by the
 normalised spec distance. The choice runs when a job is leased, never on the ask/tell
 hot path of a study without transfer.
+
+A study with ``task.transfer: shared`` keeps one controller (:mod:`adservice.repository.shared`):
+a job carries its current version, and the worker that trained a design advances it
+with :func:`advance_shared`.
 """
 
 from __future__ import annotations
@@ -21,9 +25,13 @@ from adclient.decode import spec_vector, used_slots
 from adclient.designs import Representation
 from adclient.objectives import Outcomes, pareto_front
 from adclient.pruning import CHECKPOINT_ARTIFACT
-from adclient.schemas import TransferSource, Trial
+from adclient.schemas import SharedUpdate, SharedVersion, TransferSource, Trial
 from adclient.ties import Tie
 from adservice.db import Database
+from adservice.models import SharedControllerRow
+from adservice.principals import Principal
+from adservice.repository import shared as shared_repo
+from adservice.repository.studies import get_study
 from adservice.repository.transfer import SourceRow, source_rows
 from adservice.services.configs import StudyConfig
 
@@ -45,6 +53,37 @@ def transfer_source(db: Database, *, trial: Trial, config: StudyConfig) -> Trans
             bounds=config.bounds,
             outcomes=config.outcomes,
         )
+
+
+def shared_version(db: Database, *, study_id: int) -> SharedVersion | None:
+    """The study's current shared controller, None before its first version (or when
+    it keeps none); NotFoundError for a study that is not there."""
+    with db.read() as session:
+        row = shared_repo.current_shared(session, study_id=study_id)
+        if row is None:
+            get_study(session, study_id=study_id)
+            return None
+        return _version(row)
+
+
+def advance_shared(
+    db: Database, *, trial_id: int, body: SharedUpdate, caller: Principal
+) -> SharedVersion:
+    """Make the held trial's uploaded update the study's next version (see
+    :func:`adservice.repository.shared.advance_shared`)."""
+    with db.write() as session:
+        row = shared_repo.advance_shared(
+            session,
+            trial_id=trial_id,
+            worker_id=body.worker_id,
+            base_version=body.base_version,
+            caller=caller,
+        )
+        return _version(row)
+
+
+def _version(row: SharedControllerRow) -> SharedVersion:
+    return SharedVersion(version=row.version, trial_id=row.trial_id, updated_at=row.updated_at)
 
 
 def choose_source(

@@ -21,11 +21,17 @@ function handedOver(trial) {
   return ` <span class="meta" data-source="${esc(source)}" title="${esc(HANDED_OVER[source])}">${esc(source)}</span>`;
 }
 
-/** A mark on trials whose controller started from another trial's (task.transfer). */
+/** A mark on trials whose controller started from another trial's (task.transfer:
+ * nearest), or that made a version of the study's shared controller (shared). */
 function warmStarted(trial) {
   const source = trial.info?.transfer_from;
-  if (!Number.isInteger(source)) return '';
-  return ` <span class="meta" data-transfer-from="${source}" title="its controller started from trial ${source}'s (task.transfer)">from trial ${source}</span>`;
+  if (Number.isInteger(source)) {
+    return ` <span class="meta" data-transfer-from="${source}" title="its controller started from trial ${source}'s (task.transfer)">from trial ${source}</span>`;
+  }
+  const shared = trial.info?.shared;
+  if (!Number.isInteger(shared?.version)) return '';
+  const from = Number.isInteger(shared.from) ? `v${shared.from}` : 'initial';
+  return ` <span class="meta" data-shared-version="${shared.version}" title="it started from the study's shared controller (${from}) and its update made version ${shared.version} (task.transfer: shared)">shared ${from} → v${shared.version}</span>`;
 }
 
 const COLUMNS = [
