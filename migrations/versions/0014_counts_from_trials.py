@@ -3,7 +3,7 @@ and pruned counts are those of its trials' states, read from the trials table, n
 longer counters on the study row that every tell updated (and locked).
 
 Revision ID: 0014
-Revises: 0012
+Revises: 0013
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision = "0014"
-down_revision = "0012"
+down_revision = "0013"
 branch_labels = None
 depends_on = None
 

@@ -143,7 +143,7 @@ def test_0005_gives_old_studies_no_pruner_and_goes_back_down(empty_database_url:
                 " '2024-01-01 00:00:00', '2024-01-01 00:00:00')"
             )
         )
-    command.upgrade(config, "0012")  # 0014 drops the counter: counts come from the trials
+    command.upgrade(config, "0013")  # 0014 drops the counter: counts come from the trials
     with engine.connect() as connection:
         pruner, pruned = connection.execute(
             sa.text("SELECT pruner, n_pruned FROM studies WHERE name = 'old'")
@@ -160,7 +160,7 @@ def test_0005_gives_old_studies_no_pruner_and_goes_back_down(empty_database_url:
 
 
 def _old_study(connection: sa.Connection, states: list[str]) -> None:
-    """A study as stored from 0005 to 0012 (its counters at 0), with a trial in each
+    """A study as stored from 0005 to 0013 (its counters at 0), with a trial in each
     of ``states``, numbered in order."""
     connection.execute(
         sa.text(
@@ -215,7 +215,7 @@ def test_0014_drops_the_study_counters_and_going_down_counts_the_trials(
     from alembic import command
 
     config = _alembic(empty_database_url)
-    command.upgrade(config, "0012")
+    command.upgrade(config, "0013")
     engine = sa.create_engine(empty_database_url)
     with engine.begin() as connection:
         _old_study(connection, ["complete", "complete", "failed", "pruned", "complete", "running"])
@@ -224,7 +224,7 @@ def test_0014_drops_the_study_counters_and_going_down_counts_the_trials(
         columns = {c["name"] for c in sa.inspect(connection).get_columns("studies")}
     assert not {"n_complete", "n_failed", "n_pruned"} & columns
     assert "n_trials" in columns
-    command.downgrade(config, "0012")
+    command.downgrade(config, "0013")
     with engine.connect() as connection:
         counts = connection.execute(
             sa.text("SELECT n_complete, n_failed, n_pruned, n_trials FROM studies")
