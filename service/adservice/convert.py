@@ -13,6 +13,7 @@ from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow
 
 
 def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
+    """``counts``: the study's trials by state (``studies.state_counts``)."""
     outcomes = stored_outcomes(row.outcomes, direction=row.direction)
     objectives = None
     if outcomes.metrics is not None:
@@ -41,9 +42,9 @@ def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
             "n_trials": row.n_trials,
             "n_queued": counts.get("queued", 0),
             "n_running": counts.get("running", 0),
-            "n_complete": row.n_complete,
-            "n_failed": row.n_failed,
-            "n_pruned": row.n_pruned,
+            "n_complete": counts.get("complete", 0),
+            "n_failed": counts.get("failed", 0),
+            "n_pruned": counts.get("pruned", 0),
             "n_paused": counts.get("paused", 0),
             "best_value": row.best_value,
             "best_trial_id": row.best_trial_id,

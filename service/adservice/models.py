@@ -67,9 +67,9 @@ class StudyRow(Base):
     max_trials: Mapped[int | None] = mapped_column(nullable=True)
     max_attempts: Mapped[int] = mapped_column(default=3)
     n_trials: Mapped[int] = mapped_column(default=0)
-    n_complete: Mapped[int] = mapped_column(default=0)
-    n_failed: Mapped[int] = mapped_column(default=0)
-    n_pruned: Mapped[int] = mapped_column(default=0)
+    """Trial numbers given out (the next trial's number). How many trials are in each
+    state is counted from the trials table, never kept here: a tell then writes this
+    row only for a new best, so concurrent tells do not queue on it."""
     best_value: Mapped[float | None] = mapped_column(sa.Double, nullable=True)
     best_trial_id: Mapped[int | None] = mapped_column(nullable=True)
     metadata_: Mapped[dict[str, Any]] = mapped_column("metadata", sa.JSON, default=dict)

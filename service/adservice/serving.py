@@ -40,7 +40,11 @@ def study_serving(
     recent = lease_repo.list_workers(session, seen_since=now - timedelta(seconds=RECENT_SECONDS))
     count = sum(serves(worker, task=task, learner=learner) for worker in recent)
     running = study_repo.state_counts(session, study_ids=[study_id])[study_id].get("running", 0)
-    idle = None if running else max(0.0, (now - study.updated_at).total_seconds())
+    idle = None
+    if not running:  # the study's row changes at asks, leases, a new best; a trial at a tell
+        told = study_repo.last_finished_at(session, study_id=study_id)
+        changed = max(study.updated_at, told) if told is not None else study.updated_at
+        idle = max(0.0, (now - changed).total_seconds())
     named = f"task {task!r} with learner {learner!r}"
     if count:
         text = f"{count} serving {named}, seen in the last {RECENT_SECONDS:g} s"

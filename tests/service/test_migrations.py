@@ -143,7 +143,7 @@ def test_0005_gives_old_studies_no_pruner_and_goes_back_down(empty_database_url:
                 " '2024-01-01 00:00:00', '2024-01-01 00:00:00')"
             )
         )
-    command.upgrade(config, "head")
+    command.upgrade(config, "0013")  # 0014 drops the counter: counts come from the trials
     with engine.connect() as connection:
         pruner, pruned = connection.execute(
             sa.text("SELECT pruner, n_pruned FROM studies WHERE name = 'old'")
@@ -159,6 +159,29 @@ def test_0005_gives_old_studies_no_pruner_and_goes_back_down(empty_database_url:
     assert "n_pruned" not in columns and "pruner" not in columns
 
 
+def _old_study(connection: sa.Connection, states: list[str]) -> None:
+    """A study as stored from 0005 to 0013 (its counters at 0), with a trial in each
+    of ``states``, numbered in order."""
+    connection.execute(
+        sa.text(
+            "INSERT INTO studies (name, direction, state, space, proposer, pruner,"
+            " max_attempts, n_trials, n_complete, n_failed, n_pruned, metadata,"
+            " created_at, updated_at) VALUES ('old', 'maximize', 'running', '{}', '{}',"
+            " '{}', 3, :n, 0, 0, 0, '{}', '2024-01-01 00:00:00', '2024-01-01 00:00:00')"
+        ),
+        {"n": len(states)},
+    )
+    for number, state in enumerate(states):
+        connection.execute(
+            sa.text(
+                "INSERT INTO trials (study_id, number, state, vector, params, metrics, info,"
+                " attempts, created_at) SELECT id, :number, :state, '[]', '{}', '{}', '{}', 0,"
+                " '2024-01-01 00:00:00' FROM studies"
+            ),
+            {"number": number, "state": state},
+        )
+
+
 def test_0007_gives_old_rows_no_user_attrs_and_goes_back_down(empty_database_url: str) -> None:
     """Rows stored before 0007 read as having no user attributes; going back down keeps
     each study, its name cut to the old column's 128 characters."""
@@ -168,21 +191,7 @@ def test_0007_gives_old_rows_no_user_attrs_and_goes_back_down(empty_database_url
     command.upgrade(config, "0006")
     engine = sa.create_engine(empty_database_url)
     with engine.begin() as connection:
-        connection.execute(
-            sa.text(
-                "INSERT INTO studies (name, direction, state, space, proposer, pruner,"
-                " max_attempts, n_trials, n_complete, n_failed, n_pruned, metadata,"
-                " created_at, updated_at) VALUES ('old', 'maximize', 'running', '{}', '{}',"
-                " '{}', 3, 1, 0, 0, 0, '{}', '2024-01-01 00:00:00', '2024-01-01 00:00:00')"
-            )
-        )
-        connection.execute(
-            sa.text(
-                "INSERT INTO trials (study_id, number, state, vector, params, metrics, info,"
-                " attempts, created_at) SELECT id, 0, 'queued', '[]', '{}', '{}', '{}', 0,"
-                " '2024-01-01 00:00:00' FROM studies"
-            )
-        )
+        _old_study(connection, ["queued"])
     command.upgrade(config, "head")
     with engine.begin() as connection:
         studies = connection.execute(sa.text("SELECT user_attrs FROM studies")).scalars().all()
@@ -196,3 +205,29 @@ def test_0007_gives_old_rows_no_user_attrs_and_goes_back_down(empty_database_url
         assert connection.execute(sa.text("SELECT count(*) FROM trials")).scalar() == 1
     engine.dispose()
     assert "user_attrs" not in columns
+
+
+def test_0014_drops_the_study_counters_and_going_down_counts_the_trials(
+    empty_database_url: str,
+) -> None:
+    """A study's complete, failed and pruned counts are its trials' states from 0014 on;
+    going back down gives the study its counters again, counted from its trials."""
+    from alembic import command
+
+    config = _alembic(empty_database_url)
+    command.upgrade(config, "0013")
+    engine = sa.create_engine(empty_database_url)
+    with engine.begin() as connection:
+        _old_study(connection, ["complete", "complete", "failed", "pruned", "complete", "running"])
+    command.upgrade(config, "head")
+    with engine.connect() as connection:
+        columns = {c["name"] for c in sa.inspect(connection).get_columns("studies")}
+    assert not {"n_complete", "n_failed", "n_pruned"} & columns
+    assert "n_trials" in columns
+    command.downgrade(config, "0013")
+    with engine.connect() as connection:
+        counts = connection.execute(
+            sa.text("SELECT n_complete, n_failed, n_pruned, n_trials FROM studies")
+        ).one()
+    engine.dispose()
+    assert tuple(counts) == (3, 1, 1, 6)

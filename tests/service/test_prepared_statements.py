@@ -154,7 +154,13 @@ def test_the_driver_path_does_what_sqlalchemy_does(databases: tuple[Database, Da
     tables = _tables(driver)
     assert _without_clock(tables) == _without_clock(_tables(through_sqlalchemy))
     best = {
-        row["id"]: (row["best_value"], row["n_complete"], row["n_failed"])
+        row["id"]: (
+            row["best_value"],
+            *(
+                sum(t["study_id"] == row["id"] and t["state"] == state for t in tables["trials"])
+                for state in ("complete", "failed")
+            ),
+        )
         for row in tables["studies"]
     }
     assert best == {1: (5.0, 3, 1), 2: (-1.0, 3, 1)}

@@ -160,10 +160,21 @@ CLAIM_QUEUED = Prepared(
 )
 
 
+_STUDY_FULL = (
+    sa.select(sa.and_(_studies.c.state == "running", _studies.c.n_trials >= _studies.c.max_trials))
+    .where(_studies.c.id == _trials.c.study_id)
+    .scalar_subquery()
+    .label("study_full")
+)
+"""Whether the trial's study is running with every trial numbered (``max_trials``
+reached): only then can a tell finish it. A read, no lock."""
+
+
 def _finish_statement(*, by_worker: bool, checked: bool) -> sa.Update:
     """Finish a trial the caller may finish: a worker the trial it holds (with auth on,
     leased by its own token); otherwise a trial no worker holds (with auth on, of a study
-    the caller owns); ``checked=False`` for admins and with auth off."""
+    the caller owns); ``checked=False`` for admins and with auth off. Returns the trial's
+    row and ``study_full``."""
     holder: list[sa.ColumnElement[bool]]
     if by_worker:
         holder = [
@@ -194,41 +205,27 @@ def _finish_statement(*, by_worker: bool, checked: bool) -> sa.Update:
             lease_expires_at=None,
             started_at=sa.func.coalesce(_trials.c.started_at, sa.bindparam("now")),
         )
-        .returning(*_trials.c)
+        .returning(*_trials.c, _STUDY_FULL)
     )
 
 
-def _count_statement(*, state: str) -> sa.Update:
-    complete = state == TrialState.complete
-    counter = {
-        TrialState.complete: _studies.c.n_complete,
-        TrialState.failed: _studies.c.n_failed,
-        TrialState.pruned: _studies.c.n_pruned,
-    }[TrialState(state)]
-    updates: dict[Any, Any] = {counter: counter + 1, _studies.c.updated_at: sa.bindparam("now")}
-    if complete:
-        value = sa.bindparam("value", type_=sa.Double)
-        # No value (several objectives, or a trial breaking a constraint): not a best.
-        better = sa.and_(
-            sa.cast(value, sa.Double).is_not(None),  # typed: PostgreSQL infers none here
-            sa.or_(
-                _studies.c.best_value.is_(None),
-                sa.case(
-                    (_studies.c.direction == "maximize", _studies.c.best_value < value),
-                    else_=_studies.c.best_value > value,
-                ),
-            ),
-        )
-        updates[_studies.c.best_value] = sa.case((better, value), else_=_studies.c.best_value)
-        updates[_studies.c.best_trial_id] = sa.case(
-            (better, sa.bindparam("tid")), else_=_studies.c.best_trial_id
-        )
-    finished = _studies.c.n_complete + _studies.c.n_failed + _studies.c.n_pruned
-    done = finished + 1 >= _studies.c.max_trials
-    updates[_studies.c.state] = sa.case(
-        (sa.and_(_studies.c.state == "running", done), "complete"), else_=_studies.c.state
+def _best_statement() -> sa.Update:
+    """A complete trial's value as the study's best where it beats the best stored (or
+    none is): the only write of the study row a tell makes, and a conditional one, so
+    on PostgreSQL a tell that is not a new best takes no lock on the study row."""
+    value = sa.bindparam("value", type_=sa.Double)
+    better = sa.or_(
+        _studies.c.best_value.is_(None),
+        sa.case(
+            (_studies.c.direction == "maximize", _studies.c.best_value < value),
+            else_=_studies.c.best_value > value,
+        ),
     )
-    return sa.update(_studies).where(_studies.c.id == sa.bindparam("sid")).values(updates)
+    return (
+        sa.update(_studies)
+        .where(_studies.c.id == sa.bindparam("sid"), better)
+        .values(best_value=value, best_trial_id=sa.bindparam("tid"), updated_at=sa.bindparam("now"))
+    )
 
 
 def _worker_statement(*, complete: bool) -> sa.Update:
@@ -254,9 +251,7 @@ FINISH = {
     for by_worker in (False, True)
     for checked in (False, True)
 }
-COUNT = {
-    state: Prepared(_count_statement(state=state)) for state in ("complete", "failed", "pruned")
-}
+BEST = Prepared(_best_statement())
 WORKER_COUNT = {
     complete: Prepared(_worker_statement(complete=complete)) for complete in (False, True)
 }

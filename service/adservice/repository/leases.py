@@ -36,8 +36,8 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
         query = query.with_for_update(of=TrialRow, skip_locked=True)
     expired = session.execute(query).all()
     if expired and locking(session):
-        # The counters below are read-modify-write: lock the studies (in id order, after
-        # the trials, as a tell does) and reload them, or a concurrent tell's count is lost.
+        # Lock the studies (in id order, after the trials, as a tell does) before a study
+        # counts its finished trials (finish_study_if_done), and reload them.
         session.execute(
             sa.select(StudyRow)
             .where(StudyRow.id.in_({study.id for _, study in expired}))
@@ -54,10 +54,9 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
             trial.state = TrialState.failed
             trial.message = f"lease expired on each of {trial.attempts} attempts"
             trial.finished_at = now
-            study.n_failed += 1
             if worker is not None:
                 worker.jobs_failed = WorkerRow.jobs_failed + 1  # in SQL: the row is not locked
-            finish_study_if_done(study)
+            finish_study_if_done(session, study)
         else:
             trial.state = TrialState.queued
             trial.worker_id = None

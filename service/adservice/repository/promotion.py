@@ -206,9 +206,8 @@ def settle(session: Session, *, study: StudyRow) -> int:
         ),
     ).rowcount
     if ended:
-        study.n_pruned += ended
         study.updated_at = now
-        finish_study_if_done(study)
+        finish_study_if_done(session, study)
     return ended or 0
 
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import timedelta
-from typing import Any, cast
+from datetime import datetime, timedelta
+from typing import Any
 
 import numpy as np
 import sqlalchemy as sa
@@ -83,6 +83,13 @@ def state_counts(session: Session, *, study_ids: Sequence[int]) -> dict[int, dic
     return counts
 
 
+def last_finished_at(session: Session, *, study_id: int) -> datetime | None:
+    """When the study's latest trial finished (None: none has)."""
+    return session.scalar(
+        sa.select(sa.func.max(TrialRow.finished_at)).where(TrialRow.study_id == study_id)
+    )
+
+
 def stop_study(session: Session, *, study_id: int, caller: Principal) -> StudyRow:
     """Stop proposing and leasing; queued trials are dropped as failed."""
     study = get_study(session, study_id=study_id, for_update=True)
@@ -90,15 +97,11 @@ def stop_study(session: Session, *, study_id: int, caller: Principal) -> StudyRo
     if study.state != "running":
         return study
     now = utcnow()
-    dropped = cast(
-        sa.CursorResult[Any],
-        session.execute(
-            sa.update(TrialRow)
-            .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
-            .values(state=TrialState.failed, message="study stopped", finished_at=now)
-        ),
-    ).rowcount
-    study.n_failed += dropped or 0
+    session.execute(
+        sa.update(TrialRow)
+        .where(TrialRow.study_id == study_id, TrialRow.state == TrialState.queued)
+        .values(state=TrialState.failed, message="study stopped", finished_at=now)
+    )
     study.state = "stopped"
     study.updated_at = now
     return study
@@ -139,15 +142,51 @@ def check_manager(study: StudyRow, caller: Principal) -> None:
     )
 
 
-def finish_study_if_done(study: StudyRow) -> None:
-    """Mark a running study complete once its finished trials reach ``max_trials`` (a
-    tell's counting statement does the same in SQL)."""
-    if (
-        study.state == "running"
-        and study.max_trials is not None
-        and study.n_complete + study.n_failed + study.n_pruned >= study.max_trials
-    ):
+FINISHED = (TrialState.complete, TrialState.failed, TrialState.pruned)
+"""The states a trial ends in: a study's trials in these count towards ``max_trials``."""
+
+
+def finish_study_if_done(session: Session, study: StudyRow) -> None:
+    """Mark a running study complete once its finished trials reach ``max_trials``.
+
+    The count is of the trials table (a study keeps no counters of its own), so the
+    caller holds the study's row lock, taken before this count's statement: on
+    PostgreSQL that statement's snapshot then holds every finish committed before the
+    lock, and a finish committed after it checks again (:func:`finish_if_done`)."""
+    if study.state != "running" or study.max_trials is None or study.n_trials < study.max_trials:
+        return  # a trial not yet numbered cannot have finished
+    finished = session.scalar(
+        sa.select(sa.func.count())
+        .select_from(TrialRow)
+        .where(TrialRow.study_id == study.id, TrialRow.state.in_(FINISHED))
+    )
+    if (finished or 0) >= study.max_trials:
         study.state = "complete"
+        study.updated_at = utcnow()
+
+
+_FULL = (
+    sa.select(StudyRow)
+    .where(
+        StudyRow.id == sa.bindparam("sid"),
+        StudyRow.state == "running",
+        StudyRow.max_trials.is_not(None),
+        StudyRow.n_trials >= StudyRow.max_trials,
+    )
+    .execution_options(populate_existing=True)
+)
+
+
+def finish_if_done(session: Session, *, study_id: int) -> None:
+    """:func:`finish_study_if_done` for a study whose trials may all be numbered, its
+    row locked first; one read that locks nothing for a study with room left (or none
+    to finish). A tell runs this after its commit on PostgreSQL: of two last tells
+    committing at once, each unseen by the other's statements, the later to take the
+    lock sees both."""
+    query = _FULL.with_for_update() if locking(session) else _FULL
+    study = session.scalars(query, {"sid": study_id}).one_or_none()
+    if study is not None:
+        finish_study_if_done(session, study)
 
 
 # --- history for proposers ------------------------------------------------------------

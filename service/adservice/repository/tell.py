@@ -17,9 +17,16 @@ from adclient.schemas import TellRequest, Trial, TrialState
 from adservice.errors import ConflictError, ForbiddenError, InvalidError, LeaseLostError
 from adservice.models import StudyRow, TrialReportRow, TrialRow, utcnow
 from adservice.principals import Principal
-from adservice.repository._shared import COUNT, FINISH, SET_OUTCOME, WORKER_COUNT, counted_value
+from adservice.repository._shared import (
+    BEST,
+    FINISH,
+    SET_OUTCOME,
+    WORKER_COUNT,
+    counted_value,
+    locking,
+)
 from adservice.repository.leases import check_lease_token
-from adservice.repository.studies import check_manager, get_study
+from adservice.repository.studies import check_manager, finish_if_done, get_study
 from adservice.repository.transfer import record_transfer_from
 from adservice.repository.trials import get_trial
 
@@ -77,11 +84,18 @@ def tell_trial(
     a conflict; a worker that no longer holds the lease is told so; a tell that does not
     fit the study's objectives or constraints is refused (InvalidError, nothing stored).
 
-    The common case is two conditional UPDATEs (trial, then study counters and best);
-    only a tell that changes nothing takes the slow path that finds out why, and only a
-    study of several objectives or with constraints (``cached_outcomes``, else read from
-    the study row) a third that stores the outcome. The UPDATEs are ``Prepared``
-    statements, run in the session's transaction."""
+    The common case is conditional UPDATEs of the trial, of the study's best (which
+    changes, and so locks the study row, only for a new best) and of the worker's count:
+    a study's counts are those of its trials' states, so a tell writes no counter of the
+    study. Only a tell that changes nothing takes the slow path that finds out why, and
+    only a study of several objectives or with constraints (``cached_outcomes``, else
+    read from the study row) one more that stores the outcome. The UPDATEs are
+    ``Prepared`` statements, run in the session's transaction.
+
+    A study whose finished trials reach ``max_trials`` is complete: where writes take
+    turns (SQLite) this tell checks so in its transaction; on PostgreSQL the caller runs
+    :func:`adservice.repository.studies.finish_if_done` after the commit (two last tells
+    at once would each miss the other's uncommitted trial)."""
     now = utcnow()
     complete = body.state != "failed"  # a pruned trial did its job: the worker's jobs_done
     value = body.value
@@ -104,6 +118,7 @@ def tell_trial(
         return _explain_refused_tell(
             session, trial_id=trial_id, body=body, caller=caller, cached=cached_outcomes
         )
+    full = bool(finished["study_full"])
     info = None
     if body.transfer_from is not None:
         info = record_transfer_from(session, trial_id=trial_id, source_id=body.transfer_from)
@@ -129,13 +144,16 @@ def tell_trial(
             value = counted_value(outcome)
     if info is not None:  # the returned row was read before the ORM's write
         finished = {**finished, "info": info}
-    COUNT[body.state].rows(
-        session, [{"sid": finished["study_id"], "tid": trial_id, "value": value, "now": now}]
-    )
+    if body.state == "complete" and value is not None:  # several objectives, infeasible: none
+        BEST.rows(
+            session, [{"sid": finished["study_id"], "tid": trial_id, "value": value, "now": now}]
+        )
     if finished["worker_id"] is not None:
         WORKER_COUNT[complete].rows(
             session, [{"wid": finished["worker_id"], "tid": trial_id, "now": now}]
         )
+    if full and not locking(session):
+        finish_if_done(session, study_id=finished["study_id"])
     return Trial.model_validate(finished)
 
 

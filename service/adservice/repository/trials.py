@@ -21,8 +21,8 @@ from adservice.db import Prepared
 from adservice.errors import ConflictError, NotFoundError
 from adservice.models import StudyRow, TrialRow, utcnow
 from adservice.repository._shared import (
+    BEST,
     CLAIM_QUEUED,
-    COUNT,
     INSERT_TRIALS,
     RESERVE,
     RESERVE_PROPOSING,
@@ -30,7 +30,7 @@ from adservice.repository._shared import (
     locking,
     touch_worker,
 )
-from adservice.repository.studies import get_study
+from adservice.repository.studies import finish_if_done, get_study
 
 TRIAL_ORDERS = {
     "number": TrialRow.number,
@@ -142,10 +142,13 @@ def insert_trials(
     worker_id: str | None = None,
     lease_token_id: int | None = None,
     lease_seconds: float = 60.0,
+    record_worker: bool = True,
 ) -> list[Trial]:
     """New trials numbered from ``first_number`` (see :func:`reserve_numbers`), in state
-    ``running`` and leased to ``worker_id`` (and its token) when given. A ``Prepared``
-    statement in the session's transaction: no ORM bookkeeping per trial."""
+    ``running`` and leased to ``worker_id`` (and its token) when given, the worker
+    recorded as seen holding the first (unless ``record_worker`` is False: the caller
+    does so with :func:`record_leased`). A ``Prepared`` statement in the session's
+    transaction: no ORM bookkeeping per trial."""
     now = utcnow()
     lease: dict[str, Any] = {}
     if worker_id:
@@ -172,12 +175,28 @@ def insert_trials(
         for offset, (vector, param, info) in enumerate(zip(vectors, params, infos, strict=True))
     ]
     ids = [row["id"] for row in INSERT_TRIALS.rows(session, values)]
-    if worker_id:
+    if worker_id and record_worker:
         touch_worker(session, worker_id=worker_id, now=now, current_trial_id=ids[0])
     return [
         Trial.model_validate({"id": trial_id, **row})
         for trial_id, row in zip(ids, values, strict=True)
     ]
+
+
+def record_leased(session: Session, *, worker_id: str, trial_id: int) -> None:
+    """The worker seen now, holding the trial just leased to it (:func:`insert_trials`
+    with ``record_worker`` False)."""
+    touch_worker(session, worker_id=worker_id, now=utcnow(), current_trial_id=trial_id)
+
+
+def commit_without_flush(session: Session) -> None:
+    """On PostgreSQL, this transaction's commit returns before its WAL reaches the disk
+    (``synchronous_commit`` off for it alone): its row locks are released without that
+    wait. Durable once any later transaction's commit waits for its own flush (WAL is
+    flushed in order); until then a crash of the database may undo it, whole. The
+    caller commits such a transaction before telling anyone of it."""
+    if locking(session):
+        session.execute(sa.text("SET LOCAL synchronous_commit TO OFF"))
 
 
 def claim_queued(session: Session, *, study_id: int, count: int) -> list[Trial]:
@@ -210,9 +229,11 @@ def add_trials(
     outcomes: Sequence[Outcome | None],
 ) -> list[Trial]:
     """Trials a user hands over, numbered from ``first_number``: queued ones wait for an
-    ask or a lease; finished ones count in the study's counters and best, as a tell of
-    them would (``info.source`` says which: ``enqueued`` or ``added``). ``outcomes``: a
-    complete one's outcome under the study's objectives and constraints."""
+    ask or a lease; finished ones count in the study's counts and best, and towards its
+    ``max_trials``, as a tell of them would (``info.source`` says which: ``enqueued`` or
+    ``added``). ``outcomes``: a complete one's outcome under the study's objectives and
+    constraints. The caller reserved the numbers in this transaction (the study's row
+    is locked)."""
     now = utcnow()
     values = [
         _new_trial(
@@ -236,11 +257,11 @@ def add_trials(
     ]
     ids = [row["id"] for row in INSERT_TRIALS.rows(session, values)]
     for trial_id, add, outcome in zip(ids, adds, outcomes, strict=True):
-        if add.state is not None and add.state != TrialState.queued:
-            value = counted_value(outcome) if outcome else add.value
-            COUNT[add.state].rows(
-                session, [{"sid": study_id, "tid": trial_id, "value": value, "now": now}]
-            )
+        value = counted_value(outcome) if outcome else add.value
+        if add.state == TrialState.complete and value is not None:
+            BEST.rows(session, [{"sid": study_id, "tid": trial_id, "value": value, "now": now}])
+    if any(add.state not in (None, TrialState.queued) for add in adds):
+        finish_if_done(session, study_id=study_id)  # the numbers' reservation locked the row
     return [
         Trial.model_validate({"id": trial_id, **row})
         for trial_id, row in zip(ids, values, strict=True)

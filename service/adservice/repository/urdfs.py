@@ -17,7 +17,8 @@ from sqlalchemy.orm import Session
 from adclient.schemas import Trial, TrialState
 from adservice.expansions import Expansion
 from adservice.models import TrialRow, TrialURDFRow, UTCDateTime, utcnow
-from adservice.repository._shared import COUNT, FINISH
+from adservice.repository._shared import FINISH
+from adservice.repository.studies import finish_if_done
 
 _urdfs = cast(sa.Table, TrialURDFRow.__table__)
 _trials = cast(sa.Table, TrialRow.__table__)
@@ -82,8 +83,7 @@ def fail_unexpanded(session: Session, *, errors: Mapping[int, str]) -> dict[int,
         )
         if row is None:  # finished or gone meanwhile
             continue
-        COUNT[TrialState.failed.value].rows(
-            session, [{"sid": row["study_id"], "tid": trial_id, "value": None, "now": now}]
-        )
         failed[trial_id] = Trial.model_validate(row)
+    for study_id in sorted({trial.study_id for trial in failed.values()}):
+        finish_if_done(session, study_id=study_id)
     return failed

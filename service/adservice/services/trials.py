@@ -98,8 +98,47 @@ def _record(
 ) -> list[Trial]:
     """In one write transaction: an owner's ask of an unmanaged study takes its queued
     (enqueued) trials first; the rest are ``propose(first_number, n)``'s candidates,
-    under newly reserved numbers."""
+    under newly reserved numbers.
+
+    A worker's lease on PostgreSQL commits that transaction without waiting for its WAL
+    flush, so the study's row (locked by the reservation) is free again without that
+    wait, and then records the worker as seen in a second transaction, whose commit
+    does wait: WAL is flushed in order, so the lease is durable before the worker hears
+    of it, and leases' flushes are grouped instead of taken in turns under the row."""
+    apart = worker_id is not None and db.dialect == "postgresql"
+    trials = _propose_and_insert(
+        db,
+        config,
+        count=count,
+        propose=propose,
+        worker_id=worker_id,
+        lease_token_id=lease_token_id,
+        lease_seconds=lease_seconds,
+        apart=apart,
+    )
+    if apart:
+        assert worker_id is not None
+        with db.write() as session:
+            trial_repo.record_leased(session, worker_id=worker_id, trial_id=trials[0].id)
+    return trials
+
+
+def _propose_and_insert(
+    db: Database,
+    config: StudyConfig,
+    *,
+    count: int,
+    propose: Callable[[int, int], Proposal],
+    worker_id: str | None,
+    lease_token_id: int | None,
+    lease_seconds: float,
+    apart: bool,
+) -> list[Trial]:
+    """:func:`_record`'s first transaction (``apart``: committed without waiting for its
+    WAL flush, the worker not yet recorded as seen)."""
     with db.write() as session:
+        if apart:
+            trial_repo.commit_without_flush(session)
         claimed: list[Trial] = []
         if worker_id is None and config.task is None:
             claimed = trial_repo.claim_queued(session, study_id=config.study_id, count=count)
@@ -124,6 +163,7 @@ def _record(
             worker_id=worker_id,
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
+            record_worker=not apart,
         )
 
 

@@ -30,6 +30,7 @@ from adservice.convert import trial_schema
 from adservice.errors import ForbiddenError
 from adservice.repository import edits as edit_repo
 from adservice.repository import leases as lease_repo
+from adservice.repository import studies as study_repo
 from adservice.repository import tell as tell_repo
 from adservice.repository import trials as trial_repo
 
@@ -67,13 +68,17 @@ async def tell(
 
     def write() -> Trial:
         with db.write() as session:
-            return tell_repo.tell_trial(
+            trial = tell_repo.tell_trial(
                 session,
                 trial_id=trial_id,
                 body=body,
                 caller=caller,
                 cached_outcomes=proposing.configs.cached_outcomes,
             )
+        if db.dialect == "postgresql":  # see tell_trial: the study's end, after the commit
+            with db.write() as session:
+                study_repo.finish_if_done(session, study_id=trial.study_id)
+        return trial
 
     return model_response(await db.run(write))
 
