@@ -1,12 +1,23 @@
 """bench/transfer.py's bookkeeping: the worker CPU to the scratch arm's 95% mark, the
-scratch arm's best at the same CPU, and the goal verdict of issue 27's report."""
+scratch arm's best at the same CPU, and the goal verdict of issue 27's report; and its
+optuna-sb3 arm (issue 38), run end to end at a tiny budget."""
 
 from __future__ import annotations
 
 import math
+from argparse import Namespace
 from typing import Any
 
-from bench.transfer import best_within, cpu_to_reach, report, scratch_at_same_cpu
+import pytest
+
+from bench.transfer import (
+    best_within,
+    cpu_to_reach,
+    report,
+    run_optuna_sb3,
+    scratch_at_same_cpu,
+    study_body,
+)
 
 
 def run(arm: str, seed: int, trials: list[tuple[float, float | None]]) -> dict[str, Any]:
@@ -83,3 +94,18 @@ def test_the_goal_is_met_only_with_3x_less_cpu_to_the_mark_and_a_best_in_the_spr
     assert row(text, "nearest/8")[9] == "2.00x less" and row(text, "nearest/8")[-1] == "missed"
     missed = row(text, "nearest+asha")
     assert missed[8] == "never (0/3)" and missed[9] == "never" and missed[-1] == "missed"
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+def test_the_optuna_arm_trains_every_design_gpsampler_asks_for() -> None:
+    """The optuna-sb3 arm end to end at a tiny budget: a real server keeps the trials,
+    each design GPSampler asks for is trained from scratch in a worker process (PPO's
+    budget here) and told back with its CPU seconds; no design is the service's own."""
+    body = study_body("stand-up", "ppo", "optuna-sb3", 0, Namespace(train_steps=256, trials=3))
+    info, trials, wall = run_optuna_sb3(body, seed=0, workers=2)
+    assert info.n_complete == 3 and wall > 0
+    assert sorted(t["number"] for t in trials) == [0, 1, 2]
+    for trial in trials:
+        assert trial["state"] == "complete" and trial["cpu_seconds"] > 0
+        assert trial["train_steps"] >= 256 and trial["shared_from"] is None
