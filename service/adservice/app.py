@@ -201,13 +201,17 @@ def install_error_handlers(app: FastAPI) -> None:
 
 
 def _sweep_leases(db: Database, interval: float, stop: threading.Event) -> None:
-    """Every ``interval``: expired leases back to the queue, and paused trials of spent
-    studies ended (pruned), so a study completes even when no worker asks for work."""
+    """Every ``interval``: expired leases back to the queue, paused trials of spent
+    studies ended (pruned), and studies whose trials all ended finished, so a study
+    completes even when no worker asks for work."""
     while not stop.wait(interval):
         try:
             with db.write() as session:
                 expired = lease_repo.expire_leases(session)
                 settled = promotion_repo.settle_spent_studies(session)
+                finished = promotion_repo.finish_done_studies(session)
+            if finished:
+                log.info("finished %d study(ies) whose last tell left them running", finished)
             if expired:
                 log.info("returned %d expired lease(s) to the queue", expired)
             if settled:

@@ -17,6 +17,7 @@ from adservice.locks import StudyLocks
 from adservice.models import utcnow
 from adservice.principals import OPEN_ADMIN
 from adservice.repository import leases as lease_repo
+from adservice.repository import promotion as promotion_repo
 from adservice.repository import studies as study_repo
 from adservice.repository import tell as tell_repo
 from adservice.repository import trials as trial_repo
@@ -125,6 +126,25 @@ def test_the_last_two_tells_at_once_finish_the_study(db: Database) -> None:
     with db.write() as session:
         study_repo.finish_if_done(session, study_id=study_id)
     assert _counts(db, study_id) == ({"complete": 1, "failed": 1}, "complete", 0.5)
+
+
+def test_a_study_whose_last_tell_did_not_check_its_end_is_finished_by_the_sweep(
+    db: Database,
+) -> None:
+    """The server stopped between a last tell's commit and its check of the study's end:
+    the study stays running with every trial ended until the lease sweep's
+    ``finish_done_studies`` finishes it; a study with a trial still running is left."""
+    done, done_trials = _study(db, max_trials=1, workers=1)
+    busy, busy_trials = _study(db, max_trials=2, workers=2)
+    with db.write() as session:
+        _tell(session, done_trials[0], "w0", 0.5)
+        _tell(session, busy_trials[0], "w0", 0.2)
+    assert _counts(db, done)[1] == "running"
+    with db.write() as session:
+        assert promotion_repo.finish_done_studies(session) == 1
+    assert _counts(db, done)[1] == "complete" and _counts(db, busy)[1] == "running"
+    with db.write() as session:
+        assert promotion_repo.finish_done_studies(session) == 0
 
 
 def test_a_lease_failing_on_expiry_meanwhile_a_failed_tell_loses_no_count(db: Database) -> None:

@@ -19,7 +19,7 @@ import yaml
 
 from adclient import Client
 from adclient.errors import Conflict, Invalid
-from adclient.schemas import SHARED_ARTIFACT, Job
+from adclient.schemas import SHARED_ARTIFACT, Job, SharedVersion
 from adclient.testing.servers import ServerProcess
 from adworker import shared_weights
 from adworker.runner import SHARED_FILE
@@ -267,3 +267,57 @@ def test_a_shared_study_is_refused_where_sharing_cannot_work(
                 {**body, "name": "refused", "max_trials": 5, "task": task, "pruner": pruner}
             )
         assert len(client.studies()) == before
+
+
+def test_a_trial_makes_one_version_whatever_is_resent_or_retried(
+    shared_server: ServerProcess,
+) -> None:
+    """A trial that made version 1 resends its request after another trial made version
+    2 (its answer was lost): it is answered version 1, nothing moves and nothing is
+    merged twice. Leased again (its lease expired before its tell), it may not replace
+    the weights of the version it made."""
+    task = "shared-once"
+    with Client(shared_server.url) as client:
+        study = client.create_study(study_body("shared once", task))
+        first, second = client.lease("w1", tasks=[task]), client.lease("w2", tasks=[task])
+        assert first is not None and second is not None
+        upload(client, first, shared_weights.encode(weights(1)), "w1")
+        assert client.advance_shared(first.trial_id, worker_id="w1", base_version=None).version == 1
+        upload(client, second, shared_weights.encode(weights(2)), "w2")
+        assert client.advance_shared(second.trial_id, worker_id="w2", base_version=1).version == 2
+        again = client.advance_shared(first.trial_id, worker_id="w1", base_version=None)
+        assert (again.version, again.trial_id) == (1, first.trial_id)
+        current = client.shared_controller(study.id)
+        assert current is not None and (current.version, current.trial_id) == (2, second.trial_id)
+        made = client.get_artifact(first.trial_id, SHARED_ARTIFACT)
+
+        released = httpx.post(
+            f"{shared_server.url}/api/v1/trials/{first.trial_id}/release", json={}
+        )
+        assert released.status_code == 200, released.text
+        redo = client.lease("w3", tasks=[task])
+        assert redo is not None and redo.trial_id == first.trial_id
+        with pytest.raises(Conflict, match="made version 1 of its study's shared controller"):
+            upload(client, redo, shared_weights.encode(weights(3)), "w3")
+        assert client.get_artifact(first.trial_id, SHARED_ARTIFACT) == made
+        for job, worker in ((redo, "w3"), (second, "w2")):
+            client.tell(job.trial_id, 0.1, worker_id=worker)
+
+
+def test_a_version_whose_file_is_gone_means_the_initial_weights(
+    shared_server: ServerProcess, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The version a job names has no file (its trial never uploaded one that stayed):
+    the worker says so and starts from the initial weights (nothing in the job folder)."""
+    with Client(shared_server.url) as client:
+        client.create_study(study_body("shared gone", "shared-gone"))
+        job = client.lease("w", tasks=["shared-gone"])
+        assert job is not None
+        pointing = job.model_copy(
+            update={"shared": SharedVersion(version=1, trial_id=job.trial_id)}
+        )
+        with caplog.at_level(logging.WARNING, logger="adworker"):
+            fetch_shared(client, pointing, tmp_path)
+        assert not (tmp_path / SHARED_FILE).exists()
+        assert "shared controller version 1 is not there" in caplog.text
+        client.tell(job.trial_id, 0.1, worker_id="w")

@@ -189,7 +189,7 @@ def evaluate_job(
         budget = task.train_steps if task.train_steps is not None else learner.default_steps
         # a promoted trial trains on to the budget it paused under (a warm start's), never
         # past the most this study asks of a design (the pause's budget is a worker's word)
-        steps = start.steps if isinstance(start, Shared) else budget
+        steps = budget
         if job.resume is not None and job.resume.budget is not None:
             steps = min(job.resume.budget, max(budget, task.warm_steps(learner.default_steps)))
         reporting = None
@@ -270,9 +270,9 @@ def evaluate_job(
     }
     if trained.warm_started and isinstance(start, Warm):
         metrics.update(_transfer_metrics(job, start))
-    if isinstance(start, Shared):
-        metrics["shared_from"] = float(start.version or 0)
-        metrics["transfer_steps"] = float(start.steps)
+    if isinstance(start, Shared):  # the version it trained from: 0, the initial weights
+        metrics["shared_from"] = float(start.version or 0) if trained.warm_started else 0.0
+        metrics["transfer_steps"] = float(start.steps if trained.warm_started else steps)
     if meter is not None:
         metrics["effort"] = float(meter.effort)
         metrics["energy"] = float(meter.energy)

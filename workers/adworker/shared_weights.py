@@ -15,9 +15,11 @@ added (docs/worker.md, "A shared controller").
 from __future__ import annotations
 
 import io
+import math
 import re
 import zipfile
 from collections.abc import Mapping
+from typing import IO
 
 import numpy as np
 
@@ -60,13 +62,35 @@ def decode(data: bytes) -> Weights:
                     member.filename[:-4]
                 ):
                     raise SharedWeightsError(f"member {member.filename[:100]!r} is not an array")
+                with archive.open(member) as stream:
+                    _check_header(stream, member)
         with np.load(io.BytesIO(data), allow_pickle=False) as archive:
             weights = {name: archive[name] for name in archive.files}
     except SharedWeightsError:
         raise
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as error:
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, MemoryError) as error:
         raise SharedWeightsError(f"not shared-controller weights: {error}") from error
     return _checked(weights)
+
+
+def _check_header(stream: IO[bytes], member: zipfile.ZipInfo) -> None:
+    """An ``.npy`` member's header, read before its array: numbers only, and no more
+    of them than the member's bytes hold (a header may claim any shape: ``np.load``
+    would allocate it before finding the data missing)."""
+    version = np.lib.format.read_magic(stream)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
+    elif version == (2, 0):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
+    else:
+        raise SharedWeightsError(f"member {member.filename!r}: .npy version {version}")
+    if dtype.kind not in "fiu" or dtype.hasobject:
+        raise SharedWeightsError(f"member {member.filename!r} is not numbers ({dtype})")
+    size = dtype.itemsize * math.prod(shape)
+    if size > member.file_size or size > MAX_BYTES:
+        raise SharedWeightsError(
+            f"member {member.filename!r} claims {size} bytes in {member.file_size}"
+        )
 
 
 def merge(

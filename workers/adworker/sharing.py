@@ -15,10 +15,10 @@ import logging
 from pathlib import Path
 
 from adclient.client import Client
-from adclient.errors import ApiError, Conflict, Forbidden, Unauthorized
+from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized
 from adclient.schemas import SHARED_ARTIFACT, Job, SharedVersion
 from adworker import shared_weights
-from adworker.runner import SHARED_FILE
+from adworker.runner import SHARED_FILE, Cancelled
 
 log = logging.getLogger("adworker")
 
@@ -29,8 +29,11 @@ to land between this worker's download and its compare-and-set)."""
 
 def fetch_shared(client: Client, job: Job, jobdir: Path) -> None:
     """The version ``job.shared`` names, into the job folder (``SHARED_FILE``). One of
-    another study, or not downloaded, is skipped with the reason logged: the design then
-    starts from the study's initial weights."""
+    another study, or whose file is not there, is skipped with the reason logged: the
+    design then starts from the study's initial weights (and its update replaces that
+    version). A download that fails otherwise leaves the job (``Cancelled``: its lease
+    is given back or expires, and it is done again), since a design trained from the
+    initial weights in its place would replace everything the study learned."""
     assert job.shared is not None
     source = job.shared.trial_id
     try:
@@ -48,15 +51,19 @@ def fetch_shared(client: Client, job: Job, jobdir: Path) -> None:
         data = client.get_artifact(source, job.shared.artifact)
     except (Unauthorized, Forbidden):
         raise
-    except ApiError as exc:
+    except NotFound as exc:
         log.warning(
-            "trial %s: shared controller version %d not downloaded (%s): starting from the "
+            "trial %s: shared controller version %d is not there (%s): starting from the "
             "study's initial weights",
             job.trial_id,
             job.shared.version,
             exc,
         )
         return
+    except ApiError as exc:
+        # Trained from the initial weights, its update would replace the study's version.
+        version = job.shared.version
+        raise Cancelled(f"shared controller version {version} not downloaded: {exc}") from exc
     jobdir.mkdir(parents=True, exist_ok=True)
     (jobdir / SHARED_FILE).write_bytes(data)
     log.info(

@@ -480,6 +480,8 @@ class Worker:
             )
         except (Unauthorized, Forbidden) as exc:
             raise AuthError(str(exc)) from exc
+        except Exception as exc:  # the trial's result is told all the same
+            log.error("%s: shared-controller update not offered: %s", label, _failure_message(exc))
 
     def _release(self, job: Job, label: str) -> None:
         """Hand the lease back so the trial is queued now, not when the lease expires."""

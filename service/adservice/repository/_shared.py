@@ -1,6 +1,7 @@
 """What several modules of :mod:`adservice.repository` share: whether the database locks
-rows, a worker's last-seen upkeep, the value a finished trial offers as a study's best,
-and the hot-path statements ask and tell run on every request (built once).
+rows, which version of its study's shared controller a trial made, a worker's last-seen
+upkeep, the value a finished trial offers as a study's best, and the hot-path statements
+ask and tell run on every request (built once).
 
 Private to the package: it imports no module of it.
 """
@@ -33,6 +34,14 @@ class Unset(enum.Enum):
 
 
 UNSET = Unset.UNSET
+
+
+def made_version(info: dict[str, Any] | None) -> int | None:
+    """The version of its study's shared controller a trial made (its
+    ``info.shared.version``), or None."""
+    shared = (info or {}).get("shared")
+    version = shared.get("version") if isinstance(shared, dict) else None
+    return version if isinstance(version, int) else None
 
 
 def touch_worker(

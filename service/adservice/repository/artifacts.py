@@ -14,10 +14,11 @@ from enum import StrEnum
 import sqlalchemy as sa
 from sqlalchemy.orm import InstrumentedAttribute, Session
 
-from adclient.schemas import TrialState
+from adclient.schemas import SHARED_ARTIFACT, TrialState
 from adservice.errors import ConflictError, NotFoundError, TooLargeError
 from adservice.models import ArtifactRow, TrialRow, utcnow
 from adservice.principals import Principal, Role
+from adservice.repository._shared import made_version
 from adservice.repository.leases import held_trial
 from adservice.repository.studies import check_manager, get_study
 from adservice.repository.trials import get_trial
@@ -79,6 +80,12 @@ def artifact_room(
         check_manager(get_study(session, study_id=trial.study_id), caller)
     else:
         held_trial(session, trial_id=trial_id, worker_id=worker_id, caller=caller)
+    made = made_version(trial.info) if name == SHARED_ARTIFACT else None
+    if made is not None:
+        raise ConflictError(
+            f"trial {trial_id} made version {made} of its study's shared controller: its "
+            f"{SHARED_ARTIFACT} is that version and is not replaced"
+        )
     others = session.execute(
         sa.select(sa.func.count(), sa.func.coalesce(sa.func.sum(ArtifactRow.size), 0)).where(
             ArtifactRow.trial_id == trial_id, ArtifactRow.name != name

@@ -10,6 +10,7 @@ shared controller").
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from datetime import datetime
 
 import sqlalchemy as sa
@@ -21,6 +22,7 @@ from adclient.schemas import SHARED_ARTIFACT
 from adservice.errors import ConflictError, InvalidError
 from adservice.models import ArtifactRow, SharedControllerRow, utcnow
 from adservice.principals import Principal
+from adservice.repository._shared import made_version
 from adservice.repository.artifacts import trusted_checkpoint
 from adservice.repository.leases import held_trial
 from adservice.repository.studies import get_study
@@ -29,6 +31,15 @@ from adservice.repository.studies import get_study
 class SharedVersionConflict(ConflictError):
     """The study's shared controller is no longer at the version an update was made
     from: the worker merges its update onto the current version and asks again."""
+
+
+@dataclass(frozen=True)
+class MadeVersion:
+    """A version a trial made (the study's current one, or an earlier one)."""
+
+    version: int
+    trial_id: int
+    updated_at: datetime | None = None
 
 
 def current_shared(session: Session, *, study_id: int) -> SharedControllerRow | None:
@@ -43,14 +54,15 @@ def advance_shared(
     worker_id: str,
     base_version: int | None,
     caller: Principal,
-) -> SharedControllerRow:
+) -> MadeVersion:
     """Make the held trial's uploaded ``SHARED_ARTIFACT`` its study's next shared version,
     if the study is still at ``base_version`` (None: no version yet); records
     ``{"from": base_version, "version": new}`` as the trial's ``info.shared``.
 
-    A trial makes at most one version: asked again once its version is current (a retry
-    whose answer was lost), it is answered that version. Refused: a lost lease (409), a
-    study without ``task.transfer: shared`` (422), an update not uploaded by a worker
+    A trial makes at most one version: asked again once it made one (a retry whose
+    answer was lost, a later attempt of the trial), it is answered that version, and its
+    ``SHARED_ARTIFACT`` is not replaced any more (``made_version``). Refused: a lost
+    lease (409), a study without ``task.transfer: shared`` (422), an update not uploaded by a worker
     under this lease (409), a study that moved on (:class:`SharedVersionConflict`, 409)."""
     trial = held_trial(session, trial_id=trial_id, worker_id=worker_id, caller=caller)
     study = get_study(session, study_id=trial.study_id)
@@ -58,9 +70,9 @@ def advance_shared(
         raise InvalidError(
             f"study {study.id} has no task.transfer: shared: it keeps no shared controller"
         )
-    current = current_shared(session, study_id=study.id)
-    if current is not None and current.trial_id == trial.id:
-        return current
+    made = made_version(trial.info)
+    if made is not None:
+        return MadeVersion(version=made, trial_id=trial.id)
     uploaded = session.scalar(
         sa.select(ArtifactRow.id).where(
             ArtifactRow.trial_id == trial.id,
@@ -75,9 +87,7 @@ def advance_shared(
         )
     now = utcnow()
     if base_version is None:
-        advanced = current is None and _created(
-            session, study_id=study.id, trial_id=trial.id, now=now
-        )
+        advanced = _created(session, study_id=study.id, trial_id=trial.id, now=now)
     else:
         advanced = _moved(
             session, study_id=study.id, base_version=base_version, trial_id=trial.id, now=now
@@ -89,7 +99,9 @@ def advance_shared(
             "shared": {"from": base_version, "version": latest.version},
         }
         session.flush()
-        return latest
+        return MadeVersion(
+            version=latest.version, trial_id=latest.trial_id, updated_at=latest.updated_at
+        )
     raise SharedVersionConflict(
         f"study {study.id}'s shared controller is at version "
         f"{latest.version if latest else 'none'}, not {base_version or 'none'}: merge the "

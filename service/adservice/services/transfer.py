@@ -82,7 +82,7 @@ def advance_shared(
         return _version(row)
 
 
-def _version(row: SharedControllerRow) -> SharedVersion:
+def _version(row: SharedControllerRow | shared_repo.MadeVersion) -> SharedVersion:
     return SharedVersion(version=row.version, trial_id=row.trial_id, updated_at=row.updated_at)
 
 
