@@ -17,16 +17,19 @@ branch_labels = None
 depends_on = None
 
 COUNTERS = {"n_complete": "complete", "n_failed": "failed", "n_pruned": "pruned"}
+KEEP_IDS = {"sqlite_autoincrement": True}
+"""SQLite drops a column by copying the table: the copy keeps AUTOINCREMENT only when
+told, else a deleted newest study's id is given again."""
 
 
 def upgrade() -> None:
-    with op.batch_alter_table("studies") as batch:
+    with op.batch_alter_table("studies", table_kwargs=KEEP_IDS) as batch:
         for column in COUNTERS:
             batch.drop_column(column)
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("studies") as batch:
+    with op.batch_alter_table("studies", table_kwargs=KEEP_IDS) as batch:
         for column in COUNTERS:
             batch.add_column(
                 sa.Column(column, sa.Integer(), nullable=False, server_default=sa.text("0"))

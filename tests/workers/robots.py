@@ -148,6 +148,19 @@ def two_tree_body(task: dict[str, Any], name: str, max_trials: int = 20) -> dict
     return {**body, "name": name, "max_trials": max_trials}
 
 
+def nearest_transfer_body(learner: str, train_steps: int, transfer_steps: int) -> dict[str, Any]:
+    """A :func:`two_tree_body` study of lift-highest with ``transfer: nearest``."""
+    task = {
+        "name": "lift-highest",
+        "learner": learner,
+        "train_steps": train_steps,
+        "eval_episodes": 1,
+        "transfer": "nearest",
+        "transfer_steps": transfer_steps,
+    }
+    return two_tree_body(task, f"transfer-{learner}")
+
+
 def tree_design(tree: int, angle: float) -> dict[str, Any]:
     """Params of a design of ``tree`` (:func:`two_tree_body`) with every joint axis at
     (angle, angle)."""

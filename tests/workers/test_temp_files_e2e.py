@@ -17,9 +17,9 @@ from adclient import Client
 from adclient.schemas import Trial
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import WorkerProcess, wait_for
+from tests.workers.robots import CHAIN, nearest_transfer_body, tree_design
 from tests.workers.test_promotion_worker_e2e import promoting
 from tests.workers.test_pruning_worker_e2e import stand_up
-from tests.workers.test_transfer_worker_e2e import CHAIN, design, study_body
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -62,9 +62,9 @@ def test_a_batch_of_sb3_jobs_leaves_nothing_in_the_temporary_folder(
     empty after it as before."""
     tmp = temporary_folder(tmp_path)
     with Client(server.url) as client:
-        transfer = client.create_study({**study_body("ppo", 256, 64), "max_trials": 2})
+        transfer = client.create_study({**nearest_transfer_body("ppo", 256, 64), "max_trials": 2})
         added = client.add_trials(
-            transfer.id, [{"params": design(CHAIN, angle)} for angle in (1.0, 1.1)]
+            transfer.id, [{"params": tree_design(CHAIN, angle)} for angle in (1.0, 1.1)]
         )
         asha = client.create_study(promoting("ppo", 512))
         worker = worker_in(server, tmp_path, tmp, "batch", "--idle-exit", "5")

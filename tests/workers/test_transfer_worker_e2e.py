@@ -11,7 +11,6 @@ import hashlib
 import io
 import zipfile
 from pathlib import Path
-from typing import Any
 
 import httpx
 import numpy as np
@@ -23,23 +22,11 @@ from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Trial
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess, plugin_path, wait_for
-from tests.workers.robots import CHAIN, STAR, arm, tree_design, two_tree_body
+from tests.workers.robots import CHAIN, STAR, arm, nearest_transfer_body, tree_design
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-
-def study_body(learner: str, train_steps: int, transfer_steps: int) -> dict[str, Any]:
-    task = {
-        "name": "lift-highest",
-        "learner": learner,
-        "train_steps": train_steps,
-        "eval_episodes": 1,
-        "transfer": "nearest",
-        "transfer_steps": transfer_steps,
-    }
-    return two_tree_body(task, f"transfer-{learner}")
 
 
 def run(
@@ -73,7 +60,7 @@ def test_a_design_starts_from_its_trees_checkpoint_and_keeps_its_replay_buffer(
     each tree starts from its tree's first, trains 64, and its replay buffer holds both
     designs' transitions (256 + 64)."""
     with Client(server.url) as client:
-        study = client.create_study(study_body("sac", 256, 64))
+        study = client.create_study(nearest_transfer_body("sac", 256, 64))
         chain, star, chain2, star2 = run(
             server,
             tmp_path,
@@ -98,7 +85,7 @@ def test_a_corrupt_or_missing_source_checkpoint_means_training_from_scratch(
     server: ServerProcess, tmp_path: Path
 ) -> None:
     with Client(server.url) as client:
-        study = client.create_study(study_body("ppo", 256, 64))
+        study = client.create_study(nearest_transfer_body("ppo", 256, 64))
         run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         stored = sorted(server.artifact_dir.rglob(f"{CHECKPOINT_ARTIFACT}.*"))
         assert len(stored) == 1
@@ -127,7 +114,7 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
     warm budget (two PPO rollouts of 512 steps) is seconds of training against a wait
     that checks 4 times a second."""
     with Client(server.url) as client:
-        study = client.create_study({**study_body("ppo", 256, 1024), "max_trials": 2})
+        study = client.create_study({**nearest_transfer_body("ppo", 256, 1024), "max_trials": 2})
         (source,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         before = hashlib.sha256(client.get_artifact(source, CHECKPOINT_ARTIFACT)).hexdigest()
         (queued,) = client.add_trials(study.id, [{"params": tree_design(CHAIN, 1.1)}])

@@ -380,9 +380,9 @@ class StableBaselinesLearner(Learner):
         shared_start = None
         if isinstance(start, Shared):
             model, shared_start = self._shared_model(env, start, steps=steps, seed=seed)
-            # the warm budget from a version that loaded, else the from-scratch one
-            loaded = start.weights is not None and self.warm_problem is None
-            steps = start.steps if shared_start is not None and loaded else steps
+            # the start's steps, but the from-scratch budget for a version that did not load
+            refused = start.weights is not None and self.warm_problem is not None
+            steps = start.steps if shared_start is not None and not refused else steps
         elif isinstance(start, Resume):
             model = self.load_checkpoint(env, start.checkpoint, steps=steps, seed=seed)
             if reporting is not None:

@@ -473,12 +473,17 @@ def load_shared(model: Any, weights: Weights) -> None:
 
 def initial_weights(model: Any, seed: int) -> Weights:
     """The study's initial weights for ``seed``: a fresh policy of the model's task
-    and sizes built from a torch generator seeded with ``seed`` (the model's design
-    does not change them: no parameter depends on it), on the CPU."""
+    and sizes built from a torch generator seeded with ``seed`` on one thread (the
+    model's design does not change them: no parameter depends on it), on the CPU."""
     policy = model.policy
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        fresh = type(policy)(**policy._get_constructor_parameters())
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # orthogonal initialisation's QR may round by thread count
+    try:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            fresh = type(policy)(**policy._get_constructor_parameters())
+    finally:
+        torch.set_num_threads(threads)
     return _weights(fresh)
 
 
