@@ -15,6 +15,8 @@ from adclient import Client
 from adclient.client import StudyHandle
 from adclient.designs import Design
 from adclient.schemas import Trial
+from adclient.testing.servers import ServerProcess
+from adclient.testing.workers import WorkerProcess
 
 
 def _fallback_urdf(design: Design, robot_name: str = "robot") -> str:
@@ -181,3 +183,21 @@ def arm(length: float) -> dict[str, Any]:
         params[f"{child}.joint.axis_theta"] = 1.0
         params[f"{child}.joint.axis_phi"] = 1.0
     return params
+
+
+def run_designs(
+    server: ServerProcess, tmp_path: Path, client: Client, study_id: int, *designs: dict
+) -> list[Trial]:
+    """Enqueue designs and let one worker evaluate them, one after the other; each must
+    complete."""
+    added = client.add_trials(study_id, [{"params": params} for params in designs])
+    worker = WorkerProcess(
+        server, tmp_path, f"w{added[0].id}", "--no-render", "--max-jobs", str(len(added))
+    )
+    try:
+        assert worker.wait() == 0, worker.log()
+    finally:
+        worker.stop()
+    trials = [client.get_trial(trial.id) for trial in added]
+    assert all(trial.state == "complete" for trial in trials), worker.log()
+    return trials

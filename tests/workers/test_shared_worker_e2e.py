@@ -15,11 +15,11 @@ import pytest
 import yaml
 
 from adclient import Client
-from adclient.schemas import SHARED_ARTIFACT, Trial
+from adclient.schemas import SHARED_ARTIFACT
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import WorkerProcess, plugin_path
 from adworker import shared_weights
-from tests.workers.robots import CHAIN, STAR, arm, tree_design, two_tree_body
+from tests.workers.robots import CHAIN, STAR, arm, run_designs, tree_design, two_tree_body
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -39,23 +39,6 @@ def study_body(max_trials: int = 20) -> dict[str, Any]:
     return two_tree_body(task, "shared", max_trials)
 
 
-def run(
-    server: ServerProcess, tmp_path: Path, client: Client, study_id: int, *trees: dict
-) -> list[Trial]:
-    """Enqueue designs and let one worker evaluate them, one after the other."""
-    added = client.add_trials(study_id, [{"params": params} for params in trees])
-    worker = WorkerProcess(
-        server, tmp_path, f"w{added[0].id}", "--no-render", "--max-jobs", str(len(added))
-    )
-    try:
-        assert worker.wait() == 0, worker.log()
-    finally:
-        worker.stop()
-    trials = [client.get_trial(trial.id) for trial in added]
-    assert all(trial.state == "complete" for trial in trials), worker.log()
-    return trials
-
-
 def test_every_design_starts_from_the_shared_controller_and_updates_it(
     server: ServerProcess, tmp_path: Path
 ) -> None:
@@ -66,7 +49,7 @@ def test_every_design_starts_from_the_shared_controller_and_updates_it(
     the trial that made it, and they differ from the one before."""
     with Client(server.url) as client:
         study = client.create_study(study_body())
-        trials = run(
+        trials = run_designs(
             server,
             tmp_path,
             client,
@@ -131,12 +114,12 @@ def test_a_version_that_does_not_load_means_the_initial_weights(
     the next version in place of the broken one."""
     with Client(server.url) as client:
         study = client.create_study(study_body())
-        (first,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
+        (first,) = run_designs(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         stored = sorted(server.artifact_dir.rglob(f"{SHARED_ARTIFACT}.*"))
         assert len(stored) == 1
         stored[0].write_bytes(b"\0" * stored[0].stat().st_size)  # corrupt, same size
 
-        (second,) = run(server, tmp_path, client, study.id, tree_design(STAR, 1.0))
+        (second,) = run_designs(server, tmp_path, client, study.id, tree_design(STAR, 1.0))
         log = (tmp_path / f"w{second.id}.log").read_text()
         assert "shared controller version 1 does not load" in log, log
         assert second.metrics["shared_from"] == 0 and second.metrics["train_steps"] >= BUDGET

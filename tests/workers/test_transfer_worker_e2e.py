@@ -22,28 +22,11 @@ from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import Trial
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess, plugin_path, wait_for
-from tests.workers.robots import CHAIN, STAR, arm, nearest_transfer_body, tree_design
+from tests.workers.robots import CHAIN, STAR, arm, nearest_transfer_body, run_designs, tree_design
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-
-def run(
-    server: ServerProcess, tmp_path: Path, client: Client, study_id: int, *trees: dict
-) -> list[Trial]:
-    """Enqueue designs and let one worker evaluate them, one after the other."""
-    added = client.add_trials(study_id, [{"params": params} for params in trees])
-    worker = WorkerProcess(
-        server, tmp_path, f"w{added[0].id}", "--no-render", "--max-jobs", str(len(added))
-    )
-    try:
-        assert worker.wait() == 0, worker.log()
-    finally:
-        worker.stop()
-    trials = [client.get_trial(trial.id) for trial in added]
-    assert all(trial.state == "complete" for trial in trials), worker.log()
-    return trials
 
 
 def replay_size(client: Client, trial: Trial) -> int:
@@ -61,7 +44,7 @@ def test_a_design_starts_from_its_trees_checkpoint_and_keeps_its_replay_buffer(
     designs' transitions (256 + 64)."""
     with Client(server.url) as client:
         study = client.create_study(nearest_transfer_body("sac", 256, 64))
-        chain, star, chain2, star2 = run(
+        chain, star, chain2, star2 = run_designs(
             server,
             tmp_path,
             client,
@@ -86,19 +69,19 @@ def test_a_corrupt_or_missing_source_checkpoint_means_training_from_scratch(
 ) -> None:
     with Client(server.url) as client:
         study = client.create_study(nearest_transfer_body("ppo", 256, 64))
-        run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
+        run_designs(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         stored = sorted(server.artifact_dir.rglob(f"{CHECKPOINT_ARTIFACT}.*"))
         assert len(stored) == 1
         stored[0].write_bytes(b"\0" * stored[0].stat().st_size)  # corrupt, same size
 
-        (corrupt,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.1))
+        (corrupt,) = run_designs(server, tmp_path, client, study.id, tree_design(CHAIN, 1.1))
         log = (tmp_path / f"w{corrupt.id}.log").read_text()
         assert "warm start refused" in log and "training from scratch" in log, log
         assert "transfer_from" not in corrupt.info and corrupt.metrics["train_steps"] >= 256
 
         for path in server.artifact_dir.rglob(f"{CHECKPOINT_ARTIFACT}.*"):
             path.unlink()
-        (missing,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 0.9))
+        (missing,) = run_designs(server, tmp_path, client, study.id, tree_design(CHAIN, 0.9))
         log = (tmp_path / f"w{missing.id}.log").read_text()
         assert "not downloaded" in log and "training from scratch" in log, log
         assert "transfer_from" not in missing.info and missing.metrics["train_steps"] >= 256
@@ -115,7 +98,7 @@ def test_a_warm_start_whose_lease_is_lost_is_done_again_and_loses_nothing(
     that checks 4 times a second."""
     with Client(server.url) as client:
         study = client.create_study({**nearest_transfer_body("ppo", 256, 1024), "max_trials": 2})
-        (source,) = run(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
+        (source,) = run_designs(server, tmp_path, client, study.id, tree_design(CHAIN, 1.0))
         before = hashlib.sha256(client.get_artifact(source, CHECKPOINT_ARTIFACT)).hexdigest()
         (queued,) = client.add_trials(study.id, [{"params": tree_design(CHAIN, 1.1)}])
         worker = WorkerProcess(server, tmp_path, "w", "--no-render", "--idle-exit", "3")
