@@ -234,3 +234,68 @@ def test_a_learner_without_a_modular_policy_trains_from_scratch_and_says_why(env
     assert learner.warm_problem is not None and "sac" in learner.warm_problem
     assert result.shared is None and result.shared_start is None
     assert result.train_steps == 64
+
+
+@pytest.mark.parametrize(
+    ("task", "design"),
+    [
+        ("lift-highest", "arch_chain"),  # free base, contacts
+        ("lift-highest", "fork"),  # four joints, a limb carrying three
+        ("diagonal-gesture", "crossed_chain"),  # fixed base, task extras
+        ("walk-forward", "arch_chain"),  # the gait clock
+    ],
+)
+def test_acting_in_numpy_gives_torch_s_numbers(env_of, task: str, design: str) -> None:
+    """A step's action mean, value and log-probability, and an evaluation's action, from
+    the NumPy forward equal torch's (the path training's batches take) within float32
+    rounding, on observations of a rolled-out env and on a batch of them, after the
+    weights moved away from their initial values."""
+    import torch
+
+    env = env_of(task, fork() if design == "fork" else design)
+    model = modular_model(env)
+    policy = model.policy
+    with torch.no_grad():  # weights away from the initial ones, so every layer matters
+        for parameter in policy.parameters():
+            parameter.add_(0.3 * torch.randn_like(parameter))
+    observations = [env.reset(seed=0)[0]]
+    for _ in range(20):
+        observations.append(env.step(env.action_space.sample())[0])
+    batch = torch.as_tensor(np.stack(observations), dtype=torch.float32)
+
+    means, values = modular.ArrayForward(policy)(batch.numpy())
+    latent = policy.mlp_extractor(batch)[0]
+    torch_means = policy._get_action_dist_from_latent(latent).distribution.loc
+    torch_values = policy.predict_values(batch)
+    np.testing.assert_allclose(means, torch_means.detach().numpy(), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(values, torch_values.detach().numpy(), rtol=1e-4, atol=1e-5)
+
+    with torch.no_grad():
+        torch.manual_seed(11)
+        actions, step_values, log_prob = policy(batch[:1])
+    torch.manual_seed(11)
+    expected_actions, expected_values, expected_log_prob = policy(batch[:1])  # with grad: torch
+    np.testing.assert_allclose(actions, expected_actions.detach(), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(step_values, expected_values.detach(), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(log_prob, expected_log_prob.detach(), rtol=1e-4, atol=1e-4)
+
+    with torch.no_grad():
+        acted = policy._predict(batch[:3], deterministic=True)
+    np.testing.assert_allclose(acted, torch_means[:3].detach().numpy(), rtol=1e-4, atol=1e-5)
+
+
+def test_a_rollout_acts_through_numpy_and_training_through_torch(env_of) -> None:
+    """Training runs the extractor's torch modules only on its batches (with gradients);
+    every rollout step and the evaluation's actions go through the NumPy forward."""
+    import torch
+
+    env = env_of("lift-highest", "arch_chain")
+    model = modular_model(env)
+    extractor = model.policy.mlp_extractor
+    calls: list[bool] = []
+    extractor.register_forward_hook(lambda *_: calls.append(torch.is_grad_enabled()))
+    model.learn(total_timesteps=STEPS)
+    assert model.num_timesteps >= STEPS
+    assert calls and all(calls)  # only training's batches, with gradients
+    action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
+    assert action.shape == (2,) and all(calls)

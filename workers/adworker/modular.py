@@ -36,6 +36,13 @@ policy is evaluated on the plain env like any other.
 
 The study's initial weights (:func:`initial_weights`) depend on its task and seed
 only: the same on every worker and process, whichever design asks.
+
+Acting (a rollout's step, an evaluation's action) runs on one observation at a time
+without gradients, where torch's cost per operation (some 60 of them a step) outweighs
+the arithmetic: on the CPU the policy then computes the same numbers in NumPy from its
+parameters' current values (:class:`ArrayForward`), and only the action's draw stays
+torch's (its random stream is the one a seed fixes). Training's batches keep torch's
+autograd.
 """
 
 from __future__ import annotations
@@ -49,6 +56,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from adworker.shared_weights import SharedWeightsError, Weights
@@ -392,6 +400,104 @@ class JointHead(nn.Module):
         return self.linear(latent).squeeze(-1)
 
 
+class ArrayForward:
+    """The extractor's, value's and action mean's forward pass in NumPy, float32, for a
+    policy on the CPU: the same arithmetic as the torch modules (tested equal within
+    rounding). It reads each parameter's current values at every call (views of
+    torch's storage), so an optimiser step or a loaded version is never stale."""
+
+    def __init__(self, policy: ModularPolicy) -> None:
+        self.policy = policy
+        extractor: ModularExtractor = policy.mlp_extractor  # type: ignore[assignment]
+        layout = extractor.blocks.layout
+        self.layout = layout
+        links = len(layout.owner)
+        owns = np.zeros((layout.joint_count + 1, links), dtype=bool)
+        owns[list(layout.owner), list(range(links))] = True
+        self.owns = owns
+        self.joint_static = np.asarray(layout.joint_static, dtype=np.float32)
+        self.global_static = np.asarray(layout.global_static, dtype=np.float32)
+        self.parent = extractor.parent.cpu().numpy()
+
+    def __call__(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Observations ``[batch, size]`` -> (action means ``[batch, joints]``, values
+        ``[batch, 1]``)."""
+        layout, policy = self.layout, self.policy
+        extractor: ModularExtractor = policy.mlp_extractor  # type: ignore[assignment]
+        tree = extractor.tree
+        batch, count = observation.shape[0], layout.joint_count
+        links = len(layout.owner)
+
+        def part(start: int | None, size: int) -> np.ndarray:
+            if start is None:
+                return np.zeros((batch, size), dtype=np.float32)
+            return observation[:, start : start + size]
+
+        def per_node(values: np.ndarray) -> np.ndarray:
+            return np.where(self.owns, values[:, None, :], -np.inf).max(axis=-1)
+
+        height = per_node(part(layout.heights, links)).astype(np.float32)
+        contact = per_node(part(layout.contacts, links)).astype(np.float32)
+        dynamic = np.stack(
+            (
+                observation[:, :count],
+                observation[:, count : 2 * count],
+                height[:, 1:],
+                contact[:, 1:],
+            ),
+            axis=-1,
+        )
+        static = np.broadcast_to(self.joint_static, (batch, *self.joint_static.shape))
+        overall = np.concatenate(
+            (
+                part(layout.base, 4),
+                height[:, :1],
+                contact[:, :1],
+                part(layout.clock, 2),
+                np.broadcast_to(self.global_static, (batch, len(self.global_static))),
+                part(layout.extras, layout.extras_size),
+            ),
+            axis=-1,
+        )
+        everywhere = np.broadcast_to(overall[:, None, :], (batch, count, overall.shape[-1]))
+        inputs = np.concatenate((dynamic, static, everywhere), axis=-1).reshape(batch * count, -1)
+        heads, hidden, nodes = tree.heads, tree.hidden, count + 1
+        state = np.concatenate(
+            (
+                np.tanh(_stacked(tree.root_in, overall)).reshape(heads, batch, 1, hidden),
+                np.tanh(_stacked(tree.joint_in, inputs)).reshape(heads, batch, count, hidden),
+            ),
+            axis=2,
+        )
+        for message, update in zip(tree.message, tree.update, strict=True):
+            sent = _stacked(message, state.reshape(heads, batch * nodes, hidden))
+            sent = sent.reshape(heads, batch, nodes, 2 * hidden)
+            up, down = sent[..., :hidden], sent[..., hidden:]
+            gathered = np.concatenate((state, self.parent.T @ up, self.parent @ down), axis=-1)
+            change = _stacked(update, gathered.reshape(heads, batch * nodes, 3 * hidden))
+            state = state + np.tanh(change.reshape(heads, batch, nodes, hidden))
+        critic = state[1]
+        pooled = np.concatenate((critic[:, 1:].mean(axis=1), critic[:, 0]), axis=-1)
+        latent_vf = np.tanh(_linear(extractor.pool, pooled))
+        values = _linear(policy.value_net, latent_vf)
+        means = _linear(policy.action_net.linear, state[0, :, 1:])[..., 0]
+        return means, values
+
+
+def _values(parameter: torch.Tensor) -> np.ndarray:
+    return parameter.detach().numpy()
+
+
+def _stacked(layer: Any, values: np.ndarray) -> np.ndarray:
+    """A :class:`StackedLinear`'s product."""
+    return np.matmul(values, _values(layer.weight)) + _values(layer.bias)
+
+
+def _linear(layer: Any, values: np.ndarray) -> np.ndarray:
+    """An ``nn.Linear``'s product."""
+    return values @ _values(layer.weight).T + _values(layer.bias)
+
+
 class ModularPolicy(ActorCriticPolicy):
     """SB3's actor-critic over a :class:`ModularLayout` (``policy_kwargs``: ``layout``,
     ``hidden``, ``rounds``); see the module docstring."""
@@ -429,6 +535,52 @@ class ModularPolicy(ActorCriticPolicy):
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
             self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
         )
+
+    def _arrays(self, observation: torch.Tensor) -> tuple[np.ndarray, np.ndarray] | None:
+        """The action means and values in NumPy (:class:`ArrayForward`), or None where
+        torch must compute them: a gradient is wanted, or the policy is not on the CPU."""
+        if torch.is_grad_enabled() or self.device.type != "cpu":
+            return None
+        arrays = self.__dict__.get("_array_forward")
+        if arrays is None:
+            arrays = self.__dict__["_array_forward"] = ArrayForward(self)
+        if isinstance(self.features_extractor, FlattenExtractor):
+            # preprocess_obs of a Box and a flatten: the values as float32 rows
+            features = observation.numpy().reshape(len(observation), -1).astype(np.float32)
+        else:
+            features = np.asarray(self.extract_features(observation), dtype=np.float32)
+        return arrays(features)
+
+    def forward(
+        self, obs: torch.Tensor, deterministic: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """SB3's forward (action, value, log-probability); a rollout's step, which runs
+        without gradients, through :class:`ArrayForward`: Normal(means, std)'s
+        ``rsample``, its noise drawn from torch's seeded stream, and its log-probability
+        summed over the joints, in NumPy."""
+        found = self._arrays(obs)
+        if found is None:
+            return super().forward(obs, deterministic)
+        means, values = found
+        log_std = self.log_std.detach().numpy()
+        if deterministic:
+            noise = np.zeros_like(means)
+        else:
+            noise = torch.empty(means.shape).normal_().numpy()
+        actions = means + noise * np.exp(log_std)
+        log_prob = (-0.5 * noise**2 - log_std - 0.5 * math.log(2 * math.pi)).sum(axis=1)
+        return (
+            torch.from_numpy(actions.reshape((-1, *self.action_space.shape))),  # type: ignore[misc]
+            torch.from_numpy(values),
+            torch.from_numpy(log_prob.astype(np.float32)),
+        )
+
+    def _predict(self, observation: Any, deterministic: bool = False) -> torch.Tensor:
+        """An evaluation's action; deterministic on the CPU through :class:`ArrayForward`."""
+        found = self._arrays(observation) if deterministic else None
+        if found is None:
+            return super()._predict(observation, deterministic)
+        return torch.from_numpy(found[0])
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
