@@ -209,9 +209,11 @@ def test_a_tree_whose_one_random_design_is_poor_is_still_found() -> None:
     assert start[2] < 0.5 * max(start.values()), start
     assert trees[8:].count(2) >= 2, trees
     best = int(np.argmax(y))
-    # above every other tree's ceiling (0.632); where the narrow optimum is met is the
-    # optimisers' rounding's: 0.652 with torch's arithmetic, 0.645 with NumPy's
-    assert trees[best] == 2 and y[best] > 0.64, (trees, y)
+    # above every other tree's ceiling (0.632); how far above depends on where the
+    # optimisers meet the narrow optimum, which the machine's rounding moves (0.652 with
+    # torch's arithmetic, 0.645 with NumPy's, 0.635 on another CPU with NumPy's)
+    assert score.best == 2 and score.others_ceiling() == pytest.approx(0.632, abs=1e-3)
+    assert trees[best] == 2 and y[best] > score.others_ceiling(), (trees, y)
 
 
 def test_second_looks_choose_among_the_trees_seen_once() -> None:

@@ -247,6 +247,25 @@ def shifted_optima() -> Callable[[Design], float]:
 # search that ranks the trees by one design each commits to the decoy.
 
 
+@dataclass(frozen=True)
+class SpecDominated:
+    """A spec-dominated objective (``spec_dominated``): a score of a design, and each
+    tree's ceiling (the most any design of it scores), so a test can ask a study's best
+    to beat every other tree's."""
+
+    score: Callable[[Design], float]
+    ceilings: tuple[float, ...]
+    best: int
+    """The tree of ceiling 1."""
+
+    def __call__(self, design: Design) -> float:
+        return self.score(design)
+
+    def others_ceiling(self) -> float:
+        """The most a design of any tree but the best scores."""
+        return max(c for tree, c in enumerate(self.ceilings) if tree != self.best)
+
+
 def spec_dominated(
     layout_seed: int,
     narrow: float,
@@ -254,7 +273,7 @@ def spec_dominated(
     shift: float,
     others: tuple[float, float] | None = None,
     decoy: tuple[float, float] = (0.35, 0.45),
-) -> Callable[[Design], float]:
+) -> SpecDominated:
     """8 trees; the score is ``ceiling[tree] * fit * (0.3 + 0.7 * alignment)``, where
     ``fit`` is a Gaussian bump of the links' lengths (root-mean-square distance to the
     tree's optimum over its width). The best tree (ceiling 1) has width ``narrow``; a
@@ -294,7 +313,7 @@ def spec_dominated(
         fit = math.exp(-misfit / (2.0 * widths[tree] ** 2))
         return float(ceilings[tree]) * fit * (0.3 + 0.7 * _alignment(design, axes))
 
-    return score
+    return SpecDominated(score, tuple(float(c) for c in ceilings), best)
 
 
 SPEC_DOMINATED: dict[str, tuple[Any, ...]] = {
