@@ -16,7 +16,6 @@ from tests.workers.robots import stand_up
 
 pytestmark = pytest.mark.e2e
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 CURVES = '''
 import time
 
