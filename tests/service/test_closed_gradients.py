@@ -9,6 +9,7 @@ seeded search through them finds the torch path's candidate."""
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,8 @@ from adservice.proposers.gpfit import fit_outcome
 from adservice.proposers.posterior import LogEI, Posterior
 from adservice.proposers.qei_shared import QEIOptions
 from adservice.representation import build_representation, search_structure
+
+pytestmark = pytest.mark.xdist_group("closed-gradients")  # a fit shared by a case's variants
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TKW: dict[str, Any] = {"dtype": torch.float64, "device": torch.device("cpu")}
@@ -100,6 +103,14 @@ def fitted(request: ProposalRequest, **options: Any) -> Any:
     return fit_outcome(request, qei, request.bounds, request.X, request.y, TKW, None)[0]
 
 
+@functools.cache
+def fitted_once(case: str, n: int, seed: int, kernel: str) -> Any:
+    """:func:`fitted` of ``request_for(case, n, seed)`` with ``kernel``, fitted once per
+    test process for the acquisition tests, with and without believed points, that only
+    read it (a ``Posterior`` of it copies what it needs)."""
+    return fitted(request_for(case, n, seed), kernel=kernel)
+
+
 def every_acquisition_case(test: Any) -> Any:
     """Each space, kernel, and with and without believed pending points."""
     for mark in (
@@ -114,7 +125,7 @@ def every_acquisition_case(test: Any) -> Any:
 @every_acquisition_case
 def test_log_ei_gradient_is_autograds(case: str, kernel: str, believing: bool) -> None:
     request = request_for(case, 16, seed=3)
-    model = fitted(request, kernel=kernel)
+    model = fitted_once(case, 16, 3, kernel)
     posterior = Posterior(model)
     probe = request_for(case, 9, seed=4)
     points = torch.as_tensor(model_inputs(probe.X, request.bounds, request.structure), **TKW)
@@ -196,7 +207,7 @@ class TorchOnly:
 @every_acquisition_case
 def test_log_ei_on_arrays_is_the_torch_paths(case: str, kernel: str, believing: bool) -> None:
     request = request_for(case, 16, seed=6)
-    model = fitted(request, kernel=kernel)
+    model = fitted_once(case, 16, 6, kernel)
     posterior = Posterior(model)
     probe = request_for(case, 12, seed=7)
     points = model_inputs(probe.X, request.bounds, request.structure)

@@ -15,6 +15,7 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.client.cli_harness import run
+from tests.conftest import DATABASES, _sqlite_copy
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("promotion")]
 
@@ -46,6 +47,42 @@ def http(shared_server: ServerProcess) -> Iterator[httpx.Client]:
         base_url=shared_server.url, headers=SDK_HEADERS, timeout=30, verify=False
     ) as client:
         yield client
+
+
+@pytest.fixture(scope="module", params=DATABASES)
+def secured(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[ServerProcess]:
+    """One server with auth on per kind of database, shared by the module's tests that
+    take it: each makes studies of a task of its own and leases only that task's jobs."""
+    if request.param == "postgresql":
+        cluster = request.getfixturevalue("postgres_cluster")
+        url = cluster.create_database(template=request.getfixturevalue("postgres_template"))
+    else:
+        url = _sqlite_copy(request.getfixturevalue("sqlite_template"), tmp_path_factory)
+    server = ServerProcess(
+        database_url=url, workdir=tmp_path_factory.mktemp("secured"), env={"AD_AUTH": "true"}
+    )
+    try:
+        yield server.start()
+    finally:
+        server.stop()
+        if request.param == "postgresql":
+            cluster.drop_database(url)
+
+
+@pytest.fixture(scope="module")
+def token(secured: ServerProcess) -> Callable[..., str]:
+    """``token(role, name)``: a token of the secured server, made by ``adserver token
+    create`` once per role and name for the tests that ask for it."""
+    made: dict[tuple[str, str], str] = {}
+
+    def of(role: str, name: str) -> str:
+        if (role, name) not in made:
+            made[role, name] = make_token(secured, role, name=name)
+        return made[role, name]
+
+    return of
 
 
 def create(http: httpx.Client, body: dict[str, Any]) -> int:
@@ -220,10 +257,9 @@ def test_only_asha_with_promotion_pauses_and_only_a_workers_trial(http: httpx.Cl
 
 
 def test_only_the_lease_holders_token_pauses(
-    server_factory: Callable[..., ServerProcess],
+    secured: ServerProcess, token: Callable[..., str]
 ) -> None:
-    secured = server_factory(AD_AUTH="true")
-    tokens = [make_token(secured, role) for role in ("user", "worker", "worker")]
+    tokens = [token("user", "owner"), token("worker", "holder"), token("worker", "stranger")]
     as_user, holder, stranger = (
         httpx.Client(
             base_url=secured.url,
@@ -234,8 +270,8 @@ def test_only_the_lease_holders_token_pauses(
         for token in tokens
     )
     with as_user, holder, stranger:
-        create(as_user, managed(PROMOTION, max_trials=2))
-        first, second = lease(holder, "w1"), lease(holder, "w2")
+        create(as_user, managed(PROMOTION, max_trials=2, task="holders"))
+        first, second = lease(holder, "w1", "holders"), lease(holder, "w2", "holders")
         assert first is not None and second is not None
         report(holder, first["trial_id"], "w1", 10, 1.0)
         assert report(holder, second["trial_id"], "w2", 10, 0.5)["pause"] is True
@@ -275,7 +311,7 @@ def test_the_sweeper_ends_paused_trials_of_a_spent_study_without_any_worker_aski
 
 
 def test_only_a_workers_checkpoint_of_the_pausing_lease_is_resumed_from(
-    server_factory: Callable[..., ServerProcess],
+    secured: ServerProcess, token: Callable[..., str]
 ) -> None:
     """Issue 36: the study's owner leases a job with its user token, uploads a
     checkpoint under that lease and pauses the trial (taken: it did reach the rung);
@@ -283,30 +319,30 @@ def test_only_a_workers_checkpoint_of_the_pausing_lease_is_resumed_from(
     it gave the lease back) may not pause on it until it uploads again. Promoted, the
     owner's trial goes out without a resume point (the worker trains it from scratch);
     the worker's resumes from its checkpoint."""
-    secured = server_factory(AD_AUTH="true")
+    task = "issue-36"  # this test's own on the shared server
     owner, worker = (
         httpx.Client(
             base_url=secured.url,
-            headers={"Authorization": f"Bearer {make_token(secured, role)}", **SDK_HEADERS},
+            headers={"Authorization": f"Bearer {token(*role)}", **SDK_HEADERS},
             timeout=30,
             verify=False,
         )
-        for role in ("user", "worker")
+        for role in (("user", "owner"), ("worker", "holder"))
     )
     with owner, worker:
-        create(owner, managed(PROMOTION, max_trials=6))
-        a = lease(worker, "wa")
+        create(owner, managed(PROMOTION, max_trials=6, task=task))
+        a = lease(worker, "wa", task)
         assert a is not None
         report(worker, a["trial_id"], "wa", 10, 1.0)
-        users = paused_at_rung(owner, "u", 0.5)
+        users = paused_at_rung(owner, "u", 0.5, task)
 
-        retried = lease(worker, "wc")
+        retried = lease(worker, "wc", task)
         assert retried is not None
         upload_checkpoint(worker, retried["trial_id"], "wc")
         given_back = {"worker_id": "wc"}
         released = worker.post(f"/api/v1/trials/{retried['trial_id']}/release", json=given_back)
         assert released.status_code == 200, released.text
-        again = lease(worker, "wc")
+        again = lease(worker, "wc", task)
         assert again is not None and again["trial_id"] == retried["trial_id"]
         assert report(worker, retried["trial_id"], "wc", 10, 0.45)["pause"] is True
         stale = pause(worker, retried["trial_id"], "wc", 10)
@@ -315,14 +351,14 @@ def test_only_a_workers_checkpoint_of_the_pausing_lease_is_resumed_from(
         assert pause(worker, retried["trial_id"], "wc", 10).status_code == 200
 
         # Rung 10 at [1.0, 0.5, 0.45, 0.1]: the top two go on, so the owner's trial.
-        paused_at_rung(worker, "wd", 0.1)
-        promoted = lease(worker, "we")
+        paused_at_rung(worker, "wd", 0.1, task)
+        promoted = lease(worker, "we", task)
         assert promoted is not None and promoted["trial_id"] == users
         assert promoted["resume"] is None, promoted["resume"]
         # Six values: the top three go on, so the worker's.
-        paused_at_rung(worker, "wf", 0.05)
-        paused_at_rung(worker, "wg", 0.01)
-        resumed = lease(worker, "wh")
+        paused_at_rung(worker, "wf", 0.05, task)
+        paused_at_rung(worker, "wg", 0.01, task)
+        resumed = lease(worker, "wh", task)
         assert resumed is not None and resumed["trial_id"] == retried["trial_id"]
         assert resumed["resume"] == trial(worker, retried["trial_id"])["checkpoint"]
         assert resumed["resume"]["lease"] == 2

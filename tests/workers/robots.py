@@ -201,3 +201,37 @@ def run_designs(
     trials = [client.get_trial(trial.id) for trial in added]
     assert all(trial.state == "complete" for trial in trials), worker.log()
     return trials
+
+
+def stand_up(learner: str, train_steps: int, pruner: dict[str, Any]) -> dict[str, Any]:
+    """The example stand-up study (two trials, proposed at random) of ``learner`` under
+    ``pruner``, one evaluation episode a trial."""
+    body = yaml.safe_load((EXAMPLES / "stand-up.yaml").read_text())
+    body["proposer"] = {"name": "random", "seed": 4}
+    body["task"] = {
+        "name": "stand-up",
+        "learner": learner,
+        "train_steps": train_steps,
+        "eval_episodes": 1,
+    }
+    return {**body, "name": f"pruned-{learner}", "max_trials": 2, "pruner": pruner}
+
+
+RUNG = 256
+"""The one ASHA rung of :func:`promoting` (steps)."""
+
+
+def promoting(learner: str, train_steps: int) -> dict[str, Any]:
+    """Four stand-up designs under ASHA with promotion, one rung (256 steps): the first
+    three pause there (a rung needs more than bootstrap_count = 3 values to promote), the
+    fourth brings the top half (two of four) on, so at least one paused trial is
+    promoted and resumed whatever the scores."""
+    options = {
+        "min_resource": RUNG,
+        "reduction_factor": 2,
+        "bootstrap_count": 3,
+        "max_resource": 2 * RUNG,
+        "promotion": True,
+    }
+    pruner = {"name": "asha", "options": options, "report_every": 128}
+    return {**stand_up(learner, train_steps, pruner), "max_trials": 4}

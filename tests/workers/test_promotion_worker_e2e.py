@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
@@ -17,27 +16,9 @@ from adclient import Client
 from adclient.schemas import Trial
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess, wait_for
-from tests.workers.test_pruning_worker_e2e import stand_up
+from tests.workers.robots import RUNG, promoting
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
-
-RUNG = 256
-
-
-def promoting(learner: str, train_steps: int) -> dict[str, Any]:
-    """Four stand-up designs under ASHA with promotion, one rung (256 steps): the first
-    three pause there (a rung needs more than bootstrap_count = 3 values to promote), the
-    fourth brings the top half (two of four) on, so at least one paused trial is
-    promoted and resumed whatever the scores."""
-    options = {
-        "min_resource": RUNG,
-        "reduction_factor": 2,
-        "bootstrap_count": 3,
-        "max_resource": 2 * RUNG,
-        "promotion": True,
-    }
-    pruner = {"name": "asha", "options": options, "report_every": 128}
-    return {**stand_up(learner, train_steps, pruner), "max_trials": 4}
 
 
 def check_resumed(client: Client, trial: Trial, train_steps: int) -> None:

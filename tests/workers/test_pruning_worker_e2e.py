@@ -5,19 +5,17 @@ trial the study's pruner stops ends ``pruned`` with its last value, no further s
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
-import yaml
 
 from adclient import Client
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess, wait_for
+from tests.workers.robots import stand_up
 
 pytestmark = pytest.mark.e2e
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 CURVES = '''
 import time
 
@@ -111,18 +109,6 @@ def test_a_report_after_the_lease_is_lost_cancels_the_job(
             assert client.get_trial(trial).value == 2.0
     finally:
         worker.stop()
-
-
-def stand_up(learner: str, train_steps: int, pruner: dict[str, Any]) -> dict[str, Any]:
-    body = yaml.safe_load((EXAMPLES / "stand-up.yaml").read_text())
-    body["proposer"] = {"name": "random", "seed": 4}
-    body["task"] = {
-        "name": "stand-up",
-        "learner": learner,
-        "train_steps": train_steps,
-        "eval_episodes": 1,
-    }
-    return {**body, "name": f"pruned-{learner}", "max_trials": 2, "pruner": pruner}
 
 
 @pytest.mark.parametrize("learner", ["ppo", "fast"])

@@ -17,9 +17,7 @@ from adclient import Client
 from adclient.schemas import Trial
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import WorkerProcess, wait_for
-from tests.workers.robots import CHAIN, nearest_transfer_body, tree_design
-from tests.workers.test_promotion_worker_e2e import promoting
-from tests.workers.test_pruning_worker_e2e import stand_up
+from tests.workers.robots import CHAIN, nearest_transfer_body, promoting, stand_up, tree_design
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
