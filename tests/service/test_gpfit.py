@@ -112,3 +112,15 @@ def test_a_training_subset_is_fitted_on_the_histories_sample() -> None:
     longer = (np.vstack([X, X[:1] * 0.5]), np.append(y, y.max() + 1.0))
     grown = fit_outcome(request, options, bounds, X[:600], y[:600], TKW, None, history=longer)
     assert grown[1] == f"warm-subset-{FIT_POINTS}"
+
+
+def test_a_training_subsets_fit_takes_half_its_rest_from_the_good() -> None:
+    y = np.random.default_rng(3).random(5000)
+    rank = np.argsort(np.argsort(-y))
+    plain, good = fit_subset(y, seed=5), fit_subset(y, seed=5, good=1024)
+    assert plain is not None and good is not None and len(good) == FIT_POINTS
+    half = (FIT_POINTS - FIT_BEST) // 2
+    assert int((rank[good] < 1024).sum()) == FIT_BEST + half
+    assert int((rank[plain] < 1024).sum()) < FIT_BEST + half // 2
+    grown = fit_subset(np.append(y, np.median(y)), seed=5, good=1024)
+    assert grown is not None and len(np.setdiff1d(good, grown)) <= 2

@@ -136,7 +136,8 @@ def fit_outcome(
 
     model = gp(train_Z, train_Y)
     fit_X, fit_y = (X, y) if history is None else history
-    subset = fit_subset(fit_y, request.seed)
+    # a training subset is half its best (subset.training_subset): so is the fit's rest
+    subset = fit_subset(fit_y, request.seed, good=0 if history is None else len(y) // 2)
     if subset is None and history is not None:
         subset = np.arange(len(fit_y))
     if subset is None:
@@ -204,7 +205,7 @@ def fit_outcome(
     return model, fit_source
 
 
-def fit_subset(y: np.ndarray, seed: int) -> np.ndarray | None:
+def fit_subset(y: np.ndarray, seed: int, good: int = 0) -> np.ndarray | None:
     """The observations a large history's hyperparameters are fitted on (None: all of
     them): the ``FIT_BEST`` best and a seeded sample of the rest, ``FIT_POINTS`` in all.
     Each likelihood evaluation of the fit factors an n x n matrix, a few hundred times
@@ -214,14 +215,24 @@ def fit_subset(y: np.ndarray, seed: int) -> np.ndarray | None:
     priorities, one per observation in the order told: a new observation keeps the
     earlier ones' priorities, so the next ask's sample differs only where a new
     observation is among the best or draws a low priority, and its fit is cached or
-    warm-started from one on nearly the same data."""
+    warm-started from one on nearly the same data. ``good``: half the rest's sample
+    comes from the ``good`` best (past the ``FIT_BEST``), as a training subset's half
+    of its best and nearest the best would give (a sample of the whole history alone
+    fitted length scales that closed less of the gap at 10,000, bench/RESULTS.md)."""
     if len(y) <= FIT_POINTS:
         return None
     order = np.argsort(-y, kind="stable")
     rest = order[FIT_BEST:]
     priority = np.random.default_rng([seed, 0xF17]).random(len(y))
-    lowest = rest[np.argsort(priority[rest], kind="stable")[: FIT_POINTS - FIT_BEST]]
-    return np.sort(np.concatenate([order[:FIT_BEST], lowest]))
+    count = FIT_POINTS - FIT_BEST
+    pools = [rest]
+    if good > FIT_BEST + count // 2:
+        pools, count = [order[FIT_BEST:good], order[good:]], count // 2
+    lowest = [
+        pool[np.argsort(priority[pool], kind="stable")[:take]]
+        for pool, take in zip(pools, [count, FIT_POINTS - FIT_BEST - count], strict=False)
+    ]
+    return np.sort(np.concatenate([order[:FIT_BEST], *lowest]))
 
 
 def _layout_key(search: SearchStructure | None, request: ProposalRequest) -> bytes:
