@@ -72,7 +72,7 @@ def _times_inverse_factor(
     BLAS's triangular product reads only the triangle, half a general product's
     arithmetic and memory traffic. Past a few hundred observations the matrix does not
     fit the cache, and these two products were most of a local search's time (at
-    2,048 training points 3 to 4 times a general product's; bench/RESULTS.md)."""
+    2,048 training points a third of a general product's CPU; bench/RESULTS.md)."""
     return dtrmm(1.0, inverse_factor, B, lower=1, trans_a=int(transposed))
 
 
