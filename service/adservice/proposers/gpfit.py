@@ -218,7 +218,7 @@ def fit_subset(y: np.ndarray, seed: int, good: int = 0) -> np.ndarray | None:
     warm-started from one on nearly the same data. ``good``: half the rest's sample
     comes from the ``good`` best (past the ``FIT_BEST``), as a training subset's half
     of its best and nearest the best would give (a sample of the whole history alone
-    fitted length scales that closed less of the gap at 10,000, bench/RESULTS.md)."""
+    closed less of the gap on Hartmann6 at 10,000, bench/RESULTS.md)."""
     if len(y) <= FIT_POINTS:
         return None
     order = np.argsort(-y, kind="stable")
