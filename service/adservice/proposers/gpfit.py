@@ -70,6 +70,7 @@ def fit_outcome(
     tkw: dict[str, Any],
     deadline: float | None,
     outcome: str = "",
+    history: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[Any, str]:
     """A ``SingleTaskGP`` on one outcome ``y`` of the points ``X`` (the study's model:
     ``gpmodel.design_kernel``, the noise mode, outcomes standardised) with its
@@ -79,7 +80,11 @@ def fit_outcome(
     past the deadline).
     ``outcome`` names the outcome in the cache keys ("" for the one objective, else
     e.g. ``objective 1`` or ``constraint 0``): each outcome of a study is fitted and
-    warm-started on its own."""
+    warm-started on its own. ``history``: the study's whole history (points, outcome)
+    when ``X`` and ``y`` are a subset of it (``subset.training_subset``); the
+    hyperparameters are then fitted on ``fit_subset`` of the history, which stays the
+    same from ask to ask (the training subset's random part does not), so the next ask
+    re-uses the fit or warm-starts it."""
     import torch
     from botorch.models import SingleTaskGP
     from botorch.models.transforms.outcome import Standardize
@@ -100,12 +105,12 @@ def fit_outcome(
     objectives = request.objectives
     unit_prior = objectives is not None and np.ndim(objectives) == 2 and objectives.shape[1] > 1
 
-    def gp(rows: np.ndarray | slice) -> Any:
+    def gp(train_Z: torch.Tensor, train_Y: torch.Tensor) -> Any:
         train_Yvar = None
         likelihood = None
         if noise_mode == "fixed":
             # Standardize divides Yvar by var(y): this is a variance of 1e-6 after scaling.
-            train_Yvar = torch.full_like(train_Y[rows], 1e-6 * max(float(np.var(y)), 1e-12))
+            train_Yvar = torch.full_like(train_Y, 1e-6 * max(float(np.var(y)), 1e-12))
         elif noise_mode == "floor":
             from gpytorch.constraints import GreaterThan
             from gpytorch.likelihoods import GaussianLikelihood
@@ -114,8 +119,8 @@ def fit_outcome(
                 noise_constraint=GreaterThan(1e-6, transform=None, initial_value=1e-4)
             ).to(**tkw)
         return SingleTaskGP(
-            train_Z[rows],
-            train_Y[rows],
+            train_Z,
+            train_Y,
             train_Yvar=train_Yvar,
             likelihood=likelihood,
             covar_module=design_kernel(
@@ -129,22 +134,36 @@ def fit_outcome(
             outcome_transform=Standardize(m=1),
         )
 
-    model = gp(slice(None))
-    subset = fit_subset(y, request.seed)
-    fitted = model if subset is None else gp(subset)
+    model = gp(train_Z, train_Y)
+    fit_X, fit_y = (X, y) if history is None else history
+    # a training subset is half its best (subset.training_subset): so is the fit's rest
+    subset = fit_subset(fit_y, request.seed, good=0 if history is None else len(y) // 2)
+    if subset is None and history is not None:
+        subset = np.arange(len(fit_y))
+    if subset is None:
+        fitted = model
+    else:
+        fit_X, fit_y = fit_X[subset], fit_y[subset]
+        fitted = gp(
+            torch.as_tensor(model_inputs(fit_X, bounds, search), **tkw),
+            torch.as_tensor(fit_y, **tkw).unsqueeze(-1),
+        )
 
     layout_key = _layout_key(search, request)
+    # the fit's data: what the hyperparameters depend on (with a fit subset, it alone)
     data_key = hashlib.sha256(
         b"".join(
             [
-                X.tobytes(),
-                y.tobytes(),
+                fit_X.tobytes(),
+                fit_y.tobytes(),
                 bounds.tobytes(),
                 layout_key,
                 f"{noise_mode}/{kernel}/{outcome}/{unit_prior}".encode(),
+                np.var(y).tobytes() if noise_mode == "fixed" else b"",
             ]
         )
     ).hexdigest()
+    first_X, first_y = (X, y) if history is None else history
     study_key = (
         bounds.tobytes(),
         layout_key,
@@ -155,8 +174,8 @@ def fit_outcome(
         outcome,
         unit_prior,
         # the first observations: two studies of one box and seed are not one study
-        X[:2].tobytes(),
-        y[:2].tobytes(),
+        first_X[:2].tobytes(),
+        first_y[:2].tobytes(),
     )
     use_warm = options.warm_start
 
@@ -186,20 +205,34 @@ def fit_outcome(
     return model, fit_source
 
 
-def fit_subset(y: np.ndarray, seed: int) -> np.ndarray | None:
+def fit_subset(y: np.ndarray, seed: int, good: int = 0) -> np.ndarray | None:
     """The observations a large history's hyperparameters are fitted on (None: all of
     them): the ``FIT_BEST`` best and a seeded sample of the rest, ``FIT_POINTS`` in all.
     Each likelihood evaluation of the fit factors an n x n matrix, a few hundred times
     a fit; the posterior the acquisition uses still conditions on every observation
-    with those hyperparameters, so only their estimate loses data (bench/RESULTS.md,
-    bench/RESULTS.md measures what that costs)."""
+    with those hyperparameters, so only their estimate loses data (bench/RESULTS.md
+    measures what that costs). The sample is the rest's lowest of one seeded stream of
+    priorities, one per observation in the order told: a new observation keeps the
+    earlier ones' priorities, so the next ask's sample differs only where a new
+    observation is among the best or draws a low priority, and its fit is cached or
+    warm-started from one on nearly the same data. ``good``: half the rest's sample
+    comes from the ``good`` best (past the ``FIT_BEST``), as a training subset's half
+    of its best and nearest the best would give (a sample of the whole history alone
+    closed less of the gap on Hartmann6 at 10,000, bench/RESULTS.md)."""
     if len(y) <= FIT_POINTS:
         return None
     order = np.argsort(-y, kind="stable")
-    rest = np.random.default_rng([seed, len(y)]).choice(
-        order[FIT_BEST:], FIT_POINTS - FIT_BEST, replace=False
-    )
-    return np.sort(np.concatenate([order[:FIT_BEST], rest]))
+    rest = order[FIT_BEST:]
+    priority = np.random.default_rng([seed, 0xF17]).random(len(y))
+    count = FIT_POINTS - FIT_BEST
+    pools = [rest]
+    if good > FIT_BEST + count // 2:
+        pools, count = [order[FIT_BEST:good], order[good:]], count // 2
+    lowest = [
+        pool[np.argsort(priority[pool], kind="stable")[:take]]
+        for pool, take in zip(pools, [count, FIT_POINTS - FIT_BEST - count], strict=False)
+    ]
+    return np.sort(np.concatenate([order[:FIT_BEST], *lowest]))
 
 
 def _layout_key(search: SearchStructure | None, request: ProposalRequest) -> bytes:

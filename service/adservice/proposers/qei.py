@@ -300,6 +300,7 @@ class QLogEIProposer:
                 n_issued=request.n_issued,
                 front=front,
             )
+        history = (X, y) if kept is not None and not local else None
         if kept is not None:
             X, y, outcomes = X[kept], y[kept], outcomes[kept]
 
@@ -344,6 +345,7 @@ class QLogEIProposer:
                     options,
                     deadline,
                     local_of=n_observed if local else None,
+                    history=history,
                 )
         except model_errors() as error:  # a numerical failure degrades; a bug raises
             reason = f"model failed: {type(error).__name__}: {error}"[:300]
@@ -410,10 +412,12 @@ class QLogEIProposer:
         options: QEIOptions,
         deadline: float | None,
         local_of: int | None = None,
+        history: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Up to q candidates (fewer when the time budget ran out) and what to record;
         ``local_of``: ``X`` are the best of that many observations, and the search stays
-        in the trust region around the best (``trust_region``)."""
+        in the trust region around the best (``trust_region``); ``history``: the whole
+        history ``X`` and ``y`` are a training subset of (``gpfit.fit_outcome``)."""
         import torch
         from botorch.acquisition.logei import (
             qLogExpectedImprovement,
@@ -434,7 +438,9 @@ class QLogEIProposer:
         Z = model_inputs(X, bounds, search)
         train_Z = torch.as_tensor(Z, **tkw)
         started = time.perf_counter()
-        model, fit_source = fit_outcome(request, options, bounds, X, y, tkw, deadline)
+        model, fit_source = fit_outcome(
+            request, options, bounds, X, y, tkw, deadline, history=history
+        )
         fit_seconds = time.perf_counter() - started
 
         mc_samples = options.mc_samples or 128
