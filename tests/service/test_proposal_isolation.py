@@ -28,9 +28,15 @@ N_TOLD = 40
 HEAVY_COUNT = 32
 
 
-def heavy_study(http: httpx.Client, name: str, dim: int = HEAVY_DIM, room: int = 64) -> int:
+def heavy_study(
+    http: httpx.Client,
+    name: str,
+    dim: int = HEAVY_DIM,
+    room: int = 64,
+    options: dict[str, Any] | None = None,
+) -> int:
     """A qei study of ``dim`` params holding ``N_TOLD`` observations: its next ask fits."""
-    return isolation.heavy_study(http, name, dim, N_TOLD, room)
+    return isolation.heavy_study(http, name, dim, N_TOLD, room, options)
 
 
 def timed_ask(http: httpx.Client, study_id: int, count: int) -> tuple[float, float, httpx.Response]:
@@ -59,11 +65,15 @@ def test_leases_and_healthz_of_another_study_are_answered_during_a_heavy_ask(
 ) -> None:
     server = server_factory(AD_ASK_SECONDS="600")
     with client(server) as http:
-        # 32 points, so the ask outlasts the calls below: issue 26 halved the ask of 24
-        # this test was written with (7.6 s -> 4.0 s on an idle 2-core machine). With one
-        # client for them all (not 96 of 50 ms each), the last call ended 4 to 9 s into
-        # asks of 32 that took 28 to 38 s on a loaded machine
-        heavy = heavy_study(http, "heavy", room=HEAVY_COUNT)
+        # 32 points from the widest search qei allows, so the ask outlasts the calls below
+        # on any machine: with the default search it took about 1 s on a quiet, fast one
+        # (2026-11-28), where the last call ended about 1.6 s into it; with this one its
+        # acquisition took 7.9 s there. With one client for them all (not 96 of 50 ms
+        # each), the last call ended 4 to 9 s into default asks of 28 to 38 s on a
+        # loaded, slower machine
+        heavy = heavy_study(
+            http, "heavy", room=HEAVY_COUNT, options={"raw_samples": 16384, "num_restarts": 128}
+        )
         isolation.managed_study(http)
         # the lease route's first call (its imports, the study's config) is not the point
         assert http.post("/api/v1/jobs/lease", json={"worker_id": "warm"}).status_code == 200

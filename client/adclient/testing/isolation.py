@@ -6,6 +6,7 @@ bench/ask_isolation.py measures how fast."""
 from __future__ import annotations
 
 import threading
+from typing import Any
 
 import httpx
 import numpy as np
@@ -18,14 +19,22 @@ def box(dim: int) -> dict:
     }
 
 
-def heavy_study(http: httpx.Client, name: str, dim: int, told: int, room: int) -> int:
-    """A qei study holding ``told`` observations with room for ``room`` more trials."""
+def heavy_study(
+    http: httpx.Client,
+    name: str,
+    dim: int,
+    told: int,
+    room: int,
+    options: dict[str, Any] | None = None,
+) -> int:
+    """A qei study (with these proposer ``options``) holding ``told`` observations with
+    room for ``room`` more trials."""
     study = http.post(
         "/api/v1/studies",
         json={
             "name": name,
             "space": box(dim),
-            "proposer": {"name": "qei", "n_initial": told},
+            "proposer": {"name": "qei", "n_initial": told, "options": options or {}},
             "max_trials": told + room,
         },
     ).json()
