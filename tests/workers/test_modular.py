@@ -284,18 +284,35 @@ def test_acting_in_numpy_gives_torch_s_numbers(env_of, task: str, design: str) -
     np.testing.assert_allclose(acted, torch_means[:3].detach().numpy(), rtol=1e-4, atol=1e-5)
 
 
-def test_a_rollout_acts_through_numpy_and_training_through_torch(env_of) -> None:
-    """Training runs the extractor's torch modules only on its batches (with gradients);
-    every rollout step and the evaluation's actions go through the NumPy forward."""
+def test_a_rollout_acts_through_numpy_and_training_through_torch(env_of, monkeypatch) -> None:
+    """Every rollout step and an evaluation's action go through the NumPy forward; the
+    torch tree network runs with gradients for training's batches, and without them only
+    for the values SB3 bootstraps from (``predict_values``: a rollout's last, a truncated
+    episode's)."""
     import torch
 
     env = env_of("lift-highest", "arch_chain")
     model = modular_model(env)
-    extractor = model.policy.mlp_extractor
-    calls: list[bool] = []
-    extractor.register_forward_hook(lambda *_: calls.append(torch.is_grad_enabled()))
+    arrays: list[int] = []
+    numpy_forward = modular.ArrayForward.__call__
+
+    def counted(self, observation):
+        arrays.append(len(observation))
+        return numpy_forward(self, observation)
+
+    monkeypatch.setattr(modular.ArrayForward, "__call__", counted)
+    tree: list[bool] = []
+    model.policy.mlp_extractor.tree.register_forward_hook(
+        lambda *_: tree.append(torch.is_grad_enabled())
+    )
     model.learn(total_timesteps=STEPS)
-    assert model.num_timesteps >= STEPS
-    assert calls and all(calls)  # only training's batches, with gradients
+    assert model.num_timesteps >= STEPS and len(arrays) == model.num_timesteps  # every step
+    assert tree.count(True) > 0  # training's batches
+    # without gradients only the values SB3 bootstraps from (a rollout's last, a
+    # truncated episode's), never a step's
+    assert 0 < tree.count(False) < model.num_timesteps // 10, tree.count(False)
+
+    arrays.clear()
+    tree.clear()
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
-    assert action.shape == (2,) and all(calls)
+    assert action.shape == (2,) and arrays == [1] and tree == []

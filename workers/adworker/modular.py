@@ -544,12 +544,10 @@ class ModularPolicy(ActorCriticPolicy):
         arrays = self.__dict__.get("_array_forward")
         if arrays is None:
             arrays = self.__dict__["_array_forward"] = ArrayForward(self)
-        if isinstance(self.features_extractor, FlattenExtractor):
-            # preprocess_obs of a Box and a flatten: the values as float32 rows
-            features = observation.numpy().reshape(len(observation), -1).astype(np.float32)
-        else:
-            features = np.asarray(self.extract_features(observation), dtype=np.float32)
-        return arrays(features)
+        if not isinstance(self.features_extractor, FlattenExtractor):
+            return None  # another extractor (or one per network): torch's path
+        # preprocess_obs of a Box and a flatten: the values as float32 rows
+        return arrays(observation.numpy().reshape(len(observation), -1).astype(np.float32))
 
     def forward(
         self, obs: torch.Tensor, deterministic: bool = False
@@ -566,7 +564,7 @@ class ModularPolicy(ActorCriticPolicy):
         if deterministic:
             noise = np.zeros_like(means)
         else:
-            noise = torch.empty(means.shape).normal_().numpy()
+            noise = torch.empty(means.shape, dtype=torch.float32).normal_().numpy()
         actions = means + noise * np.exp(log_std)
         log_prob = (-0.5 * noise**2 - log_std - 0.5 * math.log(2 * math.pi)).sum(axis=1)
         return (
