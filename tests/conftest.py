@@ -21,6 +21,7 @@ which give databases nothing has touched; tests/test_wheel.py makes its own.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -183,12 +184,26 @@ def shared_server(
     own and look only at those (or at what they added). A test that needs an empty
     server, leases a job of any study, or stops or changes the server takes
     ``live_server``."""
+    with module_server(request, tmp_path_factory, "server") as server:
+        yield server
+
+
+@contextlib.contextmanager
+def module_server(
+    request: pytest.FixtureRequest,
+    tmp_path_factory: pytest.TempPathFactory,
+    folder: str,
+    env: dict[str, str] | None = None,
+) -> Iterator[ServerProcess]:
+    """A started ``adserver`` (with ``env``) on a copy of the migrated template of the
+    module fixture's database (``request.param``: sqlite or postgresql), stopped and its
+    database dropped at the end: what a module-scoped server fixture yields."""
     if request.param == "postgresql":
         cluster: PostgresCluster = request.getfixturevalue("postgres_cluster")
         url = cluster.create_database(template=request.getfixturevalue("postgres_template"))
     else:
         url = _sqlite_copy(request.getfixturevalue("sqlite_template"), tmp_path_factory)
-    server = ServerProcess(database_url=url, workdir=tmp_path_factory.mktemp("server"))
+    server = ServerProcess(database_url=url, workdir=tmp_path_factory.mktemp(folder), env=env or {})
     try:
         yield server.start()
     finally:

@@ -15,7 +15,7 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.client.cli_harness import run
-from tests.conftest import DATABASES, _sqlite_copy
+from tests.conftest import DATABASES, module_server
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("promotion")]
 
@@ -55,20 +55,8 @@ def secured(
 ) -> Iterator[ServerProcess]:
     """One server with auth on per kind of database, shared by the module's tests that
     take it: each makes studies of a task of its own and leases only that task's jobs."""
-    if request.param == "postgresql":
-        cluster = request.getfixturevalue("postgres_cluster")
-        url = cluster.create_database(template=request.getfixturevalue("postgres_template"))
-    else:
-        url = _sqlite_copy(request.getfixturevalue("sqlite_template"), tmp_path_factory)
-    server = ServerProcess(
-        database_url=url, workdir=tmp_path_factory.mktemp("secured"), env={"AD_AUTH": "true"}
-    )
-    try:
-        yield server.start()
-    finally:
-        server.stop()
-        if request.param == "postgresql":
-            cluster.drop_database(url)
+    with module_server(request, tmp_path_factory, "secured", {"AD_AUTH": "true"}) as server:
+        yield server
 
 
 @pytest.fixture(scope="module")

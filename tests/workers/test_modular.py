@@ -19,6 +19,7 @@ import pytest
 from adworker import modular
 from adworker.designs import HALF_PI, tree_design
 from adworker.learners import PPOLearner, SACLearner, evaluate_policy
+from adworker.modular_arrays import ArrayForward
 from adworker.shared_weights import SharedWeightsError, Weights, decode, encode
 from adworker.starts import Shared
 
@@ -118,6 +119,7 @@ import numpy as np
 from adclient.plugins import catalogue
 from adclient.urdf import design_to_urdf
 from adworker import modular
+from adworker.modular_arrays import ArrayForward
 from adworker.designs import HALF_PI, tree_design
 from adworker.learners import PPOLearner
 
@@ -263,7 +265,7 @@ def test_acting_in_numpy_gives_torch_s_numbers(env_of, task: str, design: str) -
         observations.append(env.step(env.action_space.sample())[0])
     batch = torch.as_tensor(np.stack(observations), dtype=torch.float32)
 
-    means, values = modular.ArrayForward(policy)(batch.numpy())
+    means, values = ArrayForward(policy)(batch.numpy())
     latent = policy.mlp_extractor(batch)[0]
     torch_means = policy._get_action_dist_from_latent(latent).distribution.loc
     torch_values = policy.predict_values(batch)
@@ -294,13 +296,13 @@ def test_a_rollout_acts_through_numpy_and_training_through_torch(env_of, monkeyp
     env = env_of("lift-highest", "arch_chain")
     model = modular_model(env)
     arrays: list[int] = []
-    numpy_forward = modular.ArrayForward.__call__
+    numpy_forward = ArrayForward.__call__
 
     def counted(self, observation):
         arrays.append(len(observation))
         return numpy_forward(self, observation)
 
-    monkeypatch.setattr(modular.ArrayForward, "__call__", counted)
+    monkeypatch.setattr(ArrayForward, "__call__", counted)
     tree: list[bool] = []
     model.policy.mlp_extractor.tree.register_forward_hook(
         lambda *_: tree.append(torch.is_grad_enabled())
