@@ -38,6 +38,9 @@ at least 3x less worker CPU to that 95% mark (moonshot 5x), on every task.
 
 Results append to bench/results/transfer.jsonl (a rerun skips the runs it has); the
 report and the PNG (best so far against cumulative worker CPU) come from ``--report``.
+``--sitting LABEL`` keeps a set of runs made together apart from every other (CPU
+seconds grow with the machine's load, so arms compare only within one sitting): its runs
+are stored with the label, skipped and reported by it, and drawn in their own PNG.
 
 Run: ``.venv/bin/python bench/transfer.py`` (all of it: days on two cores);
 ``--tasks stand-up --learners ppo --seeds 2 --arms scratch nearest`` for a part;
@@ -142,6 +145,7 @@ def run_one(task: str, learner: str, arm: str, seed: int, args: argparse.Namespa
         "train_steps": args.train_steps,
         "transfer_steps": warm_steps(arm, args.train_steps),
         "max_trials": args.trials,
+        "sitting": args.sitting,
         "trials": trials,
         "best": info.best_value,
         "n_pruned": info.n_pruned,
@@ -325,24 +329,26 @@ def plot(runs: list[dict[str, Any]], path: Path) -> None:
 
 def _key(run: dict[str, Any]) -> tuple[Any, ...]:
     fields = ("task", "learner", "arm", "seed", "train_steps", "transfer_steps", "max_trials")
-    return tuple(run[field] for field in fields)
+    return (*(run[field] for field in fields), run.get("sitting"))
 
 
 def figure(args: argparse.Namespace) -> Path:
     """The PNG of this command's budgets and trial count (the issue's setting: transfer.png)."""
     results = ROOT / "bench" / "results"
+    sitting = f"-{args.sitting}" if args.sitting else ""
     if (args.train_steps, args.trials) == (20_000, 16):
-        return results / "transfer.png"
-    return results / f"transfer-{args.train_steps}steps-{args.trials}trials.png"
+        return results / f"transfer{sitting}.png"
+    return results / f"transfer-{args.train_steps}steps-{args.trials}trials{sitting}.png"
 
 
 def load(args: argparse.Namespace) -> list[dict[str, Any]]:
-    """The stored runs at this command's budgets and trial count."""
+    """The stored runs at this command's budgets, trial count and sitting (none: the
+    runs stored without one)."""
     if not RESULTS.exists():
         return []
     runs = [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
-    setting = (args.train_steps, args.trials)
-    return [r for r in runs if (r["train_steps"], r["max_trials"]) == setting]
+    setting = (args.train_steps, args.trials, args.sitting)
+    return [r for r in runs if (r["train_steps"], r["max_trials"], r.get("sitting")) == setting]
 
 
 def main() -> None:
@@ -356,6 +362,9 @@ def main() -> None:
     parser.add_argument("--train-steps", type=int, default=20_000)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--timeout", type=float, default=12 * 3600)
+    parser.add_argument(
+        "--sitting", default=None, help="label of runs made together, kept and reported apart"
+    )
     parser.add_argument("--quick", action="store_true", help="a smoke run, not recorded")
     parser.add_argument("--report", action="store_true", help="report the stored runs only")
     args = parser.parse_args()
@@ -370,7 +379,7 @@ def main() -> None:
                 for learner in args.learners:
                     for arm in args.arms:
                         key = (task, learner, arm, seed, args.train_steps)
-                        key += (warm_steps(arm, args.train_steps), args.trials)
+                        key += (warm_steps(arm, args.train_steps), args.trials, args.sitting)
                         if key in done and not args.quick:
                             continue
                         run = run_one(task, learner, arm, seed, args)
