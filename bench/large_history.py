@@ -205,6 +205,7 @@ def main() -> None:
         "closed: median / lower quartile |"
     )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    by_seed: dict[tuple[str, int, str], list[float]] = {}
     for name in args.functions:
         for n in args.n:
             arms = args.arms or ["default", "trust", "subset", "full", "random"]
@@ -220,6 +221,7 @@ def main() -> None:
                 memory = max(m for r in runs for m in r["memory"])
                 estimate = max((e for r in runs for e in r["estimates"]), default=0.0)
                 closed = [r["closed"] for r in runs]
+                by_seed[name, n, arm] = closed
                 ranks = [r["percentile"] for r in runs]
                 print(
                     f"| {name} | {n} | {arm} | {model} of {len(methods)}"
@@ -231,6 +233,10 @@ def main() -> None:
                     f"| {np.median(closed):.3f} / {np.percentile(closed, 25):.3f} |",
                     flush=True,
                 )
+    print("\nGap closed, seed by seed (seeds 0 on):\n")
+    print("| function | n | arm | gap closed |\n| --- | --- | --- | --- |")
+    for (name, n, arm), closed in by_seed.items():
+        print(f"| {name} | {n} | {arm} | {', '.join(f'{c:.3f}' for c in closed)} |")
 
 
 if __name__ == "__main__":
