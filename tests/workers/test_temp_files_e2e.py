@@ -139,3 +139,22 @@ def test_the_folder_of_a_killed_worker_is_removed_by_the_next_one(
         finally:
             after.stop()
     assert not left_in(tmp), f"left behind: {left_in(tmp)} ({left} before it)\n{after.log()}"
+
+
+def test_a_worker_stopped_by_its_harness_leaves_nothing(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """``WorkerProcess.stop``, as the benchmarks and fixtures end their workers, stops an
+    idle worker after its study is done by a signal it handles (exit 0, not SIGKILL), so
+    the folder its job made goes with it."""
+    tmp = temporary_folder(tmp_path)
+    with Client(server.url) as client:
+        study = client.create_study({**stand_up("fast", 256, {"name": "none"}), "max_trials": 1})
+        worker = worker_in(server, tmp_path, tmp, "harnessed", "--no-render")
+        try:
+            wait_for(lambda: client.study_info(study.id).n_complete == 1, "the design")
+            assert left_in(tmp), "the worker's job made no folder to remove"
+        finally:
+            worker.stop()
+        assert worker.process.poll() == 0, worker.log()
+    assert not left_in(tmp), f"left behind: {left_in(tmp)}\n{worker.log()}"

@@ -7,6 +7,7 @@ import contextlib
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -22,6 +23,9 @@ ADWORKER = Path(sys.executable).with_name("adworker")
 ADCLIENT = Path(sys.executable).with_name("adclient")
 PATIENCE = 300.0
 """A bound on waits so a broken build fails instead of hanging; not a speed check."""
+STOP_GRACE = 5.0
+"""Seconds a stopped worker gets after each of its two SIGTERMs (finish the job, then
+abandon it) to exit on its own before it is killed."""
 
 
 def pip_install_target(source: Path, work: Path) -> Path:
@@ -87,9 +91,16 @@ class WorkerProcess:
         self.process.send_signal(signum)
 
     def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait()
+        """Stop the worker as a user does, so it gives its job back and removes its
+        temporary folder: SIGTERM, a second one if it is still busy after
+        ``STOP_GRACE``, SIGKILL only if that does not end it either (a killed worker's
+        folder stays until the next worker on the machine starts)."""
+        for signum in (signal.SIGTERM, signal.SIGTERM, signal.SIGKILL):
+            if self.process.poll() is not None:
+                return
+            self.process.send_signal(signum)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.process.wait(timeout=STOP_GRACE)
 
 
 def wait_for(condition: Callable[[], object], what: str, poll: float = 0.25) -> object:
