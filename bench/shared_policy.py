@@ -11,7 +11,13 @@ bench/transfer.py's budget (``--train-steps``, 20,000), three arms:
 - ``modular``: the modular policy from the study's initial weights, the full budget;
 - ``chain``: the modular policy from the previous design's update (the first design
   from the initial weights), a quarter of the budget: what one worker running the
-  designs one after the other would see under ``transfer: shared``.
+  designs one after the other would see under ``transfer: shared``;
+- ``quarter``: the modular policy from the initial weights, a quarter of the budget:
+  ``chain``'s designs without what the earlier designs taught, so ``chain`` against it
+  is what the transfer itself is worth;
+- ``chain-explore``: as ``chain``, with the policy's log standard deviation put back
+  to the initial weights' at each design: the exploration a fresh policy has, on the
+  weights the earlier designs taught.
 
 Each design is scored as a worker scores it (the task's default evaluation episodes
 with the worker's seeds, deterministic policy) and its CPU seconds (training and
@@ -42,7 +48,11 @@ sys.path.insert(0, str(ROOT))
 from adworker.designs import HALF_PI, tree_design  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "shared_policy.jsonl"
-ARMS = ["mlp", "modular", "chain"]
+ARMS = ["mlp", "modular", "chain", "quarter", "chain-explore"]
+CHAINED = ("chain", "chain-explore")
+"""The arms whose designs start from the previous design's update."""
+LOG_STD = "log_std"
+"""The modular policy's array of its action noise's log standard deviation."""
 EVAL_EPISODES = 5
 CHAIN = [("a", "b"), ("b", "c")]
 DESIGNS = {
@@ -108,18 +118,21 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
     from adworker.starts import SCRATCH, Shared
 
     torch.set_num_threads(1)
-    weights = None
+    weights: dict[str, Any] = dict.fromkeys(CHAINED)
+    initial: Any = None
     with tempfile.TemporaryDirectory(prefix="bench-shared-") as folder:
         for index, (name, *_) in enumerate(DESIGNS[task][: args.designs]):
             for arm in args.arms:
-                if arm == "chain":
-                    start: Any = Shared(weights, steps=args.train_steps // 4, seed=seed)
+                if arm in CHAINED:
+                    start: Any = Shared(weights[arm], steps=args.train_steps // 4, seed=seed)
+                elif arm == "quarter":
+                    start = Shared(None, steps=args.train_steps // 4, seed=seed)
                 elif arm == "modular":
                     start = Shared(None, steps=args.train_steps, seed=seed)
                 else:
                     start = SCRATCH
                 key = (task, arm, seed, index, args.train_steps)
-                if key in done and arm != "chain":
+                if key in done and arm not in CHAINED:
                     continue
                 env = make_env(task, index, Path(folder))
                 learner = PPOLearner()
@@ -130,8 +143,11 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                 value = score(env, result.policy, seed)
                 cpu = time.process_time() - began
                 env.close()
-                if arm == "chain":
-                    weights = result.shared
+                if arm in CHAINED:
+                    initial = initial if start.weights is not None else result.shared_start
+                    weights[arm] = result.shared
+                    if arm == "chain-explore":
+                        weights[arm] = {**result.shared, LOG_STD: initial[LOG_STD]}
                     if key in done:
                         continue
                 record = {
