@@ -22,7 +22,9 @@ bench/transfer.py's budget (``--train-steps``, 20,000), three arms:
 Each design is scored as a worker scores it (the task's default evaluation episodes
 with the worker's seeds, deterministic policy) and its CPU seconds (training and
 evaluation, one thread) are measured in this process. Results append to
-bench/results/shared_policy.jsonl (a rerun skips what it has); ``--report`` prints the
+bench/results/shared_policy.jsonl (a rerun skips what it has; ``--sitting LABEL`` keeps
+runs made together apart: a change of the code's arithmetic moves every score a little,
+and CPU seconds move with the machine's load); ``--report`` prints the
 table of bench/RESULTS.md ("A shared controller (issue 38)").
 
 Run: ``.venv/bin/python bench/shared_policy.py --tasks stand-up --seeds 0 1 2
@@ -161,6 +163,7 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                     "score": value,
                     "cpu_s": cpu,
                     "problem": learner.warm_problem,
+                    "sitting": args.sitting,
                 }
                 print(json.dumps(record), flush=True)
                 RESULTS.parent.mkdir(parents=True, exist_ok=True)
@@ -168,10 +171,12 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                     out.write(json.dumps(record) + "\n")
 
 
-def load() -> list[dict[str, Any]]:
+def load(sitting: str | None) -> list[dict[str, Any]]:
+    """The stored records of ``sitting`` (None: those stored without one)."""
     if not RESULTS.exists():
         return []
-    return [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
+    records = [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
+    return [r for r in records if r.get("sitting") == sitting]
 
 
 def report(records: list[dict[str, Any]], train_steps: int) -> str:
@@ -259,14 +264,23 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--train-steps", type=int, default=20_000)
     parser.add_argument("--designs", type=int, default=4, help="the first N of each task's")
+    parser.add_argument(
+        "--sitting",
+        default=None,
+        help="label of runs made together (the code and the machine's load of one day), "
+        "stored, skipped and reported apart from the others",
+    )
     parser.add_argument("--report", action="store_true", help="report the stored runs only")
     args = parser.parse_args()
     if not args.report:
-        done = {(r["task"], r["arm"], r["seed"], r["design"], r["train_steps"]) for r in load()}
+        done = {
+            (r["task"], r["arm"], r["seed"], r["design"], r["train_steps"])
+            for r in load(args.sitting)
+        }
         for task in args.tasks:
             for seed in args.seeds:
                 run_seed(task, seed, args, done)
-    print(report(load(), args.train_steps))
+    print(report(load(args.sitting), args.train_steps))
 
 
 if __name__ == "__main__":
