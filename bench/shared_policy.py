@@ -218,8 +218,8 @@ def report(records: list[dict[str, Any]], train_steps: int) -> str:
 
 
 def totals(rows: list[dict[str, Any]]) -> str:
-    """Per task and arm, over the designs every arm ran with the most seeds: the mean
-    score (median over the seeds) and the CPU seconds summed over them (median)."""
+    """Per task and arm, over the designs every arm that ran ran with the most seeds: the
+    mean score (median over the seeds) and the CPU seconds summed over them (median)."""
     lines = [
         "| task | arm | designs | seeds | mean score over the designs (median over seeds) "
         "| CPU s over the designs (median) | CPU / mlp's |",
@@ -230,7 +230,7 @@ def totals(rows: list[dict[str, Any]]) -> str:
         seeds_of = {
             (design, arm): {r["seed"] for r in ran if (r["design"], r["arm"]) == (design, arm)}
             for design in {r["design"] for r in ran}
-            for arm in ARMS
+            for arm in {r["arm"] for r in ran}
         }
         most = max((len(seeds) for seeds in seeds_of.values()), default=0)
         designs = {design for design, _ in seeds_of} - {
