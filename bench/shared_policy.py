@@ -17,7 +17,11 @@ bench/transfer.py's budget (``--train-steps``, 20,000), three arms:
   is what the transfer itself is worth;
 - ``chain-explore``: as ``chain``, with the policy's log standard deviation put back
   to the initial weights' at each design: the exploration a fresh policy has, on the
-  weights the earlier designs taught.
+  weights the earlier designs taught;
+- ``chain-critic``: as ``chain``, but only the critic carries (its head of the tree
+  network, its pooling and value layer); the actor starts from the initial weights;
+- ``chain-half``: as ``chain``, each design from halfway between the initial weights
+  and the previous design's update.
 
 Each design is scored as a worker scores it (the task's default evaluation episodes
 with the worker's seeds, deterministic policy) and its CPU seconds (training and
@@ -50,8 +54,8 @@ sys.path.insert(0, str(ROOT))
 from adworker.designs import HALF_PI, tree_design  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "shared_policy.jsonl"
-ARMS = ["mlp", "modular", "chain", "quarter", "chain-explore"]
-CHAINED = ("chain", "chain-explore")
+ARMS = ["mlp", "modular", "chain", "quarter", "chain-explore", "chain-critic", "chain-half"]
+CHAINED = ("chain", "chain-explore", "chain-critic", "chain-half")
 """The arms whose designs start from the previous design's update."""
 LOG_STD = "log_std"
 """The modular policy's array of its action noise's log standard deviation."""
@@ -147,9 +151,7 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                 env.close()
                 if arm in CHAINED:
                     initial = initial if start.weights is not None else result.shared_start
-                    weights[arm] = result.shared
-                    if arm == "chain-explore":
-                        weights[arm] = {**result.shared, LOG_STD: initial[LOG_STD]}
+                    weights[arm] = carried(arm, result.shared, initial)
                     if key in done:
                         continue
                 record = {
@@ -169,6 +171,24 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                 RESULTS.parent.mkdir(parents=True, exist_ok=True)
                 with RESULTS.open("a") as out:
                     out.write(json.dumps(record) + "\n")
+
+
+def carried(arm: str, update: dict[str, Any], initial: dict[str, Any]) -> dict[str, Any]:
+    """What a chained arm's next design starts from, given the last design's update."""
+    if arm == "chain-explore":
+        return {**update, LOG_STD: initial[LOG_STD]}
+    if arm == "chain-half":
+        return {name: (update[name] + initial[name]) / 2 for name in update}
+    if arm == "chain-critic":
+        start = dict(initial)
+        for name, value in update.items():
+            if name.startswith("mlp_extractor.tree."):
+                start[name] = initial[name].copy()
+                start[name][1] = value[1]  # the stacked heads: actor 0, critic 1
+            elif name.startswith(("mlp_extractor.pool", "value_net")):
+                start[name] = value
+        return start
+    return update
 
 
 def load(sitting: str | None) -> list[dict[str, Any]]:

@@ -22,6 +22,10 @@ run's seed, and ``--workers`` adworker processes. Arms:
   the shared controller's score on it at step 0, before training (``n_startup_trials``
   4, reports only at step 0), so a design it rates below the complete designs' median
   is not trained;
+- ``shared-all``, ``shared-all+screen``: the same with ``shared_carries: all`` (a design
+  starts actor and critic from the version; ``shared`` keeps the default, ``critic``:
+  the actor from the study's initial weights). The sitting ``2026-11-28b``'s
+  ``shared`` runs were made before that default and are stored as ``shared-all``;
 - ``optuna-sb3``: what a user would write without this service: Optuna's GPSampler
   (seeded, its defaults) proposing the same space (the tree as a categorical, every spec
   a float in its range) and stable-baselines3 training every design from scratch, on
@@ -92,6 +96,8 @@ ARMS = [
     "nearest+asha",
     "shared",
     "shared+screen",
+    "shared-all",
+    "shared-all+screen",
     "optuna-sb3",
 ]
 REACHED = 0.95
@@ -109,6 +115,8 @@ def study_body(task: str, learner: str, arm: str, seed: int, args: argparse.Name
         "transfer": transfer_of(arm),
         "transfer_steps": warm_steps(arm, args.train_steps),
     }
+    if arm.startswith("shared"):
+        body["task"]["shared_carries"] = "all" if arm.startswith("shared-all") else "critic"
     body["max_trials"] = args.trials
     body["pruner"] = pruner_of("asha" if arm.endswith("+asha") else "none", args.train_steps)
     if arm.endswith("+screen"):
@@ -316,6 +324,8 @@ COLOURS = {
     "nearest+asha": "tab:orange",
     "shared": "tab:blue",
     "shared+screen": "tab:cyan",
+    "shared-all": "tab:olive",
+    "shared-all+screen": "tab:pink",
     "optuna-sb3": "tab:green",
 }
 

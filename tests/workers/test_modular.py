@@ -318,3 +318,32 @@ def test_a_rollout_acts_through_numpy_and_training_through_torch(env_of, monkeyp
     tree.clear()
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
     assert action.shape == (2,) and arrays == [1] and tree == []
+
+
+@pytest.mark.parametrize("carries", ["critic", "all"])
+def test_a_version_carries_its_critic_or_all_of_it(env_of, carries) -> None:
+    """``carries: critic``: the design's actor (the tree network's actor head, action
+    head and log-std) starts from the study's initial weights, its critic from the
+    version; ``all``: everything from the version. Either way the start it reports is
+    the version, so the merged update replaces the actor and moves the critic."""
+    env = env_of("lift-highest", "arch_chain")
+    version = modular.initial_weights(modular_model(env), 11)
+    initial = modular.initial_weights(modular_model(env), 3)
+    start = Shared(version, steps=0, seed=3, version=5, carries=carries)
+    result = PPOLearner().train(env, steps=512, seed=0, start=start)
+
+    assert result.train_steps == 0 and result.warm_started
+    assert result.shared_start is not None and same(result.shared_start, version)
+    assert result.shared is not None
+    if carries == "all":
+        assert same(result.shared, version)
+        return
+    for name, value in result.shared.items():
+        if name.startswith(modular.TREE_ARRAYS):
+            assert np.array_equal(value[0], initial[name][0]), name
+            assert np.array_equal(value[1], version[name][1]), name
+        elif name.startswith(modular.ACTOR_ARRAYS):
+            assert np.array_equal(value, initial[name]), name
+        else:
+            assert np.array_equal(value, version[name]), name
+    assert any(name.startswith("value_net") for name in result.shared)

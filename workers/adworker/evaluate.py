@@ -330,6 +330,7 @@ def shared_start(job: Job, workdir: Path, learner: Learner) -> Shared:
         steps=task.warm_steps(learner.default_steps),
         seed=task.seed,
         version=job.shared.version,
+        carries=task.shared_carries,
     )
 
 

@@ -393,11 +393,17 @@ class StableBaselinesLearner(Learner):
             model = self.make_model(env, steps=steps, seed=seed)
         resumed_at = int(model.num_timesteps)
         try:
-            screened = isinstance(start, Shared) and start.weights is not None
-            if screened and reporting is not None and self.warm_problem is None:
-                # Screening: the study's shared controller scored on this design before
-                # any training, reported at step 0 for the study's pruner to judge.
-                reporting.send(0, reporting.evaluate(_deterministic(model)))
+            # a Shared start whose version loaded (not the initial weights)
+            version = start if isinstance(start, Shared) and start.weights is not None else None
+            if version is not None and self.warm_problem is None:
+                if reporting is not None:
+                    # Screening: the study's shared controller scored on this design
+                    # before any training, reported at step 0 for its pruner to judge.
+                    reporting.send(0, reporting.evaluate(_deterministic(model)))
+                if version.carries == "critic":
+                    from adworker.modular import fresh_actor
+
+                    fresh_actor(model, version.seed)
             if steps > resumed_at:
                 model.learn(
                     total_timesteps=steps - resumed_at,

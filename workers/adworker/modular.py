@@ -540,6 +540,27 @@ def initial_weights(model: Any, seed: int) -> Weights:
     return _weights(fresh)
 
 
+ACTOR_ARRAYS = ("log_std", "action_net.")
+"""The arrays of the actor alone (beside the actor's head, 0, of the tree network's
+stacked arrays); the pooling and the value layer are the critic's."""
+TREE_ARRAYS = "mlp_extractor.tree."
+"""The tree network's arrays, stacked ``[actor, critic, ...]``."""
+
+
+def fresh_actor(model: Any, seed: int) -> None:
+    """Put the model's actor (its tree network's actor head, action head and log-std)
+    back to the study's initial weights for ``seed``, keeping its critic: a design of a
+    shared study that carries the critic alone (``task.shared_carries: critic``)."""
+    initial = initial_weights(model, seed)
+    current = shared_weights_of(model)
+    for name, value in current.items():
+        if name.startswith(TREE_ARRAYS):
+            value[0] = initial[name][0]
+        elif name.startswith(ACTOR_ARRAYS):
+            current[name] = initial[name]
+    load_shared(model, current)
+
+
 def _weights(policy: nn.Module) -> Weights:
     return {
         name: value.detach().cpu().numpy().astype(np.float32)

@@ -18,7 +18,7 @@ import logging
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -107,12 +107,17 @@ class Shared:
     its current version's (:mod:`adworker.shared_weights`), or None before the first
     version or when that version does not load: then the study's initial weights,
     the same on every worker for ``seed``. Trains ``steps`` and returns its weights as
-    ``TrainResult.shared`` (and those it started from as ``shared_start``)."""
+    ``TrainResult.shared`` (and those it started from as ``shared_start``).
+    ``carries``: ``all`` trains from the version as it is; ``critic`` (the study's
+    default) keeps the version's critic and starts the actor from the initial weights
+    (``shared_start`` is still the version, so the update the study merges is this
+    design's actor and its change to the critic)."""
 
     weights: dict[str, np.ndarray] | None
     steps: int
     seed: int
     version: int | None = None
+    carries: Literal["critic", "all"] = "all"
 
 
 Start = Scratch | Resume | Warm | Shared

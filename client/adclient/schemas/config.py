@@ -75,6 +75,12 @@ class TaskConfig(Strict):
         description="steps a warm-started design trains (default: a quarter of train_steps, "
         "or of the learner's own budget)",
     )
+    shared_carries: Literal["critic", "all"] = Field(
+        default="critic",
+        description="what a design of a shared study (transfer: shared) takes from the "
+        "study's controller: critic, its critic, the actor starting from the study's "
+        "initial weights (measured best: bench/RESULTS.md); all, actor and critic",
+    )
     transfer_among: int = Field(
         default=4,
         ge=1,
