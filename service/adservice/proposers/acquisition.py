@@ -75,7 +75,11 @@ LOCAL_GTOL = 1e-2
 """A local search stops when no gradient of log EI (per unit of a spec's range) exceeds
 this: moving a spec by 1% of its range then changes EI by about 0.01%. GPSampler stops
 its local searches at the same gradient in length-scale units."""
-_TAKEN_TOL = 1e-9
+TAKEN_TOL = 1e-6
+"""A candidate closer than this (max-norm, model inputs) to an observed or pending point
+is that point again: the search answers another where it found one, and qei replaces
+one it could not avoid by a Sobol point (``reason: duplicate candidate``). One bound
+for both, so no candidate the search calls fresh is one qei calls a duplicate."""
 _CHUNK = 1024
 
 
@@ -412,7 +416,7 @@ def maximise(
     order = np.argsort(-values, kind="stable")
     top = int(order[0])
     if taken is not None and len(taken):
-        fresh = (int(i) for i in order if _distance(taken, points[i]) > _TAKEN_TOL)
+        fresh = (int(i) for i in order if nearest_distance(taken, points[i]) >= TAKEN_TOL)
         top = next(fresh, top)
     return Optimum(z=points[top], value=float(values[top]), structures_switched=switched)
 
@@ -428,7 +432,10 @@ def _feasible_raw(raw: np.ndarray, region: SpecRegion, at_least: int) -> np.ndar
     return kept
 
 
-def _distance(points: np.ndarray, point: np.ndarray) -> float:
+def nearest_distance(points: np.ndarray, point: np.ndarray) -> float:
+    """Max-norm distance from ``point`` to the nearest row of ``points`` (inf if none)."""
+    if len(points) == 0:
+        return float("inf")
     return float(np.min(np.max(np.abs(points - point), axis=1)))
 
 

@@ -104,7 +104,6 @@ if TYPE_CHECKING:
 
 _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
-_DUPLICATE_CANDIDATE_TOL = 1e-6
 _MAX_FAILED_AS_PENDING = 32
 
 
@@ -346,6 +345,7 @@ class QLogEIProposer:
                     deadline,
                     local_of=n_observed if local else None,
                     history=history,
+                    observed_Z=observed_Z if kept is not None else None,
                 )
         except model_errors() as error:  # a numerical failure degrades; a bug raises
             reason = f"model failed: {type(error).__name__}: {error}"[:300]
@@ -368,6 +368,8 @@ class QLogEIProposer:
                 if local
                 else "best, nearest the best, random (subset.py)"
             )
+        from adservice.proposers.acquisition import TAKEN_TOL, nearest_distance
+
         methods = extra.pop("methods")
         looks = extra.pop("second_looks", [])
         chances = extra.pop("tree_chances", [])
@@ -378,7 +380,7 @@ class QLogEIProposer:
         sobol_rows, sobol_info = self._fallback(request, bounds, first, q, "duplicate candidate")
         for i in range(len(rows)):
             stack = np.concatenate([*taken, rows_Z[:i]], axis=0)
-            if _nearest_distance(stack, rows_Z[i]) < _DUPLICATE_CANDIDATE_TOL:
+            if nearest_distance(stack, rows_Z[i]) < TAKEN_TOL:
                 rows[i] = sobol_rows[i]
                 rows_Z[i] = model_inputs(sobol_rows[i], bounds, request.structure)[0]
                 infos.append({**sobol_info[i], **extra, "method": "sobol-fallback"})
@@ -413,11 +415,14 @@ class QLogEIProposer:
         deadline: float | None,
         local_of: int | None = None,
         history: tuple[np.ndarray, np.ndarray] | None = None,
+        observed_Z: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Up to q candidates (fewer when the time budget ran out) and what to record;
         ``local_of``: ``X`` are the best of that many observations, and the search stays
         in the trust region around the best (``trust_region``); ``history``: the whole
-        history ``X`` and ``y`` are a training subset of (``gpfit.fit_outcome``)."""
+        history ``X`` and ``y`` are a training subset of (``gpfit.fit_outcome``);
+        ``observed_Z``: every observation's model inputs where ``X`` is a subset, so the
+        search answers none of them (a point outside the subset is a duplicate too)."""
         import torch
         from botorch.acquisition.logei import (
             qLogExpectedImprovement,
@@ -447,6 +452,8 @@ class QLogEIProposer:
         greedy = Greedy.of(
             request, options, bounds, Z, X_pending, Z[np.argsort(-y, kind="stable")], tkw, deadline
         )
+        if observed_Z is not None and greedy.taken is not None:
+            greedy = replace(greedy, taken=np.concatenate([observed_Z, greedy.pending_Z]))
         region: dict[str, Any] = {}
         if local_of is not None:
             from adservice.proposers.trust_region import spec_lengthscales, trust_box
@@ -562,10 +569,3 @@ def _canonical(candidates: np.ndarray, bounds: np.ndarray, request: ProposalRequ
     return search_vectors(
         model_inputs(candidates, bounds, request.structure), bounds, request.structure
     )
-
-
-def _nearest_distance(points: np.ndarray, point: np.ndarray) -> float:
-    """Max-norm distance from ``point`` to the nearest row of ``points`` (inf if none)."""
-    if len(points) == 0:
-        return float("inf")
-    return float(np.min(np.max(np.abs(points - point), axis=1)))
