@@ -45,7 +45,7 @@ import yaml
 from adclient import Client
 from adclient.schemas import Trial
 from adclient.testing.servers import ServerProcess
-from adclient.testing.workers import WorkerProcess
+from adclient.testing.workers import WorkerProcess, stop_workers
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -128,8 +128,7 @@ def run_study(body: dict[str, Any], *, workers: int, timeout: float) -> tuple[An
                 wall = time.monotonic() - started
                 trials = trial_records(study.trials)
         finally:
-            for process in processes:
-                process.stop()
+            stop_workers(processes)
             server.stop()
     return info, trials, wall
 

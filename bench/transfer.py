@@ -24,8 +24,8 @@ run's seed, and ``--workers`` adworker processes. Arms:
   is not trained;
 - ``shared-all``, ``shared-all+screen``: the same with ``shared_carries: all`` (a design
   starts actor and critic from the version; ``shared`` keeps the default, ``critic``:
-  the actor from the study's initial weights). The sitting ``2026-11-28b``'s
-  ``shared`` runs were made before that default and are stored as ``shared-all``;
+  the actor from the study's initial weights). The ``shared`` runs made before that
+  default (before the sitting ``2026-11-28b``'s second half) are stored as ``shared-all``;
 - ``optuna-sb3``: what a user would write without this service: Optuna's GPSampler
   (seeded, its defaults) proposing the same space (the tree as a categorical, every spec
   a float in its range) and stable-baselines3 training every design from scratch, on

@@ -320,30 +320,39 @@ def test_a_rollout_acts_through_numpy_and_training_through_torch(env_of, monkeyp
     assert action.shape == (2,) and arrays == [1] and tree == []
 
 
+ACTOR = {"log_std", "action_net.linear.weight", "action_net.linear.bias"}
+"""The modular policy's arrays of the actor alone (and head 0 of the stacked tree ones)."""
+CRITIC = {"value_net.weight", "value_net.bias", "mlp_extractor.pool.weight"}
+CRITIC |= {"mlp_extractor.pool.bias"}
+
+
 @pytest.mark.parametrize("carries", ["critic", "all"])
 def test_a_version_carries_its_critic_or_all_of_it(env_of, carries) -> None:
     """``carries: critic``: the design's actor (the tree network's actor head, action
     head and log-std) starts from the study's initial weights, its critic from the
     version; ``all``: everything from the version. Either way the start it reports is
-    the version, so the merged update replaces the actor and moves the critic."""
+    the version it loaded. Every array of the version differs from the initial one (a
+    seed's initial biases and log-std are all zero), so a part left out shows."""
     env = env_of("lift-highest", "arch_chain")
-    version = modular.initial_weights(modular_model(env), 11)
     initial = modular.initial_weights(modular_model(env), 3)
+    version = {
+        name: value + 1.0 for name, value in modular.initial_weights(modular_model(env), 11).items()
+    }
     start = Shared(version, steps=0, seed=3, version=5, carries=carries)
     result = PPOLearner().train(env, steps=512, seed=0, start=start)
 
     assert result.train_steps == 0 and result.warm_started
     assert result.shared_start is not None and same(result.shared_start, version)
     assert result.shared is not None
+    stacked = {name for name in result.shared if name.startswith("mlp_extractor.tree.")}
+    assert set(result.shared) == ACTOR | CRITIC | stacked and len(stacked) == 12
     if carries == "all":
         assert same(result.shared, version)
         return
     for name, value in result.shared.items():
-        if name.startswith(modular.TREE_ARRAYS):
+        if name in stacked:
             assert np.array_equal(value[0], initial[name][0]), name
             assert np.array_equal(value[1], version[name][1]), name
-        elif name.startswith(modular.ACTOR_ARRAYS):
-            assert np.array_equal(value, initial[name]), name
         else:
-            assert np.array_equal(value, version[name]), name
-    assert any(name.startswith("value_net") for name in result.shared)
+            expected = initial if name in ACTOR else version
+            assert np.array_equal(value, expected[name]), name

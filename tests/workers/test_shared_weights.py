@@ -103,3 +103,27 @@ def test_an_update_merges_onto_the_version_that_landed_first() -> None:
         merge({"v": np.zeros(2)}, base, mine)
     with pytest.raises(SharedWeightsError, match="different shapes"):
         merge({"w": np.zeros(3)}, base, mine)
+
+
+def test_a_critic_only_update_keeps_its_own_actor_and_merges_the_critic() -> None:
+    """``actor_of_mine``: the modular policy's actor arrays (``log_std``, ``action_net.*``
+    and head 0 of the stacked tree arrays) are the update's own, whatever landed in
+    between; the critic (head 1, the pooling, the value layer) merges as any update."""
+    tree = "mlp_extractor.tree.joint_in.weight"
+    base = {
+        "log_std": np.array([5.0]),
+        "action_net.linear.weight": np.array([5.0, 5.0]),
+        tree: np.array([[5.0, 5.0], [5.0, 5.0]]),
+        "value_net.weight": np.array([5.0, 5.0]),
+        "mlp_extractor.pool.bias": np.array([5.0]),
+    }
+    landed = {name: value + 1.0 for name, value in base.items()}  # another design's update
+    mine = {name: value * 0.0 for name, value in base.items()}  # trained from elsewhere
+    merged = merge(landed, base, mine, actor_of_mine=True)
+    np.testing.assert_allclose(merged["log_std"], [0.0])
+    np.testing.assert_allclose(merged["action_net.linear.weight"], [0.0, 0.0])
+    np.testing.assert_allclose(merged[tree], [[0.0, 0.0], [1.0, 1.0]])  # actor; critic
+    np.testing.assert_allclose(merged["value_net.weight"], [1.0, 1.0])
+    np.testing.assert_allclose(merged["mlp_extractor.pool.bias"], [1.0])
+    # without it, everything merges: the actor is then no design's
+    np.testing.assert_allclose(merge(landed, base, mine)["log_std"], [1.0])

@@ -48,6 +48,7 @@ batches keep torch's autograd.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -60,8 +61,10 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from adworker.modular_arrays import ArrayForward
-from adworker.shared_weights import SharedWeightsError, Weights
+from adworker.shared_weights import SharedWeightsError, Weights, actor_part
 from adworker.tasks.base import RobotEnv
+
+log = logging.getLogger("adworker")
 
 JOINT_DYNAMIC = ("position", "velocity", "height", "contact")
 JOINT_STATIC = (
@@ -540,24 +543,19 @@ def initial_weights(model: Any, seed: int) -> Weights:
     return _weights(fresh)
 
 
-ACTOR_ARRAYS = ("log_std", "action_net.")
-"""The arrays of the actor alone (beside the actor's head, 0, of the tree network's
-stacked arrays); the pooling and the value layer are the critic's."""
-TREE_ARRAYS = "mlp_extractor.tree."
-"""The tree network's arrays, stacked ``[actor, critic, ...]``."""
-
-
 def fresh_actor(model: Any, seed: int) -> None:
     """Put the model's actor (its tree network's actor head, action head and log-std)
     back to the study's initial weights for ``seed``, keeping its critic: a design of a
     shared study that carries the critic alone (``task.shared_carries: critic``)."""
+    if not isinstance(model.policy, ModularPolicy):
+        log.warning("not the modular policy: its actor is not known, so all of it carries")
+        return
     initial = initial_weights(model, seed)
     current = shared_weights_of(model)
     for name, value in current.items():
-        if name.startswith(TREE_ARRAYS):
-            value[0] = initial[name][0]
-        elif name.startswith(ACTOR_ARRAYS):
-            current[name] = initial[name]
+        actor = actor_part(name, value)
+        if actor is not None:
+            actor[...] = actor_part(name, initial[name])
     load_shared(model, current)
 
 

@@ -93,13 +93,36 @@ def _check_header(stream: IO[bytes], member: zipfile.ZipInfo) -> None:
         )
 
 
+ACTOR_ARRAYS = ("log_std", "action_net.")
+"""The built-in modular policy's (:mod:`adworker.modular`) arrays of the actor alone;
+beside them the actor is head 0 of the stacked ``STACKED_ARRAYS``, and the rest (the
+critic's head 1, its pooling and value layer) is the critic's."""
+STACKED_ARRAYS = "mlp_extractor.tree."
+"""The modular policy's tree network: arrays stacked ``[actor, critic]``."""
+
+
+def actor_part(name: str, array: np.ndarray) -> np.ndarray | None:
+    """The actor's part of a modular policy's array ``name`` (a view), None if it has
+    none."""
+    if name.startswith(STACKED_ARRAYS):
+        return array[0]
+    if name.startswith(ACTOR_ARRAYS):
+        return array
+    return None
+
+
 def merge(
     current: Mapping[str, np.ndarray],
     base: Mapping[str, np.ndarray],
     mine: Mapping[str, np.ndarray],
+    *,
+    actor_of_mine: bool = False,
 ) -> Weights:
     """``current + (mine - base)``: an update trained from ``base`` applied onto the
-    study's ``current`` version (equal to ``mine`` when ``current`` is ``base``)."""
+    study's ``current`` version (equal to ``mine`` when ``current`` is ``base``).
+    ``actor_of_mine``: the actor (``actor_part``) is ``mine``'s, only the critic merged:
+    a design that carried the critic alone (``shared_carries: critic``) trained its actor
+    from the initial weights, so its actor is no change to anyone's."""
     if not (set(current) == set(base) == set(mine)):
         raise SharedWeightsError("the versions name different arrays")
     merged = {}
@@ -107,6 +130,9 @@ def merge(
         if not (current[name].shape == base[name].shape == mine[name].shape):
             raise SharedWeightsError(f"array {name!r} has different shapes in the versions")
         merged[name] = (current[name] + (mine[name] - base[name])).astype(np.float32)
+        actor = actor_part(name, merged[name]) if actor_of_mine else None
+        if actor is not None:
+            actor[...] = actor_part(name, np.asarray(mine[name], dtype=np.float32))
     return _checked(merged)
 
 

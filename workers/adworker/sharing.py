@@ -78,7 +78,8 @@ def advance_shared(
     ``start``) the study's next version; the version it became, or None when it was not
     taken (reason logged: a lost lease, a refused upload, too many updates in between).
 
-    A study that moved on: ``current + (mine - start)`` is uploaded in its place and
+    A study that moved on: ``current + (mine - start)`` (the actor ``mine``'s where the
+    design carried the critic alone) is uploaded in its place and
     offered on the current version, again until it lands. A current version that does
     not load is replaced by ``mine`` itself. A refused token raises (``Unauthorized``,
     ``Forbidden``): the worker stops."""
@@ -101,7 +102,14 @@ def advance_shared(
             if current.trial_id == job.trial_id:  # taken; the answer was lost
                 return current.version
             try:
-                merged = _merged(client, current.trial_id, current.artifact, started, own)
+                merged = _merged(
+                    client,
+                    current.trial_id,
+                    current.artifact,
+                    started,
+                    own,
+                    actor_of_mine=job.task.shared_carries == "critic",
+                )
                 client.put_artifact(
                     job.trial_id,
                     SHARED_ARTIFACT,
@@ -144,12 +152,16 @@ def _merged(
     artifact: str,
     started: shared_weights.Weights,
     own: shared_weights.Weights,
+    *,
+    actor_of_mine: bool,
 ) -> bytes:
-    """``current + (own - started)`` for the version in ``trial_id``'s ``artifact``;
-    ``own`` where that version does not load or fit."""
+    """``current + (own - started)`` for the version in ``trial_id``'s ``artifact`` (the
+    actor ``own``'s with ``actor_of_mine``: ``shared_weights.merge``); ``own`` where that
+    version does not load or fit."""
     try:
         current = shared_weights.decode(client.get_artifact(trial_id, artifact))
-        return shared_weights.encode(shared_weights.merge(current, started, own))
+        merged = shared_weights.merge(current, started, own, actor_of_mine=actor_of_mine)
+        return shared_weights.encode(merged)
     except shared_weights.SharedWeightsError as error:
         log.warning("shared controller of trial %s does not merge (%s): replaced", trial_id, error)
         return shared_weights.encode(own)

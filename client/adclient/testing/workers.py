@@ -91,16 +91,26 @@ class WorkerProcess:
         self.process.send_signal(signum)
 
     def stop(self) -> None:
-        """Stop the worker as a user does, so it gives its job back and removes its
-        temporary folder: SIGTERM, a second one if it is still busy after
-        ``STOP_GRACE``, SIGKILL only if that does not end it either (a killed worker's
-        folder stays until the next worker on the machine starts)."""
-        for signum in (signal.SIGTERM, signal.SIGTERM, signal.SIGKILL):
-            if self.process.poll() is not None:
-                return
-            self.process.send_signal(signum)
+        """Stop the worker as a user does (``stop_workers``)."""
+        stop_workers([self])
+
+
+def stop_workers(workers: list[WorkerProcess]) -> None:
+    """Stop workers as a user does, so each gives its job back and removes its temporary
+    folder: SIGTERM to all, a second one to those still busy after ``STOP_GRACE``,
+    SIGKILL only to those that does not end either (a killed worker's folder stays until
+    the next worker on the machine starts). All at once, so a study's workers take one
+    grace, not one each."""
+    for signum in (signal.SIGTERM, signal.SIGTERM, signal.SIGKILL):
+        running = [worker for worker in workers if worker.process.poll() is None]
+        for worker in running:
+            worker.process.send_signal(signum)
+        ends = time.monotonic() + STOP_GRACE
+        for worker in running:
             with contextlib.suppress(subprocess.TimeoutExpired):
-                self.process.wait(timeout=STOP_GRACE)
+                worker.process.wait(timeout=max(0.0, ends - time.monotonic()))
+    for worker in workers:
+        worker.process.wait()  # reaped: every one has ended by now, SIGKILL at the latest
 
 
 def wait_for(condition: Callable[[], object], what: str, poll: float = 0.25) -> object:
