@@ -22,10 +22,9 @@ run's seed, and ``--workers`` adworker processes. Arms:
   the shared controller's score on it at step 0, before training (``n_startup_trials``
   4, reports only at step 0), so a design it rates below the complete designs' median
   is not trained;
-- ``shared-all``, ``shared-all+screen``: the same with ``shared_carries: all`` (a design
-  starts actor and critic from the version; ``shared`` keeps the default, ``critic``:
-  the actor from the study's initial weights). The ``shared`` runs made before that
-  default (before the sitting ``2026-11-28b``'s second half) are stored as ``shared-all``;
+- ``shared-critic``, ``shared-critic+screen``: the same with ``shared_carries: critic``
+  (a design keeps the version's critic and starts its actor from the study's initial
+  weights; ``shared`` keeps the default, ``all``);
 - ``optuna-sb3``: what a user would write without this service: Optuna's GPSampler
   (seeded, its defaults) proposing the same space (the tree as a categorical, every spec
   a float in its range) and stable-baselines3 training every design from scratch, on
@@ -96,8 +95,8 @@ ARMS = [
     "nearest+asha",
     "shared",
     "shared+screen",
-    "shared-all",
-    "shared-all+screen",
+    "shared-critic",
+    "shared-critic+screen",
     "optuna-sb3",
 ]
 REACHED = 0.95
@@ -116,7 +115,7 @@ def study_body(task: str, learner: str, arm: str, seed: int, args: argparse.Name
         "transfer_steps": warm_steps(arm, args.train_steps),
     }
     if arm.startswith("shared"):
-        body["task"]["shared_carries"] = "all" if arm.startswith("shared-all") else "critic"
+        body["task"]["shared_carries"] = "critic" if arm.startswith("shared-critic") else "all"
     body["max_trials"] = args.trials
     body["pruner"] = pruner_of("asha" if arm.endswith("+asha") else "none", args.train_steps)
     if arm.endswith("+screen"):
@@ -324,8 +323,8 @@ COLOURS = {
     "nearest+asha": "tab:orange",
     "shared": "tab:blue",
     "shared+screen": "tab:cyan",
-    "shared-all": "tab:olive",
-    "shared-all+screen": "tab:pink",
+    "shared-critic": "tab:olive",
+    "shared-critic+screen": "tab:pink",
     "optuna-sb3": "tab:green",
 }
 

@@ -108,8 +108,8 @@ class Shared:
     version or when that version does not load: then the study's initial weights,
     the same on every worker for ``seed``. Trains ``steps`` and returns its weights as
     ``TrainResult.shared`` (and those it started from as ``shared_start``).
-    ``carries``: ``all`` trains from the version as it is; ``critic`` (the study's
-    default) keeps the version's critic and starts the actor from the initial weights
+    ``carries``: ``all`` (the default) trains from the version as it is; ``critic`` keeps
+    the version's critic and starts the actor from the initial weights
     (``shared_start`` is still the version, so the update the study merges is this
     design's actor and its change to the critic)."""
 

@@ -76,10 +76,10 @@ class TaskConfig(Strict):
         "or of the learner's own budget)",
     )
     shared_carries: Literal["critic", "all"] = Field(
-        default="critic",
+        default="all",
         description="what a design of a shared study (transfer: shared) takes from the "
-        "study's controller: critic, its critic, the actor starting from the study's "
-        "initial weights (measured best: bench/RESULTS.md); all, actor and critic",
+        "study's controller: all, actor and critic; critic, its critic, the actor "
+        "starting from the study's initial weights (docs/worker.md, what a design carries)",
     )
     transfer_among: int = Field(
         default=4,
