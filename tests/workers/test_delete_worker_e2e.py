@@ -12,7 +12,7 @@ import pytest
 
 from adclient import Client
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
-from adclient.testing.workers import PATIENCE, WorkerProcess, wait_for
+from adclient.testing.workers import PATIENCE, WorkerProcess, stop_workers, wait_for
 
 pytestmark = pytest.mark.e2e
 
@@ -88,7 +88,6 @@ def test_delete_during_leases_cancels_them_and_removes_the_files(
                 assert "Traceback" not in worker.log()
             assert not files.exists()
         finally:
-            for worker in workers:
-                worker.stop()
+            stop_workers(workers)
     log = server.log_path.read_text(errors="replace")
     assert "Traceback" not in log and " 500" not in log, log[-3000:]

@@ -15,7 +15,7 @@ import yaml
 
 from adclient import Client
 from adclient.testing.servers import ServerProcess
-from adclient.testing.workers import PATIENCE, WorkerProcess, wait_for
+from adclient.testing.workers import PATIENCE, WorkerProcess, stop_workers, wait_for
 
 pytestmark = pytest.mark.e2e
 
@@ -111,8 +111,7 @@ def test_function_workers_serve_their_tasks_only(
                 process.signal(signal.SIGTERM)
                 assert process.wait() == 0, process.log()
     finally:
-        for process in started:
-            process.stop()
+        stop_workers(started)
 
 
 def test_sigterm_lets_a_function_job_finish_and_report(

@@ -17,7 +17,7 @@ import yaml
 from adclient import Client
 from adclient.schemas import SHARED_ARTIFACT
 from adclient.testing.servers import ServerProcess
-from adclient.testing.workers import WorkerProcess, plugin_path
+from adclient.testing.workers import WorkerProcess, plugin_path, stop_workers
 from adworker import shared_weights
 from tests.workers.robots import CHAIN, STAR, arm, run_designs, tree_design, two_tree_body
 
@@ -92,8 +92,7 @@ def test_two_workers_at_once_lose_no_update(server: ServerProcess, tmp_path: Pat
             for worker in workers:
                 assert worker.wait() == 0, worker.log()
         finally:
-            for worker in workers:
-                worker.stop()
+            stop_workers(workers)
         trials = client.trials(study.id)
         logs = "\n".join(worker.log() for worker in workers)
         assert len(trials) == 6 and all(t.state == "complete" for t in trials), logs
