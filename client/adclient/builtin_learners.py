@@ -19,7 +19,7 @@ FAST = LearnerSpec(
     name="fast",
     description="A search over constant joint targets: the best pose the design can reach "
     "and hold, in about a second (no RL).",
-    factory="adworker.learners:ConstantTargetSearch",
+    factory="adworker.constant_search:ConstantTargetSearch",
 )
 DDPG = LearnerSpec(
     name="ddpg",

@@ -11,8 +11,9 @@ import pytest
 from pydantic import ValidationError
 
 from adclient.schemas import BoxParam, BoxSpace, NewTaskConfig
+from adworker.constant_search import ConstantTargetSearch
 from adworker.evaluate import evaluate_job, evaluation_seeds
-from adworker.learners import ConstantTargetSearch, evaluate_policy
+from adworker.learners import evaluate_policy
 from adworker.runner import Cancelled, JobError
 from tests.workers.robots import HALF_PI, make_job, stand_up_specs
 

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from adclient.pruning import Checkpoint
-from adworker.learners import ConstantTargetSearch, Learner, Reporting, TrainResult
+from adworker.constant_search import ConstantTargetSearch
+from adworker.learners import Learner, Reporting, TrainResult
 from adworker.starts import Resume, Scratch, Start, Warm, train_learner
 
 

@@ -25,7 +25,8 @@ from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import PATIENCE, WorkerProcess, pip_install_target, plugin_path
 from adclient.urdf import design_to_urdf, link_inertia
 from adworker import designs
-from adworker.learners import ConstantTargetSearch, evaluate_policy
+from adworker.constant_search import ConstantTargetSearch
+from adworker.learners import evaluate_policy
 
 # Off-screen rendering through EGL, chosen before MuJoCo is first imported (the
 # plugin does the same in the worker).

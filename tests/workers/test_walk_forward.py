@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from adworker import designs
+from adworker.constant_search import ConstantTargetSearch
 from adworker.evaluate import evaluate_job
-from adworker.learners import ConstantTargetSearch, evaluate_policy
+from adworker.learners import evaluate_policy
 from tests.workers.robots import HALF_PI, make_job
 
 ACROSS = designs.tree_design(
