@@ -52,6 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from adworker.designs import HALF_PI, tree_design  # noqa: E402
+from adworker.shared_weights import actor_part  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "shared_policy.jsonl"
 ARMS = ["mlp", "modular", "chain", "quarter", "chain-explore", "chain-critic", "chain-half"]
@@ -179,14 +180,12 @@ def carried(arm: str, update: dict[str, Any], initial: dict[str, Any]) -> dict[s
         return {**update, LOG_STD: initial[LOG_STD]}
     if arm == "chain-half":
         return {name: (update[name] + initial[name]) / 2 for name in update}
-    if arm == "chain-critic":
-        start = dict(initial)
-        for name, value in update.items():
-            if name.startswith("mlp_extractor.tree."):
-                start[name] = initial[name].copy()
-                start[name][1] = value[1]  # the stacked heads: actor 0, critic 1
-            elif name.startswith(("mlp_extractor.pool", "value_net")):
-                start[name] = value
+    if arm == "chain-critic":  # as shared_carries: critic (adworker.modular.fresh_actor)
+        start = {name: value.copy() for name, value in update.items()}
+        for name, value in start.items():
+            actor = actor_part(name, value)
+            if actor is not None:
+                actor[...] = actor_part(name, initial[name])
         return start
     return update
 
