@@ -79,7 +79,9 @@ TAKEN_TOL = 1e-6
 """A candidate closer than this (max-norm, model inputs) to an observed or pending point
 is that point again: the search answers another where it found one, and qei replaces
 one it could not avoid by a Sobol point (``reason: duplicate candidate``). One bound
-for both, so no candidate the search calls fresh is one qei calls a duplicate."""
+for both, so no candidate the search calls fresh is one qei calls a duplicate; a search
+in other coordinates (a trust region's unit box) passes it per column in its own
+(``maximise``'s ``taken_tol``)."""
 _CHUNK = 1024
 
 
@@ -365,18 +367,21 @@ def maximise(
     tkw: dict,
     deadline: float | None = None,
     taken: np.ndarray | None = None,
+    taken_tol: float | np.ndarray = TAKEN_TOL,
     screen: Acquisition | None = None,
     n_incumbents: int = INCUMBENTS,
     region: SpecRegion | None = None,
     structures: np.ndarray | None = None,
 ) -> Optimum:
     """The best point found, not one of ``taken`` if any other was found (see the
-    module docstring). ``screen``: a cheaper estimate of ``acqf`` (a Monte Carlo
-    acquisition with fewer draws) that scores the raw samples and picks the starts;
-    then only the ``SCREENED`` best raw samples are scored with ``acqf`` itself.
-    ``region``: spec constraints; the raw samples are the feasible ones (topped up
-    with the nearest feasible points to others), and every local search's end is
-    moved to the nearest feasible point, so the best point found satisfies them.
+    module docstring): a point is taken when it lies within ``taken_tol`` of a taken
+    point in every column (a scalar, or one per column of ``z``). ``screen``: a cheaper
+    estimate of ``acqf`` (a Monte Carlo acquisition with fewer draws) that scores the
+    raw samples and picks the starts; then only the ``SCREENED`` best raw samples are
+    scored with ``acqf`` itself. ``region``: spec constraints; the raw samples are the
+    feasible ones (topped up with the nearest feasible points to others), and every
+    local search's end is moved to the nearest feasible point, so the best point found
+    satisfies them.
     ``structures``: the structures the answer may have (see the module docstring)."""
     rng = np.random.default_rng(seed)
     allowed = np.arange(domain.n_structures) if structures is None else structures
@@ -416,7 +421,7 @@ def maximise(
     order = np.argsort(-values, kind="stable")
     top = int(order[0])
     if taken is not None and len(taken):
-        fresh = (int(i) for i in order if nearest_distance(taken, points[i]) >= TAKEN_TOL)
+        fresh = (int(i) for i in order if not near_any(taken, points[i], taken_tol))
         top = next(fresh, top)
     return Optimum(z=points[top], value=float(values[top]), structures_switched=switched)
 
@@ -430,6 +435,12 @@ def _feasible_raw(raw: np.ndarray, region: SpecRegion, at_least: int) -> np.ndar
     if missing > 0:
         kept = np.concatenate([kept, region.inside(raw[~inside][:missing])])
     return kept
+
+
+def near_any(points: np.ndarray, point: np.ndarray, tol: float | np.ndarray) -> bool:
+    """Whether some row of ``points`` is within ``tol`` of ``point`` in every column:
+    for a scalar, ``nearest_distance(points, point) < tol``."""
+    return bool(np.any(np.all(np.abs(points - point) < tol, axis=1)))
 
 
 def nearest_distance(points: np.ndarray, point: np.ndarray) -> float:

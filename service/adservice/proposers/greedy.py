@@ -152,7 +152,7 @@ class Greedy:
         judged look is a free choice)."""
         import torch
 
-        from adservice.proposers.acquisition import maximise, past
+        from adservice.proposers.acquisition import TAKEN_TOL, maximise, past
 
         found = Found(chosen=[], methods=[], values=[], switched=0, second_looks=[], chances=[])
         switched = 0
@@ -184,10 +184,13 @@ class Greedy:
                     structures = structures if len(structures) else None
             taken = None if self.taken is None else np.concatenate([self.taken, *new])
             acqf, screen, incumbents = current.acqf, current.screen, self.incumbents
+            taken_tol: float | np.ndarray = TAKEN_TOL
             if self.trust is not None:
                 acqf, screen = self.trust.wrap(acqf, self.tkw), self.trust.wrap(screen, self.tkw)
                 incumbents = self.trust.to_unit(incumbents)
                 taken = None if taken is None else self.trust.to_unit(taken, clip=False)
+                # qei's duplicate bound in the model's inputs, in the box's units
+                taken_tol = np.concatenate([[TAKEN_TOL], TAKEN_TOL / self.trust.width])
             optimum = maximise(
                 acqf,
                 self.domain,
@@ -199,6 +202,7 @@ class Greedy:
                 tkw=self.tkw,
                 deadline=self.deadline,
                 taken=taken,
+                taken_tol=taken_tol,
                 screen=screen,
                 n_incumbents=self.n_incumbents,
                 region=self.region,
