@@ -21,6 +21,7 @@ _LAZY = {
     "Conflict": "adclient.errors",
     "PayloadTooLarge": "adclient.errors",
     "Unavailable": "adclient.errors",
+    "UnreadableJob": "adclient.errors",
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -11,7 +11,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ValidationError
 
-from adclient.errors import Invalid, NotFound
+from adclient.errors import Invalid, NotFound, UnreadableJob
 from adclient.export import ExportFormat, export_csv, export_json
 from adclient.objectives import as_values
 from adclient.pruning import (
@@ -370,7 +370,8 @@ class ServerCalls(Transport):
         learners: Iterable[str] | None = None,
     ) -> Job | None:
         """Lease the next job of a managed study (of one of ``tasks`` and ``learners``,
-        when given: the ones this worker can run), or ``None`` when there is no work."""
+        when given: the ones this worker can run), or ``None`` when there is no work;
+        :class:`UnreadableJob` when the job leased names what this SDK does not know."""
         body: dict[str, Any] = {"worker_id": worker_id}
         if tasks is not None:
             body["tasks"] = list(tasks)
@@ -379,7 +380,14 @@ class ServerCalls(Transport):
         response = self.request("POST", f"{API}/jobs/lease", json_body=body, idempotent=False)
         if response.status_code == 204 or not response.content:
             return None
-        return Job.model_validate(response.json())
+        data = response.json()
+        try:
+            return Job.model_validate(data)
+        except ValidationError as exc:
+            trial_id = data.get("trial_id") if isinstance(data, dict) else None
+            raise UnreadableJob(
+                trial_id if type(trial_id) is int else None, validation_message(exc)
+            ) from exc
 
     def heartbeat(self, trial: TrialRef, worker_id: str) -> HeartbeatResponse:
         """Extend the lease on a trial; raises :class:`Conflict` when the lease was lost."""

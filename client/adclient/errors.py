@@ -10,7 +10,8 @@
         ├── NotFound             404: unknown study, trial, artifact...
         ├── Conflict             409: contradicts the stored state (e.g. lease lost)
         ├── PayloadTooLarge      413: body or artifact over the server's limit
-        └── Unavailable          network error, or 5xx still failing after the retries
+        ├── Unavailable          network error, or 5xx still failing after the retries
+        └── UnreadableJob        a leased job names a field this SDK does not know
 
 An :class:`ApiError` carries the HTTP ``status_code`` (``None`` when no answer came
 back, or when the SDK rejected the request before sending it), the server's
@@ -116,6 +117,22 @@ class Unavailable(ApiError):
     """The server could not be reached, or kept answering 5xx after every retry."""
 
     default_code = "unavailable"
+
+
+class UnreadableJob(ApiError):
+    """A job was leased (HTTP 200) that this SDK's schemas cannot read: the server is
+    newer and the study uses a setting this version does not know. ``trial_id`` is the
+    leased trial's (``None`` when the answer does not name one), so a worker can tell
+    it failed and say why (docs/worker.md, "Workers older than the server")."""
+
+    default_code = "unreadable_job"
+
+    def __init__(self, trial_id: int | None, detail: str) -> None:
+        super().__init__(200, self.default_code, detail)
+        self.trial_id = trial_id
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), (self.trial_id, self.detail))
 
 
 _BY_STATUS: dict[int, type[ApiError]] = {

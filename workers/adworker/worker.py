@@ -52,8 +52,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from adclient import __version__
 from adclient.client import Client
-from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized, Unavailable
+from adclient.errors import (
+    ApiError,
+    Conflict,
+    Forbidden,
+    NotFound,
+    Unauthorized,
+    Unavailable,
+    UnreadableJob,
+)
 from adclient.pruning import CHECKPOINT_ARTIFACT, ReportResponse
 from adclient.schemas import SHARED_ARTIFACT, Job
 from adworker.heartbeat import Heartbeat
@@ -229,7 +238,11 @@ class Worker:
                     job = None
                     failures += 1
                     pause = min(MAX_IDLE_BACKOFF, config.poll * 2 ** min(failures, 6))
-                    log.warning("lease failed (%s); next try in %.1f s", exc, pause)
+                    if isinstance(exc, UnreadableJob):
+                        self._refuse(exc)
+                        log.warning("next lease in %.1f s", pause)
+                    else:
+                        log.warning("lease failed (%s); next try in %.1f s", exc, pause)
                     self._unclaim_job()
                     self._sleep(pause * (0.5 + random.random() / 2))
                     continue
@@ -482,6 +495,34 @@ class Worker:
             raise AuthError(str(exc)) from exc
         except Exception as exc:  # the trial's result is told all the same
             log.error("%s: shared-controller update not offered: %s", label, _failure_message(exc))
+
+    def _refuse(self, exc: UnreadableJob) -> None:
+        """A job leased that this worker cannot read (a server newer than it, a study
+        using a setting it does not know): the trial fails saying so, where its study's
+        owner reads it, and the lease loop backs off as after a failed lease, so a
+        newer worker may take the study's next trials (docs/worker.md, "Workers older
+        than the server")."""
+        message = (
+            f"adworker {__version__} on {self.config.worker_id} cannot read this job: "
+            f"{exc.detail}. The server is newer than this worker and the study uses a "
+            "setting it does not know: upgrade the worker (pip install -U "
+            "'activedesign[worker]')."
+        )
+        log.error("%s", message)
+        self.rates.jobs += 1
+        self.rates.failed += 1
+        trial_id = exc.trial_id
+        if trial_id is None:
+            return
+        self._deliver(
+            f"trial {trial_id}",
+            lambda: self.client.tell(
+                trial_id,
+                state="failed",
+                message=message[:MESSAGE_LIMIT],
+                worker_id=self.config.worker_id,
+            ),
+        )
 
     def _release(self, job: Job, label: str) -> None:
         """Hand the lease back so the trial is queued now, not when the lease expires."""

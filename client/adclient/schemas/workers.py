@@ -9,6 +9,8 @@ from typing import Annotated, Any
 from pydantic import (
     BaseModel,
     Field,
+    SerializationInfo,
+    field_serializer,
 )
 
 from adclient.designs import Representation
@@ -53,7 +55,13 @@ class HeartbeatResponse(BaseModel):
 
 
 class Job(BaseModel):
-    """Everything a stateless worker needs to evaluate one trial."""
+    """Everything a stateless worker needs to evaluate one trial.
+
+    Its ``task`` and ``pruner`` travel without the fields at their defaults: a worker
+    that predates a field reads every job that leaves it at its default, and refuses
+    (``errors.UnreadableJob``) only a job that uses it. A field's default is therefore
+    part of the contract between servers and workers of different versions, and is not
+    changed (docs/worker.md, "Workers older than the server")."""
 
     trial_id: int
     study_id: int
@@ -93,6 +101,12 @@ class Job(BaseModel):
         "by the server; None for a trial stored before the server kept URDFs, or from "
         "an older server (the worker expands the template itself then)",
     )
+
+    @field_serializer("task", "pruner")
+    def _without_defaults(
+        self, config: TaskConfig | PrunerConfig, info: SerializationInfo
+    ) -> dict[str, Any]:
+        return config.model_dump(mode=info.mode, exclude_defaults=True)
 
 
 class TransferSource(BaseModel):
