@@ -1,6 +1,6 @@
 """Past ``TRUST_FROM`` observations of a continuous box (or past ``max_train`` with
-``large_history: trust-region``), qEI's GP trains on the best observations and its
-search stays in a trust region around the best (issue 37,
+``large_history: trust-region``), qEI's GP trains on the best observations and the
+nearest the best, and its search stays in a trust region around the best (issue 37,
 ``adservice.proposers.trust_region``); the memory budget knows the device."""
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from adservice.proposers.qei import QLogEIProposer
 from adservice.proposers.qei_shared import QEIOptions
 from adservice.proposers.subset import CPU_TRAIN
 from adservice.proposers.trust_region import (
+    LOCAL_NEAR,
     LOCAL_TRAIN,
     MIN_SIDE,
     TRUST_FROM,
@@ -32,13 +33,21 @@ from adservice.proposers.trust_region import (
 from adservice.services.budget import check_options_memory
 
 
-def test_the_local_gp_trains_on_the_best_in_trial_order() -> None:
-    y = np.random.default_rng(0).normal(size=5000)
-    kept = local_training(y, size=300)
+def test_the_local_gp_trains_on_the_best_and_the_nearest_the_best_in_trial_order() -> None:
+    rng = np.random.default_rng(0)
+    Z = np.column_stack([np.zeros(5000), rng.random((5000, 3))])
+    y = rng.normal(size=5000)
+    kept = local_training(Z, y, size=300)
     assert kept is not None and len(kept) == 300
     assert np.all(np.diff(kept) > 0)
-    assert set(kept) == set(np.argsort(-y)[:300])
-    assert local_training(y[:300], size=300) is None
+    n_near = int(300 * LOCAL_NEAR)
+    best = set(np.argsort(-y)[: 300 - n_near])
+    assert best <= set(kept)
+    others = np.array([i for i in range(5000) if i not in best])
+    distance = np.max(np.abs(Z[others] - Z[np.argmax(y)]), axis=1)
+    assert set(kept) - best == set(others[np.argsort(distance)[:n_near]])
+    assert local_training(Z[:300], y[:300], size=300) is None
+    assert set(local_training(Z[:10], y[:10], size=3)) == set(np.argsort(-y[:10])[:3])
 
 
 def test_the_box_is_centred_on_the_best_and_its_sides_follow_the_lengthscales() -> None:

@@ -283,7 +283,9 @@ class QLogEIProposer:
             and applies(structure=request.structure, box=request.box, n_outcomes=outcomes.shape[1])
         )
         if local:
-            kept = local_training(y, size=options.max_train or min(limit, LOCAL_TRAIN))
+            kept = local_training(
+                observed_Z, y, size=options.max_train or min(limit, LOCAL_TRAIN)
+            )
         else:
             front = None
             if request.objectives is not None and n_observed > limit:
@@ -364,7 +366,7 @@ class QLogEIProposer:
         if kept is not None:
             extra["n_observed"] = n_observed
             extra["train_subset"] = (
-                "the best (trust_region.py)"
+                "the best, and the nearest the best (trust_region.py)"
                 if local
                 else "best, nearest the best, random (subset.py)"
             )

@@ -93,9 +93,10 @@ class QEIOptions(ProposerOptions):
     large_history: Literal["trust-region", "subset"] | None = Field(
         default=None,
         description="past max_train observations of a continuous box with one outcome: "
-        "a GP of the best observations searched in a trust region around the best "
-        "(adservice.proposers.trust_region), or a GP of a subset searched over the whole "
-        "box (adservice.proposers.subset, what other studies get). Default: the subset, "
+        "a GP of the best observations and the nearest the best, searched in a trust "
+        "region around the best (adservice.proposers.trust_region), or a GP of a subset "
+        "searched over the whole box (adservice.proposers.subset, what other studies "
+        "get). Default: the subset, "
         "the trust region past 20,000 observations",
     )
     device: Literal["cpu", "cuda"] | None = Field(
