@@ -283,9 +283,7 @@ class QLogEIProposer:
             and applies(structure=request.structure, box=request.box, n_outcomes=outcomes.shape[1])
         )
         if local:
-            kept = local_training(
-                observed_Z, y, size=options.max_train or min(limit, LOCAL_TRAIN)
-            )
+            kept = local_training(observed_Z, y, size=options.max_train or min(limit, LOCAL_TRAIN))
         else:
             front = None
             if request.objectives is not None and n_observed > limit:
