@@ -1,6 +1,6 @@
 """Past ``TRUST_FROM`` observations of a continuous box (or past ``max_train`` with
 ``large_history: trust-region``), qEI's GP trains on the best observations and the
-nearest the best, and its search stays in a trust region around the best (issue 37,
+near the best, and its search stays in a trust region around the best (issue 37,
 ``adservice.proposers.trust_region``); the memory budget knows the device."""
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from adservice.proposers.trust_region import (
     LOCAL_NEAR,
     LOCAL_TRAIN,
     MIN_SIDE,
+    NEAR_REACH,
     TRUST_FROM,
     applies,
     local_training,
@@ -33,7 +34,7 @@ from adservice.proposers.trust_region import (
 from adservice.services.budget import check_options_memory
 
 
-def test_the_local_gp_trains_on_the_best_and_the_nearest_the_best_in_trial_order() -> None:
+def test_the_local_gp_trains_on_the_best_and_points_near_the_best_in_trial_order() -> None:
     rng = np.random.default_rng(0)
     Z = np.column_stack([np.zeros(5000), rng.random((5000, 3))])
     y = rng.normal(size=5000)
@@ -43,9 +44,13 @@ def test_the_local_gp_trains_on_the_best_and_the_nearest_the_best_in_trial_order
     n_near = int(300 * LOCAL_NEAR)
     best = set(np.argsort(-y)[: 300 - n_near])
     assert best <= set(kept)
+    # the near ones: spread evenly by distance over the 600 others nearest the best,
+    # the nearest and the 600th of them included
     others = np.array([i for i in range(5000) if i not in best])
-    distance = np.max(np.abs(Z[others] - Z[np.argmax(y)]), axis=1)
-    assert set(kept) - best == set(others[np.argsort(distance)[:n_near]])
+    by_distance = others[np.argsort(np.max(np.abs(Z[others] - Z[np.argmax(y)]), axis=1))]
+    near = set(kept) - best
+    assert len(near) == n_near and near <= set(by_distance[: NEAR_REACH * 300])
+    assert {by_distance[0], by_distance[NEAR_REACH * 300 - 1]} <= near
     assert local_training(Z[:300], y[:300], size=300) is None
     assert set(local_training(Z[:10], y[:10], size=3)) == set(np.argsort(-y[:10])[:3])
 

@@ -364,7 +364,7 @@ class QLogEIProposer:
         if kept is not None:
             extra["n_observed"] = n_observed
             extra["train_subset"] = (
-                "the best, and the nearest the best (trust_region.py)"
+                "the best, and others near the best (trust_region.py)"
                 if local
                 else "best, nearest the best, random (subset.py)"
             )

@@ -93,7 +93,7 @@ class QEIOptions(ProposerOptions):
     large_history: Literal["trust-region", "subset"] | None = Field(
         default=None,
         description="past max_train observations of a continuous box with one outcome: "
-        "a GP of the best observations and the nearest the best, searched in a trust "
+        "a GP of the best observations and others near the best, searched in a trust "
         "region around the best (adservice.proposers.trust_region), or a GP of a subset "
         "searched over the whole box (adservice.proposers.subset, what other studies "
         "get). Default: the subset, "
