@@ -1,5 +1,5 @@
 """Past ``TRUST_FROM`` observations of a continuous box (or past ``max_train`` with
-``large_history: trust-region``), qEI's GP trains on the best observations and the
+``large_history: trust-region``), qEI's GP trains on the best observations and others
 near the best, and its search stays in a trust region around the best (issue 37,
 ``adservice.proposers.trust_region``); the memory budget knows the device."""
 
