@@ -57,11 +57,12 @@ class HeartbeatResponse(BaseModel):
 class Job(BaseModel):
     """Everything a stateless worker needs to evaluate one trial.
 
-    Its ``task`` and ``pruner`` travel without the fields at their defaults: a worker
-    that predates a field reads every job that leaves it at its default, and refuses
-    (``errors.UnreadableJob``) only a job that uses it. A field's default is therefore
-    part of the contract between servers and workers of different versions, and is not
-    changed (docs/worker.md, "Workers older than the server")."""
+    Its ``task``, ``space`` and ``pruner`` travel without the fields at their defaults
+    (a space keeps its ``type``): a worker that predates a field reads every job that
+    leaves it at its default, and refuses (``errors.UnreadableJob``) only a job that
+    uses it. A field's default is therefore part of the contract between servers and
+    workers of different versions, and is not changed (docs/worker.md, "Workers older
+    than the server")."""
 
     trial_id: int
     study_id: int
@@ -102,11 +103,11 @@ class Job(BaseModel):
         "an older server (the worker expands the template itself then)",
     )
 
-    @field_serializer("task", "pruner")
-    def _without_defaults(
-        self, config: TaskConfig | PrunerConfig, info: SerializationInfo
-    ) -> dict[str, Any]:
-        return config.model_dump(mode=info.mode, exclude_defaults=True)
+    @field_serializer("task", "space", "pruner")
+    def _without_defaults(self, config: BaseModel, info: SerializationInfo) -> dict[str, Any]:
+        dumped = config.model_dump(mode=info.mode, exclude_defaults=True)
+        kind = getattr(config, "type", None)  # a space's discriminator
+        return dumped if kind is None else {"type": kind, **dumped}
 
 
 class TransferSource(BaseModel):

@@ -1,0 +1,46 @@
+"""A job as it travels from server to worker (``adclient.schemas.Job``): its task, space
+and pruner leave out the fields at their defaults, so a worker older than a field reads
+every job that does not use it (docs/worker.md, "Workers older than the server")."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+import yaml
+
+from adclient.schemas import Job, StudyCreate
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+@pytest.mark.parametrize("example", sorted(path.stem for path in EXAMPLES.glob("*.yaml")))
+def test_a_job_travels_without_defaults_and_reads_back_the_same(example: str) -> None:
+    study = StudyCreate.model_validate(yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text()))
+    assert study.task is not None
+    job = Job.model_validate(
+        {
+            "trial_id": 1,
+            "study_id": 1,
+            "number": 0,
+            "attempt": 1,
+            "vector": [0.5],
+            "params": {},
+            "task": study.task.model_dump(mode="json"),
+            "space": study.space.model_dump(mode="json"),
+            "representation": None,
+            "lease_expires_at": datetime.now(UTC),
+            "pruner": study.pruner.model_dump(mode="json"),
+        }
+    )
+    wire = job.model_dump(mode="json")
+    assert Job.model_validate(wire) == job  # a worker reads the very job
+    assert wire["space"]["type"] == study.space.type  # the union's discriminator stays
+    full = job.task.model_dump(mode="json")
+    assert set(wire["task"]) < set(full)  # defaults left out
+    assert "shared_carries" not in wire["task"]  # no example sets the newest task field
+    for part in ("space", "pruner"):
+        whole = getattr(job, part).model_dump(mode="json")
+        assert len(json.dumps(wire[part])) <= len(json.dumps(whole)), part
