@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -16,11 +17,9 @@ from adclient.schemas import Job, StudyCreate
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
-@pytest.mark.parametrize("example", sorted(path.stem for path in EXAMPLES.glob("*.yaml")))
-def test_a_job_travels_without_defaults_and_reads_back_the_same(example: str) -> None:
-    study = StudyCreate.model_validate(yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text()))
-    assert study.task is not None
-    job = Job.model_validate(
+def job_of(**parts: Any) -> Job:
+    """A job of trial 1 with this task, space and pruner."""
+    return Job.model_validate(
         {
             "trial_id": 1,
             "study_id": 1,
@@ -28,12 +27,21 @@ def test_a_job_travels_without_defaults_and_reads_back_the_same(example: str) ->
             "attempt": 1,
             "vector": [0.5],
             "params": {},
-            "task": study.task.model_dump(mode="json"),
-            "space": study.space.model_dump(mode="json"),
             "representation": None,
             "lease_expires_at": datetime.now(UTC),
-            "pruner": study.pruner.model_dump(mode="json"),
+            **parts,
         }
+    )
+
+
+@pytest.mark.parametrize("example", sorted(path.stem for path in EXAMPLES.glob("*.yaml")))
+def test_a_job_travels_without_defaults_and_reads_back_the_same(example: str) -> None:
+    study = StudyCreate.model_validate(yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text()))
+    assert study.task is not None
+    job = job_of(
+        task=study.task.model_dump(mode="json"),
+        space=study.space.model_dump(mode="json"),
+        pruner=study.pruner.model_dump(mode="json"),
     )
     wire = job.model_dump(mode="json")
     assert Job.model_validate(wire) == job  # a worker reads the very job
@@ -44,3 +52,28 @@ def test_a_job_travels_without_defaults_and_reads_back_the_same(example: str) ->
     for part in ("space", "pruner"):
         whole = getattr(job, part).model_dump(mode="json")
         assert len(json.dumps(wire[part])) <= len(json.dumps(whole)), part
+
+
+def test_a_pruners_options_travel_without_their_defaults() -> None:
+    """The pruner's options are a dict its options model fills in: they leave out the
+    defaults too, so an option added later does not make older workers refuse every
+    ASHA job."""
+    from adclient.pruning import PrunerConfig
+
+    pruner = PrunerConfig.model_validate(
+        {"name": "asha", "options": {"min_resource": 2000}, "report_every": 500}
+    )
+    assert set(pruner.options) > {"min_resource", "reduction_factor", "promotion"}
+    job = job_of(
+        task={"name": "stand-up"},
+        space={"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]},
+        pruner=pruner,
+    )
+    wire = job.model_dump(mode="json")
+    assert wire["pruner"] == {
+        "name": "asha",
+        "options": {"min_resource": 2000},
+        "report_every": 500,
+    }
+    assert wire["task"] == {"name": "stand-up"}
+    assert Job.model_validate(wire) == job

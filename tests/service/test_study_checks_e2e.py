@@ -17,6 +17,7 @@ import pytest
 import sqlalchemy as sa
 import yaml
 
+from adclient.schemas import TaskConfig
 from adclient.testing.servers import ServerProcess
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("study-checks")]
@@ -113,7 +114,9 @@ def test_an_external_task_is_left_to_its_own_workers(own_http: httpx.Client) -> 
     job = own_http.post("/api/v1/jobs/lease", json={"worker_id": "own"})
     assert job.status_code == 200, job.text
     assert job.json()["study_id"] == study["id"]
-    assert job.json()["task"] == study["task"] and study["task"]["external"] is True
+    # the job leaves out the task's defaults (docs/worker.md, workers older than the server)
+    assert job.json()["task"] == task and study["task"]["external"] is True
+    assert TaskConfig.model_validate(job.json()["task"]) == TaskConfig.model_validate(study["task"])
 
 
 @pytest.mark.parametrize(

@@ -16,6 +16,7 @@ from adclient.boxspace import BoxEncoding
 from adclient.schemas import ProposerConfig
 from adservice.errors import InvalidError
 from adservice.proposers import gpfit
+from adservice.proposers.acquisition import TAKEN_TOL
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
 from adservice.proposers.memory import device_budget, memory_need
 from adservice.proposers.qei import QLogEIProposer
@@ -187,6 +188,34 @@ def test_a_long_history_asks_from_the_trust_region_and_says_so() -> None:
     best = model_inputs(X[np.argmax(y)][None, :], bounds, None)[0, 1:]
     assert np.all((np.array(region["low"]) <= best) & (best <= np.array(region["high"])))
     assert region["volume"] == pytest.approx(LOCAL_TRAIN / 3000, rel=1e-6)
+
+
+def test_the_trust_region_search_avoids_observations_by_qeis_bound_in_its_units(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The search runs in the box's unit coordinates; it is handed qei's duplicate bound
+    there, per column (TAKEN_TOL / width; the structure column as it is), so no point it
+    calls fresh is one qei calls a duplicate (21 of 200 asks of Hartmann6 at 100,000 were
+    Sobol fallbacks before). The real search runs; its arguments are recorded."""
+    import adservice.proposers.acquisition as acquisition
+
+    seen: list[np.ndarray] = []
+    search = acquisition.maximise
+
+    def recorded(*args: Any, **kwargs: Any) -> Any:
+        seen.append(np.asarray(kwargs["taken_tol"]))
+        return search(*args, **kwargs)
+
+    monkeypatch.setattr(acquisition, "maximise", recorded)
+    gpfit.clear_caches()
+    X, y = _history(3000)
+    request = _request(X, y, 3000, raw_samples=256, large_history="trust-region")
+    info = QLogEIProposer().propose(request).info[0]
+    assert info["method"] == "LogEI", info
+    width = np.array(info["trust_region"]["high"]) - np.array(info["trust_region"]["low"])
+    [taken_tol] = seen
+    assert taken_tol[0] == TAKEN_TOL
+    np.testing.assert_allclose(taken_tol[1:], TAKEN_TOL / width, rtol=1e-5)
 
 
 def test_past_trust_from_the_default_is_the_trust_region() -> None:

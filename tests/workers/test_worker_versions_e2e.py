@@ -59,23 +59,28 @@ def test_an_older_worker_runs_jobs_it_can_read_and_fails_the_others_saying_why(
         with Client(server.url) as client:
             plain = stand_up_study(client, max_trials=2, learner="fast", train_steps=256)
             worker = run_older_worker(server.url)
-            assert worker.rates.failed == 0
+            assert (worker.rates.jobs, worker.rates.failed) == (2, 0)
             trials = plain.trials
             assert [t.state for t in trials] == [TrialState.complete] * 2, [
                 t.message for t in trials
             ]
 
+            # a newer study's design, queued so it is leased first, then a plain study's
             newer = stand_up_study(
                 client, max_trials=1, learner="fast", train_steps=256, **{NEWEST_FIELD: "critic"}
             )
-            worker = run_older_worker(server.url)  # the worker goes on after refusing
-            assert worker.rates.failed >= 1
+            client.add_trials(newer.id, [{"params": trials[0].params}])
+            later = stand_up_study(client, max_trials=1, learner="fast", train_steps=256)
+            worker = run_older_worker(server.url)
+            assert (worker.rates.jobs, worker.rates.failed) == (2, 1)
             [trial] = newer.trials
             assert trial.state == TrialState.failed
             assert trial.worker_id == "older"
             assert "cannot read this job" in (trial.message or "")
             assert f"task.{NEWEST_FIELD}" in (trial.message or "")
             assert "upgrade the worker" in (trial.message or "")
+            # it went on leasing after refusing
+            assert [t.state for t in later.trials] == [TrialState.complete]
             assert [t.state for t in plain.trials] == [TrialState.complete] * 2
     finally:
         server.stop()

@@ -238,12 +238,12 @@ class Worker:
                     job = None
                     failures += 1
                     pause = min(MAX_IDLE_BACKOFF, config.poll * 2 ** min(failures, 6))
-                    if isinstance(exc, UnreadableJob):
+                    if isinstance(exc, UnreadableJob):  # a job leased and failed: counted
                         self._refuse(exc)
                         log.warning("next lease in %.1f s", pause)
                     else:
                         log.warning("lease failed (%s); next try in %.1f s", exc, pause)
-                    self._unclaim_job()
+                        self._unclaim_job()
                     self._sleep(pause * (0.5 + random.random() / 2))
                     continue
                 failures = 0
@@ -501,7 +501,8 @@ class Worker:
         using a setting it does not know): the trial fails saying so, where its study's
         owner reads it, and the lease loop backs off as after a failed lease, so a
         newer worker may take the study's next trials (docs/worker.md, "Workers older
-        than the server")."""
+        than the server"). It counts as a job done (``--max-jobs``, a pool's budget), as
+        it counts as one of the study's trials."""
         message = (
             f"adworker {__version__} on {self.config.worker_id} cannot read this job: "
             f"{exc.detail}. The server is newer than this worker and the study uses a "

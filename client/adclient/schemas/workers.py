@@ -10,6 +10,7 @@ from pydantic import (
     BaseModel,
     Field,
     SerializationInfo,
+    SerializerFunctionWrapHandler,
     field_serializer,
 )
 
@@ -57,12 +58,13 @@ class HeartbeatResponse(BaseModel):
 class Job(BaseModel):
     """Everything a stateless worker needs to evaluate one trial.
 
-    Its ``task``, ``space`` and ``pruner`` travel without the fields at their defaults
-    (a space keeps its ``type``): a worker that predates a field reads every job that
-    leaves it at its default, and refuses (``errors.UnreadableJob``) only a job that
-    uses it. A field's default is therefore part of the contract between servers and
-    workers of different versions, and is not changed (docs/worker.md, "Workers older
-    than the server")."""
+    Its ``task``, ``space`` and ``pruner`` (the pruner's options too) travel without the
+    fields at their defaults (a space keeps its ``type``): a worker that predates a field
+    reads every job that leaves it at its default, and refuses (``errors.UnreadableJob``)
+    only a job that uses it. A field's default is therefore part of the contract between
+    servers and workers of different versions, and is not changed (docs/worker.md,
+    "Workers older than the server"). Its JSON schema names the models all the same
+    (a field with a default is not required)."""
 
     trial_id: int
     study_id: int
@@ -103,9 +105,17 @@ class Job(BaseModel):
         "an older server (the worker expands the template itself then)",
     )
 
-    @field_serializer("task", "space", "pruner")
-    def _without_defaults(self, config: BaseModel, info: SerializationInfo) -> dict[str, Any]:
+    @field_serializer("task", "space", "pruner", mode="wrap")
+    def _without_defaults(
+        self, config: BaseModel, _handler: SerializerFunctionWrapHandler, info: SerializationInfo
+    ):
+        # no return annotation: pydantic then keeps the models' JSON schema for these
+        # fields (with one, the lease's OpenAPI schema says "object")
         dumped = config.model_dump(mode=info.mode, exclude_defaults=True)
+        if isinstance(config, PrunerConfig):  # its options are a dict of its options model
+            dumped.pop("options", None)
+            options = config.parsed().model_dump(mode=info.mode, exclude_defaults=True)
+            dumped.update({"options": options} if options else {})
         kind = getattr(config, "type", None)  # a space's discriminator
         return dumped if kind is None else {"type": kind, **dumped}
 

@@ -18,7 +18,8 @@ observations"). Past ``TRUST_FROM`` observations, instead:
 TuRBO's own box is not sized after clipping: at 3,000 observations of Hartmann6 it held
 1% of the unit box instead of 34%. TuRBO's GP trains on the observations inside its box:
 on Rosenbrock, whose history's best lies far from the optimum along a curved valley,
-those closed none of the gap at 100,000 (the best trace the valley). The best alone
+the 1024 nearest the best closed none of the gap at 100,000 on any of 10 seeds (the
+best trace the valley). The best alone
 leave the best's own neighbourhood nearly empty: on Hartmann6 at 100,000, 3 of 10 seeds
 closed none of the gap, their log EI flat at -15 inside the box; with a quarter of near
 points they closed all of it, the other seeds as before. That costs Rosenbrock at
@@ -70,7 +71,10 @@ NEAR_REACH = 2
 """The near points are spread evenly, by distance, over the ``NEAR_REACH * size`` others
 nearest the best (about twice the trust box's share of a uniform history), not the very
 nearest: on Rosenbrock at 100,000 observations the 256 nearest closed none of the gap
-on 2 of 10 seeds (bench/RESULTS.md)."""
+on 2 of 10 seeds, the spread on 1 (bench/RESULTS.md). A history of fewer than
+``size * (1 - LOCAL_NEAR + NEAR_REACH)`` observations (only with ``max_train`` and
+``large_history: trust-region``) has fewer others than that: the near points then
+spread over all of them."""
 
 
 def local_training(Z: np.ndarray, y: np.ndarray, *, size: int) -> np.ndarray | None:
