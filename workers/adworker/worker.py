@@ -66,8 +66,9 @@ from adclient.errors import (
 from adclient.pruning import CHECKPOINT_ARTIFACT, ReportResponse
 from adclient.schemas import SHARED_ARTIFACT, Job
 from adworker.heartbeat import Heartbeat
-from adworker.runner import TRANSFER_FILE, Artifact, Cancelled, Outcome, Pruned, Runner
-from adworker.sharing import advance_shared, fetch_shared
+from adworker.runner import Artifact, Cancelled, Outcome, Pruned, Runner
+from adworker.sharing import advance_shared
+from adworker.sources import fetch_start
 from adworker.workdirs import make_workdir, remove_abandoned_workdirs
 
 log = logging.getLogger("adworker")
@@ -322,12 +323,7 @@ class Worker:
                     raise Pruned(step, value, pause=answer.pause)
 
             try:
-                if job.resume is not None:
-                    self._fetch_checkpoint(job, jobdir)
-                elif job.transfer is not None:
-                    self._fetch_transfer(job, jobdir)
-                elif job.shared is not None:
-                    fetch_shared(self.client, job, jobdir)
+                fetch_start(self.client, job, jobdir)
                 outcome = self.runner(job, jobdir, check, report)
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
@@ -424,57 +420,6 @@ class Worker:
         except ApiError as exc:
             log.warning("%s: report at step %d skipped (%s)", label, step, exc)
             return ReportResponse(should_stop=False)
-
-    def _fetch_checkpoint(self, job: Job, jobdir: Path) -> None:
-        """A promoted trial's checkpoint into its job folder, where the runner reads it;
-        a download that fails leaves the job (its lease expires and it is retried)."""
-        assert job.resume is not None
-        try:
-            data = self.client.get_artifact(job.trial_id, job.resume.artifact)
-        except (Unauthorized, Forbidden) as exc:
-            raise AuthError(str(exc)) from exc
-        except ApiError as exc:
-            raise Cancelled(f"checkpoint {job.resume.artifact!r} not downloaded: {exc}") from exc
-        jobdir.mkdir(parents=True, exist_ok=True)
-        (jobdir / job.resume.artifact).write_bytes(data)
-        log.info("trial %s: resuming from step %d", job.trial_id, job.resume.step)
-
-    def _fetch_transfer(self, job: Job, jobdir: Path) -> None:
-        """The checkpoint a job's controller starts from (``job.transfer``) into its job
-        folder. One that is not there, not of this study or not downloaded is skipped
-        with the reason logged: the design then trains from scratch."""
-        assert job.transfer is not None
-        source = job.transfer.trial_id
-        try:
-            study_id = self.client.get_trial(source).study_id
-            if study_id != job.study_id:
-                log.warning(
-                    "trial %s: transfer source %s is of study %s, not %s: training from scratch",
-                    job.trial_id,
-                    source,
-                    study_id,
-                    job.study_id,
-                )
-                return
-            data = self.client.get_artifact(source, job.transfer.artifact)
-        except (Unauthorized, Forbidden) as exc:
-            raise AuthError(str(exc)) from exc
-        except ApiError as exc:
-            log.warning(
-                "trial %s: checkpoint of trial %s not downloaded (%s): training from scratch",
-                job.trial_id,
-                source,
-                exc,
-            )
-            return
-        jobdir.mkdir(parents=True, exist_ok=True)
-        (jobdir / TRANSFER_FILE).write_bytes(data)
-        log.info(
-            "trial %s: starting from trial %s's controller (spec distance %.3f)",
-            job.trial_id,
-            source,
-            job.transfer.distance,
-        )
 
     def _share(self, job: Job, label: str, outcome: Outcome) -> None:
         """A ``task.transfer: shared`` job's update (uploaded with its artifacts) made
