@@ -23,7 +23,8 @@ from adclient.schemas import SHARED_ARTIFACT, Job, SharedVersion
 from adclient.testing.servers import ServerProcess
 from adworker import shared_weights
 from adworker.runner import SHARED_FILE
-from adworker.sharing import advance_shared, fetch_shared
+from adworker.sharing import advance_shared
+from adworker.sources import fetch_shared
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("transfer")]
 

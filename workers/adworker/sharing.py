@@ -1,6 +1,7 @@
-"""A worker's side of a study's shared controller (``task.transfer: shared``):
-downloading the version a job starts from, and making the job's update the study's
-next version, merged onto any version that landed while it trained.
+"""A worker's side of a study's shared controller (``task.transfer: shared``): making
+the job's update the study's next version, merged onto any version that landed while
+it trained (the version a job starts from is downloaded by
+:func:`adworker.sources.fetch_shared`).
 
 The server keeps only a pointer (``POST /trials/{id}/shared-controller`` is a
 compare-and-set on the version); the merging is done here, where the weights can be
@@ -12,63 +13,17 @@ is applied onto the current version, so two workers updating at once lose nothin
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 from adclient.client import Client
-from adclient.errors import ApiError, Conflict, Forbidden, NotFound, Unauthorized
+from adclient.errors import ApiError, Conflict, Forbidden, Unauthorized
 from adclient.schemas import SHARED_ARTIFACT, Job, SharedVersion
 from adworker import shared_weights
-from adworker.runner import SHARED_FILE, Cancelled
 
 log = logging.getLogger("adworker")
 
 MAX_MERGES = 8
 """Versions an update is merged onto before it is given up (each needs another update
 to land between this worker's download and its compare-and-set)."""
-
-
-def fetch_shared(client: Client, job: Job, jobdir: Path) -> None:
-    """The version ``job.shared`` names, into the job folder (``SHARED_FILE``). One of
-    another study, or whose file is not there, is skipped with the reason logged: the
-    design then starts from the study's initial weights (and its update replaces that
-    version). A download that fails otherwise leaves the job (``Cancelled``: its lease
-    is given back or expires, and it is done again), since a design trained from the
-    initial weights in its place would replace everything the study learned."""
-    assert job.shared is not None
-    source = job.shared.trial_id
-    try:
-        study_id = client.get_trial(source).study_id
-        if study_id != job.study_id:
-            log.warning(
-                "trial %s: shared controller of trial %s is of study %s, not %s: starting "
-                "from the study's initial weights",
-                job.trial_id,
-                source,
-                study_id,
-                job.study_id,
-            )
-            return
-        data = client.get_artifact(source, job.shared.artifact)
-    except (Unauthorized, Forbidden):
-        raise
-    except NotFound as exc:
-        log.warning(
-            "trial %s: shared controller version %d is not there (%s): starting from the "
-            "study's initial weights",
-            job.trial_id,
-            job.shared.version,
-            exc,
-        )
-        return
-    except ApiError as exc:
-        # Trained from the initial weights, its update would replace the study's version.
-        version = job.shared.version
-        raise Cancelled(f"shared controller version {version} not downloaded: {exc}") from exc
-    jobdir.mkdir(parents=True, exist_ok=True)
-    (jobdir / SHARED_FILE).write_bytes(data)
-    log.info(
-        "trial %s: starting from shared controller version %d", job.trial_id, job.shared.version
-    )
 
 
 def advance_shared(

@@ -1,7 +1,7 @@
 """What a job's controller starts from, downloaded into its job folder before the
 runner reads it: a promoted trial's own checkpoint (``job.resume``), another design's
 (``job.transfer``, ``task.transfer: nearest``), or the study's shared controller
-(``job.shared``: :func:`adworker.sharing.fetch_shared`).
+(``job.shared``).
 
 A refused token (``Unauthorized``, ``Forbidden``) is raised as it comes: the worker
 stops on it when it next tells the server anything.
@@ -13,10 +13,9 @@ import logging
 from pathlib import Path
 
 from adclient.client import Client
-from adclient.errors import ApiError, Forbidden, Unauthorized
+from adclient.errors import ApiError, Forbidden, NotFound, Unauthorized
 from adclient.schemas import Job
-from adworker.runner import TRANSFER_FILE, Cancelled
-from adworker.sharing import fetch_shared
+from adworker.runner import SHARED_FILE, TRANSFER_FILE, Cancelled
 
 log = logging.getLogger("adworker")
 
@@ -53,17 +52,7 @@ def fetch_transfer(client: Client, job: Job, jobdir: Path) -> None:
     assert job.transfer is not None
     source = job.transfer.trial_id
     try:
-        study_id = client.get_trial(source).study_id
-        if study_id != job.study_id:
-            log.warning(
-                "trial %s: transfer source %s is of study %s, not %s: training from scratch",
-                job.trial_id,
-                source,
-                study_id,
-                job.study_id,
-            )
-            return
-        data = client.get_artifact(source, job.transfer.artifact)
+        data = _of_own_study(client, job, source, job.transfer.artifact, "training from scratch")
     except (Unauthorized, Forbidden):
         raise
     except ApiError as exc:
@@ -74,6 +63,8 @@ def fetch_transfer(client: Client, job: Job, jobdir: Path) -> None:
             exc,
         )
         return
+    if data is None:
+        return
     jobdir.mkdir(parents=True, exist_ok=True)
     (jobdir / TRANSFER_FILE).write_bytes(data)
     log.info(
@@ -82,3 +73,59 @@ def fetch_transfer(client: Client, job: Job, jobdir: Path) -> None:
         source,
         job.transfer.distance,
     )
+
+
+def fetch_shared(client: Client, job: Job, jobdir: Path) -> None:
+    """The shared controller's version ``job.shared`` names, into the job folder
+    (``SHARED_FILE``). One of another study, or whose file is not there, is skipped with
+    the reason logged: the design then starts from the study's initial weights (and its
+    update replaces that version). A download that fails otherwise leaves the job
+    (``Cancelled``: its lease is given back or expires, and it is done again), since a
+    design trained from the initial weights in its place would replace everything the
+    study learned."""
+    assert job.shared is not None
+    initial = "starting from the study's initial weights"
+    try:
+        data = _of_own_study(client, job, job.shared.trial_id, job.shared.artifact, initial)
+    except (Unauthorized, Forbidden):
+        raise
+    except NotFound as exc:
+        log.warning(
+            "trial %s: shared controller version %d is not there (%s): %s",
+            job.trial_id,
+            job.shared.version,
+            exc,
+            initial,
+        )
+        return
+    except ApiError as exc:
+        # Trained from the initial weights, its update would replace the study's version.
+        version = job.shared.version
+        raise Cancelled(f"shared controller version {version} not downloaded: {exc}") from exc
+    if data is None:
+        return
+    jobdir.mkdir(parents=True, exist_ok=True)
+    (jobdir / SHARED_FILE).write_bytes(data)
+    log.info(
+        "trial %s: starting from shared controller version %d", job.trial_id, job.shared.version
+    )
+
+
+def _of_own_study(
+    client: Client, job: Job, trial_id: int, artifact: str, otherwise: str
+) -> bytes | None:
+    """``trial_id``'s ``artifact``, or None (logged, saying ``otherwise``) when that
+    trial is of another study than ``job``'s: a controller starts only from its own
+    study's designs."""
+    study_id = client.get_trial(trial_id).study_id
+    if study_id != job.study_id:
+        log.warning(
+            "trial %s: the controller of trial %s is of study %s, not %s: %s",
+            job.trial_id,
+            trial_id,
+            study_id,
+            job.study_id,
+            otherwise,
+        )
+        return None
+    return client.get_artifact(trial_id, artifact)
