@@ -3,8 +3,8 @@ runner reads it: a promoted trial's own checkpoint (``job.resume``), another des
 (``job.transfer``, ``task.transfer: nearest``), or the study's shared controller
 (``job.shared``).
 
-A refused token (``Unauthorized``, ``Forbidden``) is raised as it comes: the worker
-stops on it when it next tells the server anything.
+A refused token (``Unauthorized``, ``Forbidden``) is raised as it comes: the job fails
+with it, and the worker stops if the server refuses that tell too.
 """
 
 from __future__ import annotations
