@@ -440,3 +440,31 @@ def test_int_and_categorical_params_are_charted_with_their_choices_as_ticks(
     )
     assert rows and all("width=" in row and "." not in row.split("width=")[1] for row in rows)
     assert browser.errors == []
+
+
+def test_the_page_keeps_its_width_when_it_grows_a_scrollbar(
+    live_server: ServerProcess, browser: Chromium
+) -> None:
+    """The page always has its scrollbar (dashboard.css, ``overflow-y: scroll`` on the
+    root): a page that grew one used to lay out 15 px narrower, so every chart drawn
+    before redrew at another size a moment later, its points moving under the mouse.
+    The studies list, its content set aside so the page is short whatever studies the
+    server has; a tall block then makes it scroll."""
+    browser.navigate(f"{live_server.url}/")
+    browser.wait_for(
+        "document.querySelector('table.studies') !== null"
+        " || document.body.textContent.includes('No studies yet')"
+    )
+    browser.evaluate("[...document.body.children].forEach((child) => { child.hidden = true; })")
+    width = "document.documentElement.clientWidth"
+    tall = "document.documentElement.scrollHeight > innerHeight"
+    assert browser.evaluate(tall) is False
+    before = browser.evaluate(width)
+    browser.evaluate(
+        "(() => { const block = document.createElement('div');"
+        " block.id = 'tall'; block.style.height = '5000px';"
+        " document.body.appendChild(block); })()"
+    )
+    assert browser.wait_for(tall) is True
+    assert browser.evaluate(width) == before
+    browser.navigate(f"{live_server.url}/")

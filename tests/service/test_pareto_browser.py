@@ -108,9 +108,10 @@ def open_study(browser: Chromium, server: ServerProcess, study: dict[str, Any]) 
 DRAWN_AT_ITS_SIZE = """((canvas) =>
   canvas.width === Math.round(canvas.clientWidth * devicePixelRatio)
   && canvas.height === Math.round(canvas.clientHeight * devicePixelRatio))"""
-"""Whether a chart's points (its ``hit`` map) are where the page shows them: a page that
-grew a scrollbar after drawing a chart shows it narrower and redraws it only a moment
-later (charts.js ``prepare`` sizes the canvas to its box at each draw)."""
+"""Whether a chart's points (its ``hit`` map) are where the page shows them: charts.js
+``prepare`` sizes the canvas to its box at each draw, and a box that changed since (a
+page that grew a scrollbar, before dashboard.css kept one) is redrawn only a moment
+later."""
 
 
 def point_at(browser: Chromium, number: int) -> tuple[float, float]:
