@@ -295,3 +295,21 @@ def test_log_posterior_on_arrays_is_the_torch_paths(case: str, noise: str) -> No
     assert value == pytest.approx(expected_value, rel=1e-7)
     assert np.abs(expected).max() > 0.0
     np.testing.assert_allclose(gradient, expected, rtol=1e-6, atol=1e-8 * np.abs(expected).max())
+
+
+def test_a_posteriors_arrays_do_not_change_with_its_tensors() -> None:
+    """``ArrayPosterior`` holds copies: a posterior's tensors changed in place after its
+    arrays were made (here its weights of the observations and its embedded training
+    points) leave the NumPy path's values as they were."""
+    request = request_for("multi-structure", 16, seed=6)
+    posterior = Posterior(fitted(request))
+    acquisition = LogEI(posterior, float(request.y.max()) + 0.05)
+    assert acquisition.on_arrays is not None
+    points = model_inputs(
+        request_for("multi-structure", 12, seed=7).X, request.bounds, request.structure
+    )
+    before = acquisition.on_arrays.values(points)
+    with torch.no_grad():
+        posterior.alpha.mul_(3.0)
+        posterior.embedded[0].add_(0.5)
+    np.testing.assert_array_equal(acquisition.on_arrays.values(points), before)

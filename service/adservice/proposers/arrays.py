@@ -39,7 +39,10 @@ _NEG_INV_SQRT_EPS = -1e6
 
 
 def _numpy(tensor: torch.Tensor) -> np.ndarray:
-    return tensor.detach().cpu().numpy()
+    """A copy (a CPU tensor's ``numpy()`` shares its memory): an array posterior must not
+    change with a tensor its posterior reads, whatever is done to that tensor later. The
+    arrays copied are the model's small ones and the n-long or n x p ones."""
+    return tensor.detach().cpu().numpy().copy()
 
 
 def log_ei_helper(u: np.ndarray) -> np.ndarray:
