@@ -21,7 +21,12 @@ bench/transfer.py's budget (``--train-steps``, 20,000), three arms:
 - ``chain-critic``: as ``chain``, but only the critic carries (its head of the tree
   network, its pooling and value layer); the actor starts from the initial weights;
 - ``chain-half``: as ``chain``, each design from halfway between the initial weights
-  and the previous design's update.
+  and the previous design's update;
+- ``mlp-chain``: the MLP, each design warm-started from the previous design's final
+  checkpoint for a quarter of the budget (the first from scratch, a quarter too), as
+  ``transfer: nearest`` starts a design: ``chain``'s protocol with the plain learner,
+  so the two compare the policies' fine-tuning alone (designs of one tree only: the MLP
+  does not fit another tree's, and says so in ``problem``).
 
 Each design is scored as a worker scores it (the task's default evaluation episodes
 with the worker's seeds, deterministic policy) and its CPU seconds (training and
@@ -55,7 +60,16 @@ from adworker.designs import HALF_PI, tree_design  # noqa: E402
 from adworker.shared_weights import actor_part  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "shared_policy.jsonl"
-ARMS = ["mlp", "modular", "chain", "quarter", "chain-explore", "chain-critic", "chain-half"]
+ARMS = [
+    "mlp",
+    "modular",
+    "chain",
+    "quarter",
+    "chain-explore",
+    "chain-critic",
+    "chain-half",
+    "mlp-chain",
+]
 CHAINED = ("chain", "chain-explore", "chain-critic", "chain-half")
 """The arms whose designs start from the previous design's update."""
 LOG_STD = "log_std"
@@ -122,10 +136,11 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
     import torch
 
     from adworker.learners import PPOLearner
-    from adworker.starts import SCRATCH, Shared
+    from adworker.starts import SCRATCH, Shared, Warm
 
     torch.set_num_threads(1)
     weights: dict[str, Any] = dict.fromkeys(CHAINED)
+    checkpoint: bytes | None = None  # mlp-chain's last design's
     initial: Any = None
     with tempfile.TemporaryDirectory(prefix="bench-shared-") as folder:
         for index, (name, *_) in enumerate(DESIGNS[task][: args.designs]):
@@ -136,16 +151,25 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                     start = Shared(None, steps=args.train_steps // 4, seed=seed)
                 elif arm == "modular":
                     start = Shared(None, steps=args.train_steps, seed=seed)
+                elif arm == "mlp-chain" and checkpoint is not None:
+                    start = Warm(checkpoint, steps=args.train_steps // 4)
                 else:
                     start = SCRATCH
+                steps = args.train_steps
+                if arm == "mlp-chain" and checkpoint is None:
+                    steps = args.train_steps // 4
                 key = (task, arm, seed, index, args.train_steps)
-                if key in done and arm not in CHAINED:
+                if key in done and arm not in CHAINED and arm != "mlp-chain":
                     continue
                 env = make_env(task, index, Path(folder))
                 learner = PPOLearner()
                 began = time.process_time()
                 result = learner.train(
-                    env, steps=args.train_steps, seed=seed * 100 + index, start=start
+                    env,
+                    steps=steps,
+                    seed=seed * 100 + index,
+                    start=start,
+                    keep_checkpoint=arm == "mlp-chain",
                 )
                 value = score(env, result.policy, seed)
                 cpu = time.process_time() - began
@@ -153,6 +177,10 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                 if arm in CHAINED:
                     initial = initial if start.weights is not None else result.shared_start
                     weights[arm] = carried(arm, result.shared, initial)
+                    if key in done:
+                        continue
+                if arm == "mlp-chain":
+                    checkpoint = result.checkpoint
                     if key in done:
                         continue
                 record = {
