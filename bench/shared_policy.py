@@ -175,6 +175,7 @@ def run_seed(task: str, seed: int, args: argparse.Namespace, done: set[tuple]) -
                 cpu = time.process_time() - began
                 env.close()
                 if arm in CHAINED:
+                    assert result.shared is not None  # PPO with a Shared start returns one
                     initial = initial if start.weights is not None else result.shared_start
                     weights[arm] = carried(arm, result.shared, initial)
                     if key in done:
