@@ -208,8 +208,8 @@ def test_optimize_stops_starting_trials_at_the_timeout(client: Client) -> None:
         return trial.params["x"]
 
     told = study.optimize(objective, timeout=1.0, n_jobs=2)
-    first = min(start for thread in runs.values() for start, _ in thread)
     assert 2 <= len(told) < 40
+    first = min(start for thread in runs.values() for start, _ in thread)
     for thread in runs.values():
         ends = [end for _, end in thread[:-1]]
         assert all(end < first + 1.0 for end in ends), "a trial started after the timeout"

@@ -39,9 +39,11 @@ _NEG_INV_SQRT_EPS = -1e6
 
 
 def _numpy(tensor: torch.Tensor) -> np.ndarray:
-    """A copy (a CPU tensor's ``numpy()`` shares its memory): an array posterior must not
-    change with a tensor its posterior reads, whatever is done to that tensor later. The
-    arrays copied are the model's small ones and the n-long or n x p ones."""
+    """A copy of an array kept (a CPU tensor's ``numpy()`` shares its memory): an array
+    posterior must not change with a tensor its posterior reads, whatever is done to
+    that tensor later. What is kept is the model's small arrays and the n-long, n x p
+    and structures x n ones; the n x n factor is only read, into its inverse, and not
+    copied."""
     return tensor.detach().cpu().numpy().copy()
 
 
@@ -162,7 +164,9 @@ class ArrayPosterior:
         # L^-1, once: two products per evaluation instead of two triangular solves;
         # Fortran order for BLAS's triangular product (``_times_inverse_factor``)
         self.inverse_factor = np.asfortranarray(
-            solve_triangular(_numpy(posterior.cholesky), np.eye(len(self.alpha)), lower=True)
+            solve_triangular(
+                posterior.cholesky.detach().cpu().numpy(), np.eye(len(self.alpha)), lower=True
+            )
         )
         self.constant = float(posterior.constant.detach())
         self.offset, self.scale = float(posterior.offset.detach()), float(posterior.scale.detach())
