@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Literal
+from urllib.parse import quote
 
 from pydantic import BaseModel, ValidationError
 
@@ -444,7 +445,7 @@ class ServerCalls(Transport):
         ``worker_id``; the owner of an asked trial names no worker."""
         response = self.request(
             "PUT",
-            f"{API}/trials/{trial_id_of(trial)}/artifacts/{name}",
+            f"{API}/trials/{trial_id_of(trial)}/artifacts/{quote(name, safe='')}",
             params={"worker_id": worker_id} if worker_id else None,
             content=bytes(data),
             headers={"Content-Type": content_type},
@@ -452,8 +453,10 @@ class ServerCalls(Transport):
         return ArtifactInfo.model_validate(response.json())
 
     def get_artifact(self, trial: TrialRef, name: str) -> bytes:
-        """The bytes of the trial's artifact ``name``."""
-        path = f"{API}/trials/{trial_id_of(trial)}/artifacts/{name}"
+        """The bytes of the trial's artifact ``name`` (sent as one path segment, whatever
+        it holds: a name the server does not allow is a 422 naming it, never another
+        path or query)."""
+        path = f"{API}/trials/{trial_id_of(trial)}/artifacts/{quote(name, safe='')}"
         return self.request("GET", path, headers={"Accept": "*/*"}).content
 
     def artifacts(self, trial: TrialRef) -> list[ArtifactInfo]:

@@ -134,6 +134,10 @@ class ReportResponse(BaseModel):
     )
 
 
+ARTIFACT_NAME = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$"
+"""An artifact's name: ``adclient.schemas.common.NAME_PATTERN``, written out because
+that package imports this module (tests/client/test_job_wire.py checks they agree)."""
+
 CHECKPOINT_ARTIFACT = "checkpoint.zip"
 """The artifact adworker keeps a paused trial's learner state in."""
 
@@ -141,7 +145,9 @@ CHECKPOINT_ARTIFACT = "checkpoint.zip"
 class Checkpoint(BaseModel):
     """Where a paused trial resumes from (``Trial.checkpoint``, ``Job.resume``)."""
 
-    artifact: str = Field(description="the trial's artifact holding the learner's state")
+    artifact: str = Field(
+        pattern=ARTIFACT_NAME, description="the trial's artifact holding the learner's state"
+    )
     step: int = Field(description="learner steps trained when it paused")
     rung: int = Field(description="the ASHA rung it waits at (its promotion is judged there)")
     metrics: dict[str, float] = Field(
@@ -180,7 +186,7 @@ class PauseRequest(_Strict):
     step: int = Field(ge=0, le=MAX_STEP, description="learner steps in the checkpoint")
     checkpoint: str = Field(
         default=CHECKPOINT_ARTIFACT,
-        pattern=r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,127}$",
+        pattern=ARTIFACT_NAME,
         description="the name of the trial's artifact holding the checkpoint",
     )
     value: float | None = Field(default=None, description="default: the last reported value")

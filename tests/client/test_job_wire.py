@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import yaml
+from pydantic import ValidationError
 
 from adclient.schemas import Job, StudyCreate
 
@@ -77,3 +78,32 @@ def test_a_pruners_options_travel_without_their_defaults() -> None:
     }
     assert wire["task"] == {"name": "stand-up"}
     assert Job.model_validate(wire) == job
+
+
+@pytest.mark.parametrize("field", ["resume", "transfer", "shared"])
+@pytest.mark.parametrize("name", ["../escape.zip", "a/b.zip", ".hidden", ""])
+def test_a_job_naming_an_artifact_outside_the_name_whitelist_is_not_read(
+    field: str, name: str
+) -> None:
+    """A worker writes what a job starts from into its job folder; an artifact name is
+    read only if it is one the server could have stored (``NAME_PATTERN``), so no job
+    makes it write or fetch outside that folder's one file (``Client.lease`` turns the
+    error into ``UnreadableJob``)."""
+    sources = {
+        "resume": {"artifact": name, "step": 1, "rung": 0},
+        "transfer": {"trial_id": 2, "artifact": name, "distance": 0.1},
+        "shared": {"version": 1, "trial_id": 2, "artifact": name},
+    }
+    box = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
+    base = {"task": {"name": "stand-up"}, "space": box}
+    good = {**sources[field], "artifact": "checkpoint.zip"}
+    assert getattr(job_of(**base, **{field: good}), field).artifact == "checkpoint.zip"
+    with pytest.raises(ValidationError, match=f"{field}.artifact"):
+        job_of(**base, **{field: sources[field]})
+
+
+def test_the_pruning_modules_artifact_names_are_the_schemas_names() -> None:
+    from adclient.pruning import ARTIFACT_NAME
+    from adclient.schemas.common import NAME_PATTERN
+
+    assert ARTIFACT_NAME == NAME_PATTERN

@@ -260,6 +260,19 @@ def test_worker_calls_lease_heartbeat_artifacts_tell(client: Client) -> None:
     assert stored.size == len(blob)
     assert client.get_artifact(job.trial_id, "curve.bin") == blob
     assert [item.name for item in client.artifacts(job.trial_id)] == ["curve.bin"]
+    # a name travels as one path segment: never another artifact, path or query (sent
+    # as written, "curve.bin?x=1" read curve.bin); the server names what it refuses
+    for hostile, refused in (
+        ("curve.bin?x=1", Invalid),
+        ("curve.bin#x", Invalid),
+        ("../curve.bin", NotFound),  # no route holds a "/" in a name
+        ("a/../curve.bin", NotFound),
+    ):
+        with pytest.raises(refused, match="path.name" if refused is Invalid else "no API path"):
+            client.get_artifact(job.trial_id, hostile)
+        with pytest.raises(refused):
+            client.put_artifact(job.trial_id, hostile, b"x")
+    assert [item.name for item in client.artifacts(job.trial_id)] == ["curve.bin"]
     with pytest.raises(PayloadTooLarge):
         client.put_artifact(job.trial_id, "huge.bin", b"x" * 5000)
     with pytest.raises(NotFound):

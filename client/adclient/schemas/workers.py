@@ -125,7 +125,9 @@ class TransferSource(BaseModel):
     design of the same study and tree, the nearest of its best."""
 
     trial_id: int = Field(description="the trial whose checkpoint the job starts from")
-    artifact: str = Field(description="that trial's artifact holding the learner's state")
+    artifact: str = Field(
+        pattern=NAME_PATTERN, description="that trial's artifact holding the learner's state"
+    )
     distance: float = Field(description="its spec distance to the job's design (0 to 1)")
 
 
@@ -141,7 +143,9 @@ class SharedVersion(BaseModel):
 
     version: int = Field(ge=1, description="1 for the first update, then one more each")
     trial_id: int = Field(description="the trial whose artifact holds its weights")
-    artifact: str = Field(default=SHARED_ARTIFACT, description="that artifact's name")
+    artifact: str = Field(
+        default=SHARED_ARTIFACT, pattern=NAME_PATTERN, description="that artifact's name"
+    )
     updated_at: datetime | None = None
 
 
