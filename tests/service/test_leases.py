@@ -7,6 +7,7 @@ import time
 from typing import Any
 
 import pytest
+import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from adclient.schemas import MAX_WORKER_PAGE
@@ -117,6 +118,57 @@ def test_the_holder_releases_a_trial_back_to_the_queue_without_spending_an_attem
     assert ok.status_code == 200 and ok.json()["attempts"] == 1
     workers = api.get(f"/api/v1/studies/{study['id']}/workers").json()
     assert [w["worker_id"] for w in workers] == ["staying"]  # the leaver holds nothing
+
+
+@pytest.fixture
+def quick_backoff_api(settings: Settings) -> Any:
+    quick = settings.model_copy(update={"proposal_backoff_seconds": 0.05})
+    with TestClient(create_app(quick), base_url=LOCAL, headers=SDK_HEADERS) as client:
+        yield client
+
+
+def test_a_lease_whose_job_cannot_be_read_gives_the_trial_back(
+    quick_backoff_api: TestClient,
+) -> None:
+    """The lease's write commits before its job is read (here a shared study's current
+    version). When that read fails (the database drops the connection), the trial is back
+    in the queue at once with its attempt not counted, and the failure is recorded on the
+    study, which leases skip for its backoff: on both paths, a freshly proposed trial and
+    a queued one. Before, a proposed trial's lease answered 500 and the trial stayed
+    leased to a worker that never got its job until the lease expired, spending an
+    attempt."""
+    api = quick_backoff_api
+    body = copy.deepcopy(BOX_STUDY) | {
+        "task": {"name": "noop", "external": True, "transfer": "shared"},
+        "max_trials": 1,
+        "max_attempts": 1,
+    }
+    study = api.post("/api/v1/studies", json=body).json()
+    engine = api.app.state.db.engine  # type: ignore[attr-defined]
+    failing = {"on": True}
+
+    def drop_shared_reads(conn: Any, cursor: Any, statement: str, *args: Any) -> None:
+        read = statement.lstrip().upper().startswith("SELECT")
+        if failing["on"] and read and "shared_controllers" in statement:
+            raise sa.exc.OperationalError(statement, None, Exception("connection dropped"))
+
+    sa.event.listen(engine, "before_cursor_execute", drop_shared_reads)
+    try:
+        for path, failures in (("proposed", 1), ("queued", 2)):
+            time.sleep(0.25)  # past the study's backoff (0.05 s, then 0.1 s)
+            assert lease(api, "w1") is None, path
+            (trial,) = api.get(f"/api/v1/studies/{study['id']}/trials").json()
+            assert trial["state"] == "queued" and trial["attempts"] == 0, (path, trial)
+            recorded = api.get(f"/api/v1/studies/{study['id']}").json()
+            assert recorded["proposal_failures"] == failures, (path, recorded)
+            assert "connection dropped" in recorded["proposal_error"], recorded
+        failing["on"] = False
+        time.sleep(0.25)
+        job = lease(api, "w2")
+        assert job is not None and job["trial_id"] == trial["id"] and job["attempt"] == 1
+        assert job["shared"] is None  # the study has no version yet
+    finally:
+        sa.event.remove(engine, "before_cursor_execute", drop_shared_reads)
 
 
 @pytest.fixture

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
+from functools import partial
 
 from starlette.concurrency import run_in_threadpool
 
@@ -64,20 +65,35 @@ async def lease_job(
         with db.read() as session:
             return lease_repo.studies_wanting_trials(session, tasks=tasks, learners=learners)
 
-    def served(trial: Trial) -> Job | None:
-        """The queued trial's job; None when its study cannot make one (its stored
-        settings no longer load, say): that is recorded on the study, whose trials
-        leases then skip for its backoff, and the trial goes back to the queue with
-        its attempt not counted."""
+    def give_back(trial: Trial) -> None:
+        """A leased trial whose job the worker never got goes back to the queue at once,
+        its attempt not counted (else it waits out its lease and spends an attempt);
+        where even that write fails, the lease expires as usual."""
         try:
-            with failures_recorded(db, proposing.backoff, study_id=trial.study_id):
-                return job_for(db, configs, trial)
-        except (ProposalFailedError, StudyConfigError):
             with db.write() as session:
                 lease_repo.release_lease(
                     session, trial_id=trial.id, worker_id=worker_id, caller=caller
                 )
-            return None
+        except Exception:
+            log.exception("trial %s: its lease could not be given back: it expires", trial.id)
+
+    def job_of(trial: Trial) -> Job:
+        """The leased trial's job; a failure to make it (stored settings that no longer
+        load, a read the database refused) is recorded on the study, whose trials leases
+        then skip for its backoff (``failures_recorded``)."""
+        with failures_recorded(db, proposing.backoff, study_id=trial.study_id):
+            return job_for(db, configs, trial)
+
+    def served(trial: Trial) -> Job | None:
+        """The queued trial's job; None when its study cannot make one. Whatever fails,
+        the trial goes back to the queue (``give_back``)."""
+        try:
+            return job_of(trial)
+        except Exception as error:
+            give_back(trial)
+            if isinstance(error, (ProposalFailedError, StudyConfigError)):
+                return None
+            raise
 
     trial = await db.run(queued)
     while trial is not None:  # job_for reads (a resume point, a transfer scan): off the loop
@@ -102,19 +118,30 @@ async def lease_job(
                 )
             return trial
 
-        async def leased(propose: Callable[[], Trial] = propose, study_id: int = study_id) -> Job:
+        held: list[Trial] = []
+
+        async def leased(
+            propose: Callable[[], Trial] = propose,
+            study_id: int = study_id,
+            held: list[Trial] = held,
+        ) -> Job:
             if proposes_instantly(configs, study_id):
                 trial = await db.run(propose)
             else:
                 trial = await proposals.run(study_id, propose)
-            return await run_in_threadpool(job_for, db, configs, trial)
+            held.append(trial)
+            return await run_in_threadpool(job_of, trial)
 
         try:
             job = await urdfs.with_urdf(proposing, study_id=study_id, lease=leased)
-        except (ConflictError, BusyError):
-            # filled or stopped meanwhile, its proposal failed, or no place to expand its
-            # template: the next study
-            continue
+        except Exception as error:
+            if held:  # leased, but the job (or its URDF) failed after: not the worker's
+                await db.run(partial(give_back, held[0]))
+            if isinstance(error, (ConflictError, BusyError)):
+                # filled or stopped meanwhile, its proposal failed, or no place to expand
+                # its template: the next study
+                continue
+            raise
         if job is not None:  # None: the template does not expand at its params
             return job
 
