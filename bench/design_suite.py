@@ -53,6 +53,13 @@ random search's) gathered into one file, as bench/RESULTS.md's wrong-tree sectio
         shifted-optima tree-similarity specs-only unused-specs interaction \
         --methods qei --no-write --results bench/results/design_suite-i37-judged-i26.jsonl
 
+A qei option runs through HTTP with ``--proposer-options`` and its own label (issue 37's
+judged looks on today's code, a second file with ``--first-seed 10`` beside it):
+
+    .venv/bin/python bench/design_suite.py --seeds 10 --methods qei --label qei=qei-judged \
+        --proposer-options '{"second_looks": "judged"}' --no-write \
+        --results bench/results/design_suite-i37-20-judged-d14fcf2.jsonl
+
 ``--seeds 2 --no-write --results /tmp/x.jsonl`` while developing.
 """
 
@@ -99,7 +106,15 @@ def design_from_params(space: DesignSpace, params: dict[str, Any]) -> Design:
     return build_design(space, layout, int(params["structure_index"]), values)
 
 
-def run_service(http: httpx.Client, objective: Objective, method: str, seed: int) -> dict:
+def run_service(
+    http: httpx.Client,
+    objective: Objective,
+    method: str,
+    seed: int,
+    options: dict[str, Any] | None = None,
+) -> dict:
+    """One study of ``method`` on ``objective`` through HTTP; ``options``: the qei
+    proposer's options (``--proposer-options``), the defaults when None."""
     space = dict(objective.space)
     encoding = SERVICE_METHODS[method]
     if encoding is not None:
@@ -111,7 +126,7 @@ def run_service(http: httpx.Client, objective: Objective, method: str, seed: int
             "name": f"{objective.name}-{method}-{seed}-{time.time_ns()}",
             "direction": "maximize",
             "space": space,
-            "proposer": {"name": "qei", "seed": seed},
+            "proposer": {"name": "qei", "seed": seed, **({"options": options} if options else {})},
             "max_trials": BUDGET,
         },
     )
@@ -191,27 +206,32 @@ def mann_whitney(a: list[float], b: list[float]) -> float:
     return float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
 
 
-def report(records: list[dict]) -> str:
-    """Per objective and method: the median and lower quartile of the best score by
-    ``BUDGET``, the median number of trees a run tried, and the issue-26 goals (qei's
-    median at or above GPSampler's, its lower quartile at or above random search's)."""
-    methods = [m for m in [*DEFAULT_METHODS, BASELINE] if any(r["method"] == m for r in records)]
+def report(records: list[dict], subject: str = "qei") -> str:
+    """Per objective and method (every label in ``records``): the median and lower
+    quartile of the best score by ``BUDGET``, the median number of trees a run tried,
+    and the issue-26 and -37 goals for ``subject`` (a label: ``qei``, or an option's
+    runs, ``qei-judged``): its median at or above GPSampler's, its lower quartile and
+    every seed at or above random search's lower quartile."""
+    known = [*DEFAULT_METHODS, BASELINE]
+    labels = {r["method"] for r in records}
+    methods = [m for m in known if m in labels] + sorted(labels - set(known))
+    methods = [subject, *(m for m in methods if m != subject)]
     lines = [
         f"Best score by {BUDGET} evaluations over seeds: median / lower quartile "
-        "(trees tried, median), n seeds. Goals (issues 26 and 37): qei's median at or "
-        "above GPSampler's, qei's lower quartile, and (issue 37) every seed of qei, at or "
-        "above random search's lower quartile; qei's worst seed beside it.",
+        f"(trees tried, median), n seeds. Goals (issues 26 and 37): {subject}'s median at "
+        f"or above GPSampler's, {subject}'s lower quartile, and (issue 37) every seed of "
+        f"{subject}, at or above random search's lower quartile; its worst seed beside it.",
         "",
         "| objective | "
         + " | ".join(methods)
-        + " | median vs GP | q1 vs random | qei worst seed (of base) | every seed |",
+        + f" | median vs GP | q1 vs random | {subject} worst seed (of base) | every seed |",
         "| --- | " + " | ".join("---" for _ in methods) + " | --- | --- | --- | --- |",
     ]
     for name in OBJECTIVES:
         rows = {
             m: [r for r in records if r["objective"] == name and r["method"] == m] for m in methods
         }
-        if not rows.get("qei"):
+        if not rows.get(subject):
             continue
         cells, medians, quartiles = [], {}, {}
         for m in methods:
@@ -225,21 +245,21 @@ def report(records: list[dict]) -> str:
             tried = f" ({np.median(trees):g})" if trees else ""
             cells.append(f"{q2:.3f} / {q1:.3f}{tried}, n={len(best)}")
         gp, random = medians.get("gp-optuna"), quartiles.get("random-optuna")
-        verdict_gp = "-" if gp is None else ("met" if medians["qei"] >= gp else "**missed**")
+        verdict_gp = "-" if gp is None else ("met" if medians[subject] >= gp else "**missed**")
         verdict_random = (
-            "-" if random is None else ("met" if quartiles["qei"] >= random else "**missed**")
+            "-" if random is None else ("met" if quartiles[subject] >= random else "**missed**")
         )
         if gp is not None:
             p = mann_whitney(
-                [best_by(r["values"], BUDGET) for r in rows["qei"]],
+                [best_by(r["values"], BUDGET) for r in rows[subject]],
                 [best_by(r["values"], BUDGET) for r in rows["gp-optuna"]],
             )
             verdict_gp += f" (p = {p:.2f})"
         worst = {m: min(best_by(r["values"], BUDGET) for r in rows[m]) for m in medians}
-        worst_cell = f"{worst['qei']:.3f}" + (
+        worst_cell = f"{worst[subject]:.3f}" + (
             f" ({worst[BASELINE]:.3f})" if BASELINE in worst else ""
         )
-        every = "-" if random is None else ("met" if worst["qei"] >= random else "**missed**")
+        every = "-" if random is None else ("met" if worst[subject] >= random else "**missed**")
         lines.append(
             f"| {name} | "
             + " | ".join(cells)
@@ -267,7 +287,7 @@ def report(records: list[dict]) -> str:
         "",
         f"The last three asks (n = {BUDGET - 3} to {BUDGET - 1}) on the 8-tree, 13-spec space: "
         + ", ".join(f"{m} {late[m]:.3f} s" for m in methods)
-        + " (goal: qei under 0.5 s).",
+        + f" (goal: {subject} under 0.5 s).",
     ]
     return "\n".join(lines)
 
@@ -285,6 +305,16 @@ def main() -> int:
         "--label",
         default=None,
         help="METHOD=LABEL: record METHOD's runs as LABEL (a baseline: qei=qei-main)",
+    )
+    parser.add_argument(
+        "--proposer-options",
+        type=json.loads,
+        default=None,
+        help='JSON: the qei methods\' proposer options (\'{"second_looks": "judged"}\'); '
+        "label the runs with --label",
+    )
+    parser.add_argument(
+        "--subject", default="qei", help="the label the goals judge in the report (qei-judged)"
     )
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
@@ -312,7 +342,9 @@ def main() -> int:
                         objective = OBJECTIVES[name]
                         started = time.perf_counter()
                         if method in SERVICE_METHODS:
-                            result = run_service(http, objective, method, seed)
+                            result = run_service(
+                                http, objective, method, seed, args.proposer_options
+                            )
                         else:
                             result = run_optuna(objective, method, seed)
                         label = labels.get(method, method)
@@ -327,7 +359,7 @@ def main() -> int:
                         )
             finally:
                 server.stop()
-    text = report(read_results(args.results))
+    text = report(read_results(args.results), args.subject)
     print(text)
     if not args.no_write:
         write_subsection("### Design-space suite, issue 26 (bench/design_suite.py)", text)
