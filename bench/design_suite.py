@@ -60,6 +60,10 @@ judged looks on today's code, a second file with ``--first-seed 10`` beside it):
         --proposer-options '{"second_looks": "judged"}' --no-write \
         --results bench/results/design_suite-i37-20-judged-d14fcf2.jsonl
 
+``--starts-per-tree K`` sets the qei studies' ``n_initial`` to K times their trees (at
+most 16), so the covering start gives each tree K random designs (issue 37's two per
+tree: ``--label qei=qei-two --starts-per-tree 2``).
+
 ``--seeds 2 --no-write --results /tmp/x.jsonl`` while developing.
 """
 
@@ -85,6 +89,7 @@ from adclient.design import DesignSpace  # noqa: E402
 from adclient.designs import Design  # noqa: E402
 from adclient.testing.design_objectives import EIGHT_TREES, OBJECTIVES, Objective  # noqa: E402
 from adclient.testing.servers import ServerProcess  # noqa: E402
+from adservice.proposers.initial import COVERED_CHOICES  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
 
 RESULTS_PATH = ROOT / "bench" / "results" / "design_suite-i26.jsonl"
@@ -112,21 +117,30 @@ def run_service(
     method: str,
     seed: int,
     options: dict[str, Any] | None = None,
+    starts_per_tree: int | None = None,
 ) -> dict:
     """One study of ``method`` on ``objective`` through HTTP; ``options``: the qei
-    proposer's options (``--proposer-options``), the defaults when None."""
+    proposer's options (``--proposer-options``), the defaults when None;
+    ``starts_per_tree``: the study's ``n_initial`` is that many times its trees, at most
+    ``COVERED_CHOICES`` (``--starts-per-tree``)."""
     space = dict(objective.space)
     encoding = SERVICE_METHODS[method]
     if encoding is not None:
         space["encoding"] = encoding
     parsed = DesignSpace.model_validate(space)
+    proposer: dict[str, Any] = {"name": "qei", "seed": seed}
+    if options:
+        proposer["options"] = options
+    if starts_per_tree is not None:
+        trees = len(parsed.tree_structures())
+        proposer["n_initial"] = min(starts_per_tree * trees, COVERED_CHOICES)
     created = http.post(
         "/api/v1/studies",
         json={
             "name": f"{objective.name}-{method}-{seed}-{time.time_ns()}",
             "direction": "maximize",
             "space": space,
-            "proposer": {"name": "qei", "seed": seed, **({"options": options} if options else {})},
+            "proposer": proposer,
             "max_trials": BUDGET,
         },
     )
@@ -314,6 +328,13 @@ def main() -> int:
         "label the runs with --label",
     )
     parser.add_argument(
+        "--starts-per-tree",
+        type=int,
+        default=None,
+        help="the qei methods' n_initial: this many times the space's trees, at most 16 "
+        "(2: two random start designs per tree on 8 trees); label the runs with --label",
+    )
+    parser.add_argument(
         "--subject", default="qei", help="the label the goals judge in the report (qei-judged)"
     )
     args = parser.parse_args()
@@ -343,7 +364,12 @@ def main() -> int:
                         started = time.perf_counter()
                         if method in SERVICE_METHODS:
                             result = run_service(
-                                http, objective, method, seed, args.proposer_options
+                                http,
+                                objective,
+                                method,
+                                seed,
+                                args.proposer_options,
+                                args.starts_per_tree,
                             )
                         else:
                             result = run_optuna(objective, method, seed)
