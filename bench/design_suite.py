@@ -338,6 +338,8 @@ def main() -> int:
         "--subject", default="qei", help="the label the goals judge in the report (qei-judged)"
     )
     args = parser.parse_args()
+    if args.starts_per_tree is not None and args.starts_per_tree < 1:
+        parser.error(f"--starts-per-tree: {args.starts_per_tree} is under 1")
     warnings.filterwarnings("ignore")
     labels = dict([args.label.split("=", 1)]) if args.label else {}
     if not args.report:
