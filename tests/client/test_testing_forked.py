@@ -115,6 +115,34 @@ def test_a_program_with_a_plugin_folder_is_forked_and_finds_the_plugin(tmp_path:
         assert not forked.can_fork({**os.environ, **plugin_path(tmp_path / f"with-{shadowing}")})
 
 
+def test_a_script_without_a_main_guard_is_told_why_its_server_ended(tmp_path: Path) -> None:
+    """A forked server imports the calling script again, as ``multiprocessing`` does; a
+    script that starts one at import time ends it before it writes any output. The
+    error says so (it was a FileNotFoundError for the missing log)."""
+    env = {k: v for k, v in os.environ.items() if k != "AD_TESTING_EXEC"}
+    if not forked.can_fork(env):
+        pytest.skip("SKIPPED LOUDLY: adserver cannot be forked here, so nothing re-imports")
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "import sys; from pathlib import Path\n"
+        "from adclient.testing.servers import ServerProcess\n"
+        "work = Path(sys.argv[1])\n"
+        "server = ServerProcess(database_url=f'sqlite:///{work}/s.db', workdir=work).start()\n"
+        "server.stop()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, str(script), str(tmp_path)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode != 0
+    assert "FileNotFoundError" not in done.stderr, done.stderr[-2000:]
+    assert "adserver exited early" in done.stderr, done.stderr[-2000:]
+    assert 'if __name__ == "__main__":' in done.stderr, done.stderr[-2000:]
+
+
 def test_a_fork_server_that_cannot_start_falls_back_to_the_command(tmp_path: Path) -> None:
     """The fork server's socket lives in TMPDIR; past 107 characters it cannot bind (as
     under bench/compare.py's worktrees), and the server is started by command instead."""

@@ -87,7 +87,7 @@ class ServerProcess:
         with httpx.Client(verify=False) as poll:  # plain http: no CA bundle to load per poll
             while time.monotonic() < deadline:
                 if self.process.poll() is not None:
-                    raise RuntimeError(f"adserver exited early:\n{self.log_path.read_text()}")
+                    raise RuntimeError(f"adserver exited early:\n{self.log()}")
                 try:
                     if poll.get(f"{self.url}/healthz", timeout=1.0).status_code == 200:
                         return self
@@ -95,8 +95,18 @@ class ServerProcess:
                     pass
                 time.sleep(0.1)
         self.kill()  # not left running behind a fixture that never got it
-        raise RuntimeError(
-            f"adserver did not answer within {timeout}s:\n{self.log_path.read_text()}"
+        raise RuntimeError(f"adserver did not answer within {timeout}s:\n{self.log()}")
+
+    def log(self) -> str:
+        """The server's output so far, or why there is none: a forked server first runs
+        the calling script's main module again (as ``multiprocessing`` does), so a script
+        that starts one at import time ends it before it writes a line."""
+        if self.log_path.exists():
+            return self.log_path.read_text(errors="replace")
+        return (
+            f"(no output at {self.log_path}: it ended before writing any; a script that "
+            'starts a server needs an `if __name__ == "__main__":` guard, as a forked '
+            "server imports the script again)"
         )
 
     def kill(self) -> None:
