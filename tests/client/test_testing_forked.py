@@ -121,7 +121,11 @@ def test_a_script_without_a_main_guard_is_told_why_its_server_ended(tmp_path: Pa
     error says so (it was a FileNotFoundError for the missing log)."""
     env = {k: v for k, v in os.environ.items() if k != "AD_TESTING_EXEC"}
     if not forked.can_fork(env):
-        pytest.skip("SKIPPED LOUDLY: adserver cannot be forked here, so nothing re-imports")
+        pytest.skip(
+            "SKIPPED: adserver is started by command here (AD_TESTING_EXEC=1, a PYTHONPATH "
+            "it cannot fork with, or no fork server), so no fork server imports the script "
+            "again and there is no early end to explain"
+        )
     script = tmp_path / "unguarded.py"
     script.write_text(
         "import sys; from pathlib import Path\n"
