@@ -205,12 +205,8 @@ class BoxEncoding:
                 if _kind(choice) == _kind(value) and choice == value:
                     return float(index)
             raise ValueError(f"{where}: {value!r} is not one of its choices {param.choices}")
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not math.isfinite(value)
-        ):
-            raise ValueError(f"{where}: {value!r} is not a finite number")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not _finite(value):
+            raise ValueError(f"{where}: {_shown(value)} is not a finite number")
         assert param.low is not None and param.high is not None
         if not param.low <= value <= param.high:
             raise ValueError(f"{where}: {value} is outside [{param.low}, {param.high}]")
@@ -237,3 +233,18 @@ class BoxEncoding:
             np.where(below >= p.low - 1e-9 * step, below, np.nan),
             np.where(above <= p.high + 1e-9 * step, above, np.nan),
         )
+
+
+def _finite(value: int | float) -> bool:
+    """Whether a JSON number is a finite float: an integer past the float range is not
+    (``math.isfinite`` raises OverflowError for it)."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def _shown(value: object) -> str:
+    """``value`` as an error names it, a long one cut (an integer of 400 digits)."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"

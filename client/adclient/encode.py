@@ -207,7 +207,7 @@ def encode(
         values = _chosen_values(layout, structure, design_or_specs)
         for key, value in design_or_specs.items():
             if key in layout.names and ".choice." not in key:
-                values[key] = float(value)
+                values[key] = _spec_number(layout, structure, key, value)
     used = layout.used_slots(layout.structures[structure])
     physical = layout.denormalise(np.full(layout.size, PAD))
     for k, key in enumerate(layout.names):
@@ -410,3 +410,15 @@ def _encode_fused(
     if best is None:  # unreachable: a reference's own coordinates decode to its structure
         raise ValueError(f"no vector decodes to structure {structure}")
     return best
+
+
+def _spec_number(layout: SpecLayout, structure: int, key: str, value: object) -> float:
+    """A spec's given value as a float, or a ValueError naming the spec: ``float``
+    raises TypeError for a list and OverflowError for an integer past the float range,
+    which a server answered with 500."""
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(
+            f"encode: spec {_named(layout, structure, key)} is not a finite number"
+        ) from None

@@ -158,6 +158,12 @@ def test_duplicates_are_kept_unless_skipped(shared_server: ServerProcess) -> Non
         ({"params": {"x": 0.5, "n": 3, "c": "z"}}, "param 'c': 'z' is not one of its choices"),
         ({"params": {"x": 0.5, "n": 3}}, "param 'c' is missing"),
         ({"params": {"x": 0.5, "n": 3, "c": "a", "y": 1}}, "unknown param 'y'"),
+        # an integer past the float range (a 500 from math.isfinite's OverflowError)
+        (
+            {"params": {"x": 10**400, "n": 3, "c": "a"}},
+            "param 'x': 10000000000000000000...(401 characters) is not a finite number",
+        ),
+        ({"params": {"x": 0.5, "n": 10**400, "c": "a"}}, "param 'n': 1000"),
         (
             {"params": {"x": 0.5, "n": 3, "c": "a"}, "state": "queued", "value": 1.0},
             "carries no value",
@@ -246,6 +252,13 @@ def test_a_design_is_enqueued_by_its_specs(shared_server: ServerProcess) -> None
         wrong = dict(asked["params"], structure="a-e")
         refused = http.post(url, json={"params": wrong})
         assert refused.status_code == 422 and "is not structure_index" in refused.json()["detail"]
+        # a spec's value that float() refused with TypeError or OverflowError (a 500)
+        for bad in (10**400, [0.5], {"a": 1}):
+            refused = http.post(
+                url, json={"params": dict(asked["params"], **{"b.joint.axis_theta": bad})}
+            )
+            assert refused.status_code == 422, refused.text
+            assert "spec 'b.joint.axis_theta' is not a finite number" in refused.json()["detail"]
         missing = {k: v for k, v in asked["params"].items() if k != "b.joint.axis_phi"}
         refused = http.post(url, json={"params": missing})
         assert (

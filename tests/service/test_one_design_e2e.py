@@ -160,3 +160,24 @@ def test_what_would_tie_one_repeat_to_another_is_refused(shared_server: ServerPr
         )
         names = {study["name"] for study in http.get("/api/v1/studies").json()}
         assert not names & {"pruned", body["name"]}  # nothing stored
+
+
+def test_a_spread_past_the_float_range_is_null_not_a_500(shared_server: ServerProcess) -> None:
+    """Repeats told 1e308 each are finite, but their sum is not: the spread answers
+    their mean and median (1e308) and, for +-1.7e308, a std past the float range as null,
+    where ``statistics`` raised OverflowError and the route answered 500."""
+    with httpx.Client(base_url=shared_server.url, timeout=30) as http:
+        for name, values, expected in [
+            ("huge", [1e308, 1e308], {"mean": 1e308, "std": 0.0, "median": 1e308}),
+            ("wide", [1.7e308, -1.7e308], {"mean": 0.0, "std": None, "median": 0.0}),
+        ]:
+            study = created(http, one_design(name, max_trials=2))
+            trials = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 2})
+            for trial, value in zip(trials.json()["trials"], values, strict=True):
+                told = http.post(f"/api/v1/trials/{trial['id']}/tell", json={"value": value})
+                assert told.status_code == 200, told.text
+            answer = http.get(f"/api/v1/studies/{study['id']}/spread")
+            assert answer.status_code == 200, answer.text
+            (objective,) = answer.json()["objectives"]
+            assert {k: objective[k] for k in expected} == expected, objective
+            assert (objective["min"], objective["max"]) == (min(values), max(values))

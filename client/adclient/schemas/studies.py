@@ -327,16 +327,28 @@ class ObjectiveSpread(BaseModel):
 
     @classmethod
     def of(cls, name: str, values: list[float]) -> ObjectiveSpread:
-        """The spread of ``values`` (finite numbers); every number null for none."""
+        """The spread of ``values`` (finite numbers); every number null for none, and a
+        mean, std or median past the float range null (two values of 1e308 have no
+        finite mean). They are computed on the values divided by a power of two, which
+        is exact, so a sum on the way does not overflow (it raised OverflowError)."""
         if not values:
             return cls(name=name, n=0, mean=None, std=None, min=None, median=None, max=None)
+        exponent = math.frexp(max(abs(v) for v in values))[1]
+        unit = [math.ldexp(v, -exponent) for v in values]
+
+        def scaled_back(number: float) -> float | None:
+            try:
+                return math.ldexp(number, exponent)
+            except OverflowError:
+                return None
+
         return cls(
             name=name,
             n=len(values),
-            mean=statistics.fmean(values),
-            std=statistics.stdev(values) if len(values) > 1 else None,
+            mean=scaled_back(statistics.fmean(unit)),
+            std=scaled_back(statistics.stdev(unit)) if len(values) > 1 else None,
             min=min(values),
-            median=statistics.median(values),
+            median=scaled_back(statistics.median(unit)),
             max=max(values),
         )
 
