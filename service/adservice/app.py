@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import re
+import sys
 import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -158,13 +159,29 @@ TOO_DEEP_BODY = (
 )
 
 
+def _unread_body(cause: BaseException | None) -> str | None:
+    """Why the JSON parser could not read a body, for the causes a client can mend:
+    nesting past the parser's stack, bytes that are not UTF-8, and an integer longer
+    than Python converts (``sys.get_int_max_str_digits``); None for any other."""
+    if isinstance(cause, RecursionError):
+        return TOO_DEEP_BODY
+    if isinstance(cause, UnicodeDecodeError):
+        return f"body: not UTF-8 text (byte {cause.start} cannot be decoded)"
+    if isinstance(cause, ValueError) and "integer string conversion" in str(cause):
+        return (
+            "body: a number has more digits than the JSON parser reads "
+            f"(at most {sys.get_int_max_str_digits()})"
+        )
+    return None
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, error: StarletteHTTPException) -> JSONResponse:
-        if isinstance(error.__cause__, RecursionError):  # FastAPI's "error parsing the body"
+        unread = _unread_body(error.__cause__)  # FastAPI's "error parsing the body"
+        if unread is not None:
             return JSONResponse(
-                {"error": "invalid", "detail": TOO_DEEP_BODY, "problems": [TOO_DEEP_BODY]},
-                status_code=422,
+                {"error": "invalid", "detail": unread, "problems": [unread]}, status_code=422
             )
         headers = dict(error.headers or {})
         if error.status_code == 405:

@@ -194,3 +194,30 @@ def test_only_the_export_s_own_escape_comes_off() -> None:
         "'",
         "",
     ]
+
+
+def test_a_yaml_study_file_reads_1e_3_as_a_number(
+    server: ServerProcess, client: Client, tmp_path: Path
+) -> None:
+    """PyYAML reads ``1e-3`` (no dot) as text, which the API's strict numbers refuse; the
+    CLI reads it as YAML 1.2 and JSON do. A quoted number stays text, and is refused by
+    name."""
+    study_file = tmp_path / "lr.yaml"
+    study_file.write_text(
+        "name: lr\nspace:\n  type: box\n  params:\n"
+        "    - {name: lr, low: 1e-5, high: 1E-2, log: true}\n"
+        "    - {name: n, type: int, low: 1, high: 2e2}\n"
+    )
+    submitted = run_adclient(server, "submit", str(study_file))
+    assert submitted.returncode == 0, submitted.stderr
+    (study,) = [study for study in client.studies() if study.name == "lr"]
+    lr, n = study.space.params
+    assert (lr.low, lr.high, n.high) == (1e-5, 1e-2, 200)
+    quoted = tmp_path / "quoted.yaml"
+    quoted.write_text(
+        "name: quoted\nspace:\n  type: box\n  params:\n    - {name: x, low: '0', high: 1}\n"
+    )
+    refused = run_adclient(server, "submit", str(quoted))
+    assert refused.returncode != 0
+    assert "space" in refused.stderr and "Traceback" not in refused.stderr
+    assert "quoted" not in [study.name for study in client.studies()]

@@ -252,6 +252,20 @@ def test_a_design_is_enqueued_by_its_specs(shared_server: ServerProcess) -> None
         wrong = dict(asked["params"], structure="a-e")
         refused = http.post(url, json={"params": wrong})
         assert refused.status_code == 422 and "is not structure_index" in refused.json()["detail"]
+        # derived params (the axis its angles give, the root) are checked, not replaced
+        axis = asked["params"]["b.joint.axis"]
+        turned = [axis[1], axis[2], axis[0]]
+        for key, value in (("b.joint.axis", turned), ("root", "b")):
+            refused = http.post(url, json={"params": dict(asked["params"], **{key: value})})
+            assert refused.status_code == 422, refused.text
+            assert f"params: {key} = {value!r} is not this design's" in refused.json()["detail"]
+        nudged = [component + 1e-12 for component in axis]
+        assert (
+            http.post(
+                url, json={"params": dict(asked["params"], **{"b.joint.axis": nudged})}
+            ).status_code
+            == 201
+        )
         # a spec's value that float() refused with TypeError or OverflowError (a 500)
         for bad in (10**400, [0.5], {"a": 1}):
             refused = http.post(
@@ -265,4 +279,4 @@ def test_a_design_is_enqueued_by_its_specs(shared_server: ServerProcess) -> None
             refused.status_code == 422
             and "'b.joint.axis_phi' is missing" in refused.json()["detail"]
         )
-        assert http.get(f"/api/v1/studies/{sid}").json()["n_trials"] == 2
+        assert http.get(f"/api/v1/studies/{sid}").json()["n_trials"] == 3

@@ -69,6 +69,15 @@ def ask(http: httpx.Client, study_id: int, count: int) -> None:
         assert asked.status_code == 200, asked.text
 
 
+def refused_study(http: httpx.Client, fields: dict[str, Any]) -> str:
+    """The detail of a study creation refused with a 422, having checked it stored none."""
+    before = http.get("/api/v1/studies").json()
+    response = http.post("/api/v1/studies", json=STUDY | fields)
+    assert response.status_code == 422, response.text
+    assert http.get("/api/v1/studies").json() == before
+    return str(response.json()["detail"])
+
+
 # --- paging ---------------------------------------------------------------------------
 
 
@@ -145,11 +154,7 @@ def test_series_of_a_wide_study_ends_each_page_at_the_cell_budget(
 def test_free_json_past_the_limits_is_422_naming_the_field(
     http: httpx.Client, fields: dict[str, Any], named: str
 ) -> None:
-    before = http.get("/api/v1/studies").json()
-    response = http.post("/api/v1/studies", json=STUDY | fields)
-    assert response.status_code == 422, response.text
-    assert response.json()["detail"].startswith(f"{named}: "), response.text
-    assert http.get("/api/v1/studies").json() == before
+    assert refused_study(http, fields).startswith(f"{named}: ")
 
 
 def test_free_json_at_the_limits_is_stored(http: httpx.Client) -> None:
@@ -176,6 +181,93 @@ def test_a_body_nested_past_the_parser_is_refused_not_a_500(http: httpx.Client) 
         )
         assert response.status_code == 422, response.text
         assert response.json()["detail"].startswith("body: objects and arrays nest deeper")
+    assert http.get(f"/api/v1/studies/{study['id']}").json()["user_attrs"] == {}
+
+
+BIG = 2**63
+"""The first integer past 64 bits: a free JSON field refuses it (a browser reads an
+integer past the float range as Infinity, and other languages' JSON readers stop at 64
+bits)."""
+
+
+@pytest.mark.parametrize(
+    ("fields", "named"),
+    [
+        ({"metadata": {"n": BIG}}, "metadata.n"),
+        ({"metadata": {"n": [1, -BIG - 1]}}, "metadata.n[1]"),
+        ({"metadata": {"n": 10**400}}, "metadata.n"),
+        ({"proposer": {"name": "random", "options": {"k": BIG}}}, "options.k"),
+    ],
+)
+def test_free_json_integers_past_64_bits_are_422_naming_the_field(
+    http: httpx.Client, fields: dict[str, Any], named: str
+) -> None:
+    assert f"{named}: integers must fit in 64 bits" in refused_study(http, fields)
+    study = create(http, metadata={"low": -BIG, "high": BIG - 1})
+    assert study["metadata"] == {"low": -BIG, "high": BIG - 1}
+    patched = http.patch(f"/api/v1/studies/{study['id']}", json={"user_attrs": {"n": BIG}})
+    assert patched.status_code == 422, patched.text
+    assert "user_attrs.n: integers must fit in 64 bits" in patched.json()["detail"]
+    assert http.get(f"/api/v1/studies/{study['id']}").json()["user_attrs"] == {}
+
+
+@pytest.mark.parametrize(
+    ("path", "body", "named"),
+    [
+        ("studies", STUDY | {"max_trials": True}, "max_trials"),
+        ("studies", STUDY | {"max_trials": "5"}, "max_trials"),
+        ("studies", STUDY | {"max_trials": 5.0}, "max_trials"),
+        ("studies", STUDY | {"proposer": {"name": "random", "seed": "1"}}, "proposer.seed"),
+        (
+            "studies",
+            STUDY | {"space": {**BOX, "params": [{"name": "x", "low": "0", "high": 1}]}},
+            "space",
+        ),
+        ("ask", {"count": "5"}, "count"),
+        ("ask", {"count": True}, "count"),
+        ("tell", {"value": "0.5"}, "value"),
+        ("tell", {"value": True}, "value"),
+        ("enqueue", {"params": {"x": 0.5}, "skip_if_exists": "yes"}, "trial.skip_if_exists"),
+    ],
+)
+def test_numbers_and_truth_values_are_taken_only_as_json_gives_them(
+    http: httpx.Client, path: str, body: dict[str, Any], named: str
+) -> None:
+    """A quoted number, a truth value for a number or a float for an integer is a 422
+    naming the field (pydantic's lax mode read "5" as 5 and true as 1, and stored them)."""
+    study = create(http)
+    url = {
+        "studies": "/api/v1/studies",
+        "ask": f"/api/v1/studies/{study['id']}/ask",
+        "enqueue": f"/api/v1/studies/{study['id']}/trials",
+    }.get(path)
+    if path == "tell":
+        asked = http.post(f"/api/v1/studies/{study['id']}/ask", json={"count": 1})
+        url = f"/api/v1/trials/{asked.json()['trials'][0]['id']}/tell"
+    before = http.get(f"/api/v1/studies/{study['id']}/trials").json()
+    n_studies = len(http.get("/api/v1/studies").json())
+    response = http.post(str(url), json=body)
+    assert response.status_code == 422, response.text
+    assert response.json()["detail"].startswith(f"{named}"), response.text
+    assert http.get(f"/api/v1/studies/{study['id']}/trials").json() == before
+    assert len(http.get("/api/v1/studies").json()) == n_studies
+
+
+def test_a_body_json_cannot_read_is_422_saying_why(http: httpx.Client) -> None:
+    """A number longer than Python converts, and bytes that are not UTF-8, are a 422
+    saying which (FastAPI answered 400 "There was an error parsing the body")."""
+    study = create(http)
+    for body, says in (
+        (b'{"user_attrs": {"n": ' + b"9" * 5000 + b"}}", "body: a number has more digits"),
+        (b'{"user_attrs": {"n": "caf\xe9"}}', "body: not UTF-8 text"),
+    ):
+        response = http.patch(
+            f"/api/v1/studies/{study['id']}",
+            content=body,
+            headers={"Content-Type": "application/json"},
+        )
+        assert response.status_code == 422, response.text
+        assert response.json()["detail"].startswith(says), response.text
     assert http.get(f"/api/v1/studies/{study['id']}").json()["user_attrs"] == {}
 
 

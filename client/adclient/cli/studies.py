@@ -3,6 +3,7 @@ the studies and show one."""
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -135,6 +136,19 @@ def _status_table(info: Study, dashboard: str, spread: StudySpread | None) -> Ta
     return table
 
 
+class StudyFileLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, but ``1e-3`` is a number, as YAML 1.2 and JSON read it
+    (YAML 1.1 wants a dot in a float, so PyYAML reads ``1e-3`` as text, which the
+    API's strict number fields refuse)."""
+
+
+StudyFileLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
 def _read_study_file(path: Path) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte-order mark, as Windows saves one
@@ -144,7 +158,7 @@ def _read_study_file(path: Path) -> dict[str, Any]:
         if path.suffix.lower() == ".json":
             data = load_json(text, deepest=EXPORT_DEPTH)
         else:
-            data = yaml.safe_load(text)
+            data = yaml.load(text, Loader=StudyFileLoader)  # a SafeLoader
     except RecursionError:  # YAML's parser, nested past the stack
         fail(f"cannot parse {path}: objects and arrays nest too deep")
     except (ValueError, yaml.YAMLError) as exc:

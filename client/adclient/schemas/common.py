@@ -56,17 +56,27 @@ class TrialState(StrEnum):
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """A body a client sends: unknown keys refused, and numbers, integers and truth
+    values taken only as JSON gives them (no ``"5"`` for 5, no ``true`` for 1, no 5.0
+    for an integer); an enum field that reads its value's string says so."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 def plain_text(value: Any, where: str, *, finite: bool = False) -> Any:
     """Refuse strings that cannot be stored and sent back: NUL (PostgreSQL cannot store
     it) and lone surrogates (not encodable as UTF-8), anywhere in a JSON value. With
     ``finite``, refuse NaN and infinite numbers too (not JSON: PostgreSQL refuses them,
-    answers drop them); new studies are checked so, while studies already stored keep
-    loading."""
+    answers drop them), and integers past 64 bits (what JSON readers other than
+    Python's take; a browser reads one past the float range as Infinity); new studies
+    are checked so, while studies already stored keep loading."""
     if finite and isinstance(value, float) and not math.isfinite(value):
         raise ValueError(f"{where}: numbers must be finite, got {value!r}")
+    if finite and isinstance(value, int) and not -(2**63) <= value < 2**63:
+        raise ValueError(
+            f"{where}: integers must fit in 64 bits (-2^63 to 2^63 - 1), got one of "
+            f"{len(str(abs(value)))} digits"
+        )
     if isinstance(value, str):
         if "\x00" in value:
             raise ValueError(f"{where}: text must not contain NUL")

@@ -45,10 +45,14 @@ ONE_DESIGN_REPEATS = 5
 """``max_trials`` of a study of one design (a space that searches nothing) left unset."""
 
 
+DirectionName = Annotated[Direction, Field(strict=False)]
+"""A direction as its JSON string (the strict input models take an enum by value)."""
+
+
 class StudyCreate(Strict):
     name: StudyName
-    direction: Direction = Direction.maximize
-    directions: list[Direction] | None = Field(
+    direction: DirectionName = Direction.maximize
+    directions: list[DirectionName] | None = Field(
         default=None,
         min_length=1,
         max_length=MAX_OBJECTIVES,

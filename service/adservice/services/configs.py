@@ -184,8 +184,10 @@ class StudyConfig:
     def vector(self, params: dict[str, Any]) -> np.ndarray:
         """The inverse of :meth:`params`, for params a user hands over: ValueError naming a
         missing, unknown, out-of-range or mistyped param. A design's params are its specs
-        (``structure_index`` picks the structure; a ``structure`` given must agree). A
-        study of one design takes only that design: no params, or its own."""
+        (``structure_index`` picks the structure; a ``structure``, ``root``, shape, joint
+        kind or, but for a fused representation, joint axis given must be the design's,
+        as the params it shows: they are derived, not read). A study of one design takes
+        only that design: no params, or its own."""
         if self.fixed:
             return self._one_design(params)
         if self.representation is None or self.design_space is None:
@@ -202,12 +204,21 @@ class StudyConfig:
         )
         if broken:
             raise ValueError(f"the design breaks {'; '.join(broken)}")
-        if "structure" in params:
-            decoded = self.params(vector)["structure"]
-            if params["structure"] != decoded:
+        shown = self.params(vector)
+        if "structure" in params and params["structure"] != shown["structure"]:
+            raise ValueError(
+                f"structure {params['structure']!r} is not structure_index "
+                f"{params.get('structure_index', 0)} ({shown['structure']!r})"
+            )
+        exact = self.representation.kind != "fused"
+        for key, value in params.items():
+            derived = key == "root" or key.endswith((".shape", ".joint.kind"))
+            if exact and key.endswith(".joint.axis"):
+                derived = True  # from the axis angles (a fused vector's are the nearest)
+            if derived and key in shown and not _same_value(value, shown[key]):
                 raise ValueError(
-                    f"structure {params['structure']!r} is not structure_index "
-                    f"{params.get('structure_index', 0)} ({decoded!r})"
+                    f"{key} = {_shown_value(value)} is not this design's: its specs give "
+                    f"{shown[key]!r}; leave {key!r} out or give that value"
                 )
         return vector
 
@@ -228,6 +239,12 @@ class StudyConfig:
                     f"{own[key]!r}: the space searches nothing, so give {{}} or its own params"
                 )
         return np.zeros(0)
+
+
+def _shown_value(value: Any) -> str:
+    """A value a user gave, as a message shows it (cut past 80 characters)."""
+    text = repr(value)
+    return text if len(text) <= 80 else f"{text[:77]}..."
 
 
 def _same_value(given: Any, own: Any) -> bool:
