@@ -36,7 +36,7 @@ Spec keys: ``"<instance>.<part spec>"`` (``"a.length"``) and
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import (
     Field,
@@ -64,6 +64,10 @@ from adclient.specs import (
 from adclient.ties import Tie, mirrored_angle, resolve_ties, slot_used
 from adclient.trees import Edge, all_trees, check_tree, valid_name
 from adclient.urdf_model import JointKind
+
+EdgeArray = Annotated[Edge, Field(strict=False)]
+"""An edge as a study file gives it: a JSON array of two names (the strict models take
+no list for a tuple otherwise)."""
 
 
 class DesignSpace(StrictModel):
@@ -100,7 +104,7 @@ class DesignSpace(StrictModel):
     parts: dict[str, PartType]
     joint: JointType = Field(default_factory=JointType)
     instances: list[PartInstance] = Field(min_length=1, max_length=32)
-    structures: list[list[Edge]] | Literal["all"] = Field(
+    structures: list[list[EdgeArray]] | Literal["all"] = Field(
         description="Candidate trees as edge lists, or 'all' trees over the instances"
     )
     max_structures: int = Field(default=64, ge=1, le=1000)

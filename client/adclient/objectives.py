@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -34,8 +34,12 @@ class Direction(StrEnum):
     maximize = "maximize"
 
 
+DirectionName = Annotated[Direction, Field(strict=False)]
+"""A direction as its JSON string (the strict models take an enum by value)."""
+
+
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
 
 class Objective(_Strict):
@@ -43,7 +47,7 @@ class Objective(_Strict):
     any other name the told metric of that name."""
 
     metric: str = MetricName
-    direction: Direction = Direction.maximize
+    direction: DirectionName = Direction.maximize
 
 
 class Constraint(_Strict):

@@ -24,7 +24,7 @@ PRUNERS = ("none", "median", "asha")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 class NoneOptions(_Strict):

@@ -22,7 +22,7 @@ and still satisfy a constraint: the rounding of a sum of floats."""
 
 
 class SpecConstraint(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     terms: dict[str, float] = Field(min_length=1, max_length=64)
     op: Literal["<=", ">="]

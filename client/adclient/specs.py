@@ -81,7 +81,10 @@ def drop_unset(data: MutableMapping[str, Any], *keys: str) -> None:
 
 
 class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """A design space's parts: unknown keys refused, numbers taken only as JSON numbers
+    (as ``adclient.schemas.common.Strict``)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 class Bound(StrictModel):

@@ -441,3 +441,21 @@ def test_a_space_equals_its_copy_after_its_trees_are_listed() -> None:
     fresh = DesignSpace.model_validate(body)
     assert used == fresh and fresh == used
     assert used != DesignSpace.model_validate(space_with(structures=[[["a", "b"], ["b", "c"]]]))
+
+
+@pytest.mark.parametrize(
+    ("changes", "named"),
+    [
+        ({"parts": {"link": {"length": {"low": "0.2", "high": 0.6}, "radius": 0.04}}}, "low"),
+        ({"parts": {"link": {"length": {"low": 0.2, "high": 0.6}, "radius": True}}}, "radius"),
+        ({"max_structures": "64"}, "max_structures"),
+        ({"max_structures": 64.0}, "max_structures"),
+        ({"structures": [[["a", "b"], ["b", 3]]]}, "structures"),
+    ],
+)
+def test_numbers_are_taken_only_as_json_gives_them(changes: dict[str, Any], named: str) -> None:
+    """A quoted number, a truth value for a number or a float for an integer is refused
+    by name (the lax models read "0.2" as 0.2 and true as 1.0); an edge is an array of
+    two names, as JSON and YAML give it."""
+    assert named in error_of(space_with(**changes))
+    assert DesignSpace.model_validate(space_with(max_structures=64)).max_structures == 64

@@ -223,6 +223,21 @@ def test_free_json_integers_past_64_bits_are_422_naming_the_field(
             STUDY | {"space": {**BOX, "params": [{"name": "x", "low": "0", "high": 1}]}},
             "space",
         ),
+        (
+            "studies",
+            STUDY | {"pruner": {"name": "median", "options": {"n_startup_trials": "5"}}},
+            "pruner",
+        ),
+        (
+            "studies",
+            STUDY | {"pruner": {"name": "median", "report_every": True}},
+            "pruner.report_every",
+        ),
+        (
+            "studies",
+            STUDY | {"constraints": [{"metric": "m", "op": "<=", "bound": "2.5"}]},
+            "constraints.0.bound",
+        ),
         ("ask", {"count": "5"}, "count"),
         ("ask", {"count": True}, "count"),
         ("tell", {"value": "0.5"}, "value"),

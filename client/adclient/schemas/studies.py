@@ -21,6 +21,7 @@ from adclient.objectives import (
     MAX_OBJECTIVES,
     Constraint,
     Direction,
+    DirectionName,
     Objective,
     Outcomes,
     outcomes_of,
@@ -43,10 +44,6 @@ ObjectiveName = Annotated[str, Field(min_length=1, max_length=128, pattern=NO_NU
 
 ONE_DESIGN_REPEATS = 5
 """``max_trials`` of a study of one design (a space that searches nothing) left unset."""
-
-
-DirectionName = Annotated[Direction, Field(strict=False)]
-"""A direction as its JSON string (the strict input models take an enum by value)."""
 
 
 class StudyCreate(Strict):
