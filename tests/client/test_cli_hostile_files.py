@@ -200,24 +200,30 @@ def test_a_yaml_study_file_reads_1e_3_as_a_number(
     server: ServerProcess, client: Client, tmp_path: Path
 ) -> None:
     """PyYAML reads ``1e-3`` (no dot) as text, which the API's strict numbers refuse; the
-    CLI reads it as YAML 1.2 and JSON do. A quoted number stays text, and is refused by
-    name."""
+    CLI reads it as YAML 1.2 and JSON do, but the name and metadata as YAML 1.1 does (a
+    commit ``7e12345`` stays text). A quoted number stays text, and is refused by name;
+    a number past the float range is a one-line error, not a traceback."""
     study_file = tmp_path / "lr.yaml"
     study_file.write_text(
-        "name: lr\nspace:\n  type: box\n  params:\n"
+        "name: 2e3\nmetadata: {commit: 7e12345, at: 1e400}\nspace:\n  type: box\n  params:\n"
         "    - {name: lr, low: 1e-5, high: 1E-2, log: true}\n"
         "    - {name: n, type: int, low: 1, high: 2e2}\n"
+        "    - {name: w, low: -.5e1, high: +.5e1}\n"
     )
     submitted = run_adclient(server, "submit", str(study_file))
     assert submitted.returncode == 0, submitted.stderr
-    (study,) = [study for study in client.studies() if study.name == "lr"]
-    lr, n = study.space.params
-    assert (lr.low, lr.high, n.high) == (1e-5, 1e-2, 200)
-    quoted = tmp_path / "quoted.yaml"
-    quoted.write_text(
-        "name: quoted\nspace:\n  type: box\n  params:\n    - {name: x, low: '0', high: 1}\n"
-    )
-    refused = run_adclient(server, "submit", str(quoted))
-    assert refused.returncode != 0
-    assert "space" in refused.stderr and "Traceback" not in refused.stderr
-    assert "quoted" not in [study.name for study in client.studies()]
+    (study,) = [study for study in client.studies() if study.name == "2e3"]
+    lr, n, w = study.space.params
+    assert (lr.low, lr.high, n.high, w.low, w.high) == (1e-5, 1e-2, 200, -5.0, 5.0)
+    assert study.metadata == {"commit": "7e12345", "at": "1e400"}
+    before = len(client.studies())
+    for name, params, message in (
+        ("quoted", "{name: x, low: '0', high: 1}", "space"),
+        ("huge", "{name: x, low: 0, high: 1e400}", "space.params[0].high is a number out of range"),
+        ("inf", "{name: x, low: 0, high: .inf}", "space.params[0].high is a number out of range"),
+    ):
+        bad = tmp_path / f"{name}.yaml"
+        bad.write_text(f"name: {name}\nspace:\n  type: box\n  params:\n    - {params}\n")
+        refused = run_adclient(server, "submit", str(bad))
+        failed_cleanly(refused, message)
+    assert len(client.studies()) == before

@@ -320,6 +320,28 @@ def test_a_stored_row_past_the_limits_cannot_break_a_listing(
         assert {study.name for study in client.studies()} == {"hostile", "old"}
 
 
+def test_an_integer_an_older_server_stored_does_not_block_other_user_attrs(
+    live_server: ServerProcess, own_http: httpx.Client
+) -> None:
+    """User attributes stored before the 64-bit rule (written here straight into the
+    database) stay, and setting another key still works: the merge checks the changes'
+    values, not those stored."""
+    study = create(own_http)
+    engine = sa.create_engine(live_server.database_url)
+    with Session(engine) as session, session.begin():
+        row = session.get(StudyRow, study["id"])
+        assert row is not None
+        row.user_attrs = {"big": 2**70}
+    engine.dispose()
+    url = f"/api/v1/studies/{study['id']}"
+    patched = own_http.patch(url, json={"user_attrs": {"other": 1}})
+    assert patched.status_code == 200, patched.text
+    assert patched.json()["user_attrs"] == {"big": 2**70, "other": 1}
+    refused = own_http.patch(url, json={"user_attrs": {"other": 2**64}})
+    assert refused.status_code == 422, refused.text
+    assert own_http.get(url).json()["user_attrs"] == {"big": 2**70, "other": 1}
+
+
 # --- bodies ---------------------------------------------------------------------------
 
 

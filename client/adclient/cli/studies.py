@@ -3,6 +3,7 @@ the studies and show one."""
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from pathlib import Path
@@ -144,9 +145,13 @@ class StudyFileLoader(yaml.SafeLoader):
 
 StudyFileLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"),
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9][0-9_]*)[eE][-+]?[0-9]+$"),
+    list("-+.0123456789"),
 )
+
+TEXT_KEYS = ("name", "metadata")
+"""A study file's keys read as YAML 1.1 reads them: free text stays text there (a commit
+``7e12345`` in the metadata is not a number)."""
 
 
 def _read_study_file(path: Path) -> dict[str, Any]:
@@ -159,6 +164,9 @@ def _read_study_file(path: Path) -> dict[str, Any]:
             data = load_json(text, deepest=EXPORT_DEPTH)
         else:
             data = yaml.load(text, Loader=StudyFileLoader)  # a SafeLoader
+            if isinstance(data, dict):
+                as_text = yaml.safe_load(text)
+                data.update({key: as_text[key] for key in TEXT_KEYS if key in as_text})
     except RecursionError:  # YAML's parser, nested past the stack
         fail(f"cannot parse {path}: objects and arrays nest too deep")
     except (ValueError, yaml.YAMLError) as exc:
@@ -166,8 +174,31 @@ def _read_study_file(path: Path) -> dict[str, Any]:
         fail(f"cannot parse {path}: {first_line}")
     if not isinstance(data, dict):
         fail(f"{path} must hold a mapping with a study body (name, space, ...)")
+    where = _non_finite(data, "")
+    if where is not None:
+        fail(f"{path}: {where} is a number out of range (JSON has no infinity or NaN)")
     _read_template_file(data, path)
     return data
+
+
+def _non_finite(value: Any, where: str) -> str | None:
+    """Where ``value`` holds an infinite or NaN number (``.inf``, ``1e400``), else None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return where or "the file"
+    items = (
+        value.items()
+        if isinstance(value, dict)
+        else enumerate(value)
+        if isinstance(value, list)
+        else ()
+    )
+    for key, item in items:
+        found = _non_finite(
+            item, f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}".lstrip(".")
+        )
+        if found is not None:
+            return found
+    return None
 
 
 def _read_template_file(data: dict[str, Any], path: Path) -> None:

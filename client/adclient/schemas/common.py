@@ -203,11 +203,14 @@ trials carries its trials' attributes (a page of 1000 full ones is 16 MB)."""
 MAX_USER_ATTR_KEY = 128
 
 
-def bounded_user_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
+def bounded_user_attrs(attrs: dict[str, Any], *, values: bool = True) -> dict[str, Any]:
     """User attributes within the limits of every free JSON field (depth, plain text,
-    finite numbers), keys of 1 to ``MAX_USER_ATTR_KEY`` characters, and at most
-    ``MAX_USER_ATTRS_BYTES`` encoded: checked on a request and again once merged."""
-    plain_text(attrs, "user_attrs", finite=True)
+    finite numbers within 64 bits), keys of 1 to ``MAX_USER_ATTR_KEY`` characters, and at
+    most ``MAX_USER_ATTRS_BYTES`` encoded: checked on a request and again once merged,
+    then without ``values`` (the changes' were checked, and the stored ones stay as an
+    older server let them in: an integer past 64 bits must not block other keys)."""
+    if values:
+        plain_text(attrs, "user_attrs", finite=True)
     for key in attrs:
         if not 1 <= len(key) <= MAX_USER_ATTR_KEY:
             raise ValueError(

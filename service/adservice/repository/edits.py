@@ -89,7 +89,7 @@ def _merged(stored: dict[str, Any] | None, changes: dict[str, Any]) -> dict[str,
         else:
             merged[key] = value
     try:
-        return bounded_user_attrs(merged)
+        return bounded_user_attrs(merged, values=False)
     except ValueError as error:
         raise InvalidError(f"{error} (merged with the attributes stored)") from None
 
