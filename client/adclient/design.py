@@ -56,11 +56,11 @@ from adclient.specs import (
     PLACEHOLDERS,
     UNUSED_JOINT_SPECS,
     Bound,
-    StrictModel,
     check_limits,
     check_spec,
     show_spec,
 )
+from adclient.strict import StrictInput
 from adclient.ties import Tie, mirrored_angle, resolve_ties, slot_used
 from adclient.trees import Edge, all_trees, check_tree, valid_name
 from adclient.urdf_model import JointKind
@@ -70,7 +70,7 @@ EdgeArray = Annotated[Edge, Field(strict=False)]
 no list for a tuple otherwise)."""
 
 
-class DesignSpace(StrictModel):
+class DesignSpace(StrictInput):
     """Parts, instances and candidate trees; see the module docstring for conventions.
 
     ``structures: "all"`` means every labelled tree over the instances (Cayley:

@@ -19,7 +19,9 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
+
+from adclient.strict import StrictInput
 
 MAX_OBJECTIVES = 4
 MAX_CONSTRAINTS = 16
@@ -38,11 +40,11 @@ DirectionName = Annotated[Direction, Field(strict=False)]
 """A direction as its JSON string (the strict models take an enum by value)."""
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+class _Frozen(StrictInput):
+    model_config = ConfigDict(frozen=True)
 
 
-class Objective(_Strict):
+class Objective(_Frozen):
     """An objective read from a tell: ``metric`` ``value``/``score`` is the told value,
     any other name the told metric of that name."""
 
@@ -50,7 +52,7 @@ class Objective(_Strict):
     direction: DirectionName = Direction.maximize
 
 
-class Constraint(_Strict):
+class Constraint(_Frozen):
     """``metric op bound`` must hold for a trial to be feasible (``mass <= 2.5``)."""
 
     metric: str = MetricName

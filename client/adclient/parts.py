@@ -23,11 +23,11 @@ from adclient.specs import (
     OptionalSpecValue,
     Shape,
     SpecValue,
-    StrictModel,
     check_limits,
     check_spec,
     drop_unset,
 )
+from adclient.strict import StrictInput
 from adclient.ties import Mirror
 from adclient.urdf_model import JointKind
 
@@ -44,7 +44,7 @@ class PartJSON(TypedDict):
     choose: NotRequired[str]
 
 
-class PartType(StrictModel):
+class PartType(StrictInput):
     """A kind of link. Its mass is ``mass`` (kg), or ``density`` (kg/m^3) times its
     volume when it gives ``density`` instead (a solid cylinder: ``density * pi r^2
     length``; ``link_mass``), so that a longer or thicker link weighs more. A part
@@ -82,7 +82,7 @@ class PartType(StrictModel):
         return cast(PartJSON, data)
 
 
-class JointType(StrictModel):
+class JointType(StrictInput):
     type: JointKind = "revolute"
     axis_theta: SpecValue = Bound(low=0.0, high=3.141592653589793)
     axis_phi: SpecValue = Bound(low=0.0, high=3.141592653589793)
@@ -117,7 +117,7 @@ class JointType(StrictModel):
         return self
 
 
-class PartInstance(StrictModel):
+class PartInstance(StrictInput):
     """One link of the robot, of a ``part`` type, with its own overrides; or tied:
     ``same_as`` another instance, whose specs and joint it takes (searched once),
     reflected across x = 0 or y = 0 with ``mirror`` (``adclient.ties``). A tied

@@ -13,9 +13,10 @@ import math
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
 
 from adclient.ids import MAX_ID
+from adclient.strict import StrictInput
 
 MAX_STEP = 2**31 - 1
 """Steps are INTEGER columns (32-bit on PostgreSQL)."""
@@ -23,15 +24,11 @@ MAX_STEP = 2**31 - 1
 PRUNERS = ("none", "median", "asha")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
-
-
-class NoneOptions(_Strict):
+class NoneOptions(StrictInput):
     """Never stop a trial (reports are still recorded)."""
 
 
-class MedianOptions(_Strict):
+class MedianOptions(StrictInput):
     """Optuna's MedianPruner: stop a trial whose best value so far is worse than the
     median of the complete trials' values at the same step."""
 
@@ -49,7 +46,7 @@ class MedianOptions(_Strict):
     )
 
 
-class AshaOptions(_Strict):
+class AshaOptions(StrictInput):
     """Asynchronous successive halving (Optuna's SuccessiveHalvingPruner): rungs at
     ``min_resource * reduction_factor**k`` learner steps; a trial reaching a rung goes on
     only if its value there is in the top ``1/reduction_factor`` of every trial's value at
@@ -72,14 +69,14 @@ class AshaOptions(_Strict):
     )
 
 
-PRUNER_OPTIONS: dict[str, type[_Strict]] = {
+PRUNER_OPTIONS: dict[str, type[StrictInput]] = {
     "none": NoneOptions,
     "median": MedianOptions,
     "asha": AshaOptions,
 }
 
 
-class PrunerConfig(_Strict):
+class PrunerConfig(StrictInput):
     """A study's pruner (study file ``pruner:``). ``pruned_as`` says what a pruned trial
     means to the proposer: its last reported value as an observation (the default), or
     nothing (left out, as Optuna's GP sampler does)."""
@@ -111,7 +108,7 @@ def _finite(value: float) -> float:
     return value
 
 
-class ReportRequest(_Strict):
+class ReportRequest(StrictInput):
     """One intermediate value of a running trial: ``{"step": s, "value": v}``."""
 
     step: int = Field(ge=0, le=MAX_STEP, description="learner steps (or any increasing count)")
@@ -178,7 +175,7 @@ class Checkpoint(BaseModel):
         return data
 
 
-class PauseRequest(_Strict):
+class PauseRequest(StrictInput):
     """The lease holder pauses its trial at ``step`` with the checkpoint it uploaded
     (``POST /api/v1/trials/{id}/pause``), as its study's ASHA pruner asked."""
 

@@ -14,16 +14,16 @@ import math
 from collections.abc import Mapping
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
+
+from adclient.strict import StrictInput
 
 TOLERANCE = 1e-9
 """How far past its bound (relative to the bound's and the terms' scale) a design may be
 and still satisfy a constraint: the rounding of a sum of floats."""
 
 
-class SpecConstraint(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
-
+class SpecConstraint(StrictInput):
     terms: dict[str, float] = Field(min_length=1, max_length=64)
     op: Literal["<=", ">="]
     bound: float = Field(allow_inf_nan=False)

@@ -10,14 +10,14 @@ from collections.abc import MutableMapping
 from typing import Annotated, Any, Literal
 
 from pydantic import (
-    BaseModel,
     BeforeValidator,
-    ConfigDict,
     SerializerFunctionWrapHandler,
     ValidationError,
     model_serializer,
     model_validator,
 )
+
+from adclient.strict import StrictInput
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]{0,63}$"
 
@@ -80,14 +80,7 @@ def drop_unset(data: MutableMapping[str, Any], *keys: str) -> None:
             del data[key]
 
 
-class StrictModel(BaseModel):
-    """A design space's parts: unknown keys refused, numbers taken only as JSON numbers
-    (as ``adclient.schemas.common.Strict``)."""
-
-    model_config = ConfigDict(extra="forbid", strict=True)
-
-
-class Bound(StrictModel):
+class Bound(StrictInput):
     """A searched spec: any value in [low, high], on a log scale with ``log``.
 
     Its slot of the spec vector is the value normalised to [0, 1]: linearly, or with

@@ -86,6 +86,18 @@ def _status_for(error: DomainError) -> int:
     return 400
 
 
+def _given(item: Any) -> str:
+    """What a field of the wrong JSON type got, where the type is the mistake: a
+    quoted number or a truth value (a YAML loader reads ``1e-3`` as text)."""
+    given = item.get("input")
+    if not str(item.get("type", "")).endswith("_type") or not isinstance(given, str | bool):
+        return ""
+    if isinstance(given, bool):
+        return f" (got {str(given).lower()})"
+    shown = given if len(given) <= 40 else f"{given[:37]}..."
+    return f" (got the text {shown!r})"
+
+
 def _field_path(location: tuple[int | str, ...]) -> str:
     parts = [str(part) for part in location if part not in ("body",)]
     return ".".join(parts) or "body"
@@ -208,7 +220,7 @@ def install_error_handlers(app: FastAPI) -> None:
     async def validation_error(_request: Request, error: RequestValidationError) -> JSONResponse:
         problems = [
             f"{_field_path(tuple(item.get('loc', ())))}: "
-            f"{str(item.get('msg', 'invalid')).removeprefix('Value error, ')}"
+            f"{str(item.get('msg', 'invalid')).removeprefix('Value error, ')}{_given(item)}"
             for item in error.errors()
         ]
         return JSONResponse(

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 from hypothesis import given, settings
@@ -449,13 +450,16 @@ def test_a_space_equals_its_copy_after_its_trees_are_listed() -> None:
         ({"parts": {"link": {"length": {"low": "0.2", "high": 0.6}, "radius": 0.04}}}, "low"),
         ({"parts": {"link": {"length": {"low": 0.2, "high": 0.6}, "radius": True}}}, "radius"),
         ({"max_structures": "64"}, "max_structures"),
-        ({"max_structures": 64.0}, "max_structures"),
+        ({"max_structures": 64.5}, "max_structures"),
         ({"structures": [[["a", "b"], ["b", 3]]]}, "structures"),
     ],
 )
 def test_numbers_are_taken_only_as_json_gives_them(changes: dict[str, Any], named: str) -> None:
-    """A quoted number, a truth value for a number or a float for an integer is refused
-    by name (the lax models read "0.2" as 0.2 and true as 1.0); an edge is an array of
-    two names, as JSON and YAML give it."""
+    """A quoted number, a truth value for a number or a fractional number for an
+    integer is refused by name (the lax models read "0.2" as 0.2 and true as 1.0); an
+    integral number is an integer, from NumPy too; an edge is an array of two names, as
+    JSON and YAML give it."""
     assert named in error_of(space_with(**changes))
-    assert DesignSpace.model_validate(space_with(max_structures=64)).max_structures == 64
+    for integral in (64, 64.0, np.int64(64), np.float32(64.0)):
+        space = DesignSpace.model_validate(space_with(max_structures=integral))
+        assert space.max_structures == 64 and type(space.max_structures) is int

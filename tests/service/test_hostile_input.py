@@ -8,11 +8,13 @@ import contextlib
 import re
 import socket
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 import sqlalchemy as sa
+import yaml
 from sqlalchemy.orm import Session
 
 from adclient import Client
@@ -216,7 +218,7 @@ def test_free_json_integers_past_64_bits_are_422_naming_the_field(
     [
         ("studies", STUDY | {"max_trials": True}, "max_trials"),
         ("studies", STUDY | {"max_trials": "5"}, "max_trials"),
-        ("studies", STUDY | {"max_trials": 5.0}, "max_trials"),
+        ("studies", STUDY | {"max_trials": 5.5}, "max_trials"),
         ("studies", STUDY | {"proposer": {"name": "random", "seed": "1"}}, "proposer.seed"),
         (
             "studies",
@@ -248,8 +250,9 @@ def test_free_json_integers_past_64_bits_are_422_naming_the_field(
 def test_numbers_and_truth_values_are_taken_only_as_json_gives_them(
     http: httpx.Client, path: str, body: dict[str, Any], named: str
 ) -> None:
-    """A quoted number, a truth value for a number or a float for an integer is a 422
-    naming the field (pydantic's lax mode read "5" as 5 and true as 1, and stored them)."""
+    """A quoted number, a truth value for a number or a fractional number for an
+    integer is a 422 naming the field (pydantic's lax mode read "5" as 5 and true as 1,
+    and stored them)."""
     study = create(http)
     url = {
         "studies": "/api/v1/studies",
@@ -264,8 +267,43 @@ def test_numbers_and_truth_values_are_taken_only_as_json_gives_them(
     response = http.post(str(url), json=body)
     assert response.status_code == 422, response.text
     assert response.json()["detail"].startswith(f"{named}"), response.text
+    if path in ("ask", "tell"):  # the detail shows what came: text or a truth value
+        (given,) = body.values()
+        shown = f"the text {given!r}" if isinstance(given, str) else str(given).lower()
+        assert response.json()["detail"].endswith(f"(got {shown})"), response.text
     assert http.get(f"/api/v1/studies/{study['id']}/trials").json() == before
     assert len(http.get("/api/v1/studies").json()) == n_studies
+
+
+STAND_UP = yaml.safe_load(
+    (Path(__file__).resolve().parents[2] / "examples" / "stand-up.yaml").read_text()
+)
+
+
+@pytest.mark.parametrize(
+    ("proposer", "task", "named"),
+    [
+        ({"raw_samples": True}, {}, "proposer.options.raw_samples"),
+        ({"raw_samples": "512"}, {}, "proposer.options.raw_samples"),
+        ({"maxiter": 50.5}, {}, "proposer.options.maxiter"),
+        ({}, {"episode_steps": "100"}, "episode_steps"),
+        ({}, {"frame_skip": True}, "frame_skip"),
+        ({}, {"init_noise": "0.1"}, "init_noise"),
+    ],
+)
+def test_options_take_numbers_only_as_json_gives_them(
+    http: httpx.Client, proposer: dict[str, Any], task: dict[str, Any], named: str
+) -> None:
+    """A new study's proposer and task options are checked with a body's strict types
+    (their models read them laxly, as the options older studies stored must load); an
+    integral number is an integer there too."""
+    body = STAND_UP | {"proposer": {"name": "qei", "options": proposer}}
+    body["task"] = STAND_UP["task"] | {"options": task}
+    assert named in refused_study(http, body)
+    taken = STAND_UP | {"proposer": {"name": "qei", "options": {"raw_samples": 512.0}}}
+    taken["task"] = STAND_UP["task"] | {"options": {"frame_skip": 12.0, "init_noise": 0}}
+    created = http.post("/api/v1/studies", json=taken)
+    assert created.status_code == 201, created.text
 
 
 def test_a_body_json_cannot_read_is_422_saying_why(http: httpx.Client) -> None:

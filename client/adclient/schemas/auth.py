@@ -7,10 +7,11 @@ from pydantic import (
     Field,
 )
 
-from adclient.schemas.common import NO_NUL_PATTERN, Strict
+from adclient.schemas.common import NO_NUL_PATTERN
+from adclient.strict import StrictInput
 
 
-class SignInRequest(Strict):
+class SignInRequest(StrictInput):
     """The dashboard's sign-in: the token is sent once and never stored by the page."""
 
     token: str = Field(min_length=1, max_length=256, pattern=NO_NUL_PATTERN)

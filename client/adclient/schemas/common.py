@@ -12,8 +12,6 @@ from typing import Annotated, Any
 
 from pydantic import (
     AfterValidator,
-    BaseModel,
-    ConfigDict,
     Field,
 )
 
@@ -53,14 +51,6 @@ class TrialState(StrEnum):
     paused = "paused"
     """Stopped at an ASHA rung with its checkpoint, waiting for promotion (queued again
     then) or the study's end (pruned then); not finished."""
-
-
-class Strict(BaseModel):
-    """A body a client sends: unknown keys refused, and numbers, integers and truth
-    values taken only as JSON gives them (no ``"5"`` for 5, no ``true`` for 1, no 5.0
-    for an integer); an enum field that reads its value's string says so."""
-
-    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 def plain_text(value: Any, where: str, *, finite: bool = False) -> Any:

@@ -14,10 +14,16 @@ from pydantic import (
 )
 
 from adclient.plugins import PluginError, catalogue
-from adclient.schemas.common import NAME_PATTERN, JsonObject, StoredJsonObject, Strict, plain_text
+from adclient.schemas.common import (
+    NAME_PATTERN,
+    JsonObject,
+    StoredJsonObject,
+    plain_text,
+)
+from adclient.strict import StrictInput, validate_strictly
 
 
-class ProposerConfig(Strict):
+class ProposerConfig(StrictInput):
     """Which proposer suggests new vectors, and how it starts."""
 
     name: str = Field(default="qei", pattern=NAME_PATTERN)
@@ -41,7 +47,7 @@ class NewProposerConfig(ProposerConfig):
     options: JsonObject = Field(default_factory=dict)
 
 
-class TaskConfig(Strict):
+class TaskConfig(StrictInput):
     """What a worker does with a design: the task, the learner and their budgets.
 
     This is the form a study keeps and a job carries. A new study gives its task as
@@ -178,7 +184,7 @@ class NewTaskConfig(TaskConfig):
             return options  # the task's own, or the name's error says what is wrong
         model = installed.tasks[task].options
         try:
-            parsed = model.model_validate(options)
+            parsed = validate_strictly(model, options)
         except ValidationError as error:
             raise ValueError("; ".join(option_problems(error, model, f"task {task!r}"))) from None
         spec = installed.learners.get(learner)
@@ -190,7 +196,7 @@ class NewTaskConfig(TaskConfig):
                 f"learner_kwargs: learner {learner!r} takes none (only {', '.join(takes)} do)"
             )
         try:
-            spec.options.model_validate(parsed.learner_kwargs)
+            validate_strictly(spec.options, parsed.learner_kwargs)
         except ValidationError as error:
             problems = option_problems(
                 error, spec.options, f"learner {learner!r}", prefix="learner_kwargs"

@@ -14,8 +14,9 @@ from pydantic import (
 )
 
 from adclient.design import DesignSpace
-from adclient.schemas.common import NAME_PATTERN, Strict, finite, plain_text
+from adclient.schemas.common import NAME_PATTERN, finite, plain_text
 from adclient.specs import SUBNORMAL_LOW
+from adclient.strict import StrictInput
 
 MAX_TEMPLATE_CHARS = 1_000_000
 
@@ -27,7 +28,7 @@ MAX_STEPS = 1e15
 """The most grid steps of a stepped param: beyond, grid values are no longer exact."""
 
 
-class BoxParam(Strict):
+class BoxParam(StrictInput):
     """One searched param: a float (``log`` scale and a ``step`` grid optional), an int
     (the same options) or a categorical one of ``choices``. Without ``type`` it is a
     float, which is all a box param was before types."""
@@ -132,7 +133,7 @@ class BoxParam(Strict):
         return {key: value for key, value in data.items() if value is not None}
 
 
-class BoxSpace(Strict):
+class BoxSpace(StrictInput):
     """A plain continuous box: each param searched between its bounds."""
 
     type: Literal["box"]

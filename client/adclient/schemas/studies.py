@@ -31,7 +31,6 @@ from adclient.schemas.common import (
     NO_NUL_PATTERN,
     JsonObject,
     StoredJsonObject,
-    Strict,
     StudyName,
     StudyState,
     UserAttrs,
@@ -39,6 +38,7 @@ from adclient.schemas.common import (
 )
 from adclient.schemas.config import NewProposerConfig, NewTaskConfig, ProposerConfig, TaskConfig
 from adclient.schemas.space import BoxSpace, Space, TemplateSpace
+from adclient.strict import StrictInput
 
 ObjectiveName = Annotated[str, Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)]
 
@@ -46,7 +46,7 @@ ONE_DESIGN_REPEATS = 5
 """``max_trials`` of a study of one design (a space that searches nothing) left unset."""
 
 
-class StudyCreate(Strict):
+class StudyCreate(StrictInput):
     name: StudyName
     direction: DirectionName = Direction.maximize
     directions: list[DirectionName] | None = Field(
@@ -364,7 +364,7 @@ class StudySpread(BaseModel):
     objectives: list[ObjectiveSpread]
 
 
-class StudyUpdate(Strict):
+class StudyUpdate(StrictInput):
     """``PATCH /studies/{id}``: its user attributes, merged into those it has."""
 
     user_attrs: UserAttrs

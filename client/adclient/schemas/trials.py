@@ -25,12 +25,12 @@ from adclient.schemas.common import (
     NO_NUL_PATTERN,
     JsonObject,
     StoredJsonObject,
-    Strict,
     TrialState,
     finite,
     plain_text,
 )
 from adclient.schemas.studies import StudyUpdate
+from adclient.strict import StrictInput
 
 
 class TrialCurve(BaseModel):
@@ -78,7 +78,7 @@ class TrialColumns(BaseModel):
     )
 
 
-class AskRequest(Strict):
+class AskRequest(StrictInput):
     count: int = Field(default=1, ge=1, le=MAX_ASK)
 
 
@@ -149,7 +149,7 @@ class Spawn(BaseModel):
     )
 
 
-class TellRequest(Strict):
+class TellRequest(StrictInput):
     """``{"value": v}`` completes a trial; ``{"state": "failed", "message": m}`` fails it;
     ``{"state": "pruned"}`` (optionally with its last ``value``) ends it early, as its
     study's pruner asked.
@@ -258,7 +258,7 @@ MAX_TRIALS_ADDED = 10_000
 """Trials one ``POST /studies/{id}/trials`` may add."""
 
 
-class TrialAdd(Strict):
+class TrialAdd(StrictInput):
     """A trial handed to a study (``POST /studies/{id}/trials``).
 
     Without an outcome it is *enqueued*: a ``queued`` trial of these params, handed out

@@ -16,12 +16,13 @@ from pydantic import (
 
 from adclient.designs import Representation
 from adclient.pruning import Checkpoint, PrunerConfig
-from adclient.schemas.common import NAME_PATTERN, NO_NUL_PATTERN, Strict
+from adclient.schemas.common import NAME_PATTERN, NO_NUL_PATTERN
 from adclient.schemas.config import TaskConfig
 from adclient.schemas.space import Space
+from adclient.strict import StrictInput
 
 
-class LeaseRequest(Strict):
+class LeaseRequest(StrictInput):
     worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
     tasks: list[Annotated[str, Field(pattern=NAME_PATTERN)]] | None = Field(
         default=None,
@@ -37,11 +38,11 @@ class LeaseRequest(Strict):
     )
 
 
-class HeartbeatRequest(Strict):
+class HeartbeatRequest(StrictInput):
     worker_id: str = Field(min_length=1, max_length=128, pattern=NO_NUL_PATTERN)
 
 
-class ReleaseRequest(Strict):
+class ReleaseRequest(StrictInput):
     """The lease holder giving a trial back to the queue (``POST /trials/{id}/release``);
     an admin may name no worker, to take back a trial whatever holds it."""
 
@@ -149,7 +150,7 @@ class SharedVersion(BaseModel):
     updated_at: datetime | None = None
 
 
-class SharedUpdate(Strict):
+class SharedUpdate(StrictInput):
     """``POST /trials/{id}/shared-controller``: make the trial's uploaded
     ``SHARED_ARTIFACT`` the study's next shared version, if the study is still at
     ``base_version`` (null: it has none yet); else 409 naming the current version, so

@@ -19,6 +19,7 @@ from adclient.objectives import Outcomes, stored_outcomes
 from adclient.polytope import SpecPolytope, broken_spec_constraints, spec_polytope
 from adclient.pruning import PrunerConfig
 from adclient.schemas import ProposerConfig, TaskConfig, option_problems
+from adclient.strict import validate_strictly
 from adservice.db import Database
 from adservice.errors import InvalidError
 from adservice.models import StudyRow
@@ -38,7 +39,7 @@ def check_proposer(config: ProposerConfig) -> None:
         )
     model = options_model(config.name)
     try:
-        model.model_validate(config.options)
+        validate_strictly(model, config.options)
     except ValidationError as error:
         problems = option_problems(error, model, config.name, prefix="proposer.options")
         raise InvalidError("; ".join(problems), problems=problems) from None
