@@ -159,7 +159,7 @@ class ServerCalls(Transport):
         data = self.request(
             "POST",
             f"{API}/studies/{int(study_id)}/ask",
-            json_body={"count": count},
+            json_body={"count": jsonable(count)},
             idempotent=False,
         ).json()
         return AskResponse.model_validate(data).trials
@@ -493,9 +493,12 @@ class ServerCalls(Transport):
 
 
 def jsonable(value: Any) -> Any:
-    """Turn pydantic models nested in a body into plain JSON values."""
+    """Turn pydantic models and NumPy values (scalars, arrays) nested in a body into
+    plain JSON values, as a script computes params and attributes with NumPy."""
     if isinstance(value, BaseModel):
         return value.model_dump(mode="json")
+    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
+        return value.tolist()
     if isinstance(value, Mapping):
         return {str(key): jsonable(item) for key, item in value.items()}
     if isinstance(value, list | tuple):

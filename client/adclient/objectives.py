@@ -283,4 +283,6 @@ def as_values(value: object) -> list[float] | None:
     of several objectives), None when it is one number or None."""
     if value is None or isinstance(value, str) or not hasattr(value, "__iter__"):
         return None
+    if getattr(value, "ndim", None) == 0:  # a NumPy 0-d array: one number
+        return None
     return [float(v) for v in value]

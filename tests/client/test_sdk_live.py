@@ -9,6 +9,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 
+import numpy as np
 import pytest
 
 from adclient import Client, Conflict, Invalid, NotFound, PayloadTooLarge
@@ -333,3 +334,20 @@ def test_client_closes_its_connection_pool(server: ServerProcess) -> None:
     with make() as api:
         assert api.health()
     assert api._http.is_closed
+
+
+def test_numpy_values_travel_as_the_numbers_they_hold(client: Client) -> None:
+    """A script computes params, values and attributes with NumPy: scalars, arrays and a
+    0-d array go as the plain numbers they hold (json could not send them before)."""
+    study = box_study(client, "numpy")
+    (first, second) = study.ask(count=np.int64(2))
+    told = study.tell(first, np.array(0.25), metrics={"m": np.float32(0.5)})
+    assert (told.value, told.metrics) == (0.25, {"m": 0.5})
+    study.tell(second, np.float32(1.5))
+    queued = study.enqueue_trial({"x": np.float32(0.5)})
+    assert queued.params == {"x": 0.5}
+    added = study.add_trial({"x": np.float64(-1.0)}, np.int64(3))
+    assert (added.params, added.value) == ({"x": -1.0}, 3.0)
+    study.set_user_attr("scores", np.arange(3))
+    study.set_user_attr("flag", np.bool_(True))
+    assert study.info.user_attrs == {"scores": [0, 1, 2], "flag": True}
