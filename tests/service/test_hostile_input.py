@@ -380,6 +380,33 @@ def test_an_integer_an_older_server_stored_does_not_block_other_user_attrs(
     assert own_http.get(url).json()["user_attrs"] == {"big": 2**70, "other": 1}
 
 
+def test_options_an_older_server_stored_laxly_still_load_and_ask(
+    live_server: ServerProcess, own_http: httpx.Client
+) -> None:
+    """Proposer options stored before the strict check (written here straight into the
+    database: a quoted number, a truth value) are read as their model reads them: the
+    study loads and its asks are the model's, not a failure."""
+    study = create(own_http, proposer={"name": "qei", "n_initial": 1, "seed": 1})
+    engine = sa.create_engine(live_server.database_url)
+    with Session(engine) as session, session.begin():
+        row = session.get(StudyRow, study["id"])
+        assert row is not None
+        row.proposer = {**row.proposer, "options": {"raw_samples": "64", "warm_start": 1}}
+    engine.dispose()
+    url = f"/api/v1/studies/{study['id']}"
+    for _ in range(3):
+        asked = own_http.post(f"{url}/ask", json={"count": 1})
+        assert asked.status_code == 200, asked.text
+        (trial,) = asked.json()["trials"]
+        told = own_http.post(
+            f"/api/v1/trials/{trial['id']}/tell", json={"value": trial["params"]["x"]}
+        )
+        assert told.status_code == 200, told.text
+    last = own_http.get(f"/api/v1/trials/{trial['id']}").json()
+    assert last["info"]["method"] != "sobol-fallback", last["info"]
+    assert own_http.get(url).json()["proposal_failures"] == 0
+
+
 # --- bodies ---------------------------------------------------------------------------
 
 

@@ -30,8 +30,10 @@ from adservice.repository import studies as study_repo
 log = logging.getLogger("adservice")
 
 
-def check_proposer(config: ProposerConfig) -> None:
-    """A known proposer and options it declares; InvalidError naming each problem."""
+def check_proposer(config: ProposerConfig, *, stored: bool = False) -> None:
+    """A known proposer and options it declares; InvalidError naming each problem. A new
+    study's options take a body's strict types; ``stored`` ones are read as the options
+    model reads them (an older server let lax values in, and those studies must ask)."""
     if config.name not in available():
         raise InvalidError(
             f"proposer.name: unknown proposer {config.name!r}; "
@@ -39,7 +41,10 @@ def check_proposer(config: ProposerConfig) -> None:
         )
     model = options_model(config.name)
     try:
-        validate_strictly(model, config.options)
+        if stored:
+            model.model_validate(config.options)
+        else:
+            validate_strictly(model, config.options)
     except ValidationError as error:
         problems = option_problems(error, model, config.name, prefix="proposer.options")
         raise InvalidError("; ".join(problems), problems=problems) from None
@@ -78,7 +83,7 @@ class StudyConfig:
     def from_row(cls, row: StudyRow) -> StudyConfig:
         proposer = ProposerConfig.model_validate(row.proposer)
         try:
-            check_proposer(proposer)
+            check_proposer(proposer, stored=True)
             proposer_error = None
         except InvalidError as error:
             proposer_error = error
