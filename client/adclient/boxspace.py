@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from adclient.errors import quoted
 from adclient.schemas import BoxParam, BoxSpace
 
 
@@ -206,7 +207,7 @@ class BoxEncoding:
                     return float(index)
             raise ValueError(f"{where}: {value!r} is not one of its choices {param.choices}")
         if isinstance(value, bool) or not isinstance(value, int | float) or not _finite(value):
-            raise ValueError(f"{where}: {_shown(value)} is not a finite number")
+            raise ValueError(f"{where}: {quoted(value)} is not a finite number")
         assert param.low is not None and param.high is not None
         if not param.low <= value <= param.high:
             raise ValueError(f"{where}: {value} is outside [{param.low}, {param.high}]")
@@ -242,9 +243,3 @@ def _finite(value: int | float) -> bool:
         return math.isfinite(value)
     except OverflowError:
         return False
-
-
-def _shown(value: object) -> str:
-    """``value`` as an error names it, a long one cut (an integer of 400 digits)."""
-    text = repr(value)
-    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"

@@ -36,7 +36,7 @@ Spec keys: ``"<instance>.<part spec>"`` (``"a.length"``) and
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Literal
 
 from pydantic import (
     Field,
@@ -62,12 +62,8 @@ from adclient.specs import (
 )
 from adclient.strict import StrictInput
 from adclient.ties import Tie, mirrored_angle, resolve_ties, slot_used
-from adclient.trees import Edge, all_trees, check_tree, valid_name
+from adclient.trees import Edge, EdgeArray, all_trees, check_tree, valid_name
 from adclient.urdf_model import JointKind
-
-EdgeArray = Annotated[Edge, Field(strict=False)]
-"""An edge as a study file gives it: a JSON array of two names (the strict models take
-no list for a tuple otherwise)."""
 
 
 class DesignSpace(StrictInput):

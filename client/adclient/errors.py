@@ -24,6 +24,13 @@ from __future__ import annotations
 from typing import Any
 
 
+def quoted(value: Any, most: int = 60) -> str:
+    """``value`` as an error message quotes it: its repr, cut past ``most`` characters,
+    so a 400-digit number or a 100,000-character name cannot flood the message."""
+    text = repr(value)
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+
+
 class ActiveDesignError(Exception):
     """Base of every exception the SDK raises on purpose."""
 

@@ -21,6 +21,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from adclient.errors import quoted
 from adclient.export import CSV_FIELDS, unescaped
 from adclient.schemas import MAX_JSON_DEPTH, BoxSpace, StudyCreate, TrialAdd
 from adclient.schemas.common import json_depth
@@ -236,16 +237,11 @@ def _box_types(space: dict[str, Any] | None) -> dict[str, Any]:
     return {param.name: param for param in box.params}
 
 
-def _shown(cell: str, most: int = 60) -> str:
-    """A cell as an error message quotes it: a long one cut short."""
-    return repr(cell if len(cell) <= most else cell[:most] + "...")
-
-
 def _number(cell: str, where: str) -> float:
     try:
         return float(cell)
     except ValueError:
-        raise ImportFileError(f"{where}: {_shown(cell)} is not a number") from None
+        raise ImportFileError(f"{where}: {quoted(cell)} is not a number") from None
 
 
 def _param(cell: str, param: Any, where: str) -> Any:
@@ -257,7 +253,7 @@ def _param(cell: str, param: Any, where: str) -> Any:
                 choice
             ):
                 return choice
-        raise ImportFileError(f"{where}: {_shown(cell)} is not one of {param.choices}")
+        raise ImportFileError(f"{where}: {quoted(cell)} is not one of {param.choices}")
     if param is not None:
         number = _number(cell, where)
         return int(number) if param.type == "int" and number.is_integer() else number

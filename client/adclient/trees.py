@@ -7,11 +7,17 @@ import heapq
 import itertools
 import re
 from collections.abc import Iterator
+from typing import Annotated
+
+from pydantic import Field
 
 from adclient.specs import NAME_PATTERN
 
 Edge = tuple[str, str]
 """(parent instance, child instance): one joint (revolute unless its kind says)."""
+EdgeArray = Annotated[Edge, Field(strict=False)]
+"""An edge as a study file gives it: a JSON array of two names (a strict model takes no
+list for a tuple otherwise)."""
 
 
 def valid_name(name: str) -> bool:

@@ -19,6 +19,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.cors import CORSMiddleware
 
 from adclient import __version__
+from adclient.errors import quoted
 from adclient.plugins import catalogue
 from adclient.schemas import MAX_JSON_DEPTH, ErrorBody
 from adservice.api.routes import (
@@ -94,8 +95,7 @@ def _given(item: Any) -> str:
         return ""
     if isinstance(given, bool):
         return f" (got {str(given).lower()})"
-    shown = given if len(given) <= 40 else f"{given[:37]}..."
-    return f" (got the text {shown!r})"
+    return f" (got the text {quoted(given)})"
 
 
 def _field_path(location: tuple[int | str, ...]) -> str:

@@ -161,7 +161,7 @@ def test_duplicates_are_kept_unless_skipped(shared_server: ServerProcess) -> Non
         # an integer past the float range (a 500 from math.isfinite's OverflowError)
         (
             {"params": {"x": 10**400, "n": 3, "c": "a"}},
-            "param 'x': 10000000000000000000...(401 characters) is not a finite number",
+            f"param 'x': {'1' + '0' * 59}... (401 characters) is not a finite number",
         ),
         ({"params": {"x": 0.5, "n": 10**400, "c": "a"}}, "param 'n': 1000"),
         (

@@ -15,6 +15,7 @@ from pydantic import ValidationError
 from adclient.boxspace import BoxEncoding
 from adclient.design import DesignSpace
 from adclient.designs import Representation
+from adclient.errors import quoted
 from adclient.objectives import Outcomes, stored_outcomes
 from adclient.polytope import SpecPolytope, broken_spec_constraints, spec_polytope
 from adclient.pruning import PrunerConfig
@@ -198,32 +199,34 @@ class StudyConfig:
             return self._one_design(params)
         if self.representation is None or self.design_space is None:
             return (self.box or BoxEncoding.of(self.space)).encode(params)
-        from adclient.decode import decode
+        from adclient.decode import decode, design_params
         from adclient.encode import encode
 
         try:
             vector = np.asarray(encode(self.design_space, self.representation, params))
         except (TypeError, ValueError) as error:
             raise ValueError(str(error).removeprefix("encode: ")) from None
-        broken = broken_spec_constraints(
-            self.design_space, decode(self.design_space, self.representation, vector.tolist())
-        )
+        design = decode(self.design_space, self.representation, vector.tolist())
+        broken = broken_spec_constraints(self.design_space, design)
         if broken:
             raise ValueError(f"the design breaks {'; '.join(broken)}")
-        shown = self.params(vector)
+        shown = design_params(design)
         if "structure" in params and params["structure"] != shown["structure"]:
             raise ValueError(
                 f"structure {params['structure']!r} is not structure_index "
                 f"{params.get('structure_index', 0)} ({shown['structure']!r})"
             )
-        exact = self.representation.kind != "fused"
+        # derived, not read; a fused vector's axis angles are the nearest, not the same
+        derived = (
+            ".shape",
+            ".joint.kind",
+            *((".joint.axis",) if self.representation.kind != "fused" else ()),
+        )
         for key, value in params.items():
-            derived = key == "root" or key.endswith((".shape", ".joint.kind"))
-            if exact and key.endswith(".joint.axis"):
-                derived = True  # from the axis angles (a fused vector's are the nearest)
-            if derived and key in shown and not _same_value(value, shown[key]):
+            checked = key in shown and (key == "root" or key.endswith(derived))
+            if checked and not _same_value(value, shown[key]):
                 raise ValueError(
-                    f"{key} = {_shown_value(value)} is not this design's: its specs give "
+                    f"{key} = {quoted(value)} is not this design's: its specs give "
                     f"{shown[key]!r}; leave {key!r} out or give that value"
                 )
         return vector
@@ -245,12 +248,6 @@ class StudyConfig:
                     f"{own[key]!r}: the space searches nothing, so give {{}} or its own params"
                 )
         return np.zeros(0)
-
-
-def _shown_value(value: Any) -> str:
-    """A value a user gave, as a message shows it (cut past 80 characters)."""
-    text = repr(value)
-    return text if len(text) <= 80 else f"{text[:77]}..."
 
 
 def _same_value(given: Any, own: Any) -> bool:
