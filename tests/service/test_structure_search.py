@@ -290,10 +290,11 @@ def test_judged_looks_go_back_only_where_one_design_cannot_rank_the_trees(
         assert max(chances.values()) < LOOK_CHANCE, chances
 
 
-def test_second_looks_take_three_named_choices_and_the_old_flags() -> None:
-    """``second_looks`` is ``off`` unless a study says ``judged`` or ``always`` (stored
-    studies' ``true`` and ``false`` mean those); anything else is refused, naming it."""
-    assert QEIOptions().second_looks == "off"
+def test_second_looks_take_four_named_choices_and_the_old_flags() -> None:
+    """``second_looks`` is ``thompson`` unless a study says ``off``, ``judged`` or
+    ``always`` (stored studies' ``true`` and ``false`` mean ``always`` and ``off``);
+    anything else is refused, naming it."""
+    assert QEIOptions().second_looks == "thompson"
     assert QEIOptions.model_validate({"second_looks": "judged"}).second_looks == "judged"
     assert QEIOptions.model_validate({"second_looks": True}).second_looks == "always"
     assert QEIOptions.model_validate({"second_looks": False}).second_looks == "off"

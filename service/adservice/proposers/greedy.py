@@ -1,10 +1,13 @@
 """The greedy batch search of ``qei``'s model phases (one objective in ``qei``, several
 objectives or constraints in ``multiobjective``): each step maximises its acquisition
 over the mixed domain (``acquisition.maximise``) with the previous steps' candidates
-pending; a step that is a second look (``initial.second_look``) maximises it over the
-structures observed once: with ``second_looks: judged`` over those the tree
-judgement (``looks``) gives a chance of beating the incumbent, with ``always`` over
-all of them. Imported only when a proposal is computed."""
+pending. With ``second_looks: thompson`` (the default) a step that is a look turn
+(``initial.thompson_turn``) whose posterior draw favours another tree than the
+incumbent's (``looks.drawn_tree``) is a random design of that tree; with ``judged`` or
+``always`` a step that is a second look (``initial.second_look``) maximises the
+acquisition over the structures observed once: with ``judged`` over those the tree
+judgement (``looks.tree_chances``) gives a chance of beating the incumbent, with
+``always`` over all of them. Imported only when a proposal is computed."""
 
 from __future__ import annotations
 
@@ -15,7 +18,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from adservice.proposers.base import ProposalRequest, SpecRegion, model_inputs, search_vectors
-from adservice.proposers.initial import LOOK_CHANCE, initial_count, second_look
+from adservice.proposers.initial import (
+    LOOK_CHANCE,
+    LOOK_DESIGNS,
+    initial_count,
+    second_look,
+    thompson_turn,
+)
 from adservice.proposers.simple import derived_seed
 
 if TYPE_CHECKING:
@@ -79,6 +88,8 @@ class Greedy:
     """A long history's trust region: the search stays inside it (``trust_region``)."""
     judged: bool = False
     """A look chooses among the trees the judgement passes (``second_looks: judged``)."""
+    thompson: bool = False
+    """Looks are Thompson looks (``second_looks: thompson``)."""
 
     @classmethod
     def of(
@@ -137,6 +148,7 @@ class Greedy:
             end_number=request.n_issued + request.count,
             n_start=initial_count(request),
             judged=options.second_looks == "judged",
+            thompson=options.second_looks == "thompson",
         )
 
     def run(
@@ -145,11 +157,14 @@ class Greedy:
         seed: int,
         acquisition_at: Callable[[int, torch.Tensor | None], Step],
         judge: Callable[[np.ndarray, int], np.ndarray] | None = None,
+        draw: Callable[[np.ndarray, int], int] | None = None,
     ) -> Found:
         """Up to q candidates (fewer past the deadline); ``acquisition_at(step_seed,
         pending)`` gives each step's acquisition; ``judge(trees, step_seed)`` each
         tree's chance of beating the incumbent (``looks.tree_chances``; without it a
-        judged look is a free choice)."""
+        judged look is a free choice); ``draw(trees, step_seed)`` the tree a posterior
+        draw favours (``looks.drawn_tree``; without it a Thompson look turn is a free
+        choice)."""
         import torch
 
         from adservice.proposers.acquisition import TAKEN_TOL, maximise, past
@@ -161,16 +176,27 @@ class Greedy:
                 break
             step_seed = derived_seed(seed, step)
             new = [z[None, :] for z in found.chosen]
-            batch_pending = np.concatenate([self.pending_Z, *new])
-            pending_t = torch.as_tensor(batch_pending, **self.tkw) if len(batch_pending) else None
-            current = acquisition_at(step_seed, pending_t)
+            taken = None if self.taken is None else np.concatenate([self.taken, *new])
             structures = None
             if self.structure_counts is not None:
                 counts = self.structure_counts.copy()
                 for z in found.chosen:
                     counts[round(float(z[0]))] += 1
                 number = self.end_number - q + step
-                structures = second_look(counts, number, self.n_start)
+                if self.thompson:
+                    look = self._thompson_look(counts, number, step_seed, draw, taken)
+                    if look is not None:
+                        found.chosen.append(look)
+                        found.methods.append("thompson")
+                        found.values.append(float("nan"))
+                        found.second_looks.append(True)
+                        found.chances.append(None)
+                        continue
+                else:
+                    structures = second_look(counts, number, self.n_start)
+            batch_pending = np.concatenate([self.pending_Z, *new])
+            pending_t = torch.as_tensor(batch_pending, **self.tkw) if len(batch_pending) else None
+            current = acquisition_at(step_seed, pending_t)
             chances = None
             if structures is not None and self.judged:
                 if judge is None:
@@ -182,7 +208,6 @@ class Greedy:
                     }
                     structures = structures[odds >= LOOK_CHANCE]
                     structures = structures if len(structures) else None
-            taken = None if self.taken is None else np.concatenate([self.taken, *new])
             acqf, screen, incumbents = current.acqf, current.screen, self.incumbents
             taken_tol: float | np.ndarray = TAKEN_TOL
             if self.trust is not None:
@@ -219,6 +244,32 @@ class Greedy:
         return Found(
             found.chosen, found.methods, found.values, switched, found.second_looks, found.chances
         )
+
+    def _thompson_look(
+        self,
+        counts: np.ndarray,
+        number: int,
+        step_seed: int,
+        draw: Callable[[np.ndarray, int], int] | None,
+        taken: np.ndarray | None,
+    ) -> np.ndarray | None:
+        """A Thompson look's design (model inputs): a random design of the tree a
+        posterior draw favours; None for a free choice (not a look turn, the draw
+        favours the incumbent's tree or one with more than ``LOOK_DESIGNS`` designs, or
+        the random design was proposed before)."""
+        from adservice.proposers.acquisition import TAKEN_TOL, nearest_distance, raw_samples
+
+        if draw is None or not thompson_turn(counts, number, self.n_start):
+            return None
+        tree = draw(np.arange(len(counts)), step_seed)
+        if tree == round(float(self.incumbents[0, 0])) or counts[tree] > LOOK_DESIGNS:
+            return None
+        look = raw_samples(self.domain, 1, np.random.default_rng([step_seed, 39]), np.array([tree]))
+        if self.region is not None:
+            look = self.region.inside(look)
+        if taken is not None and nearest_distance(taken, look[0]) < TAKEN_TOL:
+            return None
+        return look[0]
 
     def rows(
         self,

@@ -7,13 +7,17 @@ an unseen choice to be average. So the start is long enough to try each, up to
 ``COVERED_CHOICES``, and deals them to its points.
 
 One random design per tree does not rank the trees either when the specs matter more
-than the tree: the best tree's one design can be poor. So, unless qei's
-``second_looks`` is ``off`` (the default), every ``SECOND_LOOK_EVERY``-th model ask
-after the start (``second_look``) is a look turn while a structure has only one
-design: with ``judged`` the ask is a second look among the structures seen once whose
-chance of beating the incumbent (``looks.tree_chances``) is at least ``LOOK_CHANCE``,
-and a free choice when none has; with ``always`` among every structure seen once
-(docs/method.md, "The model's choices").
+than the tree: the best tree's one design can be poor. So with qei's ``second_looks``
+at ``thompson`` (the default), every ``SECOND_LOOK_EVERY``-th model ask after the start
+of a space whose start tried every tree (``thompson_turn``) is a look turn: the tree a
+joint posterior draw favours (``looks.drawn_tree``) gets a random design, unless it is
+the incumbent's tree or has more than ``LOOK_DESIGNS`` designs already, when the ask is
+a free choice. With ``judged`` or ``always``, every ``SECOND_LOOK_EVERY``-th model ask
+after the start (``second_look``) is a look turn while a structure has only one design:
+with ``judged`` the ask is a second look among the structures seen once whose chance of
+beating the incumbent (``looks.tree_chances``) is at least ``LOOK_CHANCE``, and a free
+choice when none has; with ``always`` among every structure seen once. ``off`` never
+looks (docs/method.md, "The model's choices").
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ initial design makes sure to try."""
 
 SECOND_LOOK_EVERY = 2
 """Every this many model asks after the start, one is a second look (``second_look``)."""
+LOOK_DESIGNS = 2
+"""A Thompson look goes to a tree with at most this many designs (observed, failed or
+pending): each tree gets at most two looks, so a long study's looks end."""
 LOOK_CHANCE = 0.2
 """A judged second look goes to the trees seen once whose chance of beating the incumbent
 (``looks.tree_chances``) is at least this."""
@@ -118,3 +125,18 @@ def second_look(counts: np.ndarray, number: int, n_start: int) -> np.ndarray | N
         return None
     once = np.flatnonzero(counts == 1)
     return once if len(once) else None
+
+
+def thompson_turn(counts: np.ndarray, number: int, n_start: int) -> bool:
+    """Whether the study's candidate number ``number`` is a Thompson look turn: every
+    ``SECOND_LOOK_EVERY``-th model candidate after a start of ``n_start`` designs, in a
+    space of at most ``COVERED_CHOICES`` structures (``counts``: designs per structure).
+    Past that many, the start leaves trees untried, the model already holds those
+    uncertain, and some tree's draw nearly always beats the incumbent's, so looks would
+    take every other ask (bench/RESULTS.md, "Thompson sampling across trees")."""
+    model_number = number - n_start
+    return (
+        len(counts) <= COVERED_CHOICES
+        and model_number >= 0
+        and model_number % SECOND_LOOK_EVERY == SECOND_LOOK_EVERY - 1
+    )

@@ -1,6 +1,11 @@
-"""qei's tree judgement: which structures of a design space seen only once deserve a
-second look (``initial.second_look`` says when an ask is a look, this module which
-trees it may choose among).
+"""qei's tree judgement: which structures of a design space deserve another look
+(``initial.second_look`` and ``initial.thompson_turn`` say when an ask is a look, this
+module which trees it may choose among).
+
+``drawn_tree`` (``second_looks: thompson``, the default) is Thompson sampling across
+trees: one joint posterior draw over ``LOOK_POINTS`` designs of every tree, and the
+tree whose drawn best is largest. A tree whose one design was poor by chance still
+wins some draws, in proportion to how plausible it is that its best is the best.
 
 A tree's *chance* is the probability, under the fitted GP, that the best of the tree
 beats the incumbent: the fraction of joint posterior draws over ``LOOK_POINTS`` of the
@@ -51,10 +56,7 @@ def tree_chances(
         posterior = posterior.keeping(torch.as_tensor(keep, device=posterior.points.device))
     points, normals = [], []
     for tree in trees:
-        moved = best_known[:LOOK_INCUMBENTS].copy()
-        moved[:, 0] = tree
-        random = raw_samples(domain, LOOK_POINTS - len(moved), rng, np.array([tree]))
-        points.append(np.concatenate([domain.canonical(moved), random]))
+        points.append(_tree_designs(domain, int(tree), best_known, rng))
         normals.append(rng.standard_normal((LOOK_DRAWS, len(points[-1]))))
     blocks = joint_posterior(posterior, [torch.as_tensor(block, **tkw) for block in points])
     chances = np.zeros(len(trees))
@@ -62,6 +64,38 @@ def tree_chances(
         draws = mean + normal @ covariance_root(covariance).T
         chances[k] = float(np.mean(draws.max(axis=1) > incumbent))
     return chances
+
+
+def drawn_tree(
+    posterior: Posterior,
+    domain: MixedDomain,
+    trees: np.ndarray,
+    best_known: np.ndarray,
+    seed: int,
+    tkw: dict,
+) -> int:
+    """The tree of ``trees`` whose best is largest in one joint posterior draw of each
+    tree's values over its ``LOOK_POINTS`` designs (``tree_chances``'s designs; every
+    observation kept)."""
+    rng = np.random.default_rng([seed, 38])
+    points = [_tree_designs(domain, int(tree), best_known, rng) for tree in trees]
+    blocks = joint_posterior(posterior, [torch.as_tensor(block, **tkw) for block in points])
+    best = [
+        float((mean + covariance_root(covariance) @ rng.standard_normal(len(mean))).max())
+        for mean, covariance in blocks
+    ]
+    return int(trees[int(np.argmax(best))])
+
+
+def _tree_designs(
+    domain: MixedDomain, tree: int, best_known: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """``LOOK_POINTS`` designs of ``tree`` (model inputs, canonical): the best observed
+    designs' specs moved onto it, then random specs."""
+    moved = best_known[:LOOK_INCUMBENTS].copy()
+    moved[:, 0] = tree
+    random = raw_samples(domain, LOOK_POINTS - len(moved), rng, np.array([tree]))
+    return np.concatenate([domain.canonical(moved), random])
 
 
 def joint_posterior(

@@ -11,15 +11,20 @@ What a caller can rely on:
   scrambled Sobol sequence (``initial``); a design space's start covers its structures,
   one per structure up to ``initial.COVERED_CHOICES``, as a typed box's categorical
   choices are covered.
-- **Second looks** (``options["second_looks"]``). After the start, every second model
-  candidate of a design space is a look turn while any structure has exactly one
-  design (observed, failed or pending; ``initial.second_look``), unless the option is
-  ``off`` (the default). With ``judged`` the tree judgement (``looks.tree_chances``)
-  gives each such structure its chance of beating the incumbent, and the acquisition is
-  maximised over those with a chance of at least ``initial.LOOK_CHANCE`` alone; with
-  none, the candidate is a free choice. ``always`` looks among every such structure.
-  A look's info says ``second_look: true``, a judged turn's ``tree_chances``. Several
-  objectives or outcome constraints have no single incumbent: ``judged`` looks never.
+- **Looks at other trees** (``options["second_looks"]``). With ``thompson`` (the
+  default), every second model candidate after the start of a design space of at most
+  ``initial.COVERED_CHOICES`` structures is a look turn (``initial.thompson_turn``):
+  one joint posterior draw over every tree's designs (``looks.drawn_tree``) picks a
+  tree, and unless it is the incumbent's or has more than ``initial.LOOK_DESIGNS``
+  designs (observed, failed or pending), the candidate is a random design of it
+  (``method: thompson``, ``second_look: true``). With ``judged`` or ``always``, every
+  second model candidate is a look turn while any structure has exactly one design
+  (``initial.second_look``): ``judged`` gives each such structure its chance of beating
+  the incumbent (``looks.tree_chances``) and maximises the acquisition over those with
+  a chance of at least ``initial.LOOK_CHANCE`` alone (with none, a free choice), a
+  turn's info saying ``tree_chances``; ``always`` looks among every such structure.
+  ``off`` never looks. Several objectives or outcome constraints have no single
+  incumbent: ``thompson`` and ``judged`` look never.
 - **Model.** After the start, a BoTorch ``SingleTaskGP`` on ``base.model_inputs``
   (structure index and normalised specs, or a box scaled to the unit box), outcomes
   standardised, hyperparameters by maximum a posteriori (``likelihood.fit_map``), the
@@ -504,7 +509,13 @@ class QLogEIProposer:
                 )
                 return Step(plain, "qLogEI")
 
-            found = greedy.run(q, seed, acquisition_at, _judge(greedy, model, analytic, y, tkw))
+            found = greedy.run(
+                q,
+                seed,
+                acquisition_at,
+                _judge(greedy, model, analytic, y, tkw),
+                _draw(greedy, model, analytic, tkw),
+            )
         extra: dict[str, Any] = {
             "fit": fit_source,
             "fit_seconds": round(fit_seconds, 4),
@@ -534,6 +545,24 @@ def _judge(
         )
 
     return judge
+
+
+def _draw(
+    greedy: Greedy, model: Any, analytic: Any, tkw: dict[str, Any]
+) -> Callable[[np.ndarray, int], int] | None:
+    """Thompson sampling across trees (``looks.drawn_tree``) on this ask's fitted
+    model; None where no ask of this study looks."""
+    if greedy.structure_counts is None or not greedy.thompson:
+        return None
+    from adservice.proposers.looks import drawn_tree
+    from adservice.proposers.posterior import Posterior
+
+    posterior = analytic.posterior if analytic is not None else Posterior(model)
+
+    def draw(trees: np.ndarray, step_seed: int) -> int:
+        return drawn_tree(posterior, greedy.domain, trees, greedy.incumbents, step_seed, tkw)
+
+    return draw
 
 
 def _outcomes(request: ProposalRequest, y: np.ndarray) -> np.ndarray:

@@ -73,13 +73,16 @@ class QEIOptions(ProposerOptions):
         "Monte Carlo qLogEI / qLogNEI with pending points",
     )
     warm_start: bool = True
-    second_looks: Literal["off", "judged", "always"] = Field(
-        default="off",
-        description="design spaces: after the start, every second model candidate is a "
-        "second look while a structure has one design so far (initial.second_look): "
-        "judged, among those whose best may beat the incumbent (looks.tree_chances); "
-        "always, among all of them; off (the default: neither measured better over "
-        "every objective, bench/RESULTS.md), never (true and false: always and off)",
+    second_looks: Literal["thompson", "off", "judged", "always"] = Field(
+        default="thompson",
+        description="design spaces: how a tree whose first designs were poor gets another "
+        "look. thompson (the default): every second model candidate after the start of a "
+        "space of at most 16 trees, a random design of the tree one posterior draw "
+        "favours, unless it is the incumbent's or has 3 designs (initial.thompson_turn, "
+        "looks.drawn_tree); judged and always: every second model candidate while a tree "
+        "has one design chooses among those whose best may beat the incumbent "
+        "(looks.tree_chances), or among all of them (initial.second_look); off: never "
+        "(true and false: always and off); bench/RESULTS.md has each one's figures",
     )
     max_train: int | None = Field(
         default=None,
