@@ -41,10 +41,11 @@ reported the files together (a run appears once however many files hold it):
     cat bench/results/design_suite-i37*.jsonl > /tmp/i37.jsonl
     .venv/bin/python bench/design_suite.py --report --results /tmp/i37.jsonl --no-write
 
-The judged second looks (an option, off by default) ran this branch's server alone, two
-halves side by side, and were reported with the runs of main before them (its
-spec-dominated runs and issue 26's qei runs relabelled ``qei-main``, GPSampler's and
-random search's) gathered into one file, as bench/RESULTS.md's wrong-tree section says:
+The judged second looks (an option; the default was ``off`` then) ran this branch's
+server alone, two halves side by side, and were reported with the runs of main before
+them (its spec-dominated runs and issue 26's qei runs relabelled ``qei-main``,
+GPSampler's and random search's) gathered into one file, as bench/RESULTS.md's
+wrong-tree section says:
 
     .venv/bin/python bench/design_suite.py --seeds 6 --objectives $S spec-dominated-5 \
         spec-dominated-6 --methods qei --no-write \
@@ -59,6 +60,14 @@ judged looks on today's code, a second file with ``--first-seed 10`` beside it):
     .venv/bin/python bench/design_suite.py --seeds 10 --methods qei --label qei=qei-judged \
         --proposer-options '{"second_looks": "judged"}' --no-write \
         --results bench/results/design_suite-i37-20-judged-d14fcf2.jsonl
+
+The Thompson looks, the default since e799752, ran the same way, each half into its own
+file, reported beside the runs of ``off`` (design_suite-i37-20-d14fcf2.jsonl relabelled
+``qei-off``) and the recorded GPSampler, TPE and random search runs:
+
+    .venv/bin/python bench/design_suite.py --seeds 10 --methods qei --no-write \
+        --results bench/results/design_suite-i37-20-e799752.jsonl
+    # and --first-seed 10, then both halves in one file
 
 ``--starts-per-tree K`` sets the qei studies' ``n_initial`` to K times their trees (at
 most 16), so the covering start gives each tree K random designs (issue 37's two per
