@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -25,7 +26,7 @@ from adclient.design import DesignSpace
 from adclient.designs import Design
 from adclient.testing.design_objectives import OBJECTIVES, limbs5_space, spec_dominated
 from adservice.proposers import get_proposer
-from adservice.proposers.base import ProposalRequest, empty_history, model_inputs
+from adservice.proposers.base import ProposalRequest, empty_history, model_inputs, search_vectors
 from adservice.proposers.gpfit import fit_outcome
 from adservice.proposers.initial import LOOK_CHANCE, LOOK_DESIGNS, structure_order, thompson_turn
 from adservice.proposers.posterior import Posterior
@@ -421,3 +422,81 @@ def test_a_thompson_look_is_a_random_design_of_the_drawn_tree_unless_it_is_spent
     assert greedy._thompson_look(counts, 9, 11, drawing(5), greedy.taken) is None
     assert greedy._thompson_look(counts, 10, 11, drawing(6), greedy.taken) is None
     assert greedy._thompson_look(counts, 9, 11, None, greedy.taken) is None
+
+
+def test_look_counts_take_every_trial_not_only_those_the_model_trains_on() -> None:
+    """Whether a tree has had its looks counts every trial of the study: past
+    ``max_train`` the model trains on a subset, and failed trials past the latest 32 are
+    not pending points, yet both count (a tree with 50 designs got a look when the
+    subset held 2 of them)."""
+    from adservice.proposers.greedy import Greedy
+
+    space = DesignSpace.model_validate(limbs5_space())
+    representation = build_representation(space)
+    search = search_structure(space, representation)
+    assert search is not None
+    bounds = np.asarray(representation.bounds, dtype=np.float64)
+    rng = np.random.default_rng(8)
+    X = rng.random((400, bounds.shape[1]))
+    X[:, 0] = np.arange(400) % 8
+    failed = rng.random((40, bounds.shape[1]))
+    failed[:, 0] = 3
+    pending = rng.random((2, bounds.shape[1]))
+    pending[:, 0] = 5
+    asked = replace(
+        request(search, bounds, X, rng.random(400), seed=1),
+        failed=failed,
+        pending=pending,
+        options={"max_train": 40},
+    )
+    Z = model_inputs(X, bounds, search)
+    kept = Z[:40:7]  # what a subset might hold
+    X_pending = np.concatenate([pending, failed[-32:]])
+    greedy = Greedy.of(asked, QEIOptions(), bounds, kept, X_pending, kept, TKW, None)
+    expected = np.full(8, 50)
+    expected[3] += 40
+    expected[5] += 2
+    assert greedy.structure_counts is not None
+    assert greedy.structure_counts.tolist() == expected.tolist()
+
+
+def test_a_look_inside_spec_constraints_is_drawn_inside_not_moved_onto_their_edge() -> None:
+    """With a spec constraint that leaves under 1% of a tree's designs, a Thompson look
+    draws until a design satisfies them (as the random proposer does) rather than moving
+    one random design onto the nearest face: the looks satisfy the constraints, and most
+    lie strictly inside."""
+    from adclient.polytope import spec_polytope
+    from adservice.proposers.greedy import Greedy
+
+    space = DesignSpace.model_validate(
+        {
+            **limbs5_space(),
+            "spec_constraints": [
+                {
+                    "terms": {"a.length": 1.0, "b.length": 1.0},
+                    "op": "<=",
+                    "bound": 0.25,
+                }
+            ],
+        }
+    )
+    representation = build_representation(space)
+    search = search_structure(space, representation)
+    polytope = spec_polytope(space, representation)
+    assert search is not None and polytope is not None
+    bounds = np.asarray(representation.bounds, dtype=np.float64)
+    X = np.random.default_rng(5).random((9, bounds.shape[1]))
+    X[:, 0] = [0, 1, 2, 3, 4, 5, 6, 7, 3]
+    asked = replace(request(search, bounds, X, np.arange(9.0), seed=2), spec_polytope=polytope)
+    Z = model_inputs(X, bounds, search)
+    greedy = Greedy.of(asked, QEIOptions(), bounds, Z, X[:0], Z[::-1], TKW, None)
+    counts = np.bincount(X[:, 0].astype(int), minlength=8)
+    looks = [
+        greedy._thompson_look(counts, 9, step_seed, lambda trees, seed: 6, greedy.taken)
+        for step_seed in range(20)
+    ]
+    vectors = search_vectors(np.array(looks), bounds, search)
+    assert np.all(vectors[:, 0] == 6)
+    assert polytope.holds(vectors).all()
+    inside = polytope.slack(vectors).max(axis=1) < -1e-6
+    assert inside.sum() >= 15, polytope.slack(vectors)

@@ -255,5 +255,19 @@ class Proposer(Protocol):
     def propose(self, request: ProposalRequest) -> Proposal: ...
 
 
+MAX_FAILED_AS_PENDING = 32
+"""The latest failed trials an ask keeps away from as pending points (the model leaves
+every failed trial out)."""
+
+
+def design_trees(X: np.ndarray, search: SearchStructure) -> np.ndarray:
+    """The structure index of each search vector (row of ``X``) whose index is finite,
+    as ``model_inputs`` reads it."""
+    X = np.asarray(X, dtype=np.float64)
+    index = X[:, 0] if X.ndim == 2 and len(X) else np.zeros(0)
+    index = index[np.isfinite(index)]
+    return np.clip(np.floor(index + 0.5), 0, search.n_structures - 1).astype(np.int64)
+
+
 def empty_history(dim: int) -> FloatArray:
     return np.zeros((0, dim), dtype=np.float64)

@@ -17,7 +17,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from adservice.proposers.base import ProposalRequest, SpecRegion, model_inputs, search_vectors
+from adservice.proposers.base import (
+    MAX_FAILED_AS_PENDING,
+    ProposalRequest,
+    SpecRegion,
+    design_trees,
+    model_inputs,
+    search_vectors,
+)
 from adservice.proposers.initial import (
     LOOK_CHANCE,
     LOOK_DESIGNS,
@@ -25,7 +32,7 @@ from adservice.proposers.initial import (
     second_look,
     thompson_turn,
 )
-from adservice.proposers.simple import derived_seed
+from adservice.proposers.simple import REJECTION_DRAWS, derived_seed
 
 if TYPE_CHECKING:
     import torch
@@ -37,6 +44,8 @@ DEFAULT_RESTARTS = 10
 """Local searches per candidate (GPSampler's n_local_search)."""
 DEFAULT_RAW_SAMPLES = 2048
 """Sobol points the starts are chosen from (GPSampler's n_preliminary_samples)."""
+LOOK_BATCH = 64
+"""Random designs a Thompson look draws at a time to find one inside the spec constraints."""
 
 
 @dataclass(frozen=True)
@@ -128,8 +137,13 @@ class Greedy:
         pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
         counts = None
         if options.second_looks != "off" and search is not None and search.n_structures > 1:
-            trees = np.concatenate([Z[:, 0], pending_Z[:, 0]]).round().astype(np.int64)
-            counts = np.bincount(trees, minlength=search.n_structures)
+            # every trial the study has, not only those the model trains on: observed
+            # (whatever their values), failed (the older ones are not pending points),
+            # pending and this ask's start designs (the last two are in X_pending)
+            failed = np.asarray(request.failed, dtype=np.float64)
+            older = failed[: max(0, len(failed) - MAX_FAILED_AS_PENDING)]
+            trees = [design_trees(part, search) for part in (request.X, older, X_pending)]
+            counts = np.bincount(np.concatenate(trees), minlength=search.n_structures)
         return cls(
             domain=domain,
             raw_count=options.raw_samples or max(default_raw, num_restarts),
@@ -264,8 +278,17 @@ class Greedy:
         tree = draw(np.arange(len(counts)), step_seed)
         if tree == round(float(self.incumbents[0, 0])) or counts[tree] > LOOK_DESIGNS:
             return None
-        look = raw_samples(self.domain, 1, np.random.default_rng([step_seed, 39]), np.array([tree]))
+        rng = np.random.default_rng([step_seed, 39])
+        look = raw_samples(self.domain, 1, rng, np.array([tree]))
         if self.region is not None:
+            # uniform over the tree's designs that satisfy the spec constraints: draw until
+            # one does (as the random proposer), and move the first inside only past that
+            for _ in range(REJECTION_DRAWS // LOOK_BATCH):
+                if self.region.holds(look)[0]:
+                    break
+                drawn = raw_samples(self.domain, LOOK_BATCH, rng, np.array([tree]))
+                inside = np.flatnonzero(self.region.holds(drawn))
+                look = drawn[inside[:1]] if len(inside) else look
             look = self.region.inside(look)
         if taken is not None and nearest_distance(taken, look[0]) < TAKEN_TOL:
             return None

@@ -33,10 +33,11 @@ initial design makes sure to try."""
 
 
 SECOND_LOOK_EVERY = 2
-"""Every this many model asks after the start, one is a second look (``second_look``)."""
+"""Every this many model asks after the start, one is a look turn (``second_look``,
+``thompson_turn``)."""
 LOOK_DESIGNS = 2
 """A Thompson look goes to a tree with at most this many designs (observed, failed or
-pending): each tree gets at most two looks, so a long study's looks end."""
+pending), so a long study's looks end: a tree gets at most two beyond its start design."""
 LOOK_CHANCE = 0.2
 """A judged second look goes to the trees seen once whose chance of beating the incumbent
 (``looks.tree_chances``) is at least this."""

@@ -3,8 +3,9 @@
 module which trees it may choose among).
 
 ``drawn_tree`` (``second_looks: thompson``, the default) is Thompson sampling across
-trees: one joint posterior draw over ``LOOK_POINTS`` designs of every tree, and the
-tree whose drawn best is largest. A tree whose one design was poor by chance still
+trees: for every tree, one joint posterior draw over ``LOOK_POINTS`` of its designs
+(each tree drawn on its own: the covariance between trees is left out), and the tree
+whose drawn best is largest. A tree whose one design was poor by chance still
 wins some draws, in proportion to how plausible it is that its best is the best.
 
 A tree's *chance* is the probability, under the fitted GP, that the best of the tree
@@ -75,8 +76,8 @@ def drawn_tree(
     tkw: dict,
 ) -> int:
     """The tree of ``trees`` whose best is largest in one joint posterior draw of each
-    tree's values over its ``LOOK_POINTS`` designs (``tree_chances``'s designs; every
-    observation kept)."""
+    tree's values over its ``LOOK_POINTS`` designs (``tree_chances``'s designs; each tree
+    drawn on its own, every observation kept)."""
     rng = np.random.default_rng([seed, 38])
     points = [_tree_designs(domain, int(tree), best_known, rng) for tree in trees]
     blocks = joint_posterior(posterior, [torch.as_tensor(block, **tkw) for block in points])

@@ -14,7 +14,7 @@ What a caller can rely on:
 - **Looks at other trees** (``options["second_looks"]``). With ``thompson`` (the
   default), every second model candidate after the start of a design space of at most
   ``initial.COVERED_CHOICES`` structures is a look turn (``initial.thompson_turn``):
-  one joint posterior draw over every tree's designs (``looks.drawn_tree``) picks a
+  one joint posterior draw over each tree's designs (``looks.drawn_tree``) picks a
   tree, and unless it is the incumbent's or has more than ``initial.LOOK_DESIGNS``
   designs (observed, failed or pending), the candidate is a random design of it
   (``method: thompson``, ``second_look: true``). With ``judged`` or ``always``, every
@@ -84,6 +84,7 @@ import numpy as np
 
 from adservice.proposers.base import (
     DEGRADED,
+    MAX_FAILED_AS_PENDING,
     Proposal,
     ProposalRequest,
     ProposerOptions,
@@ -109,7 +110,6 @@ if TYPE_CHECKING:
 
 _DISTINCT_TOL = 1e-9
 """Two vectors closer than this (max-norm, unit box) are the same point."""
-_MAX_FAILED_AS_PENDING = 32
 
 
 def model_errors() -> tuple[type[BaseException], ...]:
@@ -166,7 +166,7 @@ class QLogEIProposer:
             dim=dim,
             count=count,
             n_train=n_train,
-            n_pending=n_pending + min(n_failed, _MAX_FAILED_AS_PENDING),
+            n_pending=n_pending + min(n_failed, MAX_FAILED_AS_PENDING),
             n_objectives=n_objectives,
             n_constraints=n_constraints,
         )
@@ -257,7 +257,7 @@ class QLogEIProposer:
 
         pending = [np.asarray(request.pending, dtype=np.float64).reshape(-1, request.dim)]
         failed = np.asarray(request.failed, dtype=np.float64).reshape(-1, request.dim)
-        pending.append(failed[-_MAX_FAILED_AS_PENDING:])
+        pending.append(failed[-MAX_FAILED_AS_PENDING:])
         pending.append(issued_now)
         X_pending = np.concatenate(pending, axis=0)
         X_pending = X_pending[np.all(np.isfinite(X_pending), axis=1)]
