@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -79,6 +81,41 @@ def append_jsonl(path: Path, record: dict[str, Any]) -> None:
         handle.write((json.dumps(record, separators=(",", ":")) + "\n").encode())
         handle.flush()
         os.fsync(handle.fileno())
+
+
+def arms_parser(
+    doc: str, arms: tuple[str, ...], results: Path, *, seeds: int, workers: int, timeout: float
+) -> argparse.ArgumentParser:
+    """The options every arms-against-arms study benchmark takes (bench/ties.py,
+    bench/tree_looks.py): seeds, workers, arms, a study's timeout, the results file and
+    ``--report``."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, default=seeds)
+    parser.add_argument("--workers", type=int, default=workers)
+    parser.add_argument("--arms", nargs="+", choices=arms, default=list(arms))
+    parser.add_argument("--timeout", type=float, default=timeout)
+    parser.add_argument("--results", type=Path, default=results)
+    parser.add_argument("--report", action="store_true", help="print the table and stop")
+    return parser
+
+
+def run_missing(
+    path: Path,
+    runs: list[dict[str, Any]],
+    cells: list[dict[str, Any]],
+    run: Callable[[dict[str, Any]], dict[str, Any]],
+) -> None:
+    """Run each cell (the fields that name a run) that no record of ``runs`` matches,
+    appending each finished run to ``path`` and to ``runs`` and printing its best: a
+    killed benchmark resumes where it stopped."""
+    for cell in cells:
+        if any(all(record.get(k) == v for k, v in cell.items()) for record in runs):
+            continue
+        record = run(cell)
+        append_jsonl(path, record)
+        runs.append(record)
+        named = " ".join(f"{k} {v}" for k, v in cell.items())
+        print(f"{named}: best {record['best']:.3f} ({record['wall_s']:.0f} s)", flush=True)
 
 
 def quantiles(values: list[float], qs: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:

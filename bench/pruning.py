@@ -95,6 +95,7 @@ def trial_records(trials: list[Trial]) -> list[dict[str, Any]]:
             "number": t.number,
             "state": t.state.value,
             "value": t.value,
+            "method": t.info.get("method"),
             "seconds": t.metrics.get("time_total_s"),
             "cpu_seconds": t.metrics.get("time_cpu_s"),
             "resumed_from_step": t.metrics.get("resumed_from_step"),

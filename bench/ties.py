@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from adclient.design import DesignSpace  # noqa: E402
-from bench.paperlib import append_jsonl, quantiles, read_jsonl  # noqa: E402
+from bench.paperlib import arms_parser, quantiles, read_jsonl, run_missing  # noqa: E402
 from bench.pruning import run_study  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "ties.jsonl"
@@ -116,32 +116,24 @@ def report(runs: list[dict[str, Any]]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seeds", type=int, default=10)
+    parser = arms_parser(__doc__ or "", ARMS, RESULTS, seeds=10, workers=2, timeout=3600.0)
     parser.add_argument("--trials", type=int, default=30)
-    parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--proposers", nargs="+", default=["qei"])
-    parser.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
-    parser.add_argument("--timeout", type=float, default=3600.0)
-    parser.add_argument("--results", type=Path, default=RESULTS)
-    parser.add_argument("--report", action="store_true", help="print the table and stop")
     args = parser.parse_args()
     runs = read_jsonl(args.results)
     if not args.report:
-        done = {(r["arm"], r["proposer"], r["seed"], r["max_trials"]) for r in runs}
-        for seed in range(args.seeds):
-            for proposer in args.proposers:
-                for arm in args.arms:
-                    if (arm, proposer, seed, args.trials) in done:
-                        continue
-                    run = run_one(arm, proposer, seed, args)
-                    append_jsonl(args.results, run)
-                    runs.append(run)
-                    print(
-                        f"{proposer} {arm} seed {seed}: best {run['best']:.3f} "
-                        f"({run['wall_s']:.0f} s)",
-                        flush=True,
-                    )
+        cells = [
+            {"arm": arm, "proposer": proposer, "seed": seed, "max_trials": args.trials}
+            for seed in range(args.seeds)
+            for proposer in args.proposers
+            for arm in args.arms
+        ]
+        run_missing(
+            args.results,
+            runs,
+            cells,
+            lambda cell: run_one(cell["arm"], cell["proposer"], cell["seed"], args),
+        )
     print(report([r for r in runs if r["max_trials"] == args.trials]))
 
 
