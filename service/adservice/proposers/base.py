@@ -114,7 +114,7 @@ def model_inputs(X: np.ndarray, bounds: np.ndarray, search: SearchStructure | No
         unit = (X - bounds[0]) / (bounds[1] - bounds[0])
         return np.column_stack([np.zeros(len(X)), unit])
     if search.n_structures > 1:
-        index = np.clip(np.floor(X[:, 0] + 0.5), 0, search.n_structures - 1)
+        index = _tree_index(X[:, 0], search)
         specs = np.clip(X[:, 1:], 0.0, 1.0)
     else:
         index = np.zeros(len(X))
@@ -265,8 +265,12 @@ def design_trees(X: np.ndarray, search: SearchStructure) -> np.ndarray:
     as ``model_inputs`` reads it."""
     X = np.asarray(X, dtype=np.float64)
     index = X[:, 0] if X.ndim == 2 and len(X) else np.zeros(0)
-    index = index[np.isfinite(index)]
-    return np.clip(np.floor(index + 0.5), 0, search.n_structures - 1).astype(np.int64)
+    return _tree_index(index[np.isfinite(index)], search).astype(np.int64)
+
+
+def _tree_index(column: np.ndarray, search: SearchStructure) -> np.ndarray:
+    """A search vector's structure column as the structure it names (the nearest)."""
+    return np.clip(np.floor(column + 0.5), 0, search.n_structures - 1)
 
 
 def empty_history(dim: int) -> FloatArray:
