@@ -344,17 +344,23 @@ def test_the_default_goes_back_to_trees_whose_first_designs_were_poor() -> None:
 
 @pytest.mark.slow
 def test_thompson_looks_end_after_two_per_tree() -> None:
-    """A long study where other trees keep winning draws (unused-specs: the four e
+    """Long studies where other trees keep winning draws (unused-specs: the four e
     trees are alike, so each may beat the incumbent's): no tree gets more than two
-    looks, nor a look once it has three designs, and none goes to the incumbent's tree."""
-    trees, y, methods = suite_study("unused-specs", 0, 60, {})
-    looked = [k for k, method in enumerate(methods) if method == "thompson"]
-    assert len(looked) >= 3, methods
-    per_tree = np.bincount([trees[k] for k in looked], minlength=8)
-    assert per_tree.max() <= LOOK_DESIGNS, per_tree
-    for k in looked:
-        assert trees[:k].count(trees[k]) <= LOOK_DESIGNS
-        assert trees[k] != trees[int(np.argmax(y[:k]))]
+    looks, nor a look once it has three designs, and none goes to the incumbent's tree.
+    How many looks one seed takes depends on its path (floating point differs between
+    machines), so the rules are checked on every look of three seeds, which look at
+    least three times together."""
+    looks = 0
+    for seed in range(3):
+        trees, y, methods = suite_study("unused-specs", seed, 60, {})
+        looked = [k for k, method in enumerate(methods) if method == "thompson"]
+        looks += len(looked)
+        per_tree = np.bincount([trees[k] for k in looked], minlength=8)
+        assert per_tree.max() <= LOOK_DESIGNS, (seed, per_tree)
+        for k in looked:
+            assert trees[:k].count(trees[k]) <= LOOK_DESIGNS, (seed, k, trees)
+            assert trees[k] != trees[int(np.argmax(y[:k]))], (seed, k, trees, y)
+    assert looks >= 3, looks
 
 
 def test_thompson_turns_are_every_second_model_ask_where_the_start_tried_every_tree() -> None:
