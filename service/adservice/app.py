@@ -268,7 +268,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         backoff = Backoff(settings.proposal_backoff_seconds, settings.proposal_backoff_max_seconds)
         expansions = ExpansionPool(settings.expand_threads, settings.expand_queue)
         app.state.proposing = Proposing(
-            db, StudyConfigs(db), StudyLocks(), runner, backoff, expansions
+            db,
+            StudyConfigs(db),
+            StudyLocks(),
+            runner,
+            backoff,
+            expansions,
+            storage_quota=settings.owner_storage_bytes,
         )
         app.state.principals = PrincipalCache()
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())

@@ -80,7 +80,11 @@ class ArtifactStore:
         name: str,
         chunks: AsyncIterator[bytes],
         limit: int,
+        limit_named: str | None = None,
     ) -> tuple[Path, int, str]:
+        """Write an artifact's file from ``chunks``: its path, size and SHA-256. Past
+        ``limit`` bytes, TooLargeError naming the limit (``limit_named``: the limit, its
+        setting and what is used, as a refusal names it)."""
         folder = self.folder_for(study_id=study_id, trial_id=trial_id)
         folder.mkdir(parents=True, exist_ok=True)
         digest = hashlib.sha256()
@@ -91,7 +95,8 @@ class ArtifactStore:
                 async for chunk in chunks:
                     size += len(chunk)
                     if size > limit:
-                        raise TooLargeError(f"artifact {name!r} exceeds the limit of {limit} bytes")
+                        named = limit_named or f"the limit of {limit} bytes"
+                        raise TooLargeError(f"artifact {name!r} exceeds {named}")
                     digest.update(chunk)
                     handle.write(chunk)
                 handle.flush()

@@ -14,7 +14,8 @@ binds to loopback and nobody turned it on (see ``adservice.cli``); then every ca
 an admin, and a worker is known by the ``worker_id`` it sends.
 
 Authentication runs as middleware, before a route parses its body: a caller without a
-valid token learns 401, never anything about the body it sent.
+valid token learns 401, and a caller whose role a change's route does not admit 403,
+before its body is read (never anything about the body it sent).
 """
 
 from __future__ import annotations
@@ -28,8 +29,11 @@ from collections.abc import Awaitable, Callable
 from http.cookies import SimpleCookie
 
 from fastapi import Request
+from fastapi.dependencies.models import Dependant
 from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
+from starlette.routing import BaseRoute, Match
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from adservice.db import Database
@@ -174,12 +178,65 @@ async def authenticate(scope: Scope) -> Principal:
     return principal
 
 
+def _required_role(dependant: Dependant) -> Role | None:
+    """The role a route's dependencies require (:func:`require`), if any."""
+    for dependency in dependant.dependencies:
+        role = getattr(dependency.call, "required_role", None)
+        if isinstance(role, Role):
+            return role
+        role = _required_role(dependency)
+        if role is not None:
+            return role
+    return None
+
+
+def write_routes_by_role(routes: list[BaseRoute]) -> dict[Role, list[APIRoute]]:
+    """The routes of changes (methods other than GET, HEAD, OPTIONS), by the role each
+    requires: what the middleware matches a change against before its body is read."""
+    by_role: dict[Role, list[APIRoute]] = {}
+    for route in routes:
+        if isinstance(route, APIRoute) and (route.methods or set()) - SAFE_METHODS:
+            role = _required_role(route.dependant)
+            if role is not None:
+                by_role.setdefault(role, []).append(route)
+    return by_role
+
+
+def _refused_role(
+    by_role: dict[Role, list[APIRoute]], scope: Scope, principal: Principal
+) -> ForbiddenError | None:
+    """The 403 a change's route would answer the caller's role, found from the path and
+    method alone, or None where the role is enough (or no route requires one)."""
+    if scope["method"] in SAFE_METHODS:
+        return None
+    rank = RANK[principal.role]
+    for role, routes in by_role.items():
+        if RANK[role] > rank and any(route.matches(scope)[0] == Match.FULL for route in routes):
+            return role_refusal(role, principal)
+    return None
+
+
+def role_refusal(role: Role, principal: Principal) -> ForbiddenError:
+    return ForbiddenError(
+        f"this needs the {role} role or a higher one; the token's role is {principal.role}"
+    )
+
+
 class Authentication:
     """Pure ASGI middleware: every /api request but signing in carries a principal in
-    ``scope["state"]["principal"]``, or is answered 401/403 before its route runs."""
+    ``scope["state"]["principal"]``, or is answered 401/403 before its route runs: for
+    no valid token, and for a change whose route requires a higher role than the
+    caller's (both before the body is read: the answer closes the connection, whose rest
+    is never read)."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
+        self._by_role: dict[Role, list[APIRoute]] | None = None
+
+    def _write_routes(self, scope: Scope) -> dict[Role, list[APIRoute]]:
+        if self._by_role is None:  # the app's routes are all in place by its first request
+            self._by_role = write_routes_by_role(scope["app"].router.routes)
+        return self._by_role
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         path = scope.get("path", "")
@@ -192,17 +249,28 @@ class Authentication:
             return
         try:
             principal = await authenticate(scope)
+            refused = _refused_role(self._write_routes(scope), scope, principal)
+            if refused is not None:
+                raise refused
         except (UnauthorizedError, ForbiddenError) as error:
             unauthorized = isinstance(error, UnauthorizedError)
+            headers = {"WWW-Authenticate": "Bearer"} if unauthorized else {}
+            if _has_body(scope):
+                headers["Connection"] = "close"  # its body is never read
             response = JSONResponse(
                 {"error": error.code, "detail": error.detail},
                 status_code=401 if unauthorized else 403,
-                headers={"WWW-Authenticate": "Bearer"} if unauthorized else None,
+                headers=headers,
             )
             await response(scope, receive, send)
             return
         scope.setdefault("state", {})["principal"] = principal
         await self.app(scope, receive, send)
+
+
+def _has_body(scope: Scope) -> bool:
+    headers = dict(scope["headers"])
+    return headers.get(b"content-length", b"0") != b"0" or b"transfer-encoding" in headers
 
 
 def require(role: Role) -> Callable[[Request], Awaitable[Principal]]:
@@ -211,9 +279,8 @@ def require(role: Role) -> Callable[[Request], Awaitable[Principal]]:
     async def dependency(request: Request) -> Principal:
         principal: Principal = request.state.principal
         if RANK[principal.role] < RANK[role]:
-            raise ForbiddenError(
-                f"this needs the {role} role or a higher one; the token's role is {principal.role}"
-            )
+            raise role_refusal(role, principal)
         return principal
 
+    dependency.required_role = role  # type: ignore[attr-defined]  # write_routes_by_role
     return dependency

@@ -38,6 +38,13 @@ class ProposalFailedError(ConflictError):
     code = "proposal_failed"
 
 
+class OverQuotaError(ConflictError):
+    """An owner's studies store as many bytes as its storage quota allows: no new trial
+    is made for it (an upload past the quota is a ``TooLargeError``)."""
+
+    code = "over_quota"
+
+
 class InvalidError(DomainError):
     """A request naming a bad value; its answer always lists ``problems`` (the detail
     alone when none are given), as request validation's answers do."""

@@ -9,7 +9,18 @@ from __future__ import annotations
 import asyncio
 
 from starlette.responses import JSONResponse
+from starlette.routing import compile_path
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+ARTIFACT_UPLOAD_PATH = "/api/v1/trials/{trial_id}/artifacts/{name}"
+"""The one route whose body may be an artifact (``PUT``, api/routes/artifacts.py): only
+its body takes the artifact limit."""
+_ARTIFACT_UPLOAD = compile_path(ARTIFACT_UPLOAD_PATH)[0]
+
+
+def is_artifact_upload(scope: Scope) -> bool:
+    """Whether the request is an artifact upload, matched as its route matches it."""
+    return scope["method"] == "PUT" and _ARTIFACT_UPLOAD.match(scope["path"]) is not None
 
 
 class BodyRefused(Exception):
@@ -18,8 +29,9 @@ class BodyRefused(Exception):
 
 
 class BodyLimits:
-    """Pure ASGI middleware: a body must fit the limit (``artifact_limit`` for artifact
-    uploads) and be complete within ``timeout`` seconds of its headers' end.
+    """Pure ASGI middleware: a body must fit the limit (``artifact_limit`` for the
+    artifact upload route alone, :func:`is_artifact_upload`) and be complete within
+    ``timeout`` seconds of its headers' end.
 
     A declared ``Content-Length`` over the limit is answered at once. Otherwise the body
     is counted and timed as it arrives; past either limit the middleware answers itself,
@@ -37,14 +49,16 @@ class BodyLimits:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        allowed = self.artifact_limit if "/artifacts/" in scope["path"] else self.limit
+        upload = is_artifact_upload(scope)
+        allowed = self.artifact_limit if upload else self.limit
+        setting = "AD_MAX_ARTIFACT_BYTES" if upload else "AD_MAX_BODY_BYTES"
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None and not declared.isdigit():
             invalid = {"error": "invalid", "detail": "Content-Length must be a number"}
             await JSONResponse(invalid, status_code=400)(scope, receive, send)
             return
         if declared is not None and int(declared) > allowed:
-            await _too_large(allowed)(scope, receive, send)
+            await _too_large(allowed, setting)(scope, receive, send)
             return
         deadline = asyncio.get_running_loop().time() + self.timeout
         received = 0
@@ -71,7 +85,7 @@ class BodyLimits:
                 return message
             received += len(message.get("body", b""))
             if received > allowed:
-                await refuse(_too_large(allowed))
+                await refuse(_too_large(allowed, setting))
             body_done = not message.get("more_body", False)
             return message
 
@@ -89,9 +103,10 @@ class BodyLimits:
                 raise
 
 
-def _too_large(allowed: int) -> JSONResponse:
+def _too_large(allowed: int, setting: str) -> JSONResponse:
+    detail = f"body exceeds the limit of {allowed} bytes ({setting})"
     return JSONResponse(
-        {"error": "too_large", "detail": f"body exceeds the limit of {allowed} bytes"},
+        {"error": "too_large", "detail": detail},
         status_code=413,
         headers={"Connection": "close"},
     )

@@ -211,6 +211,35 @@ class TrialURDFRow(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class StudyStorageRow(Base):
+    """The bytes a study stores: its trials' artifacts and stored URDFs. Kept by database
+    triggers (migration 0015) in the transaction that adds or removes them, never written
+    by the service: a new study gets its row, and each change passes on to its owner's
+    :class:`OwnerStorageRow`."""
+
+    __tablename__ = "study_storage"
+
+    study_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("studies.id", ondelete="CASCADE"), primary_key=True, autoincrement=False
+    )
+    owner_key: Mapped[int]
+    """The owning token's id, 0 for a study without an owner (``OwnerStorageRow``)."""
+    artifact_bytes: Mapped[int] = mapped_column(sa.BigInteger)
+    urdf_bytes: Mapped[int] = mapped_column(sa.BigInteger)
+    """Each stored URDF's (or expansion error's) UTF-8 bytes."""
+
+
+class OwnerStorageRow(Base):
+    """The bytes all studies of one owner store (the sum of their ``StudyStorageRow``),
+    which ``AD_OWNER_STORAGE_BYTES`` bounds; kept by triggers like its studies' rows.
+    Studies without an owner (made with auth off) count as one owner, key 0."""
+
+    __tablename__ = "owner_storage"
+
+    owner_key: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
+    bytes: Mapped[int] = mapped_column(sa.BigInteger)
+
+
 class WorkerRow(Base):
     __tablename__ = "workers"
 

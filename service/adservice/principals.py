@@ -40,6 +40,13 @@ class Principal:
         """Whether leases and ownership are checked against this caller's token."""
         return self.token_id is not None and not self.is_admin
 
+    @property
+    def leased_owner(self) -> int | None:
+        """The token whose studies alone this caller's leases serve: a ``user``'s own,
+        the studies it may write; None for a worker or an admin, whose leases serve every
+        managed study, and with auth off."""
+        return self.token_id if self.checked and self.role == Role.user else None
+
     def may_manage(self, owner_token_id: int | None) -> bool:
         """Whether this caller may ask, tell, stop or delete a study owned by that token."""
         return not self.checked or (self.role == Role.user and self.token_id == owner_token_id)

@@ -43,6 +43,23 @@ class Settings(BaseSettings):
     expand_queue: int = Field(default=16, ge=0)
     """Expansions that may wait for one of those threads; past them a request that
     needs one is answered 503 with Retry-After, and nothing is stored."""
+
+    # Template studies' URDFs (issue 58): the bytes they store, what a lease waits for.
+    max_urdf_bytes: int = Field(default=2_000_000, ge=1, le=2_000_000)
+    """The largest URDF a template trial's expansion may be (bytes; past it the trial is
+    failed, naming it): at most the SDK's and workers' own (``MAX_URDF_BYTES``)."""
+    max_ask_urdf_bytes: int = Field(default=32_000_000, ge=1)
+    """The bytes of the URDFs one ask (or one lease's proposal, or one enqueue) of a
+    template study adds together; a trial past it is failed (an enqueue refused)."""
+    max_study_urdf_bytes: int = Field(default=256_000_000, ge=1)
+    """The bytes of the URDFs one template study may store; once it does, its asks are
+    refused (409) and leases skip it, and the last trials that would pass it fail."""
+    lease_expand_seconds: float = Field(default=5.0, gt=0)
+    """How long a worker's lease waits for the expansion of a template study's new
+    trial; past it the lease serves another study, the expansion goes on in the
+    background (the trial back in the queue), and the study backs off as after a failed
+    proposal, as it does after an expansion that fails."""
+
     sweep_seconds: float = 2.0
     """How often expired leases are returned to the queue in the background."""
     max_body_bytes: int = 1_000_000
@@ -51,6 +68,13 @@ class Settings(BaseSettings):
     """How many artifacts one trial may have (a re-upload of a name replaces it)."""
     max_trial_artifact_bytes: int = 64_000_000
     """The bytes all artifacts of one trial may take together."""
+
+    # Storage per owner (issue 58).
+    owner_storage_bytes: int | None = Field(default=20_000_000_000, ge=0)
+    """The bytes one owner's studies may store: their trials' artifacts and template
+    URDFs together (studies without an owner count as one owner). At it, an upload is
+    413, and no new trial is made for the owner: its ask or enqueue is 409 and workers'
+    leases skip its studies. None: no quota."""
     session_hours: float = 12.0
     """How long a dashboard sign-in lasts."""
     cors_origins: list[str] = []

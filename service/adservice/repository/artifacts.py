@@ -18,6 +18,7 @@ from adclient.schemas import SHARED_ARTIFACT, TrialState
 from adservice.errors import ConflictError, NotFoundError, TooLargeError
 from adservice.models import ArtifactRow, TrialRow, utcnow
 from adservice.principals import Principal, Role
+from adservice.repository import quotas as quota_repo
 from adservice.repository._shared import made_version
 from adservice.repository.leases import held_trial
 from adservice.repository.studies import check_manager, get_study
@@ -54,9 +55,23 @@ def _uploader(trial: TrialRow, caller: Principal) -> Uploader:
 @dataclass(frozen=True)
 class ArtifactQuota:
     count: int
-    """Artifacts one trial may have."""
+    """Artifacts one trial may have (``AD_MAX_ARTIFACTS_PER_TRIAL``)."""
     total_bytes: int
-    """Bytes all of one trial's artifacts may take."""
+    """Bytes all of one trial's artifacts may take (``AD_MAX_TRIAL_ARTIFACT_BYTES``)."""
+    artifact_bytes: int
+    """Bytes one artifact may take (``AD_MAX_ARTIFACT_BYTES``)."""
+    owner_bytes: int | None = None
+    """Bytes all of one owner's studies may store, artifacts and URDFs together
+    (``AD_OWNER_STORAGE_BYTES``); None: no quota."""
+
+
+@dataclass(frozen=True)
+class UploadRoom:
+    """How many bytes an upload may write, and the limit that sets it."""
+
+    bytes: int
+    limit: str
+    """The limit, its size and its setting, as a refusal names it."""
 
 
 def artifact_room(
@@ -67,10 +82,13 @@ def artifact_room(
     worker_id: str | None,
     caller: Principal,
     quota: ArtifactQuota,
-) -> tuple[TrialRow, int]:
+    for_update: bool = False,
+) -> tuple[TrialRow, UploadRoom]:
     """The trial an upload may write to, and how many bytes it may write: only while the
     trial runs, by its lease holder (or, for an asked trial, the study's owner), within
-    the trial's quota (``name``'s present file, which it would replace, not counted)."""
+    the size of one artifact, the trial's quota and its owner's storage quota (``name``'s
+    present file, which it would replace, not counted). ``for_update`` locks the owner's
+    storage total too, so that the room stays the room until the commit."""
     trial = get_trial(session, trial_id=trial_id, for_update=True)
     if trial.state != TrialState.running:
         raise ConflictError(
@@ -86,19 +104,40 @@ def artifact_room(
             f"trial {trial_id} made version {made} of its study's shared controller: its "
             f"{SHARED_ARTIFACT} is that version and is not replaced"
         )
-    others = session.execute(
-        sa.select(sa.func.count(), sa.func.coalesce(sa.func.sum(ArtifactRow.size), 0)).where(
-            ArtifactRow.trial_id == trial_id, ArtifactRow.name != name
-        )
+    named = ArtifactRow.name == name
+    count, others, present = session.execute(
+        sa.select(
+            sa.func.count().filter(~named),
+            sa.func.coalesce(sa.func.sum(ArtifactRow.size).filter(~named), 0),
+            sa.func.coalesce(sa.func.sum(ArtifactRow.size).filter(named), 0),
+        ).where(ArtifactRow.trial_id == trial_id)
     ).one()
-    if others[0] >= quota.count:
-        raise TooLargeError(f"trial {trial_id} already has {others[0]} artifacts, the most allowed")
-    room = quota.total_bytes - int(others[1])
-    if room <= 0:
+    if count >= quota.count:
         raise TooLargeError(
-            f"trial {trial_id}'s artifacts already take {others[1]} bytes of its "
-            f"{quota.total_bytes}"
+            f"trial {trial_id} already has {count} artifacts, the most one trial may have "
+            "(AD_MAX_ARTIFACTS_PER_TRIAL)"
         )
+    rooms = [
+        UploadRoom(
+            quota.artifact_bytes,
+            f"the limit of {quota.artifact_bytes} bytes per artifact (AD_MAX_ARTIFACT_BYTES)",
+        ),
+        UploadRoom(
+            quota.total_bytes - int(others),
+            f"the {quota.total_bytes} bytes one trial's artifacts may take "
+            f"(AD_MAX_TRIAL_ARTIFACT_BYTES): its others take {others}",
+        ),
+    ]
+    if quota.owner_bytes is not None:
+        stored = quota_repo.owner_storage(session, study_id=trial.study_id, for_update=for_update)
+        rooms.append(
+            UploadRoom(
+                quota.owner_bytes - (stored.used - int(present)), stored.of(quota.owner_bytes)
+            )
+        )
+    room = min(rooms, key=lambda each: each.bytes)
+    if room.bytes <= 0:
+        raise TooLargeError(f"trial {trial_id} takes no more artifacts: {room.limit}")
     return trial, room
 
 
@@ -116,14 +155,20 @@ def record_artifact(
     quota: ArtifactQuota,
 ) -> tuple[ArtifactRow, str | None]:
     """Record an artifact whose file is already complete on disk (last step of a PUT),
-    checking again that the lease and the quota still allow it, with who uploaded it
+    checking again that the lease and the quotas still allow it, with who uploaded it
     under which lease; also returns the path of the file it replaces, if any (the caller
     removes it after the commit)."""
     trial, room = artifact_room(
-        session, trial_id=trial_id, name=name, worker_id=worker_id, caller=caller, quota=quota
+        session,
+        trial_id=trial_id,
+        name=name,
+        worker_id=worker_id,
+        caller=caller,
+        quota=quota,
+        for_update=True,
     )
-    if size > room:
-        raise TooLargeError(f"trial {trial_id}'s artifacts would exceed {quota.total_bytes} bytes")
+    if size > room.bytes:
+        raise TooLargeError(f"artifact {name!r} of {size} bytes exceeds {room.limit}")
     row = session.scalars(
         sa.select(ArtifactRow).where(ArtifactRow.trial_id == trial_id, ArtifactRow.name == name)
     ).one_or_none()

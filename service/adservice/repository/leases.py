@@ -19,6 +19,7 @@ from adservice.errors import ForbiddenError, LeaseLostError
 from adservice.models import StudyRow, TrialRow, WorkerRow, utcnow
 from adservice.principals import Principal
 from adservice.repository._shared import locking, served_changed, touch_worker
+from adservice.repository.quotas import within_quota
 from adservice.repository.studies import finish_study_if_done, get_study
 from adservice.repository.trials import get_trial
 
@@ -65,17 +66,24 @@ def expire_leases(session: Session, *, now: datetime | None = None) -> int:
     return len(expired)
 
 
-def _task_among(
-    tasks: Sequence[str] | None, learners: Sequence[str] | None
+def _leasable(
+    tasks: Sequence[str] | None,
+    learners: Sequence[str] | None,
+    owner: int | None,
+    storage_quota: int | None,
 ) -> list[sa.ColumnElement[bool]]:
-    """Managed studies, and with ``tasks`` (``learners``) only those whose task (its
-    learner) has one of these names."""
+    """Managed studies; with ``tasks`` (``learners``) only those whose task (its
+    learner) has one of these names; with ``owner`` only that token's studies (a user's
+    lease: ``Principal.leased_owner``); with ``storage_quota`` only those whose owner
+    stores less than that many bytes."""
     where: list[sa.ColumnElement[bool]] = [StudyRow.task.is_not(None)]
     if tasks is not None:
         where.append(StudyRow.task["name"].as_string().in_(list(tasks)))
     if learners is not None:
         where.append(StudyRow.task["learner"].as_string().in_(list(learners)))
-    return where
+    if owner is not None:
+        where.append(StudyRow.owner_token_id == owner)
+    return where + within_quota(storage_quota)
 
 
 def _not_backing_off(now: datetime) -> sa.ColumnElement[bool]:
@@ -91,9 +99,12 @@ def lease_queued_trial(
     lease_seconds: float,
     tasks: Sequence[str] | None = None,
     learners: Sequence[str] | None = None,
+    owner: int | None = None,
+    storage_quota: int | None = None,
 ) -> TrialRow | None:
     """Lease the oldest queued trial of a running managed study (of one of ``tasks``
-    and ``learners``) that is not backing off after a failure (``proposal_retry_at``).
+    and ``learners``, of ``owner``'s when given, whose owner is within
+    ``storage_quota``) that is not backing off after a failure (``proposal_retry_at``).
 
     With none queued, only a new worker, or one that now serves other tasks or learners,
     is written (so the transaction commits without a write when nothing changed): the
@@ -107,7 +118,7 @@ def lease_queued_trial(
         .where(
             TrialRow.state == TrialState.queued,
             StudyRow.state == "running",
-            *_task_among(tasks, learners),
+            *_leasable(tasks, learners, owner, storage_quota),
             _not_backing_off(now),
         )
         .order_by(TrialRow.id)
@@ -163,15 +174,17 @@ def studies_wanting_trials(
     *,
     tasks: Sequence[str] | None = None,
     learners: Sequence[str] | None = None,
+    owner: int | None = None,
+    storage_quota: int | None = None,
 ) -> list[int]:
-    """Running managed studies (of one of ``tasks`` and ``learners``) with room for a
-    trial, oldest first; a study whose proposals failed is left out until its
-    ``proposal_retry_at``."""
+    """Running managed studies (of one of ``tasks`` and ``learners``, of ``owner``'s
+    when given, whose owner is within ``storage_quota``) with room for a trial, oldest
+    first; a study whose proposals failed is left out until its ``proposal_retry_at``."""
     query = (
         sa.select(StudyRow.id)
         .where(
             StudyRow.state == "running",
-            *_task_among(tasks, learners),
+            *_leasable(tasks, learners, owner, storage_quota),
             StudyRow.n_trials < StudyRow.max_trials,
             _not_backing_off(utcnow()),
         )

@@ -35,6 +35,9 @@ async def lease_job(
 ) -> Job | None:
     """A queued trial if there is one, else a freshly proposed one from a managed study
     with room; None when there is no work (of ``tasks`` and ``learners``, when given).
+    A user token's lease serves only the studies it created (``Principal.leased_owner``),
+    a worker's or an admin's every study; studies whose owner stores its storage quota
+    (``Proposing.storage_quota``) are skipped, queued trials and new ones alike.
     Paused trials of studies whose budget is spent are ended first (pruned). Leasing a
     queued trial is one short write that never waits for a proposal; a model-based proposal
     runs in the proposal threads, preferring a study with none under way. A study whose
@@ -47,6 +50,7 @@ async def lease_job(
         proposing.locks,
         proposing.runner,
     )
+    owner, quota = caller.leased_owner, proposing.storage_quota
 
     def queued() -> Trial | None:
         with db.write() as session:
@@ -58,12 +62,16 @@ async def lease_job(
                 lease_seconds=lease_seconds,
                 tasks=tasks,
                 learners=learners,
+                owner=owner,
+                storage_quota=quota,
             )
             return Trial.model_validate(row, from_attributes=True) if row else None
 
     def wanting() -> list[int]:
         with db.read() as session:
-            return lease_repo.studies_wanting_trials(session, tasks=tasks, learners=learners)
+            return lease_repo.studies_wanting_trials(
+                session, tasks=tasks, learners=learners, owner=owner, storage_quota=quota
+            )
 
     def give_back(trial: Trial) -> None:
         """A leased trial whose job the worker never got goes back to the queue at once,

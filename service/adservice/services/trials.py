@@ -22,7 +22,7 @@ from starlette.concurrency import run_in_threadpool
 from adclient.objectives import Outcome, OutcomeError
 from adclient.schemas import Trial, TrialAdd
 from adservice.db import Database
-from adservice.errors import ConflictError, InvalidError, StudyConfigError
+from adservice.errors import ConflictError, ForbiddenError, InvalidError, StudyConfigError
 from adservice.expansions import Expansion, ExpansionPool
 from adservice.locks import StudyLocks
 from adservice.principals import Principal, check_manager
@@ -30,6 +30,7 @@ from adservice.proposal_runner import AskBudget, ProposalRunner
 from adservice.proposers import Proposal, ProposalRequest, get_proposer
 from adservice.proposers.base import DEGRADED, empty_history
 from adservice.repository import promotion as promotion_repo
+from adservice.repository import quotas as quota_repo
 from adservice.repository import studies as study_repo
 from adservice.repository import trials as trial_repo
 from adservice.repository import urdfs as urdf_repo
@@ -95,10 +96,12 @@ def _record(
     worker_id: str | None,
     lease_token_id: int | None,
     lease_seconds: float,
+    storage_quota: int | None = None,
 ) -> list[Trial]:
-    """In one write transaction: an owner's ask of an unmanaged study takes its queued
-    (enqueued) trials first; the rest are ``propose(first_number, n)``'s candidates,
-    under newly reserved numbers.
+    """In one write transaction: an owner's ask is refused once the owner stores
+    ``storage_quota`` bytes; an ask of an unmanaged study takes its queued (enqueued)
+    trials first; the rest are ``propose(first_number, n)``'s candidates, under newly
+    reserved numbers.
 
     A worker's lease on PostgreSQL commits that transaction without waiting for its WAL
     flush, so the study's row (locked by the reservation) is free again without that
@@ -115,6 +118,7 @@ def _record(
         lease_token_id=lease_token_id,
         lease_seconds=lease_seconds,
         apart=apart,
+        storage_quota=storage_quota,
     )
     if apart:
         assert worker_id is not None
@@ -133,12 +137,15 @@ def _propose_and_insert(
     lease_token_id: int | None,
     lease_seconds: float,
     apart: bool,
+    storage_quota: int | None,
 ) -> list[Trial]:
     """:func:`_record`'s first transaction (``apart``: committed without waiting for its
     WAL flush, the worker not yet recorded as seen)."""
     with db.write() as session:
         if apart:
             trial_repo.commit_without_flush(session)
+        if worker_id is None:  # a lease's studies are within the quota (lease_job)
+            quota_repo.check_room(session, study_id=config.study_id, quota=storage_quota)
         claimed: list[Trial] = []
         if worker_id is None and config.task is None:
             claimed = trial_repo.claim_queued(session, study_id=config.study_id, count=count)
@@ -291,10 +298,13 @@ def propose_trials(
     worker_id: str | None = None,
     lease_seconds: float = 60.0,
     budget: AskBudget | None = None,
+    storage_quota: int | None = None,
 ) -> list[Trial]:
     """New trials of a study: asked by its owner (``worker_id`` None), or proposed for a
-    worker's lease (any worker may lease from any managed study); ``budget`` bounds a
-    model-based proposal (an owner's ask beyond its memory is refused, naming why)."""
+    worker's lease (a worker's or an admin's lease from any managed study, a user's only
+    from its own); ``budget`` bounds a model-based proposal (an owner's ask beyond its
+    memory is refused, naming why); an owner's ask is refused once the owner stores
+    ``storage_quota`` bytes (OverQuotaError; a lease's studies are chosen within it)."""
     config = configs.get(study_id)
     if worker_id is None:
         check_manager(
@@ -302,6 +312,11 @@ def propose_trials(
             study_id=study_id,
             owner_token_id=config.owner_token_id,
             owner_name=config.owner_name,
+        )
+    elif caller.leased_owner is not None and caller.leased_owner != config.owner_token_id:
+        raise ForbiddenError(
+            f"study {study_id} is not this token's: a user token leases only its own "
+            "studies' trials"
         )
     lease_token_id = caller.token_id if worker_id is not None else None
     instant = _history_free(config)
@@ -314,11 +329,14 @@ def propose_trials(
             worker_id=worker_id,
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
+            storage_quota=storage_quota,
         )
     proposer = get_proposer(config.proposer.name)
     with locks.hold(db, study_id):
         with db.read() as session:
             study = study_repo.get_study(session, study_id=study_id)
+            if worker_id is None:
+                quota_repo.check_room(session, study_id=study_id, quota=storage_quota)
             queued = 0
             if worker_id is None and config.task is None:
                 queued = trial_repo.count_queued(session, study_id=study_id)
@@ -348,24 +366,34 @@ def propose_trials(
             worker_id=worker_id,
             lease_token_id=lease_token_id,
             lease_seconds=lease_seconds,
+            storage_quota=storage_quota,
         )
 
 
 async def add_trials(
     proposing: Proposing, *, study_id: int, adds: list[TrialAdd], caller: Principal
 ) -> list[Trial]:
-    """Enqueue trials or add evaluated ones (``TrialAdd``), by the study's owner; each
-    one's params are checked against the space first, and a template study's expanded
-    (in the expansion pool), so a bad one stores nothing."""
-    db, configs = proposing.db, proposing.configs
+    """Enqueue trials or add evaluated ones (``TrialAdd``), by the study's owner, while
+    the owner stores less than its quota; each one's params are checked against the
+    space first, and a template study's expanded (in the expansion pool), so a bad one
+    stores nothing."""
+    db, configs, quota = proposing.db, proposing.configs, proposing.storage_quota
     template = await urdfs.template_of(proposing, study_id)
     if template is None:
         return await run_in_threadpool(
-            lambda: _store_adds(db, study_id, adds, _checked_adds(configs, study_id, adds, caller))
+            lambda: _store_adds(
+                db, study_id, adds, _checked_adds(configs, study_id, adds, caller), quota
+            )
         )
     checked = await run_in_threadpool(_checked_adds, configs, study_id, adds, caller)
+
+    def within_quota() -> None:
+        with db.read() as session:
+            quota_repo.check_room(session, study_id=study_id, quota=quota)
+
+    await db.run(within_quota)  # before the expansions, which the quota would refuse
     expanded = await urdfs.expand_added(proposing.expansions, template, adds, checked.params)
-    return await run_in_threadpool(_store_adds, db, study_id, adds, checked, expanded)
+    return await run_in_threadpool(_store_adds, db, study_id, adds, checked, quota, expanded)
 
 
 @dataclass(frozen=True)
@@ -416,12 +444,15 @@ def _store_adds(
     study_id: int,
     adds: list[TrialAdd],
     checked: _CheckedAdds,
+    storage_quota: int | None,
     expanded: list[Expansion] | None = None,
 ) -> list[Trial]:
     """The new ones stored in one write (with their URDFs, ``expanded``, for a template
-    study); with ``skip_if_exists``, an existing trial in a new one's place."""
+    study), unless the owner stores ``storage_quota`` bytes; with ``skip_if_exists``, an
+    existing trial in a new one's place."""
     vectors, kept, outcomes = checked.vectors, checked.params, checked.outcomes
     with db.write() as session:
+        quota_repo.check_room(session, study_id=study_id, quota=storage_quota)
         existing: dict[tuple[float, ...], Trial] = {}
         if any(add.skip_if_exists for add in adds):
             existing = trial_repo.trials_of_vectors(session, study_id=study_id, vectors=vectors)
@@ -472,6 +503,9 @@ class Proposing:
     runner: ProposalRunner
     backoff: Backoff = field(default_factory=Backoff)
     expansions: ExpansionPool = field(default_factory=ExpansionPool)
+    storage_quota: int | None = None
+    """The bytes one owner's studies may store (``AD_OWNER_STORAGE_BYTES``); None: no
+    quota."""
 
 
 async def ask_trials(
@@ -491,6 +525,7 @@ async def ask_trials(
                 count=count,
                 caller=caller,
                 budget=proposing.runner.budget,
+                storage_quota=proposing.storage_quota,
             )
 
     async def asked() -> list[Trial]:

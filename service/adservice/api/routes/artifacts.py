@@ -52,13 +52,16 @@ async def put_artifact(
 ) -> ArtifactInfo:
     """Upload while holding the trial's lease (``worker_id`` names the holder), or, for a
     trial asked from a study without workers, as the study's owner; within the trial's
-    quota. The body is stored as it comes; the type it is served with is decided from
-    its bytes when it is read back."""
+    quota and the owner's storage quota. The body is stored as it comes; the type it is
+    served with is decided from its bytes when it is read back."""
     quota = artifact_repo.ArtifactQuota(
-        count=settings.max_artifacts_per_trial, total_bytes=settings.max_trial_artifact_bytes
+        count=settings.max_artifacts_per_trial,
+        total_bytes=settings.max_trial_artifact_bytes,
+        artifact_bytes=settings.max_artifact_bytes,
+        owner_bytes=settings.owner_storage_bytes,
     )
 
-    def room() -> tuple[int, int]:
+    def room() -> tuple[int, artifact_repo.UploadRoom]:
         with db.write() as session:
             trial, left = artifact_repo.artifact_room(
                 session,
@@ -76,7 +79,8 @@ async def put_artifact(
         trial_id=trial_id,
         name=name,
         chunks=request.stream(),
-        limit=min(settings.max_artifact_bytes, left),
+        limit=left.bytes,
+        limit_named=left.limit,
     )
 
     def record() -> tuple[ArtifactInfo, str | None]:
