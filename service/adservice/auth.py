@@ -22,18 +22,20 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import re
 import secrets
 import threading
 import time
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from http.cookies import SimpleCookie
 
 from fastapi import Request
 from fastapi.dependencies.models import Dependant
 from fastapi.responses import JSONResponse
-from fastapi.routing import APIRoute
+from fastapi.routing import APIRoute, iter_route_contexts
 from starlette.concurrency import run_in_threadpool
-from starlette.routing import BaseRoute, Match
+from starlette.routing import BaseRoute, compile_path
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from adservice.db import Database
@@ -190,29 +192,44 @@ def _required_role(dependant: Dependant) -> Role | None:
     return None
 
 
-def write_routes_by_role(routes: list[BaseRoute]) -> dict[Role, list[APIRoute]]:
-    """The routes of changes (methods other than GET, HEAD, OPTIONS), by the role each
-    requires: what the middleware matches a change against before its body is read."""
-    by_role: dict[Role, list[APIRoute]] = {}
-    for route in routes:
-        if isinstance(route, APIRoute) and (route.methods or set()) - SAFE_METHODS:
-            role = _required_role(route.dependant)
-            if role is not None:
-                by_role.setdefault(role, []).append(route)
-    return by_role
+@dataclass(frozen=True)
+class WriteRoute:
+    """A route of changes (a method other than GET, HEAD, OPTIONS) and the role it
+    requires."""
+
+    methods: frozenset[str]
+    path: re.Pattern[str]
+    """The route's full path, matched as its router matches it."""
+    role: Role
+
+    def serves(self, scope: Scope) -> bool:
+        return scope["method"] in self.methods and self.path.match(scope["path"]) is not None
+
+
+def write_routes(routes: list[BaseRoute]) -> list[WriteRoute]:
+    """The app's routes of changes that require a role (:func:`require`), included
+    routers' alike: what the middleware matches a change against before its body is
+    read."""
+    found: list[WriteRoute] = []
+    for context in iter_route_contexts(routes):
+        route, methods = context.original_route, frozenset(context.methods or ()) - SAFE_METHODS
+        role = _required_role(route.dependant) if isinstance(route, APIRoute) else None
+        if methods and role is not None and context.path is not None:
+            found.append(WriteRoute(methods, compile_path(context.path)[0], role))
+    return found
 
 
 def _refused_role(
-    by_role: dict[Role, list[APIRoute]], scope: Scope, principal: Principal
+    routes: list[WriteRoute], scope: Scope, principal: Principal
 ) -> ForbiddenError | None:
     """The 403 a change's route would answer the caller's role, found from the path and
     method alone, or None where the role is enough (or no route requires one)."""
     if scope["method"] in SAFE_METHODS:
         return None
     rank = RANK[principal.role]
-    for role, routes in by_role.items():
-        if RANK[role] > rank and any(route.matches(scope)[0] == Match.FULL for route in routes):
-            return role_refusal(role, principal)
+    for route in routes:
+        if RANK[route.role] > rank and route.serves(scope):
+            return role_refusal(route.role, principal)
     return None
 
 
@@ -231,12 +248,12 @@ class Authentication:
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
-        self._by_role: dict[Role, list[APIRoute]] | None = None
+        self._write_routes_found: list[WriteRoute] | None = None
 
-    def _write_routes(self, scope: Scope) -> dict[Role, list[APIRoute]]:
-        if self._by_role is None:  # the app's routes are all in place by its first request
-            self._by_role = write_routes_by_role(scope["app"].router.routes)
-        return self._by_role
+    def _write_routes(self, scope: Scope) -> list[WriteRoute]:
+        if self._write_routes_found is None:  # the routes are all in place by the first request
+            self._write_routes_found = write_routes(scope["app"].router.routes)
+        return self._write_routes_found
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         path = scope.get("path", "")
@@ -282,5 +299,5 @@ def require(role: Role) -> Callable[[Request], Awaitable[Principal]]:
             raise role_refusal(role, principal)
         return principal
 
-    dependency.required_role = role  # type: ignore[attr-defined]  # write_routes_by_role
+    dependency.required_role = role  # type: ignore[attr-defined]  # for write_routes
     return dependency
