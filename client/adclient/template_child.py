@@ -1,14 +1,16 @@
 """The process that expands a template: ``python -S -P template_child.py MEMORY SECONDS
-TMP``, started by :func:`adclient.templates.expand_isolated`; JSON ``{template, points}``
-on stdin, JSON ``{urdfs}`` or ``{error}``, and ``isolation``, on stdout.
+TMP``, started by :func:`adclient.templates.expand_checked`; JSON ``{template, points}``
+(and the checks: ``robots``, ``links``, ``max_bytes``, ``max_total_bytes``) on stdin,
+lines of JSON on stdout.
 
 Defence in depth behind the template language (:mod:`adclient.template_expr` runs no
 code): were a template to run code all the same, it would run here, confined. The child
 imports all it needs and expands a small template once (xacro and the evaluator import
 some modules on first use), then confines itself (:func:`confine`), and only then reads
-the request: no user's text is read before the confinement. Each layer is applied where this
-machine allows it and reported where it does not (the caller logs it): see
-docs/security.md, "The template child".
+the request: no user's text is read before the confinement. It answers a line of JSON
+for each point as it is done (``{point, urdf}`` or ``{point, error, stage}``), after
+one of ``{isolation}``. Each layer is applied where this machine allows it and reported
+where it does not (the caller logs it): see docs/security.md, "The template child".
 """
 
 from __future__ import annotations
@@ -250,29 +252,88 @@ def _landlock() -> str:
 
 def main() -> None:
     memory, seconds = (int(value) for value in sys.argv[1:3])
-    from adclient.templates import MAX_URDF_BYTES, TemplateError, expand
+    from adclient.templates import TemplateError, expand
+    from adclient.urdf_model import URDFModelError, read_urdf
 
-    # what xacro and the evaluator import on first use, imported now (a valid and a
-    # failing expansion): once confined, the child can open no module
+    # what xacro, the evaluator and the URDF reader import on first use, imported now (a
+    # valid and a failing expansion, a robot read): once confined, the child opens no module
     expand('<robot name="r"><link name="${n * 2}_$(arg n)"/></robot>', {"n": 1})
     with contextlib.suppress(TemplateError):
         expand('<robot name="r"><link name="${m}"/></robot>', {})
+    with contextlib.suppress(URDFModelError):
+        read_urdf('<robot name="r"><link name="a"/></robot>', lines_from="<r/>")
     isolation = confine(memory, seconds, sys.argv[3])
     request = json.loads(sys.stdin.buffer.read())
-    try:
-        urdfs = [expand(request["template"], point) for point in request["points"]]
-        too_big = [len(urdf) for urdf in urdfs if len(urdf) > MAX_URDF_BYTES]
-        if too_big:
-            raise TemplateError(
-                f"template: it expands to {too_big[0]} bytes, over {MAX_URDF_BYTES}"
+    _answer({"isolation": isolation})
+    expansions = _Expansions(request)
+    for index, point in enumerate(request["points"]):
+        try:
+            answer = expansions.checked(point)
+        except TemplateError as error:
+            answer = {"error": str(error)}
+        except MemoryError:
+            answer = {"error": f"template: expanding it needs over {memory} bytes"}
+        _answer({"point": index, **answer})
+
+
+def _answer(line: dict[str, Any]) -> None:
+    """One line of the answer, written at once: a child stopped at its limit has told
+    the points it finished."""
+    sys.stdout.write(json.dumps(line) + "\n")
+    sys.stdout.flush()
+
+
+class _Expansions:
+    """The request's points expanded and checked one by one (``templates.expand_checked``):
+    each URDF within its byte limit and all of them within the total's, and, where the
+    request asks, a robot the worker can build having the links the task looks up."""
+
+    def __init__(self, request: dict[str, Any]) -> None:
+        from adclient.templates import MAX_URDF_BYTES
+
+        self.template: str = request["template"]
+        self.robots = bool(request.get("robots", False))
+        self.links: list[list[str]] = request.get("links") or []
+        self.max_bytes, self.max_named = request.get("max_bytes") or [
+            MAX_URDF_BYTES,
+            f"the limit of {MAX_URDF_BYTES:,} bytes",
+        ]
+        total = request.get("max_total_bytes")
+        self.max_total: int | None = total[0] if total else None
+        self.total_named: str = total[1] if total else ""
+        self.total = 0
+
+    def checked(self, point: dict[str, Any]) -> dict[str, Any]:
+        from adclient.templates import expand
+        from adclient.urdf_model import URDFModelError, read_urdf
+
+        urdf = expand(self.template, point)
+        size = len(urdf.encode())
+        if size > self.max_bytes:
+            return _refused(f"it is {size:,} bytes, over {self.max_named}")
+        if self.max_total is not None and self.total + size > self.max_total:
+            return _refused(
+                f"it is {size:,} bytes, and with the {self.total:,} of those before it, "
+                f"over {self.total_named}"
             )
-        answer: dict[str, Any] = {"urdfs": urdfs}
-    except TemplateError as error:
-        answer = {"error": str(error)}
-    except MemoryError:
-        answer = {"error": f"template: expanding it needs over {memory} bytes"}
-    answer["isolation"] = isolation
-    sys.stdout.write(json.dumps(answer))
+        if self.robots:
+            try:
+                model = read_urdf(urdf, lines_from=self.template)
+            except URDFModelError as error:
+                return _refused(str(error))
+            for option, link in self.links:
+                if link not in model.links:
+                    return {
+                        "error": f"task.options.{option}: the template's robot has no link "
+                        f"{link!r} (its links: {', '.join(list(model.links)[:20])})",
+                        "stage": "links",
+                    }
+        self.total += size
+        return {"urdf": urdf}
+
+
+def _refused(problem: str) -> dict[str, str]:
+    return {"error": problem, "stage": "robot"}
 
 
 if __name__ == "__main__":

@@ -11,10 +11,13 @@ A template's ``${...}`` is in the template language of :mod:`adclient.template_e
 xacro is hardened (:func:`_harden_xacro`) so that this is xacro's only evaluator,
 ``$(arg name)`` its only substitution, and ``xacro:include`` does not exist, however the
 text spells them; :func:`template_problems` names the plain spellings before anything
-runs. Still a template is expanded in a child process of its own
-(:func:`expand_isolated`), limited in memory and time and without the parent's
-environment: a server checking a stranger's template, or a worker building it, cannot
-be made to hang, exhaust memory or read a setting.
+runs. A template and its output are XML as data: no DTD, entity or processing
+instruction, and every name xacro writes an XML name (:func:`expand`). Still a template
+is expanded in a child process of its own (:func:`expand_checked`), limited in memory
+and time and without the parent's environment, which checks each URDF there (its
+bytes, and the robot it builds): a server checking a stranger's template, or a worker
+building it, cannot be made to hang, exhaust memory or read a setting, and never
+parses a URDF that has not passed those checks.
 """
 
 from __future__ import annotations
@@ -27,7 +30,10 @@ import signal
 import sys
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
+
+from adclient.xml_data import plain_data_problem, xml_name_problem
 
 XACRO_NS = "http://www.ros.org/wiki/xacro"
 
@@ -37,8 +43,9 @@ second more: a child with a core to itself meets the CPU limit first, a stalled 
 starved one the clock."""
 EXPAND_MEMORY = 1 << 30
 """Address-space limit of the expanding process (bytes)."""
-MAX_URDF_BYTES = 8 << 20
-"""The largest expanded URDF accepted."""
+MAX_URDF_BYTES = 2_000_000
+"""The largest expanded URDF accepted (bytes; a server may set less:
+``AD_MAX_URDF_BYTES``). A robot of a hundred links of primitives takes about 50 kB."""
 
 _FORBIDDEN = (
     (
@@ -65,15 +72,20 @@ class TemplateError(ValueError):
 
 
 def template_problems(template: str, names: Iterable[str]) -> list[str]:
-    """What can be told of a template from its text alone: constructs that would read
-    files or the environment, and params it never uses. One pass over the text (no
-    pattern that rescans it), so a megabyte of unclosed ``<!--`` or ``${`` costs no more
-    than a megabyte of anything else. The child that expands the template refuses the
-    same constructs however they are spelt (:func:`_harden_xacro`)."""
+    """What can be told of a template from its text alone: a DTD, entity or processing
+    instruction (:func:`adclient.xml_data.plain_data_problem`, with its line),
+    constructs that would read files or the environment, and params it never uses. Each
+    in one pass over the text (no pattern that rescans it), so a megabyte of unclosed
+    ``<!--`` or ``${`` costs no more than a megabyte of anything else. The child that
+    expands the template refuses the same constructs however they are spelt
+    (:func:`_harden_xacro`, :func:`expand`)."""
     text = "".join(_pieces(template, "<!--", "-->", keep_outside=True))
     problems = [
         f"template: {what} is not allowed" for pattern, what in _FORBIDDEN if pattern.search(text)
     ]
+    not_data = plain_data_problem(template)
+    if not_data is not None:
+        problems.insert(0, f"template: {not_data}")
     used: set[str] = set()
     for expression in _pieces(text, "${", "}", keep_outside=False):
         used.update(_IDENTIFIER.findall(expression))
@@ -125,32 +137,42 @@ def _text(value: Any) -> str:
 
 def expand(template: str, values: Mapping[str, Any]) -> str:
     """The URDF of the template at these param values (in this process: see
-    :func:`expand_isolated` for a template you did not write); TemplateError naming
-    the line where one can be told."""
+    :func:`expand_checked` for a template you did not write); TemplateError naming
+    the line where one can be told. The template is read as data (no DTD, entity or
+    processing instruction: :mod:`adclient.xml_data`), every element and attribute name
+    in the result is an XML name (``xacro:element`` and ``xacro:attribute`` write names
+    from values), and the result is its root element alone: nothing before it."""
     import xml.parsers.expat
 
     import xacro
+    from defusedxml import DefusedXmlException
+    from defusedxml.minidom import parseString
 
+    not_data = plain_data_problem(template)
+    if not_data is not None:
+        raise TemplateError(f"template: {not_data}")
     with _XACRO_LOCK:
         _harden_xacro()
         try:
-            doc = xacro.parse(template)
+            doc = xacro.parse(parseString(template, forbid_dtd=True))
         except xml.parsers.expat.ExpatError as error:
             raise TemplateError(
                 f"template: line {error.lineno}, column {error.offset}: "
                 f"{xml.parsers.expat.ErrorString(error.code)}"
             ) from None
+        except DefusedXmlException as error:  # refused above already: never reached
+            raise TemplateError(f"template: {type(error).__name__}") from None
         root = doc.documentElement
         if root.getAttribute("xmlns:xacro") != XACRO_NS:  # xacro reads only this prefix
             root.setAttribute("xmlns:xacro", XACRO_NS)
-        declared = {
+        declared_properties = {
             element.getAttribute("name"): element
             for element in root.childNodes
             if element.nodeType == element.ELEMENT_NODE and element.tagName == "xacro:property"
         }
         mappings = {name: _text(value) for name, value in values.items()}
         for name, text in mappings.items():
-            element = declared.get(name)
+            element = declared_properties.get(name)
             if element is None:
                 element = doc.createElement("xacro:property")
                 element.setAttribute("name", name)
@@ -165,7 +187,32 @@ def expand(template: str, values: Mapping[str, Any]) -> str:
             raise TemplateError(_located(template, error)) from None
         finally:
             xacro.init_stacks(None)
-        return str(doc.toprettyxml(indent="  "))
+        root = doc.documentElement
+        _check_names(root)
+        return '<?xml version="1.0" ?>\n' + str(root.toprettyxml(indent="  "))
+
+
+def _check_names(root: Any) -> None:
+    """Every element's and attribute's name an XML name, or TemplateError naming it."""
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        if node.nodeType != node.ELEMENT_NODE:
+            continue
+        problem = xml_name_problem(node.tagName)
+        if problem is not None:
+            raise TemplateError(
+                f"template: an element's name {problem} (xacro:element names an element "
+                "with its xacro:name)"
+            )
+        for name, _ in node.attributes.items():
+            problem = xml_name_problem(name)
+            if problem is not None:
+                raise TemplateError(
+                    f"template: <{node.tagName}>: an attribute's name {problem} "
+                    "(xacro:attribute names one with its name)"
+                )
+        stack.extend(node.childNodes)
 
 
 def _harden_xacro() -> None:
@@ -230,38 +277,117 @@ def _located(template: str, error: Exception) -> str:
     return f"template: {message}"
 
 
-def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[str]:
-    """:func:`expand` at each point, in a child process limited to ``EXPAND_MEMORY``
-    and ``EXPAND_SECONDS`` that inherits no environment but the import path, and
-    confined further where this machine allows (:mod:`adclient.template_child`)."""
+@dataclass(frozen=True)
+class ByteLimit:
+    """A limit on the bytes of expanded URDFs, and how a refusal names it."""
+
+    bytes: int
+    named: str = ""
+    """E.g. "the limit of 2,000,000 bytes (AD_MAX_URDF_BYTES)"; default: the bytes."""
+
+    def text(self) -> str:
+        return self.named or f"the limit of {self.bytes:,} bytes"
+
+
+@dataclass(frozen=True)
+class Expanded:
+    """A template at one point, checked: its URDF, or why there is none (``stage``:
+    ``expand`` the template did not expand; ``robot`` its URDF is too large or builds
+    no robot; ``links`` it lacks a link the task looks up)."""
+
+    urdf: str | None = None
+    error: str | None = None
+    stage: str = "expand"
+
+    def message(self, where: str = "") -> str:
+        """Why it is refused, ``where`` (e.g. "at the params' lows") said for a URDF."""
+        if self.stage == "robot":
+            return f"template, expanded{' ' + where if where else ''}: {self.error}"
+        return str(self.error)
+
+
+def expand_checked(
+    template: str,
+    points: Sequence[Mapping[str, Any]],
+    *,
+    links: Iterable[tuple[str, str]] = (),
+    max_bytes: ByteLimit | None = None,
+    max_total_bytes: ByteLimit | None = None,
+    robots: bool = True,
+) -> list[Expanded]:
+    """:func:`expand` at each point, in one child process limited to ``EXPAND_MEMORY``
+    and ``EXPAND_SECONDS`` of CPU for all of them, that inherits no environment but the
+    import path and is confined further where this machine allows
+    (:mod:`adclient.template_child`). Each URDF is checked there: at most ``max_bytes``
+    (default ``MAX_URDF_BYTES``), all of them together at most ``max_total_bytes`` (a
+    point past it is refused), and with ``robots`` a robot the worker can build
+    (:func:`adclient.urdf_model.read_urdf`) having the links a task looks up
+    (``(option, link)`` pairs). Points the child did not reach in its time are refused
+    with the limit it ran out of."""
     import subprocess  # here: the child, which imports this module, needs none of it
 
-    request = json.dumps({"template": template, "points": [dict(p) for p in points]})
+    limit = max_bytes or ByteLimit(MAX_URDF_BYTES)
+    request = {
+        "template": template,
+        "points": [dict(point) for point in points],
+        "robots": robots,
+        "links": [list(pair) for pair in links],
+        "max_bytes": [limit.bytes, limit.text()],
+        "max_total_bytes": None
+        if max_total_bytes is None
+        else [max_total_bytes.bytes, max_total_bytes.text()],
+    }
     command, env = child_command()
+    seconds = EXPAND_SECONDS
     try:
         done = subprocess.run(
             command,
-            input=request.encode(),
+            input=json.dumps(request).encode(),
             capture_output=True,
-            timeout=EXPAND_SECONDS + 1,
+            timeout=seconds + 1,
             env=env,
             check=False,
         )
-    except subprocess.TimeoutExpired:
-        raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS + 1} s") from None
-    if done.returncode == -signal.SIGXCPU:
-        raise TemplateError(f"template: expanding it took over {EXPAND_SECONDS} s of CPU")
-    try:
-        answer = json.loads(done.stdout)
-    except ValueError:
-        last = (done.stderr.decode(errors="replace").strip().splitlines() or [""])[-1]
-        raise TemplateError(
-            f"template: expanding it failed (exit {done.returncode}) {last[:200]}".strip()
-        ) from None
-    _warn_missing_isolation(answer.get("isolation", {}).get("missing", {}))
-    if "error" in answer:
-        raise TemplateError(answer["error"])
-    return list(answer["urdfs"])
+        output, returncode = done.stdout, done.returncode
+        stopped = f"template: expanding it failed (exit {returncode})"
+        if returncode == -signal.SIGXCPU:
+            stopped = f"template: expanding it took over {seconds} s of CPU"
+        elif returncode != 0:
+            last = (done.stderr.decode(errors="replace").strip().splitlines() or [""])[-1]
+            stopped = f"{stopped} {last[:200]}".strip()
+    except subprocess.TimeoutExpired as timeout:
+        output = timeout.stdout or b""
+        stopped = f"template: expanding it took over {seconds + 1} s"
+    answers: dict[int, Expanded] = {}
+    for line in output.splitlines():
+        try:
+            answer = json.loads(line)
+        except ValueError:  # the line the child was writing when it was stopped
+            continue
+        if "isolation" in answer:
+            _warn_missing_isolation(answer["isolation"].get("missing", {}))
+        elif "point" in answer:
+            answers[answer["point"]] = Expanded(
+                answer.get("urdf"), answer.get("error"), answer.get("stage", "expand")
+            )
+    results = []
+    for index in range(len(points)):
+        if index in answers:
+            results.append(answers[index])
+            continue
+        before = f" (with the {index} points before it in its batch)" if index else ""
+        results.append(Expanded(error=stopped + before))
+    return results
+
+
+def expand_isolated(template: str, points: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The URDF of each point (:func:`expand_checked`, without the robot checks);
+    TemplateError naming the first point that does not expand."""
+    expanded = expand_checked(template, points, robots=False)
+    for result in expanded:
+        if result.urdf is None:
+            raise TemplateError(result.message())
+    return [str(result.urdf) for result in expanded]
 
 
 _WARNED_MISSING: set[str] = set()
@@ -284,7 +410,8 @@ def _warn_missing_isolation(missing: Mapping[str, str]) -> None:
 def child_command() -> tuple[list[str], dict[str, str]]:
     """The expanding child's command line and its whole environment: template_child.py
     as a script, without site (-S) or its own folder (-P) on the path (the child imports
-    xacro, PyYAML, the standard library and this module, not the rest of the SDK: it
+    xacro, PyYAML, defusedxml, the standard library, this module and the URDF reader,
+    not the rest of the SDK: it
     starts in half the time); argv: its memory (bytes), its CPU seconds, and where it
     makes (and at once removes) the empty folder it takes for its root."""
     import tempfile
@@ -298,12 +425,12 @@ def child_command() -> tuple[list[str], dict[str, str]]:
 
 
 def _child_path() -> str:
-    """Where the child finds xacro, PyYAML and adclient (without ``site``, nothing else
-    is on its path): their folders, then this process's PYTHONPATH."""
+    """Where the child finds xacro, PyYAML, defusedxml and adclient (without ``site``,
+    nothing else is on its path): their folders, then this process's PYTHONPATH."""
     import importlib.util
 
     folders = [os.path.dirname(os.path.dirname(os.path.abspath(__file__)))]
-    for name in ("xacro", "yaml"):
+    for name in ("xacro", "yaml", "defusedxml"):
         spec = importlib.util.find_spec(name)
         if spec is None or spec.origin is None:
             raise TemplateError(f"template: {name} is not installed here")
@@ -342,26 +469,23 @@ def check_points(params: Sequence[Any]) -> list[tuple[str, dict[str, Any]]]:
 
 
 def check_template(
-    template: str, params: Sequence[Any], links: Iterable[tuple[str, str]] = ()
+    template: str,
+    params: Sequence[Any],
+    links: Iterable[tuple[str, str]] = (),
+    *,
+    max_bytes: ByteLimit | None = None,
 ) -> None:
     """The template expands, at each of :func:`check_points`, to a robot the worker
     can build (:func:`adclient.urdf_model.read_urdf`) having the links a task looks up
-    (``(option, link)`` pairs); TemplateError naming the point and the problem."""
-    from adclient.urdf_model import URDFModelError, read_urdf
-
+    (``(option, link)`` pairs), within ``max_bytes``; TemplateError naming the point
+    and the problem."""
     problems = template_problems(template, [param.name for param in params])
     if problems:
         raise TemplateError("; ".join(problems))
     points = check_points(params)
-    urdfs = expand_isolated(template, [point for _, point in points])
-    for (where, _), urdf in zip(points, urdfs, strict=True):
-        try:
-            model = read_urdf(urdf, lines_from=template)
-        except URDFModelError as error:
-            raise TemplateError(f"template, expanded at {where}: {error}") from None
-        for option, link in links:
-            if link not in model.links:
-                raise TemplateError(
-                    f"task.options.{option}: the template's robot has no link {link!r} "
-                    f"(its links: {', '.join(model.links)})"
-                )
+    expanded = expand_checked(
+        template, [point for _, point in points], links=links, max_bytes=max_bytes
+    )
+    for (where, _), result in zip(points, expanded, strict=True):
+        if result.urdf is None:
+            raise TemplateError(result.message(f"at {where}"))

@@ -4,19 +4,22 @@ A template study's robot is the user's own URDF (expanded from their xacro), not
 written from a design, so the worker reads its links, collision shapes and joints from
 the text. :func:`read_urdf` checks what a robot needs before any engine sees it: a tree
 of uniquely named links, joints of a kind the worker drives (revolute, continuous,
-prismatic, fixed) with the limits a motor needs, shapes of primitives (box, cylinder,
-sphere, capsule: a template travels as text, so a mesh file it names would not), finite
-numbers. A problem is a :class:`URDFModelError` naming the element and, where the
-URDF's text has it, the line.
+prismatic, fixed) with the limits a motor needs, collision and visual shapes alike of
+primitives (box, cylinder, sphere, capsule: a template travels as text, so a mesh file
+it names would not, and no engine is handed a path on the worker), materials of colour
+alone (no texture file), finite numbers. The text is read as data
+(:mod:`adclient.xml_data`). A problem is a :class:`URDFModelError` naming the element
+and, where the URDF's text has it, the line.
 """
 
 from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-import xml.parsers.expat
 from dataclasses import dataclass, field
 from typing import Literal
+
+from adclient.xml_data import XMLDataError, parse_xml
 
 JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
 DRIVEN_KINDS: tuple[str, ...] = ("revolute", "continuous", "prismatic")
@@ -90,35 +93,21 @@ class UrdfModel:
         return math.fsum(link.mass for link in self.links.values())
 
 
-def _lines(text: str) -> dict[tuple[str, str], int]:
-    """(tag, name) -> the line of that element, for messages (minidom keeps no lines;
-    expat's parser does)."""
-    found: dict[tuple[str, str], int] = {}
-    parser = xml.parsers.expat.ParserCreate()
-
-    def start(tag: str, attributes: dict[str, str]) -> None:
-        name = attributes.get("name")
-        if name is not None:
-            found.setdefault((tag, name), parser.CurrentLineNumber)
-
-    parser.StartElementHandler = start
-    parser.Parse(text, True)
-    return found
-
-
 def read_urdf(text: str, *, lines_from: str | None = None) -> UrdfModel:
     """The robot a URDF describes; URDFModelError naming the first problem and its
     line, in ``lines_from`` when given (the template this URDF was expanded from: an
-    element whose name the template spells out)."""
+    element whose name the template spells out). The text is read as data
+    (:func:`adclient.xml_data.parse_xml`: no DTD, entity or processing instruction), in
+    time linear in its size."""
     try:
-        root = ET.fromstring(text)
-    except ET.ParseError as error:
-        line, column = error.position
-        raise URDFModelError(f"line {line}, column {column}: not well-formed XML") from None
-    try:
-        lines = _lines(text if lines_from is None else lines_from)
-    except xml.parsers.expat.ExpatError:  # a template only xacro reads
-        lines = {}
+        root, lines = parse_xml(text)
+    except XMLDataError as error:
+        raise URDFModelError(str(error)) from None
+    if lines_from is not None:
+        try:
+            _, lines = parse_xml(lines_from)
+        except XMLDataError:  # a template only xacro reads
+            lines = {}
 
     def where(tag: str, name: str) -> str:
         line = lines.get((tag, name))
@@ -126,6 +115,8 @@ def read_urdf(text: str, *, lines_from: str | None = None) -> UrdfModel:
 
     if root.tag != "robot":
         raise URDFModelError(f"the root element is <{root.tag}>, not <robot>")
+    for material in root.findall("material"):
+        _check_material(material, where("material", material.get("name") or ""))
     links: dict[str, UrdfLink] = {}
     for element in root.findall("link"):
         name = element.get("name") or ""
@@ -143,6 +134,7 @@ def read_urdf(text: str, *, lines_from: str | None = None) -> UrdfModel:
     if not links:
         raise URDFModelError("the robot has no <link>")
     joints: list[UrdfJoint] = []
+    joint_names: set[str] = set()
     parent_of: dict[str, str] = {}
     for element in root.findall("joint"):
         name = element.get("name") or ""
@@ -157,27 +149,27 @@ def read_urdf(text: str, *, lines_from: str | None = None) -> UrdfModel:
                 f"{where('joint', name)}: link {joint.child!r} has two parents "
                 f"({parent_of[joint.child]!r} and {joint.parent!r})"
             )
-        if any(other.name == name for other in joints):
+        if name in joint_names:
             raise URDFModelError(f"{where('joint', name)}: two joints of that name")
+        joint_names.add(name)
         parent_of[joint.child] = joint.parent
         joints.append(joint)
     roots = [name for name in links if name not in parent_of]
     if len(roots) != 1:
         raise URDFModelError(
             "the links form no tree: "
-            + (f"{len(roots)} links have no parent ({', '.join(roots)})" if roots else "a cycle")
+            + (f"{len(roots)} links have no parent ({_listed(roots)})" if roots else "a cycle")
         )
-    for link in links:  # every link reaches the root, or the parents go round
-        seen = {link}
-        while link in parent_of:
-            link = parent_of[link]
-            if link in seen:
-                raise URDFModelError(f"the links form no tree: a cycle through {link!r}")
-            seen.add(link)
+    _check_tree(roots[0], links, joints)
     model = UrdfModel(root.get("name") or "robot", roots[0], links, tuple(joints))
     if not model.driven:
         raise URDFModelError("the robot has no joint to drive (revolute, continuous, prismatic)")
     return model
+
+
+def _listed(names: list[str], most: int = 10) -> str:
+    shown = ", ".join(names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
 def _float(element: ET.Element, attribute: str, what: str, default: float | None = None) -> float:
@@ -232,29 +224,64 @@ def _mass(link: ET.Element, what: str) -> float:
 
 
 def _shapes(link: ET.Element, what: str) -> tuple[Shape, ...]:
-    elements = link.findall("collision") or link.findall("visual")
-    shapes = []
-    for element in elements:
-        geometry = element.find("geometry")
-        primitive = None if geometry is None else next(iter(geometry), None)
-        if primitive is None:
-            raise URDFModelError(f"{what}: a <{element.tag}> has no geometry")
-        kind = primitive.tag
-        if kind == "box":
-            size = _vector(primitive, "size", what)
-        elif kind in ("cylinder", "capsule"):
-            size = (_float(primitive, "radius", what), _float(primitive, "length", what))
-        elif kind == "sphere":
-            size = (_float(primitive, "radius", what),)
-        else:
+    """The link's collision primitives, or without any its visual ones; both are
+    checked alike (a primitive each, no file named: see :func:`_primitive`)."""
+    collisions = [_shape(element, what) for element in link.findall("collision")]
+    visuals = [_shape(element, what) for element in link.findall("visual")]
+    for material in link.iterfind("visual/material"):
+        _check_material(material, what)
+    return tuple(collisions or visuals)
+
+
+def _shape(element: ET.Element, what: str) -> Shape:
+    geometry = element.find("geometry")
+    primitive = None if geometry is None else next(iter(geometry), None)
+    if primitive is None:
+        raise URDFModelError(f"{what}: a <{element.tag}> has no geometry")
+    kind = primitive.tag
+    if kind == "box":
+        size = _vector(primitive, "size", what)
+    elif kind in ("cylinder", "capsule"):
+        size = (_float(primitive, "radius", what), _float(primitive, "length", what))
+    elif kind == "sphere":
+        size = (_float(primitive, "radius", what),)
+    else:
+        raise URDFModelError(
+            f"{what}: its geometry is <{kind}> (in a <{element.tag}>); a template's shapes, "
+            "visual and collision alike, are box, cylinder, sphere or capsule (it travels as "
+            "text: a mesh file would not go with it, and no file on the worker is read)"
+        )
+    if not all(value > 0 for value in size):
+        raise URDFModelError(f"{what}: its <{kind}> has a size that is not above 0")
+    return Shape(kind, size, _origin(element, what))  # type: ignore[arg-type]
+
+
+def _check_material(material: ET.Element, what: str) -> None:
+    """A material is a name and a colour: a texture would be a file on the worker."""
+    for child in material:
+        if child.tag != "color":
             raise URDFModelError(
-                f"{what}: its geometry is <{kind}>; a template's shapes are box, cylinder, "
-                "sphere or capsule (it travels as text: a mesh file would not go with it)"
+                f"{what}: its material has <{child.tag}>; a material is a <color> (no "
+                "texture: it would be a file on the worker)"
             )
-        if not all(value > 0 for value in size):
-            raise URDFModelError(f"{what}: its <{kind}> has a size that is not above 0")
-        shapes.append(Shape(kind, size, _origin(element, what)))  # type: ignore[arg-type]
-    return tuple(shapes)
+
+
+def _check_tree(root: str, links: dict[str, UrdfLink], joints: list[UrdfJoint]) -> None:
+    """Every link hangs from ``root``: each has one parent at most (checked), so the
+    links not reached from the root go round in a cycle. One walk, linear in links."""
+    children: dict[str, list[str]] = {}
+    for joint in joints:
+        children.setdefault(joint.parent, []).append(joint.child)
+    reached = {root}
+    stack = [root]
+    while stack:
+        for child in children.get(stack.pop(), ()):
+            if child not in reached:
+                reached.add(child)
+                stack.append(child)
+    if len(reached) != len(links):
+        stray = next(name for name in links if name not in reached)
+        raise URDFModelError(f"the links form no tree: a cycle through {stray!r}")
 
 
 def _joint(element: ET.Element, what: str) -> UrdfJoint:

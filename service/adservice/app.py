@@ -52,7 +52,7 @@ from adservice.errors import (
     TooLargeError,
     UnauthorizedError,
 )
-from adservice.expansions import ExpansionPool
+from adservice.expansions import ExpansionPool, UrdfLimits
 from adservice.limits import BodyLimits
 from adservice.locks import StudyLocks
 from adservice.metrics import install_metrics
@@ -266,7 +266,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             AskBudget(settings.ask_seconds, None if memory is None else int(memory * 2**20)),
         )
         backoff = Backoff(settings.proposal_backoff_seconds, settings.proposal_backoff_max_seconds)
-        expansions = ExpansionPool(settings.expand_threads, settings.expand_queue)
+        expansions = ExpansionPool(
+            settings.expand_threads,
+            settings.expand_queue,
+            UrdfLimits(
+                settings.max_urdf_bytes,
+                settings.max_ask_urdf_bytes,
+                settings.max_study_urdf_bytes,
+                settings.lease_expand_seconds,
+            ),
+        )
         app.state.proposing = Proposing(
             db,
             StudyConfigs(db),

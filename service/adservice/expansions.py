@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, TypeVar
 
+from adclient.templates import ByteLimit
 from adservice.errors import BusyError, InvalidError
 
 T = TypeVar("T")
@@ -44,18 +45,71 @@ class Expansion:
         return self.urdf
 
 
-def expand_each(template: str, points: Sequence[Mapping[str, Any]]) -> list[Expansion]:
-    """Each point's expansion: one child for them all (a child's start costs 25 times an
-    expansion of the example arm), and only when that fails, a child per point to tell
-    which ones do not expand."""
-    from adclient.templates import TemplateError, expand_isolated
+@dataclass(frozen=True)
+class UrdfLimits:
+    """The server's bounds on template studies' URDFs (``AD_MAX_URDF_BYTES``,
+    ``AD_MAX_ASK_URDF_BYTES``, ``AD_MAX_STUDY_URDF_BYTES``, ``AD_LEASE_EXPAND_SECONDS``)."""
 
-    try:
-        return [Expansion(urdf=urdf) for urdf in expand_isolated(template, points)]
-    except TemplateError as error:
-        if len(points) == 1:
-            return [Expansion(error=str(error))]
-    return [expand_each(template, [point])[0] for point in points]
+    urdf_bytes: int = 2_000_000
+    ask_bytes: int = 32_000_000
+    study_bytes: int = 256_000_000
+    lease_seconds: float = 5.0
+
+    def per_urdf(self) -> ByteLimit:
+        return ByteLimit(
+            self.urdf_bytes, f"the limit of {self.urdf_bytes:,} bytes (AD_MAX_URDF_BYTES)"
+        )
+
+    def together(self, study_stores: int) -> ByteLimit:
+        """What one batch of a study storing ``study_stores`` bytes may add: the ask's
+        limit, or the room left under the study's, whichever is less."""
+        room = self.study_bytes - study_stores
+        if room < self.ask_bytes:
+            return ByteLimit(
+                max(room, 0),
+                f"the {max(room, 0):,} bytes the study may still store (it stores "
+                f"{study_stores:,} of {self.study_bytes:,}: AD_MAX_STUDY_URDF_BYTES)",
+            )
+        return ByteLimit(
+            self.ask_bytes,
+            f"the limit of {self.ask_bytes:,} bytes per ask (AD_MAX_ASK_URDF_BYTES)",
+        )
+
+
+@dataclass(frozen=True)
+class Checks:
+    """What each expansion is checked for: the links the study's task looks up, and the
+    bytes of one URDF and of the batch."""
+
+    links: tuple[tuple[str, str], ...] = ()
+    per_urdf: ByteLimit | None = None
+    together: ByteLimit | None = None
+
+
+def expand_each(
+    template: str, points: Sequence[Mapping[str, Any]], checks: Checks | None = None
+) -> list[Expansion]:
+    """Each point's expansion, in one child for them all (a child's start costs 25
+    times an expansion of the example arm), each checked there as a study's creation
+    checks its template (:func:`adclient.templates.expand_checked`: a robot the worker
+    builds, with the task's links, within the byte limits). A point the child did not
+    reach in its CPU time is failed with that limit."""
+    from adclient.templates import expand_checked
+
+    checks = checks or Checks()
+    expanded = expand_checked(
+        template,
+        points,
+        links=checks.links,
+        max_bytes=checks.per_urdf,
+        max_total_bytes=checks.together,
+    )
+    return [
+        Expansion(urdf=result.urdf)
+        if result.urdf is not None
+        else Expansion(error=result.message())
+        for result in expanded
+    ]
 
 
 class Place:
@@ -99,10 +153,14 @@ class Place:
 
 
 class ExpansionPool:
-    """``threads`` expansions at a time, ``queue`` more waiting, no more."""
+    """``threads`` expansions at a time, ``queue`` more waiting, no more; the server's
+    ``limits`` on what they store, and each template study's expansions that failed or
+    ran slow in a row (``failing``: what its backoff doubles with)."""
 
-    def __init__(self, threads: int = 2, queue: int = 16) -> None:
+    def __init__(self, threads: int = 2, queue: int = 16, limits: UrdfLimits | None = None) -> None:
         self.places = threads + queue
+        self.limits = limits or UrdfLimits()
+        self.failing: dict[int, int] = {}
         self._executor = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="expand")
         self._lock = threading.Lock()
         self._taken = 0

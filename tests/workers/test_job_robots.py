@@ -11,7 +11,7 @@ import pytest
 from adclient.schemas import Job
 from adworker.job_robots import job_robot
 from adworker.runner import JobError
-from tests.picky_template import PICKY_SPACE, base_size, picky_size
+from tests.picky_template import JOINTED, PICKY_SPACE, base_size, picky_size
 
 
 def picky_job(n: int, urdf: str | None) -> Job:
@@ -33,7 +33,10 @@ def picky_job(n: int, urdf: str | None) -> Job:
 
 
 def test_the_server_s_urdf_is_used_and_the_template_not_expanded_again() -> None:
-    given = '<robot name="given"><link name="base"/></robot>'
+    given = (
+        '<robot name="given"><link name="base"><visual><geometry><box size="0.1 0.1 0.1"/>'
+        f"</geometry></visual></link>{JOINTED}</robot>"
+    )
     # at n = 1 the template does not expand: were it expanded here, this would fail
     assert job_robot(picky_job(1, given)) == (None, given)
 

@@ -8,6 +8,7 @@ Same conventions as every module of :mod:`adservice.repository`.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from datetime import datetime
 from typing import cast
 
 import sqlalchemy as sa
@@ -16,12 +17,13 @@ from sqlalchemy.orm import Session
 
 from adclient.schemas import Trial, TrialState
 from adservice.expansions import Expansion
-from adservice.models import TrialRow, TrialURDFRow, UTCDateTime, utcnow
+from adservice.models import StudyRow, TrialRow, TrialURDFRow, UTCDateTime, utcnow
 from adservice.repository._shared import FINISH
 from adservice.repository.studies import finish_if_done
 
 _urdfs = cast(sa.Table, TrialURDFRow.__table__)
 _trials = cast(sa.Table, TrialRow.__table__)
+_studies = cast(sa.Table, StudyRow.__table__)
 
 
 def store_urdfs(session: Session, *, expansions: Mapping[int, Expansion]) -> None:
@@ -87,3 +89,17 @@ def fail_unexpanded(session: Session, *, errors: Mapping[int, str]) -> dict[int,
     for study_id in sorted({trial.study_id for trial in failed.values()}):
         finish_if_done(session, study_id=study_id)
     return failed
+
+
+def back_off(
+    session: Session, *, study_id: int, failures: int, error: str, retry_at: datetime
+) -> None:
+    """The study's expansions failed or ran slow ``failures`` times in a row: recorded as
+    its proposal failures are (``proposal_error``, ``proposal_failures``), and leases skip
+    it until ``retry_at`` (a proposal's reservation clears the record, so the count in a
+    row is the caller's)."""
+    session.execute(
+        sa.update(_studies)
+        .where(_studies.c.id == study_id)
+        .values(proposal_failures=failures, proposal_error=error, proposal_retry_at=retry_at)
+    )

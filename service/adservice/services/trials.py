@@ -392,7 +392,7 @@ async def add_trials(
             quota_repo.check_room(session, study_id=study_id, quota=quota)
 
     await db.run(within_quota)  # before the expansions, which the quota would refuse
-    expanded = await urdfs.expand_added(proposing.expansions, template, adds, checked.params)
+    expanded = await urdfs.expand_added(proposing, study_id, template, adds, checked.params)
     return await run_in_threadpool(_store_adds, db, study_id, adds, checked, quota, expanded)
 
 

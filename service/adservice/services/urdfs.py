@@ -1,27 +1,52 @@
 """A template study's trials: each one's URDF is expanded once, when its params are
-fixed (an ask, a lease's proposal, an enqueue or an added trial), and stored; reads and
-workers get the stored text (``adservice.robots``, ``Job.urdf``).
+fixed (an ask, a lease's proposal, an enqueue or an added trial), checked, and stored;
+reads and workers get the stored text (``adservice.robots``, ``Job.urdf``).
 
 Every expansion runs in the expansion pool (``adservice.expansions``), never in a request
 thread or a database transaction: a place is taken before the trials are written (a full
 pool is a 503 that stores nothing), the expansion runs after, and one short write stores
-the URDFs. A trial whose params the template does not expand at is failed with the
-template's message (its proposer learns from it, no worker gets it); an enqueued one is
-refused (422). Studies of other spaces pass through untouched.
+the URDFs. Each expansion is checked where it runs as a study's creation checks its
+template (a robot the worker builds, with the links its task looks up, within
+``AD_MAX_URDF_BYTES``), and a batch's together within ``AD_MAX_ASK_URDF_BYTES`` and the
+room ``AD_MAX_STUDY_URDF_BYTES`` leaves the study. A trial whose expansion fails these
+is failed with the reason (its proposer learns from it, no worker gets it); an enqueued
+one is refused (422). A study that stores its limit gets no new trials: its ask is a
+409 and leases skip it.
+
+A study whose expansion fails, or keeps a worker's lease waiting past
+``AD_LEASE_EXPAND_SECONDS``, backs off as after a failed proposal (its
+``proposal_retry_at``, doubled with each such expansion in a row; a clean one resets
+it): leases skip it meanwhile. A lease does not wait longer than that: the slow
+expansion goes on in the background, its trial back in the queue, and the lease serves
+another study. Studies of other spaces pass through untouched.
 """
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable, Sequence
+import asyncio
+import logging
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
+from datetime import timedelta
 from functools import partial
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
-from adclient.schemas import Job, Trial, TrialAdd, TrialState
+from adclient.schemas import Job, TaskConfig, Trial, TrialAdd, TrialState
+from adclient.templates import EXPAND_SECONDS
 from adservice.db import Database
-from adservice.errors import InvalidError
-from adservice.expansions import Expansion, ExpansionPool, Place, expand_each
+from adservice.errors import ConflictError, InvalidError, ProposalFailedError
+from adservice.expansions import Checks, Expansion, ExpansionPool, Place, UrdfLimits, expand_each
+from adservice.models import utcnow
+from adservice.repository import quotas as quota_repo
 from adservice.repository import urdfs as urdf_repo
 from adservice.services.configs import StudyConfigs
+from adservice.services.proposal_failures import MAX_ERROR_CHARS, Backoff
+
+log = logging.getLogger("adservice")
+
+T = TypeVar("T")
+
+_BACKGROUND: set[asyncio.Future[Any]] = set()
+"""Leases' expansions under way (also those a lease stopped waiting for)."""
 
 
 class Proposing(Protocol):
@@ -35,6 +60,9 @@ class Proposing(Protocol):
 
     @property
     def expansions(self) -> ExpansionPool: ...
+
+    @property
+    def backoff(self) -> Backoff: ...
 
 
 async def template_of(proposing: Proposing, study_id: int) -> str | None:
@@ -50,14 +78,20 @@ async def with_urdfs(
     proposing: Proposing, *, study_id: int, fix: Callable[[], Awaitable[list[Trial]]]
 ) -> list[Trial]:
     """The trials ``fix`` writes (an ask), a template study's with their URDFs stored:
-    those that do not expand are answered failed."""
+    those that do not expand, or whose URDFs fail the checks, are answered failed.
+    ConflictError, before anything is written, once the study stores its limit."""
     template = await template_of(proposing, study_id)
     if template is None:
         return await fix()
+    checks = await _checks(proposing, study_id)
     with proposing.expansions.admit() as place:
         trials = await fix()
         points = {trial.id: trial.params for trial in trials}
-        _, failed = await _expand_new(proposing.db, place, template, points)
+        _, failed = await _expand_new(proposing.db, place, template, points, checks)
+    if failed:
+        await _back_off(proposing, study_id, _failure(failed))
+    else:
+        proposing.expansions.failing.pop(study_id, None)
     return [failed.get(trial.id, trial) for trial in trials]
 
 
@@ -65,27 +99,62 @@ async def with_urdf(
     proposing: Proposing, *, study_id: int, lease: Callable[[], Awaitable[Job]]
 ) -> Job | None:
     """The job ``lease`` leases (a freshly proposed trial), a template study's carrying
-    its URDF; None when its params do not expand (the trial is failed: lease another).
-    BusyError, before anything is leased, when the expansion pool is full."""
+    its URDF; None when its expansion fails (the trial is failed, the study backs off:
+    lease another). BusyError, before anything is leased, when the expansion pool is
+    full; ConflictError when the study stores its limit, and, once the lease has
+    waited ``AD_LEASE_EXPAND_SECONDS``, a ProposalFailedError (the caller gives the
+    trial back to the queue) while the expansion goes on and stores its URDF."""
     template = await template_of(proposing, study_id)
     if template is None:
         return await lease()
-    with proposing.expansions.admit() as place:
+    checks = await _checks(proposing, study_id)
+    pool = proposing.expansions
+    place = pool.admit()
+    try:
         job = await lease()
-        points = {job.trial_id: job.params}
-        expansions, failed = await _expand_new(proposing.db, place, template, points)
+    except BaseException:
+        place.__exit__(None, None, None)
+        raise
+    points = {job.trial_id: job.params}
+    expanding = asyncio.ensure_future(
+        _holding(place, _expand_new(proposing.db, place, template, points, checks))
+    )
+    _BACKGROUND.add(expanding)  # kept until it ends, whether or not the lease waits
+    expanding.add_done_callback(_finished)
+    try:
+        expansions, failed = await asyncio.wait_for(
+            asyncio.shield(expanding), pool.limits.lease_seconds
+        )
+    except TimeoutError:
+        waited = pool.limits.lease_seconds
+        detail = await _back_off(
+            proposing,
+            study_id,
+            f"its template's expansion at trial {job.trial_id}'s params took over {waited:g} s "
+            "(AD_LEASE_EXPAND_SECONDS): the trial waits in the queue while it expands",
+            expanding_for=EXPAND_SECONDS + 1 - waited,
+        )
+        raise ProposalFailedError(detail) from None
     if failed:
+        await _back_off(proposing, study_id, _failure(failed))
         return None
+    pool.failing.pop(study_id, None)
     return job.model_copy(update={"urdf": expansions[job.trial_id].urdf})
 
 
 async def expand_added(
-    pool: ExpansionPool, template: str, adds: Sequence[TrialAdd], params: list[dict[str, Any]]
+    proposing: Proposing,
+    study_id: int,
+    template: str,
+    adds: Sequence[TrialAdd],
+    params: list[dict[str, Any]],
 ) -> list[Expansion]:
-    """Each handed-over trial's expansion, before anything is stored; InvalidError naming
-    each one that does not expand but a failed one (an evaluation that failed may be
-    one whose params the template does not expand at: it keeps why)."""
-    expanded = await pool.run(partial(expand_each, template, params))
+    """Each handed-over trial's expansion, checked, before anything is stored;
+    InvalidError naming each one that fails but a failed one (an evaluation that failed
+    may be one whose params the template does not expand at: it keeps why);
+    ConflictError once the study stores its limit."""
+    checks = await _checks(proposing, study_id)
+    expanded = await proposing.expansions.run(partial(expand_each, template, params, checks))
     problems = [
         f"{'trial' if len(adds) == 1 else f'trials[{index}]'}.params: the template does not "
         f"expand at them: {expansion.error}"
@@ -97,8 +166,99 @@ async def expand_added(
     return expanded
 
 
+async def _checks(proposing: Proposing, study_id: int) -> Checks:
+    """What the study's new expansions are checked for: the links its task looks up,
+    the server's byte limits and the room left under the study's (ConflictError when
+    none is left)."""
+    limits = proposing.expansions.limits
+    db = proposing.db
+
+    def stored() -> int:
+        with db.read() as session:
+            return quota_repo.study_urdf_bytes(session, study_id=study_id)
+
+    stores = await db.run(stored)
+    if stores >= limits.study_bytes:
+        raise ConflictError(_study_full(study_id, stores, limits))
+    config = proposing.configs.cached(study_id)
+    if config is None:
+        config = await db.run(partial(proposing.configs.get, study_id))
+    return Checks(
+        links=task_links(config.task),
+        per_urdf=limits.per_urdf(),
+        together=limits.together(stores),
+    )
+
+
+def task_links(task: TaskConfig | None) -> tuple[tuple[str, str], ...]:
+    """The ``(option, link)`` pairs a study's task looks up in its robot; none for an
+    external task, or a stored one no installed plugin reads (its jobs say why)."""
+    if task is None or task.external:
+        return ()
+    from adclient.plugins import catalogue
+
+    try:
+        options = catalogue().task(task.name).options.model_validate(task.options)
+        return tuple(options.link_names())
+    except Exception:
+        return ()
+
+
+def _study_full(study_id: int, stores: int, limits: UrdfLimits) -> str:
+    return (
+        f"study {study_id} stores {stores:,} bytes of URDFs, the limit of "
+        f"{limits.study_bytes:,} bytes per study (AD_MAX_STUDY_URDF_BYTES): no new trial "
+        "is made for it"
+    )
+
+
+def _failure(failed: dict[int, Trial]) -> str:
+    trial = failed[min(failed)]
+    return f"trial {trial.id}: {trial.message}"
+
+
+async def _back_off(
+    proposing: Proposing, study_id: int, error: str, *, expanding_for: float = 0.0
+) -> str:
+    """Record that the study's expansion failed or ran slow (one more in a row): leases
+    skip it for its backoff, after ``expanding_for`` seconds that an expansion still
+    running may take. Returns the failure as an answer states it."""
+    pool, backoff = proposing.expansions, proposing.backoff
+    failures = pool.failing[study_id] = pool.failing.get(study_id, 0) + 1
+    delay = min(backoff.max_seconds, backoff.seconds * 2.0 ** min(failures - 1, 64))
+    retry_at = utcnow() + timedelta(seconds=delay + max(expanding_for, 0.0))
+    text = f"study {study_id}: {error}"[:MAX_ERROR_CHARS]
+
+    def write() -> None:
+        with proposing.db.write() as session:
+            urdf_repo.back_off(
+                session, study_id=study_id, failures=failures, error=text, retry_at=retry_at
+            )
+
+    try:
+        await proposing.db.run(write)
+    except Exception:
+        log.warning("study %d: its expansion's backoff was not recorded", study_id, exc_info=True)
+    return (
+        f"{text} ({failures} in a row; workers' leases skip the study until "
+        f"{retry_at:%Y-%m-%d %H:%M:%S} UTC)"
+    )
+
+
+async def _holding(place: Place, work: Coroutine[Any, Any, T]) -> T:
+    """``work``, the place held until it ends."""
+    with place:
+        return await work
+
+
+def _finished(expanding: asyncio.Future[Any]) -> None:
+    _BACKGROUND.discard(expanding)
+    if not expanding.cancelled() and expanding.exception() is not None:
+        log.warning("a lease's template expansion failed: %r", expanding.exception())
+
+
 async def _expand_new(
-    db: Database, place: Place, template: str, points: dict[int, dict[str, Any]]
+    db: Database, place: Place, template: str, points: dict[int, dict[str, Any]], checks: Checks
 ) -> tuple[dict[int, Expansion], dict[int, Trial]]:
     """Expand the trials (params by id) with no stored URDF (an ask hands out enqueued
     trials, expanded already), store each one's URDF or error, and fail those that did
@@ -112,7 +272,7 @@ async def _expand_new(
     new = [trial_id for trial_id in points if trial_id not in expansions]
     if not new:
         return expansions, {}
-    expanded = await place.run(partial(expand_each, template, [points[i] for i in new]))
+    expanded = await place.run(partial(expand_each, template, [points[i] for i in new], checks))
     fresh = dict(zip(new, expanded, strict=True))
 
     def store() -> dict[int, Trial]:
