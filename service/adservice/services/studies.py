@@ -14,6 +14,7 @@ from adclient.designs import Representation
 from adclient.devices import device_problem
 from adclient.polytope import spec_polytope
 from adclient.schemas import ProposerConfig, StudyCreate, TemplateSpace
+from adclient.templates import ByteLimit
 from adservice.artifacts import ArtifactStore
 from adservice.db import Database
 from adservice.errors import InvalidError
@@ -42,7 +43,7 @@ async def create_study(
     full), with nothing stored, otherwise."""
     representation = await run_in_threadpool(_checked, body, budget)
     if isinstance(body.space, TemplateSpace):
-        await expansions.run(partial(_check_template, body))
+        await expansions.run(partial(_check_template, body, expansions.limits.per_urdf()))
 
     def store() -> StudyRow:
         with db.write() as session:
@@ -134,15 +135,15 @@ def _check_template_task(body: StudyCreate) -> None:
             )
 
 
-def _check_template(body: StudyCreate) -> None:
+def _check_template(body: StudyCreate, max_bytes: ByteLimit) -> None:
     """The template expands to a robot a worker can build, having the links its task
-    looks up (in a child process: ``adclient.templates``)."""
+    looks up, within ``max_bytes`` (in a child process: ``adclient.templates``)."""
     from adclient.templates import TemplateError, check_template
 
     assert isinstance(body.space, TemplateSpace)
     links = body.task.links_looked_up() if body.task is not None else []
     try:
-        check_template(body.space.template, body.space.params, links)
+        check_template(body.space.template, body.space.params, links, max_bytes=max_bytes)
     except TemplateError as error:
         raise InvalidError(f"space.template: {error}") from None
 
