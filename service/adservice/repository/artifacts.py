@@ -8,6 +8,7 @@ keyword-only arguments, domain errors, rows out); the files themselves are the c
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -50,6 +51,16 @@ def _uploader(trial: TrialRow, caller: Principal) -> Uploader:
     if trial.worker_id is None:
         return Uploader.owner
     return Uploader.user if caller.role == Role.user else Uploader.worker
+
+
+_NAMED = ArtifactRow.name == sa.bindparam("name")
+_TRIAL_ARTIFACTS = sa.select(
+    sa.func.count().filter(~_NAMED),
+    sa.func.coalesce(sa.func.sum(ArtifactRow.size).filter(~_NAMED), 0),
+    sa.func.coalesce(sa.func.sum(ArtifactRow.size).filter(_NAMED), 0),
+).where(ArtifactRow.trial_id == sa.bindparam("trial_id"))
+"""A trial's other artifacts (their count and bytes) and the bytes of the one named
+``name`` (which an upload replaces); built once, as every upload runs it twice."""
 
 
 @dataclass(frozen=True)
@@ -104,38 +115,37 @@ def artifact_room(
             f"trial {trial_id} made version {made} of its study's shared controller: its "
             f"{SHARED_ARTIFACT} is that version and is not replaced"
         )
-    named = ArtifactRow.name == name
-    count, others, present = session.execute(
-        sa.select(
-            sa.func.count().filter(~named),
-            sa.func.coalesce(sa.func.sum(ArtifactRow.size).filter(~named), 0),
-            sa.func.coalesce(sa.func.sum(ArtifactRow.size).filter(named), 0),
-        ).where(ArtifactRow.trial_id == trial_id)
-    ).one()
+    count, others, present = (
+        session.connection().execute(_TRIAL_ARTIFACTS, {"trial_id": trial_id, "name": name}).one()
+    )
     if count >= quota.count:
         raise TooLargeError(
             f"trial {trial_id} already has {count} artifacts, the most one trial may have "
             "(AD_MAX_ARTIFACTS_PER_TRIAL)"
         )
-    rooms = [
-        UploadRoom(
+    rooms: list[tuple[int, Callable[[], str]]] = [
+        (
             quota.artifact_bytes,
-            f"the limit of {quota.artifact_bytes} bytes per artifact (AD_MAX_ARTIFACT_BYTES)",
+            lambda: (
+                f"the limit of {quota.artifact_bytes} bytes per artifact (AD_MAX_ARTIFACT_BYTES)"
+            ),
         ),
-        UploadRoom(
+        (
             quota.total_bytes - int(others),
-            f"the {quota.total_bytes} bytes one trial's artifacts may take "
-            f"(AD_MAX_TRIAL_ARTIFACT_BYTES): its others take {others}",
+            lambda: (
+                f"the {quota.total_bytes} bytes one trial's artifacts may take "
+                f"(AD_MAX_TRIAL_ARTIFACT_BYTES): its others take {others}"
+            ),
         ),
     ]
     if quota.owner_bytes is not None:
+        owner_bytes = quota.owner_bytes
         stored = quota_repo.owner_storage(session, study_id=trial.study_id, for_update=for_update)
         rooms.append(
-            UploadRoom(
-                quota.owner_bytes - (stored.used - int(present)), stored.of(quota.owner_bytes)
-            )
+            (owner_bytes - (stored.used - int(present)), lambda: stored.of(session, owner_bytes))
         )
-    room = min(rooms, key=lambda each: each.bytes)
+    left, named = min(rooms, key=lambda each: each[0])
+    room = UploadRoom(left, named())
     if room.bytes <= 0:
         raise TooLargeError(f"trial {trial_id} takes no more artifacts: {room.limit}")
     return trial, room

@@ -71,11 +71,11 @@ def _leasable(
     learners: Sequence[str] | None,
     owner: int | None,
     storage_quota: int | None,
-) -> list[sa.ColumnElement[bool]]:
-    """Managed studies; with ``tasks`` (``learners``) only those whose task (its
-    learner) has one of these names; with ``owner`` only that token's studies (a user's
-    lease: ``Principal.leased_owner``); with ``storage_quota`` only those whose owner
-    stores less than that many bytes."""
+) -> tuple[list[sa.ColumnElement[bool]], dict[str, int]]:
+    """Where-clauses for managed studies, and the parameters to execute them with; with
+    ``tasks`` (``learners``) only those whose task (its learner) has one of these names;
+    with ``owner`` only that token's studies (a user's lease: ``Principal.leased_owner``);
+    with ``storage_quota`` only those whose owner stores less than that many bytes."""
     where: list[sa.ColumnElement[bool]] = [StudyRow.task.is_not(None)]
     if tasks is not None:
         where.append(StudyRow.task["name"].as_string().in_(list(tasks)))
@@ -83,7 +83,8 @@ def _leasable(
         where.append(StudyRow.task["learner"].as_string().in_(list(learners)))
     if owner is not None:
         where.append(StudyRow.owner_token_id == owner)
-    return where + within_quota(storage_quota)
+    within, params = within_quota(storage_quota)
+    return where + within, params
 
 
 def _not_backing_off(now: datetime) -> sa.ColumnElement[bool]:
@@ -112,13 +113,14 @@ def lease_queued_trial(
     :func:`record_idle_worker`."""
     now = utcnow()
     expire_leases(session, now=now)
+    leasable, params = _leasable(tasks, learners, owner, storage_quota)
     query = (
         sa.select(TrialRow)
         .join(StudyRow, StudyRow.id == TrialRow.study_id)
         .where(
             TrialRow.state == TrialState.queued,
             StudyRow.state == "running",
-            *_leasable(tasks, learners, owner, storage_quota),
+            *leasable,
             _not_backing_off(now),
         )
         .order_by(TrialRow.id)
@@ -126,7 +128,7 @@ def lease_queued_trial(
     )
     if locking(session):
         query = query.with_for_update(of=TrialRow, skip_locked=True)
-    trial = session.scalars(query).one_or_none()
+    trial = session.scalars(query, params).one_or_none()
     if trial is None:
         if served_changed(session, worker_id=worker_id, tasks=tasks, learners=learners):
             record_idle_worker(session, worker_id=worker_id, tasks=tasks, learners=learners)
@@ -180,17 +182,18 @@ def studies_wanting_trials(
     """Running managed studies (of one of ``tasks`` and ``learners``, of ``owner``'s
     when given, whose owner is within ``storage_quota``) with room for a trial, oldest
     first; a study whose proposals failed is left out until its ``proposal_retry_at``."""
+    leasable, params = _leasable(tasks, learners, owner, storage_quota)
     query = (
         sa.select(StudyRow.id)
         .where(
             StudyRow.state == "running",
-            *_leasable(tasks, learners, owner, storage_quota),
+            *leasable,
             StudyRow.n_trials < StudyRow.max_trials,
             _not_backing_off(utcnow()),
         )
         .order_by(StudyRow.id)
     )
-    return list(session.scalars(query))
+    return list(session.scalars(query, params))
 
 
 def check_lease_token(trial: TrialRow, caller: Principal) -> None:

@@ -23,57 +23,62 @@ NO_OWNER = 0
 """The owner key of the studies without an owner (made with auth off): one owner."""
 
 
+_OWNER_BYTES = (
+    sa.select(OwnerStorageRow.owner_key, OwnerStorageRow.bytes)
+    .join(StudyStorageRow, StudyStorageRow.owner_key == OwnerStorageRow.owner_key)
+    .where(StudyStorageRow.study_id == sa.bindparam("study_id"))
+)
+"""Built once: an upload runs it twice, and building it cost three times running it."""
+_LOCKED_STUDY_BYTES = (
+    sa.select(StudyStorageRow.study_id)
+    .where(StudyStorageRow.study_id == sa.bindparam("study_id"))
+    .with_for_update()
+)
+_LOCKED_OWNER_BYTES = _OWNER_BYTES.with_for_update(of=OwnerStorageRow)
+
+
 @dataclass(frozen=True)
 class OwnerStorage:
     """What the owner of one study stores."""
 
+    study_id: int
     owner_key: int
-    owner_name: str | None
-    """The creating token's name (``StudyRow.created_by``)."""
     used: int
     """Bytes of artifacts and URDFs all of the owner's studies store."""
 
-    @property
-    def whose(self) -> str:
-        if self.owner_key == NO_OWNER:
-            return "the studies without an owner"
-        name = repr(self.owner_name) if self.owner_name else str(self.owner_key)
-        return f"the studies of token {name}"
-
-    def of(self, quota: int) -> str:
+    def of(self, session: Session, quota: int) -> str:
         """The quota, its setting and what is used of it, as a refusal names them."""
         return (
-            f"the quota of {quota} bytes per owner ({QUOTA_SETTING}): {self.whose} "
-            f"store {self.used} bytes of artifacts and URDFs"
+            f"the quota of {quota} bytes per owner ({QUOTA_SETTING}): "
+            f"{self._whose(session)} store {self.used} bytes of artifacts and URDFs"
         )
 
-    def over(self, quota: int) -> str:
+    def over(self, session: Session, quota: int) -> str:
         """Why nothing more is stored for the owner (``used`` is ``quota`` or more)."""
-        return f"{self.of(quota)}, the whole quota: delete studies to make room"
+        return f"{self.of(session, quota)}, the whole quota: delete studies to make room"
+
+    def _whose(self, session: Session) -> str:
+        if self.owner_key == NO_OWNER:
+            return "the studies without an owner"
+        name = session.scalar(sa.select(StudyRow.created_by).where(StudyRow.id == self.study_id))
+        return (
+            f"the studies of token {name!r}" if name else f"the studies of token {self.owner_key}"
+        )
 
 
 def owner_storage(session: Session, *, study_id: int, for_update: bool = False) -> OwnerStorage:
     """What the owner of ``study_id`` stores. ``for_update`` locks the study's and the
     owner's totals (on PostgreSQL, in that order, the order the triggers take them), so a
     check and the write it allows are one step for that owner."""
+    connection = session.connection()
+    statement = _OWNER_BYTES
     if for_update and locking(session):
-        session.execute(
-            sa.select(StudyStorageRow.study_id)
-            .where(StudyStorageRow.study_id == study_id)
-            .with_for_update()
-        ).all()
-    query = (
-        sa.select(StudyStorageRow.owner_key, StudyRow.created_by, OwnerStorageRow.bytes)
-        .join(StudyRow, StudyRow.id == StudyStorageRow.study_id)
-        .join(OwnerStorageRow, OwnerStorageRow.owner_key == StudyStorageRow.owner_key)
-        .where(StudyStorageRow.study_id == study_id)
-    )
-    if for_update and locking(session):
-        query = query.with_for_update(of=OwnerStorageRow)
-    row = session.execute(query).one_or_none()
+        connection.execute(_LOCKED_STUDY_BYTES, {"study_id": study_id}).all()
+        statement = _LOCKED_OWNER_BYTES
+    row = connection.execute(statement, {"study_id": study_id}).one_or_none()
     if row is None:  # a study gone meanwhile stores nothing
-        return OwnerStorage(owner_key=NO_OWNER, owner_name=None, used=0)
-    return OwnerStorage(owner_key=row.owner_key, owner_name=row.created_by, used=int(row.bytes))
+        return OwnerStorage(study_id=study_id, owner_key=NO_OWNER, used=0)
+    return OwnerStorage(study_id=study_id, owner_key=row.owner_key, used=int(row.bytes))
 
 
 def check_room(session: Session, *, study_id: int, quota: int | None) -> None:
@@ -83,17 +88,25 @@ def check_room(session: Session, *, study_id: int, quota: int | None) -> None:
         return
     stored = owner_storage(session, study_id=study_id)
     if stored.used >= quota:
-        raise OverQuotaError(f"study {study_id} makes no new trials: {stored.over(quota)}")
+        raise OverQuotaError(f"study {study_id} makes no new trials: {stored.over(session, quota)}")
 
 
-def within_quota(quota: int | None) -> list[sa.ColumnElement[bool]]:
-    """Where-clauses on ``StudyRow``: studies whose owner stores less than ``quota``
-    bytes (none for no quota). The owners at or past it are one scan of the small
-    ``owner_storage`` table, read once per statement."""
+QUOTA_PARAM = "storage_quota"
+_WITHIN_QUOTA = sa.func.coalesce(StudyRow.owner_token_id, NO_OWNER).not_in(
+    sa.select(OwnerStorageRow.owner_key).where(
+        OwnerStorageRow.bytes >= sa.bindparam(QUOTA_PARAM, type_=sa.BigInteger)
+    )
+)
+
+
+def within_quota(quota: int | None) -> tuple[list[sa.ColumnElement[bool]], dict[str, int]]:
+    """Where-clauses on ``StudyRow`` for studies whose owner stores less than ``quota``
+    bytes, and the parameters to execute them with (none of either for no quota). The
+    owners at or past it are one scan of the small ``owner_storage`` table, read once per
+    statement; the clause is built once, the quota given at execution."""
     if quota is None:
-        return []
-    full = sa.select(OwnerStorageRow.owner_key).where(OwnerStorageRow.bytes >= quota)
-    return [sa.func.coalesce(StudyRow.owner_token_id, NO_OWNER).not_in(full)]
+        return [], {}
+    return [_WITHIN_QUOTA], {QUOTA_PARAM: quota}
 
 
 def study_urdf_bytes(session: Session, *, study_id: int) -> int:
