@@ -60,30 +60,30 @@ class UrdfLimits:
             self.urdf_bytes, f"the limit of {self.urdf_bytes:,} bytes (AD_MAX_URDF_BYTES)"
         )
 
-    def together(self, study_stores: int) -> ByteLimit:
-        """What one batch of a study storing ``study_stores`` bytes may add: the ask's
-        limit, or the room left under the study's, whichever is less."""
-        room = self.study_bytes - study_stores
-        if room < self.ask_bytes:
-            return ByteLimit(
-                max(room, 0),
-                f"the {max(room, 0):,} bytes the study may still store (it stores "
-                f"{study_stores:,} of {self.study_bytes:,}: AD_MAX_STUDY_URDF_BYTES)",
-            )
+    def per_ask(self) -> ByteLimit:
         return ByteLimit(
-            self.ask_bytes,
-            f"the limit of {self.ask_bytes:,} bytes per ask (AD_MAX_ASK_URDF_BYTES)",
+            self.ask_bytes, f"the limit of {self.ask_bytes:,} bytes per ask (AD_MAX_ASK_URDF_BYTES)"
+        )
+
+    def study_room(self, study_stores: int) -> ByteLimit:
+        """The bytes a study storing ``study_stores`` may still add (the URDF that reaches
+        the study's limit is kept: the study then gets no new trial)."""
+        return ByteLimit(
+            self.study_bytes - study_stores,
+            f"the limit of {self.study_bytes:,} bytes per study (AD_MAX_STUDY_URDF_BYTES)",
         )
 
 
 @dataclass(frozen=True)
 class Checks:
-    """What each expansion is checked for: the links the study's task looks up, and the
-    bytes of one URDF and of the batch."""
+    """What each expansion is checked for: the links the study's task looks up, the
+    bytes of one URDF and of the batch (strict), and the room left under the study's
+    limit (kept until reached)."""
 
     links: tuple[tuple[str, str], ...] = ()
     per_urdf: ByteLimit | None = None
     together: ByteLimit | None = None
+    room: ByteLimit | None = None
 
 
 def expand_each(
@@ -93,7 +93,8 @@ def expand_each(
     times an expansion of the example arm), each checked there as a study's creation
     checks its template (:func:`adclient.templates.expand_checked`: a robot the worker
     builds, with the task's links, within the byte limits). A point the child did not
-    reach in its CPU time is failed with that limit."""
+    reach in its CPU time is failed with that limit; one after the URDFs kept reach the
+    study's room, with that."""
     from adclient.templates import expand_checked
 
     checks = checks or Checks()
@@ -104,12 +105,22 @@ def expand_each(
         max_bytes=checks.per_urdf,
         max_total_bytes=checks.together,
     )
-    return [
-        Expansion(urdf=result.urdf)
-        if result.urdf is not None
-        else Expansion(error=result.message())
-        for result in expanded
-    ]
+    kept = 0
+    expansions = []
+    for result in expanded:
+        if result.urdf is None:
+            expansions.append(Expansion(error=result.message()))
+        elif checks.room is not None and kept >= checks.room.bytes:
+            expansions.append(
+                Expansion(
+                    error=f"template, expanded: not kept: the study's URDFs reach "
+                    f"{checks.room.text()}"
+                )
+            )
+        else:
+            kept += len(result.urdf.encode())
+            expansions.append(Expansion(urdf=result.urdf))
+    return expansions
 
 
 class Place:

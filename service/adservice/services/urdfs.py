@@ -7,11 +7,11 @@ thread or a database transaction: a place is taken before the trials are written
 pool is a 503 that stores nothing), the expansion runs after, and one short write stores
 the URDFs. Each expansion is checked where it runs as a study's creation checks its
 template (a robot the worker builds, with the links its task looks up, within
-``AD_MAX_URDF_BYTES``), and a batch's together within ``AD_MAX_ASK_URDF_BYTES`` and the
-room ``AD_MAX_STUDY_URDF_BYTES`` leaves the study. A trial whose expansion fails these
-is failed with the reason (its proposer learns from it, no worker gets it); an enqueued
-one is refused (422). A study that stores its limit gets no new trials: its ask is a
-409 and leases skip it.
+``AD_MAX_URDF_BYTES``), a batch's together within ``AD_MAX_ASK_URDF_BYTES``, and none is
+kept once the study's reach ``AD_MAX_STUDY_URDF_BYTES`` (the one that reaches it is). A
+trial whose expansion fails these is failed with the reason (its proposer learns from
+it, no worker gets it); an enqueued one is refused (422). A study that stores its limit
+gets no new trials: its ask is a 409 and leases skip it.
 
 A study whose expansion fails, or keeps a worker's lease waiting past
 ``AD_LEASE_EXPAND_SECONDS``, backs off as after a failed proposal (its
@@ -186,7 +186,8 @@ async def _checks(proposing: Proposing, study_id: int) -> Checks:
     return Checks(
         links=task_links(config.task),
         per_urdf=limits.per_urdf(),
-        together=limits.together(stores),
+        together=limits.per_ask(),
+        room=limits.study_room(stores),
     )
 
 
