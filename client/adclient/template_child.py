@@ -273,6 +273,8 @@ def main() -> None:
             answer = {"error": str(error)}
         except MemoryError:
             answer = {"error": f"template: expanding it needs over {memory} bytes"}
+        except Exception as error:  # a point's own failure: the next points still expand
+            answer = {"error": f"template: {type(error).__name__}: {str(error)[:200]}"}
         _answer({"point": index, **answer})
 
 

@@ -189,7 +189,10 @@ def expand(template: str, values: Mapping[str, Any]) -> str:
             xacro.init_stacks(None)
         root = doc.documentElement
         _check_names(root)
-        return '<?xml version="1.0" ?>\n' + str(root.toprettyxml(indent="  "))
+        try:
+            return '<?xml version="1.0" ?>\n' + str(root.toprettyxml(indent="  "))
+        except ValueError as error:  # minidom's: a comment or CDATA it cannot write
+            raise TemplateError(f"template: its expansion cannot be written: {error}") from None
 
 
 def _check_names(root: Any) -> None:
@@ -202,15 +205,14 @@ def _check_names(root: Any) -> None:
         problem = xml_name_problem(node.tagName)
         if problem is not None:
             raise TemplateError(
-                f"template: an element's name {problem} (xacro:element names an element "
-                "with its xacro:name)"
+                f"template: an element's name {problem} (as is the xacro:name of an xacro:element)"
             )
         for name, _ in node.attributes.items():
             problem = xml_name_problem(name)
             if problem is not None:
                 raise TemplateError(
-                    f"template: <{node.tagName}>: an attribute's name {problem} "
-                    "(xacro:attribute names one with its name)"
+                    f"template: <{node.tagName}>: an attribute's name {problem} (as is the "
+                    "name of an xacro:attribute)"
                 )
         stack.extend(node.childNodes)
 
