@@ -1,18 +1,185 @@
 """The built-in learners, declared as any plugin declares its own (entry points in
-pyproject.toml). Their code lives in adworker.learners; only the worker imports it."""
+pyproject.toml). Their code lives in adworker.learners; only the worker imports it.
+
+Each stable-baselines3 learner's options model is the whitelist of what a study's
+``task.options.learner_kwargs`` may set: every option bounded, with the learner's own
+value as its default (the one place it lives: adworker builds the model from it), and
+:meth:`StableBaselinesOptions.budget_problems` bounding what they cost together for a
+job's steps (gradient updates, the samples they pass through the networks, the
+networks' size). Anything else (``policy_kwargs``, ``tensorboard_log``, ``device``,
+``verbose``...) is refused by name."""
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict
+import math
+from itertools import pairwise
+from typing import Annotated, Any, ClassVar, Literal, NamedTuple
 
-from adclient.plugins import LearnerSpec
+from pydantic import Field
+
+from adclient.plugins import LearnerOptions, LearnerSpec
+
+MAX_UPDATES = 10_000_000
+"""The most gradient updates a job's options may ask for: one per step at the largest
+``train_steps``."""
+MAX_GRADIENT_SAMPLES = 1_000_000_000
+"""The most samples those updates may pass through the networks (updates x batch size)."""
+MAX_NET_WEIGHTS = 65_536
+"""The most weights between a network's hidden layers (``[256, 256]``)."""
+
+Width = Annotated[int, Field(ge=1, le=256)]
 
 
-class StableBaselinesOptions(BaseModel):
-    """Overrides of the stable-baselines3 algorithm's constructor arguments (any of them,
-    e.g. ``learning_rate``), and ``action_noise`` as ``{kind: normal | ou, sigma: s}``."""
+class Work(NamedTuple):
+    """What a job's training costs: gradient updates and the samples they pass through
+    the networks, each with how it was counted."""
 
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    updates: int
+    samples: int
+    updates_counted: str
+    samples_counted: str
+
+
+class ActionNoise(LearnerOptions):
+    """Exploration noise of an off-policy learner: Gaussian (``normal``) or
+    Ornstein-Uhlenbeck (``ou``, correlated in time), per joint."""
+
+    kind: Literal["normal", "ou"] = "normal"
+    sigma: float = Field(default=0.3, ge=0.0, le=10.0, description="Its scale")
+    theta: float | None = Field(
+        default=None, gt=0.0, le=100.0, description="ou only: its pull back to 0 (SB3: 0.15)"
+    )
+    dt: float | None = Field(
+        default=None, gt=0.0, le=10.0, description="ou only: its time step (SB3: 0.01)"
+    )
+
+
+class StableBaselinesOptions(LearnerOptions):
+    """What every stable-baselines3 learner takes; see the subclasses."""
+
+    default_steps: ClassVar[int]
+    """The learner's step budget where the study sets no ``train_steps``."""
+
+    learning_rate: float = Field(default=1e-3, gt=0.0, le=1.0)
+    gamma: float = Field(default=0.95, ge=0.0, le=1.0, description="Discount factor")
+    net_arch: list[Width] = Field(
+        default=[64, 64],
+        min_length=1,
+        max_length=4,
+        description="Hidden layers' widths of the actor's and the critic's networks",
+    )
+
+    def hyperparameters(self) -> dict[str, Any]:
+        """The model's constructor arguments (the networks as ``policy_kwargs``, the
+        noise as its mapping)."""
+        kwargs = self.model_dump(exclude={"net_arch"}, exclude_none=True)
+        kwargs["policy_kwargs"] = {"net_arch": list(self.net_arch)}
+        return kwargs
+
+    def work(self, steps: int) -> Work:
+        """The training of a job of ``steps`` steps."""
+        raise NotImplementedError
+
+    def budget_problems(self, steps: int | None) -> list[str]:
+        steps = self.default_steps if steps is None else steps
+        problems = []
+        weights = sum(a * b for a, b in pairwise(self.net_arch))
+        if weights > MAX_NET_WEIGHTS:
+            problems.append(
+                f"net_arch {self.net_arch} has {weights:,} weights between its hidden "
+                f"layers, more than the limit of {MAX_NET_WEIGHTS:,}"
+            )
+        work = self.work(steps)
+        if work.updates > MAX_UPDATES:
+            problems.append(
+                f"{work.updates:,} gradient updates ({work.updates_counted}) exceed the "
+                f"limit of {MAX_UPDATES:,}"
+            )
+        elif work.samples > MAX_GRADIENT_SAMPLES:
+            problems.append(
+                f"{work.samples:,} gradient samples ({work.samples_counted}) exceed the "
+                f"limit of {MAX_GRADIENT_SAMPLES:,}"
+            )
+        return problems
+
+
+class OffPolicyOptions(StableBaselinesOptions):
+    """DDPG's options, and what TD3 and SAC share with it."""
+
+    default_steps: ClassVar[int] = 2500
+
+    buffer_size: int = Field(
+        default=1000,
+        ge=1,
+        le=1_000_000,
+        description="Replay buffer transitions (at least the job's steps: it keeps them all)",
+    )
+    learning_starts: int = Field(
+        default=256, ge=0, le=1_000_000, description="Steps before the first update"
+    )
+    batch_size: int = Field(default=64, ge=1, le=1024)
+    tau: float = Field(default=0.02, gt=0.0, le=1.0, description="Target networks' update rate")
+    train_freq: int = Field(default=1, ge=1, le=100_000, description="Steps between updates")
+    gradient_steps: int = Field(default=1, ge=1, le=1000, description="Updates each time")
+    action_noise: ActionNoise | None = Field(
+        default=ActionNoise(kind="ou", sigma=0.5, dt=0.1), description="Exploration noise"
+    )
+
+    def work(self, steps: int) -> Work:
+        updates = math.ceil(steps / self.train_freq) * self.gradient_steps
+        counted = (
+            f"{steps:,} steps / train_freq {self.train_freq} x gradient_steps {self.gradient_steps}"
+        )
+        return Work(
+            updates, updates * self.batch_size, counted, f"{counted} x batch_size {self.batch_size}"
+        )
+
+
+class TD3Options(OffPolicyOptions):
+    policy_delay: int = Field(
+        default=2, ge=1, le=1000, description="Critic updates per actor update"
+    )
+    target_policy_noise: float = Field(default=0.2, ge=0.0, le=10.0)
+    target_noise_clip: float = Field(default=0.5, ge=0.0, le=10.0)
+
+
+class SACOptions(OffPolicyOptions):
+    default_steps: ClassVar[int] = 2000
+
+    action_noise: ActionNoise | None = Field(default=None, description="Exploration noise")
+    # A fixed, small entropy weight: the automatic one keeps the policy too random to
+    # settle on a pose within this budget.
+    ent_coef: Annotated[float, Field(gt=0.0, le=10.0)] | Literal["auto"] = Field(
+        default=0.01, description="Entropy weight, or auto (learned)"
+    )
+    target_update_interval: int = Field(default=1, ge=1, le=100_000)
+
+
+class PPOOptions(StableBaselinesOptions):
+    """Short rollouts and large minibatches: 24 updates of 10 epochs within the budget."""
+
+    default_steps: ClassVar[int] = 12288
+
+    n_steps: int = Field(default=512, ge=8, le=16_384, description="Steps of a rollout")
+    batch_size: int = Field(default=128, ge=2, le=16_384, description="Minibatch size")
+    n_epochs: int = Field(default=10, ge=1, le=100, description="Passes over each rollout")
+    gae_lambda: float = Field(default=0.9, ge=0.0, le=1.0)
+    clip_range: float = Field(default=0.2, gt=0.0, le=10.0)
+    ent_coef: float = Field(default=0.0, ge=0.0, le=10.0, description="Entropy weight")
+    vf_coef: float = Field(default=0.5, ge=0.0, le=100.0, description="Value loss weight")
+    max_grad_norm: float = Field(default=0.5, gt=0.0, le=1000.0)
+    target_kl: float | None = Field(default=None, gt=0.0, le=100.0)
+
+    def work(self, steps: int) -> Work:
+        passes = math.ceil(steps / self.n_steps) * self.n_epochs
+        minibatches = math.ceil(self.n_steps / self.batch_size)
+        counted = f"{steps:,} steps / n_steps {self.n_steps} x n_epochs {self.n_epochs}"
+        return Work(
+            passes * minibatches,
+            passes * self.n_steps,
+            f"{counted} x {minibatches} minibatches of batch_size {self.batch_size}",
+            f"{counted} x n_steps {self.n_steps}",
+        )
 
 
 FAST = LearnerSpec(
@@ -26,28 +193,28 @@ DDPG = LearnerSpec(
     description="stable-baselines3 DDPG (the preprint's learner), [64, 64] networks, "
     "Ornstein-Uhlenbeck exploration.",
     factory="adworker.learners:DDPGLearner",
-    options=StableBaselinesOptions,
+    options=OffPolicyOptions,
     transfers=True,
 )
 TD3 = LearnerSpec(
     name="td3",
     description="stable-baselines3 TD3, settings as ddpg.",
     factory="adworker.learners:TD3Learner",
-    options=StableBaselinesOptions,
+    options=TD3Options,
     transfers=True,
 )
 SAC = LearnerSpec(
     name="sac",
     description="stable-baselines3 SAC, [64, 64] networks, entropy weight 0.01.",
     factory="adworker.learners:SACLearner",
-    options=StableBaselinesOptions,
+    options=SACOptions,
     transfers=True,
 )
 PPO = LearnerSpec(
     name="ppo",
     description="stable-baselines3 PPO, [64, 64] networks, rollouts of 512.",
     factory="adworker.learners:PPOLearner",
-    options=StableBaselinesOptions,
+    options=PPOOptions,
     transfers=True,
     shares=True,
 )

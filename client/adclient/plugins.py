@@ -75,6 +75,35 @@ class SimulatorOptions(TaskOptions):
     )
 
 
+class LearnerOptions(BaseModel):
+    """The base of a learner's options model (``LearnerSpec.options``): the whitelist of
+    ``task.options.learner_kwargs``. Unknown options are refused by name, numbers must be
+    finite, and each field's bounds are the plugin's to declare; what the options cost
+    together for a job's steps is :meth:`budget_problems`. Checked when a study is
+    created, and again by the worker for each job (a study stored before the check)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    def budget_problems(self, steps: int | None) -> list[str]:
+        """Why a job training ``steps`` steps (None: the learner's own budget) with these
+        options would cost more than the learner allows, each problem naming its options
+        and the limit; none by default."""
+        return []
+
+
+def learner_budget_problems(
+    options: BaseModel, train_steps: int | None, transfer_steps: int | None = None
+) -> list[str]:
+    """The budget problems of a learner's options for a study's ``train_steps`` and
+    ``transfer_steps`` (a warm-started design's own budget), each once."""
+    if not isinstance(options, LearnerOptions):
+        return []
+    problems = options.budget_problems(train_steps)
+    if transfer_steps is not None:
+        problems += [p for p in options.budget_problems(transfer_steps) if p not in problems]
+    return problems
+
+
 Factory = str | Callable[..., Any]
 """An import string ``"module:attr"`` or the callable itself."""
 
@@ -134,9 +163,10 @@ class TaskSpec:
 @dataclass(frozen=True)
 class LearnerSpec:
     """A learner: its name, the options model of ``task.options.learner_kwargs`` (None:
-    it takes none), and the factory the worker calls with those options (a model
-    instance, or None) to get an object with ``train(env, steps=, seed=, check=,
-    start=, keep_checkpoint=, reporting=)`` (docs/plugins.md).
+    it takes none; else a whitelist that refuses unknown options, best a
+    :class:`LearnerOptions` with each option bounded), and the factory the worker calls
+    with those options (a model instance, or None) to get an object with ``train(env,
+    steps=, seed=, check=, start=, keep_checkpoint=, reporting=)`` (docs/plugins.md).
 
     ``transfers``: it takes part in a study's ``task.transfer`` (docs/worker.md): it
     trains on from a ``start=Warm(checkpoint, steps)`` (bytes of a checkpoint it
@@ -159,6 +189,19 @@ class LearnerSpec:
     options: type[BaseModel] | None = None
     transfers: bool = False
     shares: bool = False
+
+    def __post_init__(self) -> None:
+        options = self.options
+        if options is None:
+            return
+        if not (isinstance(options, type) and issubclass(options, BaseModel)):
+            raise TypeError(f"learner {self.name!r}: options must be a pydantic model")
+        if options.model_config.get("extra") != "forbid":
+            raise TypeError(
+                f"learner {self.name!r}: its options model {options.__name__} must refuse "
+                "unknown options (extend adclient.plugins.LearnerOptions, or "
+                "model_config = ConfigDict(extra='forbid'))"
+            )
 
     def load_factory(self) -> Callable[..., Any]:
         return _resolve(self.factory, f"learner {self.name!r}")

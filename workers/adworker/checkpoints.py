@@ -12,6 +12,10 @@ format holds numbers only, in one zip (``checkpoint.zip``):
 - ``replay_buffer.npz`` (off-policy learners): the buffer's transitions, oldest first,
   read with ``np.load(allow_pickle=False)``.
 
+Before anything is read, the checkpoint's members must unpack to
+``MAX_CHECKPOINT_BYTES`` in all, and so must the replay buffer's arrays, each ``.npy``
+header naming numbers that its bytes hold (:mod:`adworker.npy_archives`).
+
 Loading fills a model the worker built itself from the job's own config (learner,
 hyperparameters, this design's env): nothing in the file names a class, a function or
 an object to make, so a file that does not fit is refused with the reason, never run.
@@ -25,10 +29,13 @@ import io
 import json
 import re
 import zipfile
+from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+
+from adworker.npy_archives import ArchiveError, check_npz, check_total
 
 FORMAT: Literal[2] = 2
 META_MEMBER = "checkpoint.json"
@@ -36,8 +43,10 @@ PARAMETERS_MEMBER = "parameters.pt"
 REPLAY_MEMBER = "replay_buffer.npz"
 REPLAY_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
 """A replay buffer's arrays, one row per transition (SB3's ``ReplayBuffer``)."""
-MAX_MEMBER_BYTES = 1 << 30
-"""The most a member may unpack to (a 20,000-step SAC buffer is about 10 MB)."""
+MAX_CHECKPOINT_BYTES = 256 << 20
+"""The most a checkpoint may unpack to, its members all together, and its replay
+buffer's arrays all together (a 20,000-step SAC buffer is about 10 MB; the server's
+64 MB artifact limit holds some 300,000 transitions, about 160 MB unpacked)."""
 
 
 class CheckpointError(ValueError):
@@ -95,6 +104,7 @@ def load_into(model: Any, checkpoint: bytes) -> None:
     import torch
 
     with zipfile.ZipFile(io.BytesIO(checkpoint)) as archive:
+        _checked(check_total, archive, MAX_CHECKPOINT_BYTES, "the checkpoint")
         names = set(archive.namelist())
         if META_MEMBER not in names:
             older = " (SB3's pickles: refused unread)" if "model.zip" in names else ""
@@ -126,9 +136,15 @@ def _read(archive: zipfile.ZipFile, name: str) -> bytes:
         info = archive.getinfo(name)
     except KeyError:
         raise CheckpointError(f"the checkpoint has no {name}") from None
-    if info.file_size > MAX_MEMBER_BYTES:
-        raise CheckpointError(f"{name} unpacks to {info.file_size} bytes, more than allowed")
     return archive.read(info)
+
+
+def _checked(check: Callable[..., None], *args: Any) -> None:
+    """``check(*args)`` of :mod:`adworker.npy_archives`, its refusal a CheckpointError."""
+    try:
+        check(*args)
+    except ArchiveError as error:
+        raise CheckpointError(f"{error}: refused unread") from None
 
 
 def _check_fits(model: Any, meta: _Meta) -> None:
@@ -187,9 +203,12 @@ def _load_replay(model: Any, raw: bytes) -> None:
     """Saved transitions into ``model``'s buffer, grown to hold them all when it was
     built for fewer steps (a warm start's budget below its source's), as the source's
     own buffer held them."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(raw)) as arrays_archive:
+            _checked(check_npz, arrays_archive, MAX_CHECKPOINT_BYTES, REPLAY_MEMBER)
+    except zipfile.BadZipFile as error:
+        raise CheckpointError(f"{REPLAY_MEMBER} is not an .npz ({error})") from None
     with np.load(io.BytesIO(raw), allow_pickle=False) as saved:
-        if any(info.file_size > MAX_MEMBER_BYTES for info in saved.zip.infolist()):
-            raise CheckpointError(f"{REPLAY_MEMBER} unpacks to more than allowed")
         if set(saved.files) != set(REPLAY_ARRAYS):
             raise CheckpointError(f"{REPLAY_MEMBER} holds no arrays of exactly {REPLAY_ARRAYS}")
         try:

@@ -9,8 +9,11 @@
 
 Each worker process leases a job of a task it has, trains and evaluates the design
 in PyBullet (or calls the function), and reports the score with its metrics and
-artifacts (URDF, picture, curve). SIGTERM or Ctrl-C: finish the current job and exit;
-a second one: abandon it and exit now. Exit status 0 when stopped, 2 on a usage
+artifacts (URDF, picture, curve). Each job runs in a process of its own under a time
+and a memory limit (``--job-seconds``, ``--job-step-seconds``, ``--job-memory-mb``): one
+past them is stopped and its trial failed, naming the limit. SIGTERM or Ctrl-C: finish
+the current job within ``--stop-grace`` seconds and exit; a second one, or the grace
+run out: abandon it, give its lease back and exit now. Exit status 0 when stopped, 2 on a usage
 error, 3 when the worker could not start (a function that does not import,
 ``--learner-device cuda`` without a GPU), 4 when the server refused the token. An https
 server with a private or self-signed certificate needs ``--ca-bundle`` (env
@@ -29,6 +32,7 @@ import typer
 
 from adclient.cli.common import CA_BUNDLE_OPTION
 from adclient.devices import LEARNER_DEVICE_VARIABLE, device_problem
+from adworker.jobprocess import JobLimits, setup_problem
 from adworker.pool import run_pool
 from adworker.worker import (
     EXIT_SETUP,
@@ -124,6 +128,35 @@ def run(
         envvar=LEARNER_DEVICE_VARIABLE,
         help="The torch device learners train on: cpu, or cuda (a GPU, checked at start).",
     ),
+    job_seconds: float = typer.Option(
+        3600.0,
+        "--job-seconds",
+        envvar="AD_JOB_SECONDS",
+        min=1.0,
+        help="The most seconds a job may run; past it the job is stopped and its trial failed.",
+    ),
+    job_step_seconds: float = typer.Option(
+        0.05,
+        "--job-step-seconds",
+        envvar="AD_JOB_STEP_SECONDS",
+        min=0.0,
+        help="A job whose study sets train_steps gets at most 60 s plus this for each step "
+        "it trains and evaluates (less than --job-seconds).",
+    ),
+    job_memory_mb: int = typer.Option(
+        2048,
+        "--job-memory-mb",
+        envvar="AD_JOB_MEMORY_MB",
+        min=0,
+        help="The most memory (MB) a job may allocate in its process; 0: no limit.",
+    ),
+    stop_grace: float = typer.Option(
+        25.0,
+        "--stop-grace",
+        envvar="AD_STOP_GRACE",
+        min=0.0,
+        help="Seconds the current job gets to finish after SIGTERM; then it is abandoned.",
+    ),
     log_level: str = typer.Option("info", "--log-level", envvar="AD_LOG_LEVEL"),
 ) -> None:
     """Lease and evaluate jobs until stopped."""
@@ -162,6 +195,12 @@ def run(
         function=function,
         task=task,
         app_dir=app_dir.resolve(),
+        limits=JobLimits(
+            seconds=job_seconds,
+            step_seconds=job_step_seconds,
+            memory_mb=job_memory_mb or None,
+        ),
+        stop_grace=stop_grace,
     )
     configure_logging(level, base_id)
     if ray is not None:
@@ -174,7 +213,7 @@ def run(
         try:
             worker = Worker(config)
         except Exception as error:
-            typer.echo(f"adworker: cannot start: {type(error).__name__}: {error}", err=True)
+            typer.echo(f"adworker: cannot start: {setup_problem(error)}", err=True)
             raise typer.Exit(EXIT_SETUP) from None
         worker.install_signal_handlers()
         code = worker.run()

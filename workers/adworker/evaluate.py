@@ -30,12 +30,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
 
 from adclient.design import DesignSpace
 from adclient.designs import Design
-from adclient.plugins import PluginError, TaskOptions, catalogue
+from adclient.plugins import PluginError, TaskOptions, catalogue, learner_budget_problems
 from adclient.pruning import CHECKPOINT_ARTIFACT
-from adclient.schemas import SHARED_ARTIFACT, Job, TaskConfig
+from adclient.schemas import SHARED_ARTIFACT, Job, TaskConfig, option_problems
 from adworker import shared_weights
 from adworker.job_robots import job_robot
 from adworker.learners import (
@@ -136,8 +137,25 @@ def make_learner(task: TaskConfig, options: TaskOptions) -> Learner:
             raise JobError(f"learner {task.learner!r} takes no learner_kwargs")
         learner: Learner = spec.load_factory()(None)
     else:
-        learner = spec.load_factory()(spec.options.model_validate(options.learner_kwargs or {}))
+        learner = spec.load_factory()(learner_options(task, options, spec.options))
     return learner
+
+
+def learner_options(task: TaskConfig, options: TaskOptions, model: type[BaseModel]) -> BaseModel:
+    """The job's ``learner_kwargs`` as its learner's options model reads them, within its
+    budget for the job's steps; a JobError naming each option that is not (a study stored
+    before its learner's options were checked at creation)."""
+    owner = f"learner {task.learner!r}"
+    try:
+        checked = model.model_validate(options.learner_kwargs or {})
+    except ValidationError as error:
+        problems = option_problems(error, model, owner, prefix="task.options.learner_kwargs")
+        raise JobError(f"{'; '.join(problems)}: refused by this worker") from None
+    problems = learner_budget_problems(checked, task.train_steps, task.transfer_steps)
+    if problems:
+        listed = "; ".join(f"task.options.learner_kwargs: {p} ({owner})" for p in problems)
+        raise JobError(f"{listed}: refused by this worker")
+    return checked
 
 
 def evaluate_job(

@@ -39,6 +39,13 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from adclient.builtin_learners import (
+    OffPolicyOptions,
+    PPOOptions,
+    SACOptions,
+    StableBaselinesOptions,
+    TD3Options,
+)
 from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adworker import checkpoints
 from adworker.runner import Pruned
@@ -134,18 +141,21 @@ class Learner:
 class StableBaselinesLearner(Learner):
     """A stable-baselines3 agent with small networks; see the subclasses for budgets.
 
-    ``hyperparameters`` are the constructor arguments; the options (the task config's
-    ``options["learner_kwargs"]``, as ``StableBaselinesOptions``) replace any of them,
-    ``action_noise`` as ``{"kind": "normal" | "ou", "sigma": s}``.
+    Its constructor arguments are its options model's (``options_model``, in
+    :mod:`adclient.builtin_learners`: the learner's own settings as defaults, a job's
+    ``task.options.learner_kwargs`` replacing any of them within their bounds), and
+    nothing else: no option reaches SB3 that the model does not declare.
     """
 
     algorithm: ClassVar[str]
-    net_arch: ClassVar[list[int]] = [64, 64]
-    hyperparameters: ClassVar[dict[str, Any]] = {}
+    options_model: ClassVar[type[StableBaselinesOptions]]
 
     def __init__(self, options: BaseModel | None = None) -> None:
         super().__init__(options)
-        self.overrides = options.model_dump() if options is not None else {}
+        chosen = options if options is not None else self.options_model()
+        if not isinstance(chosen, self.options_model):
+            raise TypeError(f"{self.name} takes {self.options_model.__name__}, not {chosen!r}")
+        self.settings = chosen
 
     def make_model(
         self,
@@ -160,10 +170,9 @@ class StableBaselinesLearner(Learner):
         unless ``policy`` and its ``policy_kwargs`` are given (the modular policy)."""
         import stable_baselines3
 
-        kwargs = {**self.hyperparameters, **self.overrides}
+        kwargs = self.settings.hyperparameters()
         if policy_kwargs is not None:
             kwargs["policy_kwargs"] = policy_kwargs
-        kwargs.setdefault("policy_kwargs", {"net_arch": list(self.net_arch)})
         if "buffer_size" in kwargs:
             kwargs["buffer_size"] = max(int(kwargs["buffer_size"]), steps, 1000)
         if "learning_starts" in kwargs:
@@ -323,12 +332,11 @@ class StableBaselinesLearner(Learner):
 def _without_log_folder(model: Any) -> Any:
     """``model`` with a logger that writes nothing: without one, SB3's ``learn`` makes
     its default, which creates a folder ``SB3-<date-time>`` in the system temporary
-    folder and leaves it there, one per training. A ``tensorboard_log`` the
-    study's options ask for keeps SB3's logger: its folder is theirs."""
+    folder and leaves it there, one per training (no study may ask for a
+    ``tensorboard_log``)."""
     from stable_baselines3.common.logger import Logger
 
-    if model.tensorboard_log is None:
-        model.set_logger(Logger(folder=None, output_formats=[]))
+    model.set_logger(Logger(folder=None, output_formats=[]))
     return model
 
 
@@ -356,62 +364,34 @@ def _action_noise(env: RobotEnv, kind: str = "normal", sigma: float = 0.3, **kwa
     return NormalActionNoise(mean=mean, sigma=scale)
 
 
-_OFF_POLICY = {
-    "learning_rate": 1e-3,
-    "buffer_size": 1000,
-    "learning_starts": 256,
-    "batch_size": 64,
-    "tau": 0.02,
-    "gamma": 0.95,
-    "train_freq": 1,
-    "gradient_steps": 1,
-}
-
-
 class DDPGLearner(StableBaselinesLearner):
     """Deep deterministic policy gradient, as in the preprint."""
 
     name: ClassVar[str] = "ddpg"
     algorithm: ClassVar[str] = "DDPG"
-    default_steps: ClassVar[int] = 2500
-    hyperparameters: ClassVar[dict[str, Any]] = {
-        **_OFF_POLICY,
-        "action_noise": {"kind": "ou", "sigma": 0.5, "dt": 0.1},
-    }
+    options_model: ClassVar[type[StableBaselinesOptions]] = OffPolicyOptions
+    default_steps: ClassVar[int] = OffPolicyOptions.default_steps
 
 
 class TD3Learner(StableBaselinesLearner):
     name: ClassVar[str] = "td3"
     algorithm: ClassVar[str] = "TD3"
-    default_steps: ClassVar[int] = 2500
-    hyperparameters: ClassVar[dict[str, Any]] = {
-        **_OFF_POLICY,
-        "action_noise": {"kind": "ou", "sigma": 0.5, "dt": 0.1},
-    }
+    options_model: ClassVar[type[StableBaselinesOptions]] = TD3Options
+    default_steps: ClassVar[int] = TD3Options.default_steps
 
 
 class SACLearner(StableBaselinesLearner):
     name: ClassVar[str] = "sac"
     algorithm: ClassVar[str] = "SAC"
-    default_steps: ClassVar[int] = 2000
-    # A fixed, small entropy weight: the automatic one keeps the policy too random to
-    # settle on a pose within this budget.
-    hyperparameters: ClassVar[dict[str, Any]] = {**_OFF_POLICY, "ent_coef": 0.01}
+    options_model: ClassVar[type[StableBaselinesOptions]] = SACOptions
+    default_steps: ClassVar[int] = SACOptions.default_steps
 
 
 class PPOLearner(StableBaselinesLearner):
     name: ClassVar[str] = "ppo"
     algorithm: ClassVar[str] = "PPO"
-    default_steps: ClassVar[int] = 12288
-    # Short rollouts and large minibatches: 24 updates of 10 epochs within the budget.
-    hyperparameters: ClassVar[dict[str, Any]] = {
-        "learning_rate": 1e-3,
-        "n_steps": 512,
-        "batch_size": 128,
-        "n_epochs": 10,
-        "gamma": 0.95,
-        "gae_lambda": 0.9,
-    }
+    options_model: ClassVar[type[StableBaselinesOptions]] = PPOOptions
+    default_steps: ClassVar[int] = PPOOptions.default_steps
 
     def _shared_model(
         self, env: Any, start: Shared, *, steps: int, seed: int

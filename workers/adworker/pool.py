@@ -9,7 +9,8 @@ pool imports nothing of the function's in its own process (a module may start th
 as it is imported, which a fork would not carry over): each child imports it. A pool
 whose learners train on a GPU starts each child as a fresh interpreter instead: the
 pool's process asked torch whether it has the GPU, and CUDA, once initialised there,
-cannot be used in a forked child."""
+cannot be used in a forked child. Each child runs its jobs in a job process of its own
+(:mod:`adworker.jobprocess`), forked from it, or a fresh interpreter on a GPU."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from typing import Any
 
 from adclient.devices import LEARNER_DEVICE_VARIABLE
 from adclient.plugins import LearnerSpec, TaskSpec, catalogue
+from adworker.jobprocess import setup_problem
 from adworker.runner import factory_problem
 from adworker.worker import (
     EXIT_AUTH,
@@ -68,7 +70,7 @@ def start_worker(
     try:
         return Worker(config, claim=claim, unclaim=unclaim)
     except Exception as error:
-        log.error("cannot start: %s: %s", type(error).__name__, error)
+        log.error("cannot start: %s", setup_problem(error))
         return None
 
 

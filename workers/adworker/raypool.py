@@ -25,6 +25,7 @@ imports it.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -177,6 +178,9 @@ class RayWorker:
 
     def __init__(self, config: WorkerConfig, log_level: int, budget: Any) -> None:
         configure_logging(log_level, config.worker_id)
+        # Its job process a fresh interpreter: a fork would copy this process's Ray
+        # threads' state without the threads.
+        config = dataclasses.replace(config, job_start="spawn")
         if budget is None:
             self.worker = start_worker(config, lambda: True, lambda: None)
         else:

@@ -9,6 +9,7 @@ module imports neither PyBullet nor torch, so a function worker never does.
 
 from __future__ import annotations
 
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,8 @@ from typing import Protocol
 from adclient.plugins import LearnerSpec, TaskSpec
 from adclient.schemas import Job
 
+MESSAGE_LIMIT = 4000
+"""The most characters of a failed trial's message."""
 TRANSFER_FILE = "transfer-source.zip"
 """Where the worker puts the checkpoint a job's controller starts from (``job.transfer``)."""
 SHARED_FILE = "shared-source.npz"
@@ -107,3 +110,11 @@ def factory_problem(spec: TaskSpec | LearnerSpec) -> str | None:
     except Exception as error:
         return f"{type(error).__name__}: {error}"
     return None
+
+
+def failure_message(exc: BaseException) -> str:
+    """A failed job's message: the error first (what a user reads in the trial), then
+    the traceback's tail."""
+    head = f"{type(exc).__name__}: {exc}"
+    tail = "".join(traceback.format_exception(exc)[-6:])
+    return (head + "\n\n" + tail)[:MESSAGE_LIMIT]

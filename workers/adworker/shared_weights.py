@@ -15,7 +15,6 @@ added (docs/worker.md, "A shared controller").
 from __future__ import annotations
 
 import io
-import math
 import re
 import zipfile
 from collections.abc import Mapping
@@ -24,6 +23,7 @@ from typing import IO
 import numpy as np
 
 from adclient.schemas import SHARED_ARTIFACT
+from adworker.npy_archives import ArchiveError, check_npy_header
 
 Weights = dict[str, np.ndarray]
 
@@ -74,23 +74,10 @@ def decode(data: bytes) -> Weights:
 
 
 def _check_header(stream: IO[bytes], member: zipfile.ZipInfo) -> None:
-    """An ``.npy`` member's header, read before its array: numbers only, and no more
-    of them than the member's bytes hold (a header may claim any shape: ``np.load``
-    would allocate it before finding the data missing)."""
-    version = np.lib.format.read_magic(stream)
-    if version == (1, 0):
-        shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
-    elif version == (2, 0):
-        shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
-    else:
-        raise SharedWeightsError(f"member {member.filename!r}: .npy version {version}")
-    if dtype.kind not in "fiu" or dtype.hasobject:
-        raise SharedWeightsError(f"member {member.filename!r} is not numbers ({dtype})")
-    size = dtype.itemsize * math.prod(shape)
-    if size > member.file_size or size > MAX_BYTES:
-        raise SharedWeightsError(
-            f"member {member.filename!r} claims {size} bytes in {member.file_size}"
-        )
+    try:
+        check_npy_header(stream, member, MAX_BYTES)
+    except ArchiveError as error:
+        raise SharedWeightsError(str(error)) from None
 
 
 ACTOR_ARRAYS = ("log_std", "action_net.")

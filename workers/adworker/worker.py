@@ -1,9 +1,11 @@
 """The worker loop: lease a job, keep its lease alive, evaluate it, report, repeat.
 
-One :class:`Worker` runs jobs one at a time in its own process; ``--concurrency N``
-runs N of them in child processes (:func:`adworker.pool.run_pool`). What evaluates a job is its
-runner (:mod:`adworker.runner`): the installed tasks, or a function
-(``--function``); the loop is the same for both, and leases only the runner's tasks.
+One :class:`Worker` runs jobs one at a time; ``--concurrency N`` runs N of them in child
+processes (:func:`adworker.pool.run_pool`). What evaluates a job is its runner
+(:mod:`adworker.runner`): the installed tasks, or a function (``--function``); the loop
+is the same for both, and leases only the runner's tasks. The runner lives in the
+worker's job process (:mod:`adworker.jobprocess`), which the worker kills past the job's
+time or memory limit (the trial told failed, naming it) or when the job is dropped.
 The rules it keeps:
 
 - Network errors and 5xx answers are retried with backoff (the SDK retries each
@@ -25,10 +27,11 @@ The rules it keeps:
   hands over its checkpoint: the worker uploads it as the trial's ``checkpoint.zip``
   and pauses the trial (else tells it pruned). A promoted trial's job (``job.resume``)
   downloads that checkpoint first and trains on from it.
-- SIGTERM/SIGINT: stop leasing, finish the current job, report it, exit 0. A second
-  one abandons the current job, gives its lease back (the server queues the trial for
-  another worker at once, without counting the attempt; if that call fails the lease
-  simply expires) and exits.
+- SIGTERM/SIGINT: stop leasing, finish the current job within ``stop_grace`` seconds,
+  report it, exit 0. A second one, or the grace run out, abandons the current job (its
+  job process killed, wherever it was), gives its lease back (the server queues the
+  trial for another worker at once, without counting the attempt; if that call fails
+  the lease simply expires) and exits.
 - Files: a job writes only in its own folder, removed when the job ends however it
   ends (unless ``--keep-files``), inside the worker's folder (``--workdir``, else a
   temporary ``adworker-*`` made at its first job and removed when it stops). A worker
@@ -38,7 +41,9 @@ The rules it keeps:
 
 from __future__ import annotations
 
+import functools
 import logging
+import math
 import os
 import random
 import shutil
@@ -46,7 +51,6 @@ import signal
 import socket
 import threading
 import time
-import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,7 +70,17 @@ from adclient.errors import (
 from adclient.pruning import CHECKPOINT_ARTIFACT, ReportResponse
 from adclient.schemas import SHARED_ARTIFACT, Job
 from adworker.heartbeat import Heartbeat
-from adworker.runner import Artifact, Cancelled, Outcome, Pruned, Runner
+from adworker.job_metrics import Rates, spent
+from adworker.jobprocess import JobFailed, JobLimits, JobProcess, start_method
+from adworker.runner import (
+    MESSAGE_LIMIT,
+    Artifact,
+    Cancelled,
+    Outcome,
+    Pruned,
+    Runner,
+    failure_message,
+)
 from adworker.sharing import advance_shared
 from adworker.sources import fetch_start
 from adworker.workdirs import make_workdir, remove_abandoned_workdirs
@@ -76,14 +90,11 @@ log = logging.getLogger("adworker")
 TELL_PATIENCE = 300.0
 """Seconds a finished job's tell keeps being retried while the server is unreachable."""
 MAX_IDLE_BACKOFF = 30.0
-MESSAGE_LIMIT = 4000
 EXIT_OK = 0
 EXIT_AUTH = 4
 """The server refused the token (not 2: that is a usage error, as every Typer CLI's)."""
 EXIT_SETUP = 3
 """The runner could not be made (a --function that does not import...)."""
-TIMES = ("time_total_s", "time_cpu_s")
-"""The metrics of a trial's time, summed over a paused trial's attempts."""
 
 
 class AuthError(Exception):
@@ -114,6 +125,13 @@ class WorkerConfig:
     """The task name a function serves."""
     app_dir: Path | None = None
     """Where a function's module is imported from, before sys.path."""
+    limits: JobLimits = field(default_factory=JobLimits)
+    """Each job's time and memory (``--job-seconds``, ``--job-step-seconds``,
+    ``--job-memory-mb``: :mod:`adworker.jobprocess`)."""
+    stop_grace: float = 25.0
+    """Seconds the current job gets to finish after a stop signal (``--stop-grace``)."""
+    job_start: str | None = None
+    """How the job process starts: ``fork``, ``spawn``, None for the device's way."""
 
     def for_slot(self, slot: int) -> WorkerConfig:
         """The config of one of a pool's workers (a process, or a Ray actor): its own
@@ -124,8 +142,9 @@ class WorkerConfig:
 
 
 def make_runner(config: WorkerConfig) -> Runner:
-    """The configured runner; a function's module is imported here, so a typo stops the
-    worker at start, not at its first job."""
+    """The configured runner, made in the job process when the worker starts: a
+    function's module is imported then, so a typo stops the worker at start, not at
+    its first job."""
     if config.function is None:
         from adworker.evaluate import TaskRunner
 
@@ -137,22 +156,11 @@ def make_runner(config: WorkerConfig) -> Runner:
     return FunctionRunner(config.function, config.task, config.app_dir)
 
 
-@dataclass
-class Rates:
-    """Running totals for the log's rates."""
-
-    started: float = field(default_factory=time.monotonic)
-    jobs: int = 0
-    failed: int = 0
-    sim_steps: float = 0.0
-    busy_seconds: float = 0.0
-
-    def line(self) -> str:
-        minutes = max(time.monotonic() - self.started, 1e-9) / 60
-        line = f"{self.jobs} jobs ({self.failed} failed), {self.jobs / minutes:.1f} jobs/min"
-        if self.sim_steps:
-            line += f", {self.sim_steps / max(self.busy_seconds, 1e-9):,.0f} sim steps/s while busy"
-        return line
+def job_process_runner(config: WorkerConfig, log_level: int) -> Runner:
+    """A job process's runner; one started as a fresh interpreter logs as its worker."""
+    if not logging.getLogger().handlers:
+        configure_logging(log_level, config.worker_id)
+    return make_runner(config)
 
 
 class Worker:
@@ -173,11 +181,21 @@ class Worker:
             config.token,
             verify=str(config.ca_bundle) if config.ca_bundle is not None else True,
         )
-        self.runner = runner or make_runner(config)
+        make: Callable[[], Runner] = (
+            functools.partial(job_process_runner, config, logging.getLogger().level)
+            if runner is None
+            else lambda: runner
+        )
+        method = start_method(config.job_start)
+        self.jobs = JobProcess(make, config.limits, method if runner is None else "fork")
+        """Where jobs run (:mod:`adworker.jobprocess`); started now, so a runner that
+        cannot be made stops the worker at start (JobSetupError)."""
+        self.jobs.start()
         self.stopping = threading.Event()
-        """Finish the current job, then exit."""
+        """Finish the current job (within ``stop_grace``), then exit."""
         self.abandon = threading.Event()
         """Drop the current job now and exit."""
+        self._grace_ends = math.inf
         self.rates = Rates()
         self._claim = claim
         self._unclaim = unclaim
@@ -203,15 +221,33 @@ class Worker:
             log.warning("%s again: abandoning the current job and exiting", name)
             self.abandon.set()
         else:
-            log.info("%s: finishing the current job, then exiting (again to abandon it)", name)
+            grace = self.config.stop_grace
+            log.info(
+                "%s: finishing the current job within %g s (--stop-grace), then exiting "
+                "(again to abandon it now)",
+                name,
+                grace,
+            )
+            self._grace_ends = time.monotonic() + grace
             self.stopping.set()
+
+    def _past_grace(self) -> bool:
+        """Whether the current job is to be dropped: a second stop signal, or the first's
+        grace has run out (then it is dropped now)."""
+        if not self.abandon.is_set() and time.monotonic() >= self._grace_ends:
+            log.warning(
+                "the stop grace of %g s (--stop-grace) ran out: abandoning the current job",
+                self.config.stop_grace,
+            )
+            self.abandon.set()
+        return self.abandon.is_set()
 
     # --------------------------------------------------------------------- loop
 
     def run(self) -> int:
         """Work until told to stop, out of jobs (``max_jobs``) or idle (``idle_exit``)."""
         config = self.config
-        tasks, learners = self.runner.tasks(), self.runner.learners()
+        tasks, learners = self.jobs.tasks, self.jobs.learners
         log.info(
             "worker %s serving %s: tasks %s, learners %s",
             config.worker_id,
@@ -268,6 +304,7 @@ class Worker:
             )
             return EXIT_AUTH
         finally:
+            self.jobs.close()
             log.info("worker %s stopping: %s", config.worker_id, self.rates.line())
             if self._own_workdir and self.workdir is not None and not config.keep_files:
                 shutil.rmtree(self.workdir, ignore_errors=True)
@@ -310,11 +347,17 @@ class Worker:
         started, cpu_started = time.monotonic(), time.process_time()
         with Heartbeat(self.client, job, self.config.worker_id) as heartbeat:
 
-            def check() -> None:
+            def stop() -> str | None:
                 if heartbeat.lost.is_set():
-                    raise Cancelled(heartbeat.reason)
-                if self.abandon.is_set():
-                    raise Cancelled("worker shutting down")
+                    return heartbeat.reason
+                if self._past_grace():
+                    return "worker shutting down"
+                return None
+
+            def check() -> None:
+                reason = stop()
+                if reason is not None:
+                    raise Cancelled(reason)
 
             def report(step: int, value: float) -> None:
                 check()
@@ -324,7 +367,7 @@ class Worker:
 
             try:
                 fetch_start(self.client, job, jobdir)
-                outcome = self.runner(job, jobdir, check, report)
+                outcome = self.jobs.run(job, jobdir, report=report, stop=stop)
             except Cancelled as exc:
                 log.warning("%s: abandoned (%s); not reported", label, exc)
                 result = "abandoned"
@@ -334,12 +377,12 @@ class Worker:
                 self.rates.jobs += 1
                 self.rates.busy_seconds += busy
                 log.info("%s: %s after %.1f s; %s", label, exc, busy, self.rates.line())
-                metrics = _spent(
+                metrics = spent(
                     job,
                     {
                         "train_steps": float(exc.step),
                         "time_total_s": busy,
-                        "time_cpu_s": time.process_time() - cpu_started,
+                        "time_cpu_s": self._cpu_since(cpu_started),
                         **exc.metrics,
                     },
                 )
@@ -371,7 +414,8 @@ class Worker:
                         worker_id=self.config.worker_id,
                     )
             except Exception as exc:
-                message = _failure_message(exc)
+                message = exc.message if isinstance(exc, JobFailed) else failure_message(exc)
+                message = message[:MESSAGE_LIMIT]
                 log.error("%s: evaluation failed: %s", label, message.splitlines()[0])
                 self.rates.jobs += 1
                 self.rates.failed += 1
@@ -391,12 +435,12 @@ class Worker:
                 result = "complete"
                 if self._upload(job, heartbeat, label, outcome.artifacts):
                     self._share(job, label, outcome)
-                cpu = time.process_time() - cpu_started
+                cpu = self._cpu_since(cpu_started)
                 unreported = not self._report(
                     job,
                     label,
                     value=outcome.value,
-                    metrics=_spent(job, {**outcome.metrics, "time_cpu_s": cpu}),
+                    metrics=spent(job, {**outcome.metrics, "time_cpu_s": cpu}),
                     worker_id=self.config.worker_id,
                     transfer_from=outcome.transfer_from,
                 )
@@ -404,6 +448,11 @@ class Worker:
         if unreported and self.abandon.is_set() and not heartbeat.lost.is_set():
             self._release(job, label)
         return result
+
+    def _cpu_since(self, started: float) -> float:
+        """The CPU seconds of the current job: this process's since ``started`` and its
+        job process's."""
+        return time.process_time() - started + self.jobs.cpu_seconds
 
     def _reported(self, job: Job, label: str, step: int, value: float) -> ReportResponse:
         """Report an intermediate value; whether the study's pruner stops (or pauses) the
@@ -439,7 +488,7 @@ class Worker:
         except (Unauthorized, Forbidden) as exc:
             raise AuthError(str(exc)) from exc
         except Exception as exc:  # the trial's result is told all the same
-            log.error("%s: shared-controller update not offered: %s", label, _failure_message(exc))
+            log.error("%s: shared-controller update not offered: %s", label, failure_message(exc))
 
     def _refuse(self, exc: UnreadableJob) -> None:
         """A job leased that this worker cannot read (a server newer than it, a study
@@ -485,7 +534,7 @@ class Worker:
         """Store the artifacts while the lease holds; whether all were stored."""
         stored = True
         for artifact in artifacts:
-            if heartbeat.lost.is_set() or self.abandon.is_set():
+            if heartbeat.lost.is_set() or self._past_grace():
                 return False
             try:
                 self.client.put_artifact(
@@ -512,7 +561,7 @@ class Worker:
         deadline = time.monotonic() + TELL_PATIENCE
         pause = 1.0
         while True:
-            if self.abandon.is_set():
+            if self._past_grace():
                 log.warning("%s: shutting down before the result was reported", label)
                 return False
             try:
@@ -533,28 +582,6 @@ class Worker:
             except ApiError as exc:
                 log.error("%s: result refused: %s", label, exc)
                 return True
-
-
-def _spent(job: Job, metrics: dict[str, float]) -> dict[str, float]:
-    """A resumed job's times count its trial's attempts up to the pause too, so a trial's
-    ``time_total_s`` and ``time_cpu_s`` are all it took; it says where it resumed, and
-    a warm-started trial keeps its ``transfer_*`` metrics."""
-    if job.resume is None:
-        return metrics
-    earlier = job.resume.metrics
-    return {
-        **{key: value for key, value in earlier.items() if key.startswith("transfer_")},
-        **metrics,
-        **{key: metrics.get(key, 0.0) + earlier.get(key, 0.0) for key in TIMES},
-        "resumed_from_step": float(job.resume.step),
-    }
-
-
-def _failure_message(exc: BaseException) -> str:
-    """The error first (what a user reads in the trial), then the traceback's tail."""
-    head = f"{type(exc).__name__}: {exc}"
-    tail = "".join(traceback.format_exception(exc)[-6:])
-    return (head + "\n\n" + tail)[:MESSAGE_LIMIT]
 
 
 def configure_logging(level: int, worker_id: str) -> None:

@@ -11,9 +11,10 @@ from pydantic import (
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 
-from adclient.plugins import PluginError, catalogue
+from adclient.plugins import PluginError, catalogue, learner_budget_problems
 from adclient.schemas.common import (
     NAME_PATTERN,
     JsonObject,
@@ -203,6 +204,21 @@ class NewTaskConfig(TaskConfig):
             )
             raise ValueError("; ".join(problems)) from None
         return options
+
+    @model_validator(mode="after")
+    def _learner_budget(self) -> NewTaskConfig:
+        """A learner's options within what it allows for this study's steps together
+        (gradient updates for ``train_steps``...: ``LearnerOptions.budget_problems``)."""
+        spec = None if self.external else catalogue().learners.get(self.learner)
+        if spec is None or spec.options is None:
+            return self
+        kwargs = self.options.get("learner_kwargs") or {}
+        options = validate_strictly(spec.options, kwargs)  # checked with the options
+        problems = learner_budget_problems(options, self.train_steps, self.transfer_steps)
+        if problems:
+            owner = f"learner {self.learner!r}"
+            raise ValueError("; ".join(f"options.learner_kwargs: {p} ({owner})" for p in problems))
+        return self
 
     @field_validator("transfer")
     @classmethod

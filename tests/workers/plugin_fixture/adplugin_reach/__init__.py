@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -32,6 +32,16 @@ class HoldOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     pose: float = Field(default=0.0, ge=-1.0, le=1.0, description="Every joint's target")
+
+
+class StallOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    way: Literal["sleep", "backtrack", "allocate", "none"] = Field(
+        default="none",
+        description="How it holds its worker: one sleep of an hour, a regular expression that "
+        "backtracks for ever in C (holding the GIL), an allocation of 1 GiB, or not at all",
+    )
 
 
 REACH_UP = TaskSpec(
@@ -68,4 +78,11 @@ HOLD = LearnerSpec(
     description="No training: every joint holds one target.",
     factory="adplugin_reach.learner:Hold",
     options=HoldOptions,
+)
+STALL = LearnerSpec(
+    name="stall",
+    description="A hostile learner: it never returns from one call (or allocates 1 GiB), "
+    "where no check of the worker's is reached; way none holds like hold.",
+    factory="adplugin_reach.stall:Stall",
+    options=StallOptions,
 )
