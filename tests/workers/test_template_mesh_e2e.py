@@ -17,7 +17,7 @@ from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import PATIENCE
 from tests.harmful_urdfs import HOSTNAME_MESH, store_urdf
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
