@@ -19,7 +19,6 @@ from adclient import Client
 from adclient.schemas import Job, TrialState
 from adclient.testing.servers import ServerProcess, make_token
 from adclient.testing.workers import PATIENCE, WorkerProcess, plugin_path, wait_for
-from adworker.jobprocess import JOB_BASE_SECONDS, JobLimits
 from tests.workers.robots import HALF_PI, make_job, stand_up_specs
 from tests.workers.test_plugins_e2e import reach_up_study
 
@@ -119,6 +118,8 @@ def test_sigterm_during_a_job_that_never_returns_ends_the_pool_within_its_grace(
 def test_a_job_with_a_step_budget_gets_time_for_its_steps_within_the_cap() -> None:
     """``--job-seconds`` for a job without ``train_steps``; with it, the base and each
     step's share when that is less, counting evaluation episodes (and a pruner's)."""
+    from adworker.jobprocess import JOB_BASE_SECONDS, JobLimits
+
     limits = JobLimits(seconds=3600, step_seconds=0.05)
     job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), episode_steps=32)
     assert limits.seconds_for(job)[0] == 3600

@@ -124,12 +124,14 @@ def job_steps(job: Job) -> int:
     """The steps a job of an installed task trains and evaluates, as its study sets them."""
     task: TaskConfig = job.task
     training = max(task.train_steps or 0, task.transfer_steps or 0)
-    episode = task.episode_steps or task.options.get("episode_steps") or UNKNOWN_EPISODE_STEPS
+    given = task.options.get("episode_steps")  # a stored study's may be anything
+    option = given if isinstance(given, int) and not isinstance(given, bool) else None
+    episode = task.episode_steps or option or UNKNOWN_EPISODE_STEPS
     evaluations = 1
     if job.pruner.name != "none" and task.train_steps:
         every = job.pruner.report_every or max(1, task.train_steps // 10)
         evaluations += math.ceil(training / every)
-    return training + evaluations * task.eval_episodes * int(episode)
+    return training + evaluations * task.eval_episodes * max(1, episode)
 
 
 def start_method(config_method: str | None) -> str:
