@@ -34,11 +34,13 @@ trip of its job and outcome on the pipe (bench/job_process.py). A worker whose
 learners train on a GPU, or a Ray actor (whose threads a fork would not carry over),
 starts it as a fresh interpreter instead: CUDA, once initialised, cannot be used in a
 forked child. It ignores SIGTERM and SIGINT (the worker decides when it ends) and
-dies with the worker (Linux).
+dies with the worker (Linux). It runs in a process group of its own, and ending a job
+kills the group: what the job started (a ``--function``'s simulator) ends with it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import logging
 import math
@@ -175,7 +177,7 @@ class JobProcess:
             target=serve,
             args=(theirs, self.make_runner, None if self.watch_resident else self.limits.memory_mb),
             name="adworker-job",
-            daemon=True,
+            daemon=False,  # a job may start processes of its own (a --function's pool)
         )
         process.start()
         theirs.close()
@@ -321,7 +323,9 @@ class JobProcess:
         process = self.process
         if process is None:
             return
-        if kill:
+        if kill:  # with what the job started (its process group: see serve)
+            with contextlib.suppress(OSError):
+                os.killpg(process.pid, signal.SIGKILL)
             process.kill()
         else:
             try:
@@ -348,6 +352,8 @@ def serve(connection: Any, make_runner: Callable[[], Runner], memory_mb: int | N
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _die_with_parent()
+    with contextlib.suppress(OSError):  # a group of its own: a kill ends what a job started
+        os.setpgid(0, 0)
     try:
         runner = make_runner()
         connection.send(("ready", runner.tasks(), runner.learners()))
