@@ -6,10 +6,11 @@ what evaluates a job (its runner: a task's simulation and learner, or a
 one job at a time over a pipe. Nothing a job does can hold the worker: a learner
 inside one C call that never returns (a billion gradient steps, a ``time.sleep``, a
 regular expression that backtracks forever) still has its lease kept by the worker's
-heartbeat, and the worker kills the job process when the job's time runs out, when
-the worker is told to stop and its grace has passed, or when the lease is lost. The
-trial is then told failed with a message naming the limit (or its lease given back),
-and the next job gets a new job process.
+heartbeat, and the worker kills the job process when the job's time or memory runs
+out: the trial is told failed with a message naming the limit, and the next job gets a
+new job process. A job whose lease is lost, or that the worker abandons (its stop
+grace passed), is cancelled: the runner's ``check()`` raises ``Cancelled`` in the job
+process, which is killed if the job has not ended ``CANCEL_SECONDS`` later.
 
 - **Time**: ``--job-seconds`` (default 3600) for any job; a job of an installed task
   whose study sets ``train_steps`` gets at most ``JOB_BASE_SECONDS`` plus
@@ -67,6 +68,8 @@ UNKNOWN_EPISODE_STEPS = 1000
 """The evaluation episode's steps counted for a job whose study does not say."""
 POLL_SECONDS = 0.2
 """How often the worker looks at its stop signals and the job's time while it waits."""
+CANCEL_SECONDS = 2.0
+"""How long a job has to end at its ``check()`` once cancelled, before it is killed."""
 START_SECONDS = 300.0
 """How long a new job process gets to import its runner and say it is ready."""
 MEMORY_ERRORS = ("MemoryError", "can't allocate memory", "std::bad_alloc", "Cannot allocate")
@@ -166,6 +169,8 @@ class JobProcess:
         """The exit code of the last job process that ended."""
         self.cpu_seconds = 0.0
         """The CPU time the job process spent on the last job :meth:`run` ran."""
+        self.jobs_sent = 0
+        """The number of the job sent last: a cancel names the job it is for."""
 
     def start(self) -> None:
         """A job process, ready to run jobs (its runner made): JobSetupError when it
@@ -199,20 +204,28 @@ class JobProcess:
     ) -> Outcome:
         """The job's outcome. Raises :class:`Pruned` as the runner did, :class:`JobFailed`
         when it failed or was ended at a limit (its job process then replaced), and
-        :class:`Cancelled` (the job process ended) when ``stop()`` gives a reason: the
-        lease lost, the worker stopping. ``report`` sends the runner's intermediate
-        values."""
+        :class:`Cancelled` when ``stop()`` gives a reason (the lease lost, the worker
+        stopping): the runner's ``check()`` raises it in the job process, which is
+        killed if the job has not ended ``CANCEL_SECONDS`` later. ``report`` sends the
+        runner's intermediate values."""
+        if self.process is not None and not self.process.is_alive():
+            self._reap()  # it ended between jobs (killed by the system): a new one
         self.start()
         self.cpu_seconds = 0.0
+        self.jobs_sent += 1
         seconds, why = self.limits.seconds_for(job)
-        self.connection.send(("job", job.model_dump_json(), str(workdir)))
+        self.connection.send(("job", job.model_dump_json(), str(workdir), self.jobs_sent))
         ends = time.monotonic() + seconds
         resident = self._resident() if self.watch_resident else None
+        cancelled: tuple[str, float] | None = None
         while True:
-            reason = stop()
+            reason = stop() if cancelled is None else None
             if reason is not None:
+                self._send(("cancel", self.jobs_sent))
+                cancelled = (reason, time.monotonic() + CANCEL_SECONDS)
+            if cancelled is not None and time.monotonic() >= cancelled[1]:
                 self.close(kill=True)
-                raise Cancelled(reason)
+                raise Cancelled(cancelled[0])
             grown = self._grown(resident)
             if grown is not None:
                 self.close(kill=True)
@@ -231,13 +244,20 @@ class JobProcess:
                 continue
             kind = message[0]
             if kind == "report":
-                self._pass_report(report, message[1], message[2])
+                if cancelled is None:  # else the cancel is its answer
+                    lost = self._pass_report(report, message[1], message[2])
+                    if lost is not None:
+                        cancelled = (lost, time.monotonic() + CANCEL_SECONDS)
                 continue
             self.cpu_seconds = message[-1]
+            if cancelled is not None:  # however it ended, it is not reported
+                raise Cancelled(cancelled[0])
             if kind == "complete":
                 return message[1]
             if kind == "pruned":
                 raise pruned(message[1])
+            if kind == "cancelled":
+                raise Cancelled(message[1])
             if message[2]:  # failed at its memory limit: the next job gets a fresh process
                 self.close()
             raise JobFailed(message[1])
@@ -265,16 +285,25 @@ class JobProcess:
             f"its process's resident memory grew by {grown} MB"
         )
 
-    def _pass_report(self, report: Report, step: int, value: float) -> None:
+    def _pass_report(self, report: Report, step: int, value: float) -> str | None:
+        """Report for the job process and give it the answer; why the job is cancelled
+        when the report says it is (then the answer is the cancel)."""
         try:
             report(step, value)
         except Pruned as stopped:
-            self.connection.send(("stop", stopped.pause))
-        except Cancelled:
-            self.close(kill=True)
-            raise
+            self._send(("stop", stopped.pause))
+        except Cancelled as lost:
+            self._send(("cancel", self.jobs_sent))
+            return str(lost)
         else:
-            self.connection.send(("go",))
+            self._send(("go",))
+        return None
+
+    def _send(self, message: tuple[Any, ...]) -> None:
+        """A message to the job process; none to one that has ended (its end is read
+        next, by :meth:`_answer`)."""
+        with contextlib.suppress(OSError):
+            self.connection.send(message)
 
     def _answer(self, timeout: float) -> Any:
         """The job process's next message within ``timeout`` s; None when there is none
@@ -365,26 +394,44 @@ def serve(connection: Any, make_runner: Callable[[], Runner], memory_mb: int | N
             message = connection.recv()
         except (EOFError, OSError):
             return
+        if message[0] == "cancel":  # for a job that had ended already
+            continue
         if message[0] != "job":
             return
         job = Job.model_validate_json(message[1])
         started = time.process_time()
-        result = _run_job(connection, runner, job, Path(message[2]), memory_mb)
+        result = _run_job(connection, runner, job, Path(message[2]), message[3], memory_mb)
         connection.send((*result, time.process_time() - started))
 
 
 def _run_job(
-    connection: Any, runner: Runner, job: Job, workdir: Path, memory_mb: int | None
+    connection: Any, runner: Runner, job: Job, workdir: Path, number: int, memory_mb: int | None
 ) -> tuple[Any, ...]:
+    def next_message(wait: bool) -> Any:
+        """The worker's next message (None: none yet, unless ``wait``), past cancels of
+        earlier jobs; Cancelled for a cancel of this one."""
+        while wait or connection.poll():
+            message = connection.recv()
+            if message[0] != "cancel":
+                return message
+            if message[1] == number:
+                raise Cancelled("the worker cancelled the job")
+        return None
+
+    def check() -> None:
+        next_message(wait=False)  # only a cancel comes unasked
+
     def report(step: int, value: float) -> None:
         connection.send(("report", step, value))
-        answer = connection.recv()
-        if answer[0] == "stop":
-            raise Pruned(step, value, pause=answer[1])
+        told = next_message(wait=True)
+        if told[0] == "stop":
+            raise Pruned(step, value, pause=told[1])
 
     lifted = _limit_memory(memory_mb)
     try:
-        outcome = runner(job, workdir, lambda: None, report)
+        outcome = runner(job, workdir, check, report)
+    except Cancelled as stopped:
+        return ("cancelled", str(stopped))
     except Pruned as stopped:
         fields = {
             name: getattr(stopped, name)
