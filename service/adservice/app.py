@@ -41,9 +41,11 @@ from adservice.api.routes import (
 )
 from adservice.artifacts import ArtifactStore
 from adservice.auth import Authentication, PrincipalCache
+from adservice.creations import CreationBudget, CreationPool
 from adservice.db import Database, upgrade_to_head
 from adservice.errors import (
     BusyError,
+    ClientGoneError,
     ConflictError,
     DomainError,
     ForbiddenError,
@@ -77,6 +79,7 @@ STATUS_BY_ERROR: dict[type[DomainError], int] = {
     BusyError: 503,
     UnauthorizedError: 401,
     ForbiddenError: 403,
+    ClientGoneError: 499,  # nginx's "client closed request": logged, never read
 }
 
 
@@ -254,6 +257,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # First, while the server is one thread: the helper that forks creations' children
+        # (it ends with this process, however the start below goes)
+        create_memory = settings.create_memory_mb
+        creations = CreationPool(
+            settings.create_processes,
+            settings.create_queue,
+            budget=CreationBudget(
+                settings.create_seconds,
+                None if create_memory is None else int(create_memory * 2**20),
+            ),
+        )
+        creations.start()
+        app.state.creations = creations
         upgrade_to_head(settings.database_url)
         for key, reason in sorted(catalogue().broken.items()):
             log.warning("plugin %s does not load: %s", key, reason)
@@ -295,6 +311,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            creations.shutdown()  # kills the creations' children: nothing half-stored
             stop.set()
             sweeper.join(timeout=5)
             runner.shutdown()

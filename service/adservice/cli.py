@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import typer
-import uvicorn
 from pydantic import ValidationError
 
 from adclient.devices import device_problem
@@ -78,7 +77,7 @@ def serve(
     if ctx.invoked_subcommand is not None:
         return
     from adservice.app import create_app
-    from adservice.server import uvicorn_config
+    from adservice.server import BoundedServer, uvicorn_config
 
     settings = _settings(
         database_url=database_url,
@@ -110,7 +109,9 @@ def serve(
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s"
     )
-    server = uvicorn.Server(uvicorn_config(create_app(settings), settings))
+    server = BoundedServer(
+        uvicorn_config(create_app(settings), settings), settings.shutdown_seconds
+    )
     server.run()
     if not server.started:  # as uvicorn.run: the port was taken, or the app failed to start
         raise typer.Exit(3)

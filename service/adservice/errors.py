@@ -70,6 +70,13 @@ class BusyError(DomainError):
         self.retry_after = retry_after
 
 
+class ClientGoneError(DomainError):
+    """The request's client disconnected before its answer: the work it started was
+    stopped and nothing was stored (no one reads the answer)."""
+
+    code = "client_gone"
+
+
 class UnauthorizedError(DomainError):
     code = "unauthorized"
 

@@ -1,5 +1,5 @@
-"""uvicorn's httptools protocol with the limits it lacks, and the uvicorn config built from
-``Settings``.
+"""uvicorn's httptools protocol with the limits it lacks, the uvicorn config built from
+``Settings``, and a server whose shutdown has a bound.
 
 httptools (uvicorn's fastest parser) has no cap on header size: it joins a header's
 pieces with ``bytes +=``, so one connection sending a 100 MB header kept the event loop
@@ -11,7 +11,12 @@ request limits), so we keep httptools and count the bytes ourselves.
 from __future__ import annotations
 
 import asyncio
+import logging
+import os
+import sys
+import threading
 from collections.abc import Callable
+from types import FrameType
 from typing import Any
 
 import uvicorn
@@ -188,6 +193,10 @@ def protocol_class(settings: Settings) -> type[LimitedHttpToolsProtocol]:
     )
 
 
+GRACEFUL_SHARE = 0.75
+"""The share of ``AD_SHUTDOWN_SECONDS`` that requests in flight get to finish."""
+
+
 def uvicorn_config(app: Any, settings: Settings) -> uvicorn.Config:
     return uvicorn.Config(
         app,
@@ -200,4 +209,43 @@ def uvicorn_config(app: Any, settings: Settings) -> uvicorn.Config:
         limit_concurrency=settings.max_connections,
         ssl_certfile=settings.ssl_certfile,
         ssl_keyfile=settings.ssl_keyfile,
+        timeout_graceful_shutdown=GRACEFUL_SHARE * settings.shutdown_seconds,  # type: ignore[arg-type]
     )
+
+
+class BoundedServer(uvicorn.Server):
+    """uvicorn's server, ended within ``shutdown_seconds`` of SIGTERM or SIGINT.
+
+    uvicorn waits, without a bound by default, for the requests in flight to finish,
+    then for the app's shutdown (which waits for the threads computing proposals and
+    expansions): a study creation computing for minutes kept a SIGTERM'd server up. Here
+    requests get ``GRACEFUL_SHARE`` of the time (the config's
+    ``timeout_graceful_shutdown``), then uvicorn cancels them (a creation's child is
+    killed, nothing is stored) and the app shuts down; if the process is still there
+    when the time is up, it logs what it leaves and exits at once with status 1 (a
+    half-done write is rolled back by the database: each is one transaction)."""
+
+    def __init__(self, config: uvicorn.Config, shutdown_seconds: float) -> None:
+        super().__init__(config)
+        self.shutdown_seconds = shutdown_seconds
+        self._deadline: threading.Timer | None = None
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        super().handle_exit(sig, frame)
+        if self._deadline is None:
+            self._deadline = threading.Timer(self.shutdown_seconds, self._exit_now)
+            self._deadline.daemon = True
+            self._deadline.start()
+
+    def _exit_now(self) -> None:
+        logging.getLogger("adservice").error(
+            "still running %g s after the signal to stop (AD_SHUTDOWN_SECONDS), with %d "
+            "request(s) in flight and threads %s: exiting now",
+            self.shutdown_seconds,
+            len(self.server_state.tasks),
+            ", ".join(sorted(thread.name for thread in threading.enumerate())),
+        )
+        logging.shutdown()
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        os._exit(1)

@@ -60,6 +60,28 @@ class Settings(BaseSettings):
     background (the trial back in the queue), and the study backs off as after a failed
     proposal, as it does after an expansion that fails."""
 
+    # Study creation (issue 58): a design space's representation is computed in a child
+    # process with budgets (adservice.creations).
+    create_processes: int = Field(default=2, ge=1)
+    """Child processes that check new design spaces at once (their representation:
+    structure similarity, fusion, MDS), at the lowest CPU priority, apart from the
+    processes and threads serving requests."""
+    create_queue: int = Field(default=16, ge=0)
+    """Creations that may wait for one of those processes; past them a creation is
+    answered 503 with Retry-After, and nothing is stored."""
+    create_seconds: float = Field(default=30.0, gt=0, le=86_400)
+    """How long one creation's child may run (its CPU time is held to it too); past it
+    the child is killed and the creation is a 422 naming this setting. A space whose
+    structures' similarity alone could not fit in it (by the bound on its steps) is
+    refused at once."""
+    create_memory_mb: float | None = Field(default=1024.0, gt=0)
+    """The memory a creation's child may map beyond what it starts with (a fork of the
+    server); past it the creation is a 422 naming this setting. None: no limit."""
+    shutdown_seconds: float = Field(default=10.0, ge=1, le=3600)
+    """SIGTERM or SIGINT ends the server within this long: requests in flight get
+    three quarters of it to finish, then are cancelled (creations' children killed,
+    nothing half-stored), and past it the process exits whatever is left."""
+
     sweep_seconds: float = 2.0
     """How often expired leases are returned to the queue in the background."""
     max_body_bytes: int = 1_000_000

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Awaitable, Callable
 from functools import partial
 from typing import Any
 
@@ -14,8 +15,10 @@ from adclient.designs import Representation
 from adclient.devices import device_problem
 from adclient.polytope import spec_polytope
 from adclient.schemas import ProposerConfig, StudyCreate, TemplateSpace
+from adclient.similarity import similarity_steps
 from adclient.templates import ByteLimit
 from adservice.artifacts import ArtifactStore
+from adservice.creations import CreationPool
 from adservice.db import Database
 from adservice.errors import InvalidError
 from adservice.expansions import ExpansionPool
@@ -28,20 +31,39 @@ from adservice.repository import studies as study_repo
 from adservice.services.budget import check_options_memory
 from adservice.services.configs import check_proposer
 
+SIMILARITY_STEPS_PER_SECOND = 1_000_000
+"""Steps of the structures' similarity (``adclient.similarity.similarity_steps``) a
+creation's second allows: where it was measured (one core of the 2-core development
+machine, busy) a bounded step took 0.03 to 0.5 us (trees of 5 to 32 links: paths,
+stars, random), so the similarity takes at most about half of AD_CREATE_SECONDS and
+leaves the rest to the fusion and the embedding."""
+
 
 async def create_study(
     db: Database,
     expansions: ExpansionPool,
+    creations: CreationPool,
     *,
     body: StudyCreate,
     owner: Principal,
     budget: AskBudget | None = None,
+    disconnected: Callable[[], Awaitable[bool]] | None = None,
 ) -> StudyRow:
-    """Check what the schema cannot (the proposer and its options, the representation's
-    numbers, an ask's memory within ``budget``; a template's expansions last, in the
-    expansion pool), then store the study; InvalidError (or BusyError when the pool is
-    full), with nothing stored, otherwise."""
-    representation = await run_in_threadpool(_checked, body, budget)
+    """Check what the schema cannot (the proposer and its options; a design space's
+    cost, then its representation and the numbers it gives, in a child of the creation
+    pool; an ask's memory within ``budget``; a template's expansions last, in the
+    expansion pool), then store the study; InvalidError (or BusyError when a pool is
+    full, ClientGoneError once ``disconnected()``), with nothing stored, otherwise."""
+    await run_in_threadpool(_checked, body, creations.budget.seconds)
+    representation = None
+    if isinstance(body.space, DesignSpace):
+        representation = await creations.run(
+            space_representation, body.space, disconnected=disconnected
+        )
+        dim = len(representation["bounds"][0])
+    else:
+        dim = len(body.space.params)
+    await run_in_threadpool(_check_memory, body, dim, budget)
     if isinstance(body.space, TemplateSpace):
         await expansions.run(partial(_check_template, body, expansions.limits.per_urdf()))
 
@@ -54,37 +76,77 @@ async def create_study(
     return await db.run(store)
 
 
-def _checked(body: StudyCreate, budget: AskBudget | None) -> dict[str, Any] | None:
-    """The checks short of expanding a template; the search representation of a design
-    space (None for the others). A study of one design runs no proposer: only that its
-    settings load is checked."""
+def _checked(body: StudyCreate, seconds: float) -> None:
+    """The checks that take no child: the proposer's, a template's task, and a design
+    space's creation rules and similarity cost within ``seconds`` (AD_CREATE_SECONDS).
+    A study of one design runs no proposer: only that its settings load is checked."""
     check_proposer(body.proposer)
-    proposes = not body.space.searches_nothing
-    if proposes:
+    if not body.space.searches_nothing:
         _check_proposer_device(body.proposer)
         _check_proposer_outcomes(body)
         _check_large_history(body)
-    representation = None
     if isinstance(body.space, DesignSpace):
-        from adservice.representation import build_representation
-
         try:
             body.space.check_at_creation()
         except ValueError as error:
             raise InvalidError(f"space: {error}") from None
-        built = build_representation(body.space)
-        representation = built.model_dump(mode="json")
-        _check_finite(body.space, representation)
-        _check_spec_constraints(body.space, built)
-        dim = len(representation["bounds"][0])
-    else:
-        if isinstance(body.space, TemplateSpace):
-            _check_template_task(body)
-        dim = len(body.space.params)
-    if proposes and budget is not None and budget.memory_bytes is not None:
-        check_options_memory(
-            body.proposer, dim=dim, budget=budget.memory_bytes, outcomes=body.outcomes()
+        _check_similarity_cost(body.space, seconds)
+    elif isinstance(body.space, TemplateSpace):
+        _check_template_task(body)
+
+
+def _check_memory(body: StudyCreate, dim: int, budget: AskBudget | None) -> None:
+    """One point asked of the study fits the ask's memory budget, by its estimate."""
+    if body.space.searches_nothing or budget is None or budget.memory_bytes is None:
+        return
+    check_options_memory(
+        body.proposer, dim=dim, budget=budget.memory_bytes, outcomes=body.outcomes()
+    )
+
+
+def _check_similarity_cost(space: DesignSpace, seconds: float) -> None:
+    """The structures' similarity matrix fits the creation's time, by the bound on its
+    steps (``adclient.similarity.similarity_steps``), before any of it is computed."""
+    structures = space.tree_structures()
+    if len(structures) < 2 or space.encoding == "onehot":
+        return
+    steps = similarity_steps(structures)
+    allowed = int(seconds * SIMILARITY_STEPS_PER_SECOND)
+    if steps > allowed:
+        raise InvalidError(
+            f"space.structures: the similarity of {len(structures)} structures of up to "
+            f"{max(len(edges) + 1 for edges in structures)} links takes up to {steps:.3g} "
+            f"steps, more than the {allowed:.3g} that fit in the limit of {seconds:g} s "
+            "(AD_CREATE_SECONDS): list fewer structures, or structures of fewer links"
         )
+
+
+WARM_UP_SPACE: dict[str, Any] = {
+    "type": "design",
+    "parts": {"link": {"length": {"low": 0.1, "high": 0.5}, "radius": 0.04, "mass": 1.0}},
+    "instances": [{"name": name, "part": "link"} for name in "abc"],
+    "structures": [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"]]],
+    "spec_constraints": [{"terms": {"a.length": 1.0, "b.length": 1.0}, "op": "<=", "bound": 0.9}],
+}
+"""A space whose representation takes every path a new space's does (similarity,
+fusion, MDS, a spec constraint), in a few milliseconds."""
+
+
+def warm_up() -> None:
+    """Run the creation checks once on ``WARM_UP_SPACE``, so that what they load and
+    cache at their first run (about 15 ms) is there already in a process forked after."""
+    space_representation(DesignSpace.model_validate(WARM_UP_SPACE))
+
+
+def space_representation(space: DesignSpace) -> dict[str, Any]:
+    """The search representation of a new design space, checked (its numbers finite, its
+    spec constraints satisfiable), as stored: the creation pool's work, in a child."""
+    from adservice.representation import build_representation
+
+    built = build_representation(space)
+    representation = built.model_dump(mode="json")
+    _check_finite(space, representation)
+    _check_spec_constraints(space, built)
     return representation
 
 

@@ -72,13 +72,17 @@ TrialOrder = Annotated[
 
 
 @router.post("", status_code=201)
-async def create_study(body: StudyCreate, proposing: ProposingDep, caller: UserDep) -> Study:
+async def create_study(
+    body: StudyCreate, request: Request, proposing: ProposingDep, caller: UserDep
+) -> Study:
     row = await study_service.create_study(
         proposing.db,
         proposing.expansions,
+        request.app.state.creations,
         body=body,
         owner=caller,
         budget=proposing.runner.budget,
+        disconnected=request.is_disconnected,
     )
     return study_schema(row, {})
 
