@@ -31,6 +31,8 @@ OPEN_FILES = 3
 """The descriptors the child may have: stdin, stdout and stderr, already open; it can
 open no file, socket or pipe."""
 LAYERS = ("limits", "network", "root", "user", "landlock")
+NICE = 19
+"""The child's CPU priority (``limits``): the lowest."""
 
 _CLONE_NEWUSER = 0x10000000
 _CLONE_NEWNET = 0x40000000
@@ -85,6 +87,9 @@ def confine(
         return True
 
     if "limits" in layers:
+        # the lowest CPU priority: an expansion never takes a core from the requests
+        # and workers beside it, however long it runs
+        os.nice(NICE - os.nice(0))
         _limit(resource.RLIMIT_AS, memory)
         # the soft limit sends SIGXCPU, which ends the child with its own exit status; a
         # hard limit equal to it would send SIGKILL instead, read as an unexplained failure
@@ -118,7 +123,7 @@ def confine(
         _limit(resource.RLIMIT_NOFILE, OPEN_FILES)
         _limit(resource.RLIMIT_NPROC, 0)  # after the uid drop: root's is not enforced
         report["applied"]["limits"] = (
-            f"{memory} bytes, {seconds} s of CPU, no core, no file written, "
+            f"{memory} bytes, {seconds} s of CPU at nice {NICE}, no core, no file written, "
             f"{OPEN_FILES} descriptors, no new process"
         )
     if "root" in layers and "root" not in report["applied"]:

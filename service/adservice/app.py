@@ -51,6 +51,7 @@ from adservice.errors import (
     ForbiddenError,
     InvalidError,
     NotFoundError,
+    RateLimitedError,
     TooLargeError,
     UnauthorizedError,
 )
@@ -59,6 +60,7 @@ from adservice.limits import BodyLimits
 from adservice.locks import StudyLocks
 from adservice.metrics import install_metrics
 from adservice.proposal_runner import AskBudget, ProposalRunner, available_cores
+from adservice.rates import TokenRates
 from adservice.repository import leases as lease_repo
 from adservice.repository import promotion as promotion_repo
 from adservice.security import BrowserEdge
@@ -77,6 +79,7 @@ STATUS_BY_ERROR: dict[type[DomainError], int] = {
     InvalidError: 422,
     TooLargeError: 413,
     BusyError: 503,
+    RateLimitedError: 429,
     UnauthorizedError: 401,
     ForbiddenError: 403,
     ClientGoneError: 499,  # nginx's "client closed request": logged, never read
@@ -302,6 +305,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             storage_quota=settings.owner_storage_bytes,
         )
         app.state.principals = PrincipalCache()
+        app.state.rates = TokenRates(
+            requests_per_second=settings.token_requests_per_second,
+            request_burst=settings.token_request_burst,
+            creations_per_minute=settings.token_creations_per_minute,
+            creation_burst=settings.token_creation_burst,
+        )
         app.state.artifacts = ArtifactStore(settings.resolved_artifact_dir())
         stop = threading.Event()
         sweeper = threading.Thread(

@@ -39,7 +39,7 @@ from starlette.routing import BaseRoute, compile_path
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from adservice.db import Database
-from adservice.errors import ForbiddenError, UnauthorizedError
+from adservice.errors import DomainError, ForbiddenError, UnauthorizedError
 from adservice.principals import OPEN_ADMIN, RANK, Principal, Role
 from adservice.repository import tokens as token_repo
 from adservice.security import SAFE_METHODS
@@ -269,20 +269,37 @@ class Authentication:
             refused = _refused_role(self._write_routes(scope), scope, principal)
             if refused is not None:
                 raise refused
+            limited = scope["app"].state.rates.refusal(principal, scope)
+            if limited is not None:
+                await _answer(
+                    scope, receive, send, limited, 429, {"Retry-After": str(limited.retry_after)}
+                )
+                return
         except (UnauthorizedError, ForbiddenError) as error:
             unauthorized = isinstance(error, UnauthorizedError)
             headers = {"WWW-Authenticate": "Bearer"} if unauthorized else {}
-            if _has_body(scope):
-                headers["Connection"] = "close"  # its body is never read
-            response = JSONResponse(
-                {"error": error.code, "detail": error.detail},
-                status_code=401 if unauthorized else 403,
-                headers=headers,
-            )
-            await response(scope, receive, send)
+            await _answer(scope, receive, send, error, 401 if unauthorized else 403, headers)
             return
         scope.setdefault("state", {})["principal"] = principal
         await self.app(scope, receive, send)
+
+
+async def _answer(
+    scope: Scope,
+    receive: Receive,
+    send: Send,
+    error: DomainError,
+    status: int,
+    headers: dict[str, str],
+) -> None:
+    """Answer a request refused before its route runs; one that carries a body is closed
+    after the answer (its body is never read)."""
+    if _has_body(scope):
+        headers = {**headers, "Connection": "close"}
+    response = JSONResponse(
+        {"error": error.code, "detail": error.detail}, status_code=status, headers=headers
+    )
+    await response(scope, receive, send)
 
 
 def _has_body(scope: Scope) -> bool:

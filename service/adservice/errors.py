@@ -70,6 +70,13 @@ class BusyError(DomainError):
         self.retry_after = retry_after
 
 
+class RateLimitedError(BusyError):
+    """A token sent more requests than its rate allows (``adservice.rates``): nothing was
+    done, and the same request may be sent again after ``retry_after`` seconds."""
+
+    code = "rate_limited"
+
+
 class ClientGoneError(DomainError):
     """The request's client disconnected before its answer: the work it started was
     stopped and nothing was stored (no one reads the answer)."""

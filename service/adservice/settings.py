@@ -82,6 +82,17 @@ class Settings(BaseSettings):
     three quarters of it to finish, then are cancelled (creations' children killed,
     nothing half-stored), and past it the process exits whatever is left."""
 
+    # Per-token request rates (adservice.rates): user and reader tokens only.
+    token_requests_per_second: float | None = Field(default=100.0, gt=0)
+    """Requests a second one user or reader token may send (bursts of
+    ``token_request_burst``); past it a request is answered 429 with Retry-After before
+    its body is read. None: no limit."""
+    token_request_burst: int = Field(default=400, ge=1)
+    token_creations_per_minute: float | None = Field(default=60.0, gt=0)
+    """Study creations a minute one user token may send (bursts of
+    ``token_creation_burst``), within its request rate; past it 429. None: no limit."""
+    token_creation_burst: int = Field(default=30, ge=1)
+
     sweep_seconds: float = 2.0
     """How often expired leases are returned to the queue in the background."""
     max_body_bytes: int = 1_000_000
