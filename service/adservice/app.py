@@ -120,7 +120,8 @@ ERROR_RESPONSES = {
     415: "A change sent with neither a JSON body nor the X-Activedesign-Client header",
     422: "Invalid field; the detail names it",
     431: "Request line and headers longer than AD_MAX_HEADER_BYTES (a long query string)",
-    503: "Busy (the template expansion queue is full): nothing was done; see Retry-After",
+    503: "Busy (a queue of template expansions or study creations is full): nothing was done; "
+    "see Retry-After",
 }
 PLAIN_TEXT_ERRORS = {431}
 """Answered by the server's protocol layer before any route, in plain text."""
