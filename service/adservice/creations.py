@@ -433,10 +433,11 @@ def _child_main(sock: socket.socket, seconds: float, memory: int | None) -> None
     os.nice(NICE)
     cpu = int(seconds) + 1
     resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
+    mapped = _mapped_bytes()
     if memory is not None:
+        limit = mapped + memory
         with contextlib.suppress(OSError, ValueError):
-            mapped = _mapped_bytes()
-            resource.setrlimit(resource.RLIMIT_AS, (mapped + memory, mapped + memory))
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     sock.setblocking(True)
     (length,) = _LENGTH.unpack(_read_exactly(sock, _LENGTH.size))
     work, args = pickle.loads(_read_exactly(sock, length))
@@ -447,7 +448,9 @@ def _child_main(sock: socket.socket, seconds: float, memory: int | None) -> None
     except MemoryError:
         answer = {"memory": True}
     except BaseException:
-        answer = {"error": traceback.format_exc()}
+        # a C library's failed allocation comes as its own error (OSQP's code 5)
+        near = memory is not None and _peak_bytes() >= mapped + 0.9 * memory
+        answer = {"memory": True} if near else {"error": traceback.format_exc()}
     try:
         data = json.dumps(answer, allow_nan=False).encode()
     except (TypeError, ValueError):
@@ -460,6 +463,15 @@ def _mapped_bytes() -> int:
     """This process's virtual memory now (a fork maps all its parent's)."""
     with open("/proc/self/statm") as statm:
         return int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def _peak_bytes() -> int:
+    """The most virtual memory this process has mapped."""
+    with open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith("VmPeak:"):
+                return int(line.split()[1]) * 1024
+    return 0
 
 
 def _read_exactly(sock: socket.socket, count: int) -> bytes:

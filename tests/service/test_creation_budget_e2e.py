@@ -71,6 +71,12 @@ SMALL_SPACE: dict[str, Any] = {
     "structures": [[["a", "b"], ["b", "c"]], [["a", "b"], ["a", "c"]]],
 }
 BOX = {"type": "box", "params": [{"name": "x", "low": 0.0, "high": 1.0}]}
+HEAVY_FUSION = SMALL_SPACE | {
+    "reference_per_structure": 256,
+    "parts": {"link": SMALL_SPACE["parts"]["link"] | {"radius": {"low": 0.02, "high": 0.1}}},
+}
+"""Two structures (their similarity is nothing) of 256 reference designs each: a fusion of
+130,816 pairs (about 0.8 s and 60 MB here)."""
 
 
 @pytest.fixture
@@ -161,12 +167,8 @@ def test_the_issues_creation_is_refused_at_once_naming_its_budget(
 def test_a_creation_past_its_time_is_killed_with_a_422_naming_it_and_stores_nothing(
     start_server: Callable[..., ServerProcess],
 ) -> None:
-    # a space whose similarity is nothing but whose fusion is of 512 reference designs:
-    # its creation is timed on a server with the default budget, then given a fifth of it
-    heavy = SMALL_SPACE | {
-        "reference_per_structure": 256,
-        "parts": {"link": SMALL_SPACE["parts"]["link"] | {"radius": {"low": 0.02, "high": 0.1}}},
-    }
+    # timed on a server with the default budget, then given a fifth of what it took
+    heavy = HEAVY_FUSION
     with user(start_server(), "alice") as alice:
         assert alice.post("/api/v1/studies", json=study(SMALL_SPACE)).status_code == 201
         started = time.monotonic()
@@ -183,6 +185,20 @@ def test_a_creation_past_its_time_is_killed_with_a_422_naming_it_and_stores_noth
         assert "nothing was stored" in detail, detail
         assert names_stored(alice) == []
         wait_for(lambda: creation_children(server) == set(), "the killed child to end")
+
+
+def test_a_creation_past_its_memory_is_a_422_naming_it_and_stores_nothing(
+    start_server: Callable[..., ServerProcess],
+) -> None:
+    server = start_server(AD_CREATE_MEMORY_MB="20")
+    with user(server, "alice") as alice:
+        answer = alice.post("/api/v1/studies", json=study(HEAVY_FUSION, "heavy"))
+        assert answer.status_code == 422, answer.text
+        detail = answer.json()["detail"]
+        assert "limit of 20 MB (AD_CREATE_MEMORY_MB)" in detail, detail
+        assert names_stored(alice) == []
+        created = alice.post("/api/v1/studies", json=study(SMALL_SPACE, "small"))
+        assert created.status_code == 201, created.text  # the next child has its own
 
 
 def test_a_full_pool_answers_503_and_abandoned_creations_end_while_others_are_served(
@@ -311,7 +327,7 @@ def test_sigterm_ends_the_server_within_its_shutdown_time_with_an_ask_computing(
         wait_for(lambda: busy_seconds(server) > idle + 1.0, "the ask computing")
         server.process.send_signal(signal.SIGTERM)
         try:
-            server.process.wait(timeout=PATIENCE)  # before: the whole ask, minutes
+            server.process.wait(timeout=PATIENCE)  # before: once the ask's thread ended
         except subprocess.TimeoutExpired:
             pytest.fail(f"adserver still running {PATIENCE} s after SIGTERM")
         asking.join()
