@@ -66,6 +66,7 @@ from adservice.repository import promotion as promotion_repo
 from adservice.security import BrowserEdge
 from adservice.services.configs import StudyConfigs
 from adservice.services.proposal_failures import Backoff
+from adservice.services.studies import warm_up as warm_up_creation_checks
 from adservice.services.trials import Proposing
 from adservice.settings import Settings, get_settings
 
@@ -271,6 +272,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 settings.create_seconds,
                 None if create_memory is None else int(create_memory * 2**20),
             ),
+            warm_up=warm_up_creation_checks,
         )
         creations.start()
         app.state.creations = creations

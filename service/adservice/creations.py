@@ -83,10 +83,20 @@ class CreationBudget:
 class CreationPool:
     """``processes`` children at a time, ``queue`` more creations waiting, no more."""
 
-    def __init__(self, processes: int = 2, queue: int = 16, *, budget: CreationBudget) -> None:
+    def __init__(
+        self,
+        processes: int = 2,
+        queue: int = 16,
+        *,
+        budget: CreationBudget,
+        warm_up: Callable[[], None] | None = None,
+    ) -> None:
+        """``warm_up``: a module-level function the helper runs before its first fork (the
+        checks once, on a tiny space), so that each child starts with what it loaded."""
         self.processes = processes
         self.places = processes + queue
         self.budget = budget
+        self.warm_up = warm_up
         self._taken = 0
         self._turns: asyncio.Semaphore | None = None
         self._helper: _Helper | None = None
@@ -95,7 +105,7 @@ class CreationPool:
     def start(self) -> None:
         """Start the helper: call it first thing at the server's start, while the server
         is still one thread (then the helper is a fork of it)."""
-        self._helper = _Helper.start()
+        self._helper = _Helper.start(self.warm_up)
 
     async def run(
         self,
@@ -138,7 +148,7 @@ class CreationPool:
     ) -> bytes | None:
         """Run one job: its child's answer, or None when the child ended without one."""
         if self._helper is None or not self._helper.alive():
-            self._helper = _Helper.start()
+            self._helper = _Helper.start(self.warm_up)
         self._jobs += 1
         job = self._jobs
         ours, theirs = socket.socketpair()
@@ -147,7 +157,7 @@ class CreationPool:
                 self._helper.run(job, self.budget, theirs)
             except OSError:  # the helper died (killed from outside): one new helper, once
                 log.warning("the creation helper ended; starting another")
-                self._helper = _Helper.start()
+                self._helper = _Helper.start(self.warm_up)
                 self._helper.run(job, self.budget, theirs)
         finally:
             theirs.close()
@@ -265,25 +275,26 @@ class _Helper:
         self._lock = threading.Lock()  # one message at a time, whichever thread sends
 
     @classmethod
-    def start(cls) -> _Helper:
+    def start(cls, warm_up: Callable[[], None] | None) -> _Helper:
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         if _one_thread() and hasattr(os, "fork"):
             pid = os.fork()
             if pid == 0:  # the helper
                 try:
                     ours.close()
-                    _helper_main(theirs)
+                    _helper_main(theirs, warm_up)
                 finally:
                     os._exit(0)
             theirs.close()
             return cls(ours, pid, None)
         code = (
-            "import sys; sys.path[:] = sys.argv[2:]; "
-            "from adservice.creations import _helper_main; import socket; "
-            "_helper_main(socket.socket(fileno=int(sys.argv[1])))"
+            "import sys; sys.path[:] = sys.argv[3:]; "
+            "from adservice.creations import _helper_main, _named; import socket; "
+            "_helper_main(socket.socket(fileno=int(sys.argv[1])), _named(sys.argv[2]))"
         )
+        name = "" if warm_up is None else f"{warm_up.__module__}:{warm_up.__qualname__}"
         process = subprocess.Popen(
-            [sys.executable, "-c", code, str(theirs.fileno()), *sys.path],
+            [sys.executable, "-c", code, str(theirs.fileno()), name, *sys.path],
             pass_fds=[theirs.fileno()],
             stdin=subprocess.DEVNULL,
         )
@@ -339,7 +350,18 @@ def _die_with_parent() -> None:
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
 
 
-def _helper_main(control: socket.socket) -> None:
+def _named(name: str) -> Callable[[], None] | None:
+    """The module-level function ``module:name`` names (None for "")."""
+    if not name:
+        return None
+    import importlib
+
+    module, _, attribute = name.partition(":")
+    function: Callable[[], None] = getattr(importlib.import_module(module), attribute)
+    return function
+
+
+def _helper_main(control: socket.socket, warm_up: Callable[[], None] | None) -> None:
     """The helper's loop: fork a child per job, kill the jobs the server abandons, reap
     them; when the control socket closes, kill every child and end."""
     parent = os.getppid()
@@ -373,7 +395,7 @@ def _helper_main(control: socket.socket) -> None:
                         os.kill(pid, signal.SIGKILL)
                 continue
             if not warm:  # what a job imports, once, before the first fork
-                _warm()
+                _warm(warm_up)
                 warm = True
             sock = socket.socket(fileno=fds[0])
             pid = os.fork()
@@ -411,16 +433,15 @@ def _reap(children: dict[int, int]) -> None:
         children.pop(pid, None)
 
 
-def _warm() -> None:
-    """Import what the creation checks use and run them once, so that each child starts
-    with them loaded (its start is then a fork and little more: about 20 ms of a small
-    space's 130, against about 30 ms more in a child of a helper that never ran them)."""
+def _warm(warm_up: Callable[[], None] | None) -> None:
+    """BLAS in one thread, and ``warm_up`` run, so that each child starts with what it
+    loaded (its start is then a fork and little more: about 20 ms of a small space's
+    130, against about 30 ms more in a child of a helper that never ran the checks)."""
     from threadpoolctl import threadpool_limits
 
-    from adservice.services import studies
-
     threadpool_limits(limits=1)  # BLAS and OpenMP in one thread, for the children too
-    studies.warm_up()
+    if warm_up is not None:
+        warm_up()
     gc.freeze()
 
 
