@@ -273,6 +273,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 None if create_memory is None else int(create_memory * 2**20),
             ),
             warm_up=warm_up_creation_checks,
+            per_owner=settings.create_per_owner,
         )
         creations.start()
         app.state.creations = creations
@@ -297,6 +298,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 settings.max_study_urdf_bytes,
                 settings.lease_expand_seconds,
             ),
+            per_owner=settings.expand_per_owner,
         )
         app.state.proposing = Proposing(
             db,

@@ -50,9 +50,11 @@ import threading
 import traceback
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 from adservice.errors import BusyError, ClientGoneError, InvalidError
+from adservice.fairness import OwnerShares, running_share
 
 log = logging.getLogger(__name__)
 
@@ -90,14 +92,24 @@ class CreationPool:
         *,
         budget: CreationBudget,
         warm_up: Callable[[], None] | None = None,
+        per_owner: int | None = None,
     ) -> None:
         """``warm_up``: a module-level function the helper runs before its first fork (the
-        checks once, on a tiny space), so that each child starts with what it loaded."""
+        checks once, on a tiny space), so that each child starts with what it loaded.
+        ``per_owner``: the places one owner may hold (default: all of them)."""
         self.processes = processes
         self.places = processes + queue
+        self.shares = OwnerShares(
+            places=per_owner or self.places,
+            running=running_share(processes),
+            what="study creations",
+            setting="AD_CREATE_PER_OWNER",
+        )
         self.budget = budget
         self.warm_up = warm_up
         self._taken = 0
+        self.running = 0
+        """Creations computing in a child now (the rest of the places taken wait)."""
         self._turns: asyncio.Semaphore | None = None
         self._helper: _Helper | None = None
         self._jobs = 0
@@ -112,9 +124,12 @@ class CreationPool:
         work: Callable[..., Any],
         *args: Any,
         disconnected: Callable[[], Awaitable[bool]] | None = None,
+        owner: int | None = None,
     ) -> Any:
-        """``work(*args)`` in a child, once a place is free: its JSON answer, or the
-        InvalidError it raised. BusyError (503) at once when every place is taken;
+        """``work(*args)`` in a child, once a place is free and its ``owner``'s turn has
+        come (``OwnerShares``; None: not counted): its JSON answer, or the InvalidError
+        it raised. BusyError (503) at once when every place is taken, RateLimitedError
+        (429) when the owner holds its share;
         InvalidError naming ``AD_CREATE_SECONDS`` or ``AD_CREATE_MEMORY_MB`` past the
         budget; ClientGoneError when ``disconnected()`` turns true meanwhile (the child
         is killed). Cancelling the call kills the child too."""
@@ -125,18 +140,33 @@ class CreationPool:
                 f"AD_CREATE_QUEUE): nothing was stored; retry in {RETRY_AFTER_SECONDS} s",
                 retry_after=RETRY_AFTER_SECONDS,
             )
+        self.shares.take_place(owner)
         self._taken += 1
         try:
             payload = pickle.dumps((work, args), protocol=pickle.HIGHEST_PROTOCOL)
-            turns = self._semaphore()
-            await _take_turn(turns, disconnected)
+            shares = self.shares
+            await _take_turn(
+                partial(shares.take_turn, owner), partial(shares.give_turn, owner), disconnected
+            )
             try:
-                answer = await self._compute(payload, disconnected)
+                turns = self._semaphore()
+                await _take_turn(turns.acquire, turns.release, disconnected)
+                self.running += 1
+                try:
+                    answer = await self._compute(payload, disconnected)
+                finally:
+                    self.running -= 1
+                    turns.release()
             finally:
-                turns.release()
+                self.shares.give_turn(owner)
         finally:
             self._taken -= 1
+            self.shares.give_place(owner)
         return _answer_of(answer, self.budget)
+
+    def counts(self) -> tuple[int, int]:
+        """(running, waiting): the places taken now (``activedesign_pool_places``)."""
+        return self.running, self._taken - self.running
 
     def _semaphore(self) -> asyncio.Semaphore:
         if self._turns is None:  # made on the event loop that uses it
@@ -209,16 +239,18 @@ async def _wait(
 
 
 async def _take_turn(
-    turns: asyncio.Semaphore, disconnected: Callable[[], Awaitable[bool]] | None
+    acquire: Callable[[], Awaitable[Any]],
+    release: Callable[[], None],
+    disconnected: Callable[[], Awaitable[bool]] | None,
 ) -> None:
-    """Acquire ``turns``, unless the client goes first or the call is cancelled (then a
-    turn acquired meanwhile is given back)."""
-    taking = asyncio.ensure_future(turns.acquire())
+    """``acquire()`` a turn, unless the client goes first or the call is cancelled (then
+    a turn acquired meanwhile is given back with ``release()``)."""
+    taking = asyncio.ensure_future(acquire())
     try:
         await _wait(taking, disconnected)
     except BaseException:
-        if taking.done() and not taking.cancelled():
-            turns.release()
+        if taking.done() and not taking.cancelled() and taking.exception() is None:
+            release()
         else:
             taking.cancel()
         raise

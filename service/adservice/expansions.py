@@ -23,6 +23,7 @@ from typing import Any, TypeVar
 
 from adclient.templates import ByteLimit
 from adservice.errors import BusyError, InvalidError
+from adservice.fairness import OwnerShares, running_share
 
 T = TypeVar("T")
 
@@ -127,8 +128,9 @@ class Place:
     """One expansion's place in the pool (:meth:`ExpansionPool.admit`): held until the
     work given to :meth:`run` ends, or until the ``with`` block ends if none was."""
 
-    def __init__(self, pool: ExpansionPool) -> None:
+    def __init__(self, pool: ExpansionPool, owner: int | None = None) -> None:
         self._pool = pool
+        self._owner = owner
         self._running = False
         self._released = False
 
@@ -145,22 +147,38 @@ class Place:
             self._release()
 
     async def run(self, work: Callable[[], T]) -> T:
-        """``work()`` in an expansion thread (one work per place)."""
+        """``work()`` in an expansion thread (one work per place), once its owner's turn
+        comes (``OwnerShares``: one owner's works never take every thread)."""
         assert not self._running, "a place runs one work"
         self._running = True
+        shares, owner = self._pool.shares, self._owner
         try:
-            future: Future[T] = self._pool._executor.submit(work)
+            await shares.take_turn(owner)
         except BaseException:
             self._release()
             raise
-        future.add_done_callback(lambda _: self._release())
+        loop = asyncio.get_running_loop()
+        try:
+            future: Future[T] = self._pool._executor.submit(self._pool._counted, work)
+        except BaseException:
+            shares.give_turn(owner)
+            self._release()
+            raise
+
+        def ended(_: Future[T]) -> None:
+            shares.give_turn_threadsafe(loop, owner)
+            self._release()
+
+        future.add_done_callback(ended)
         return await asyncio.wrap_future(future)
 
     def _release(self) -> None:
         with self._pool._lock:
-            if not self._released:
-                self._released = True
-                self._pool._taken -= 1
+            if self._released:
+                return
+            self._released = True
+            self._pool._taken -= 1
+        self._pool.shares.give_place(self._owner)
 
 
 class ExpansionPool:
@@ -168,30 +186,63 @@ class ExpansionPool:
     ``limits`` on what they store, and each template study's expansions that failed or
     ran slow in a row (``failing``: what its backoff doubles with)."""
 
-    def __init__(self, threads: int = 2, queue: int = 16, limits: UrdfLimits | None = None) -> None:
+    def __init__(
+        self,
+        threads: int = 2,
+        queue: int = 16,
+        limits: UrdfLimits | None = None,
+        per_owner: int | None = None,
+    ) -> None:
+        """``per_owner``: the places one study owner may hold (default: all of them)."""
         self.places = threads + queue
+        self.shares = OwnerShares(
+            places=per_owner or self.places,
+            running=running_share(threads),
+            what="template expansions",
+            setting="AD_EXPAND_PER_OWNER",
+        )
         self.limits = limits or UrdfLimits()
         self.failing: dict[int, int] = {}
         self._executor = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="expand")
         self._lock = threading.Lock()
         self._taken = 0
+        self._running = 0
 
-    def admit(self) -> Place:
-        """A place, or BusyError (503) at once when every one is taken."""
+    def admit(self, owner: int | None = None) -> Place:
+        """A place for a study of ``owner`` (its token id; None: not counted), or
+        BusyError (503) at once when every one is taken, RateLimitedError (429) when the
+        owner holds its share."""
         with self._lock:
             if self._taken >= self.places:
                 raise BusyError(
                     f"the server is busy expanding templates ({self.places} expansions "
-                    f"running or waiting): nothing was done; retry in {RETRY_AFTER_SECONDS} s",
+                    f"running or waiting: AD_EXPAND_THREADS, AD_EXPAND_QUEUE): nothing was "
+                    f"done; retry in {RETRY_AFTER_SECONDS} s",
                     retry_after=RETRY_AFTER_SECONDS,
                 )
+            self.shares.take_place(owner)
             self._taken += 1
-        return Place(self)
+        return Place(self, owner)
 
-    async def run(self, work: Callable[[], T]) -> T:
+    async def run(self, work: Callable[[], T], owner: int | None = None) -> T:
         """``work()`` in an expansion thread, if a place is free (else BusyError)."""
-        with self.admit() as place:
+        with self.admit(owner) as place:
             return await place.run(work)
+
+    def counts(self) -> tuple[int, int]:
+        """(running, waiting): the places taken now (``activedesign_pool_places``)."""
+        with self._lock:
+            return self._running, self._taken - self._running
+
+    def _counted(self, work: Callable[[], T]) -> T:
+        """``work()`` in an expansion thread, counted as running meanwhile."""
+        with self._lock:
+            self._running += 1
+        try:
+            return work()
+        finally:
+            with self._lock:
+                self._running -= 1
 
     def shutdown(self) -> None:
         """Drop waiting expansions and wait for running ones (a child's limits bound them)."""

@@ -10,7 +10,7 @@ prometheus-client's multiprocess mode: ``adserver`` is one process.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from time import perf_counter
 
 import sqlalchemy as sa
@@ -102,18 +102,32 @@ class Metrics:
             elif (method, route) == ASK:
                 self.ask_seconds.observe(seconds)
 
-    def render(self, session: Session) -> bytes:
-        """The text exposition of one scrape: this process's metrics, then the database's."""
-        return generate_latest(_Scrape(self.registry, session))
+    def render(self, session: Session, pools: Mapping[str, tuple[int, int]]) -> bytes:
+        """The text exposition of one scrape: this process's metrics and its pools'
+        places (``pools``: name -> (running, waiting)), then the database's."""
+        return generate_latest(_Scrape(self.registry, session, pools))
 
 
 class _Scrape(Collector):
-    def __init__(self, registry: CollectorRegistry, session: Session) -> None:
+    def __init__(
+        self, registry: CollectorRegistry, session: Session, pools: Mapping[str, tuple[int, int]]
+    ) -> None:
         self.registry = registry
         self.session = session
+        self.pools = pools
 
     def collect(self) -> Iterator[Metric]:
         yield from self.registry.collect()
+        places = GaugeMetricFamily(
+            "activedesign_pool_places",
+            "Places taken in this process's bounded pools (creations, expansions), by state: "
+            "running, or waiting for a worker or for its owner's turn.",
+            labels=["pool", "state"],
+        )
+        for pool, (running, waiting) in sorted(self.pools.items()):
+            places.add_metric([pool, "running"], running)
+            places.add_metric([pool, "waiting"], waiting)
+        yield places
         yield from database_gauges(self.session)
 
 

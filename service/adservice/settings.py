@@ -40,6 +40,11 @@ class Settings(BaseSettings):
     """Threads that expand users' templates (study creation, a template study's new
     trials, a URDF read of a trial stored before URDFs were), apart from the ones
     serving requests: each runs one expanding child process at a time."""
+    expand_per_owner: int = Field(default=8, ge=1)
+    """Of the expansion threads and places, what one study owner's expansions may hold
+    (its creations, asks and its studies' leases): past this many running or waiting,
+    429 with Retry-After (a lease serves another study); and they run on all but one of
+    the threads at most."""
     expand_queue: int = Field(default=16, ge=0)
     """Expansions that may wait for one of those threads; past them a request that
     needs one is answered 503 with Retry-After, and nothing is stored."""
@@ -69,6 +74,11 @@ class Settings(BaseSettings):
     create_queue: int = Field(default=16, ge=0)
     """Creations that may wait for one of those processes; past them a creation is
     answered 503 with Retry-After, and nothing is stored."""
+    create_per_owner: int = Field(default=4, ge=1)
+    """Of those processes and places, what one study owner's creations may hold: past
+    this many running or waiting, its creation is a 429 with Retry-After (others still
+    find places); and its creations run on all but one of the processes at most, so
+    another owner's always finds one within one creation's time."""
     create_seconds: float = Field(default=30.0, gt=0, le=86_400)
     """How long one creation's child may run (its CPU time is held to it too); past it
     the child is killed and the creation is a 422 naming this setting. A space whose

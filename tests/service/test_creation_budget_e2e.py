@@ -208,19 +208,25 @@ def test_a_full_pool_answers_503_and_abandoned_creations_end_while_others_are_se
     start_server: Callable[..., ServerProcess],
 ) -> None:
     server = start_server(AD_CREATE_SECONDS=LONG, AD_CREATE_PROCESSES="2", AD_CREATE_QUEUE="1")
-    alice = make_token(server, "user", name="alice")
+    alice, carol, dave = (
+        make_token(server, "user", name=name) for name in ("alice", "carol", "dave")
+    )
     with user(server, "bob") as bob:
         ordinary = bob.post("/api/v1/studies", json=study(BOX, "ordinary")).json()["id"]
-        computing = [send_creation(server, alice, seed) for seed in (1, 2)]
+        # two owners' creations compute (one owner's run on one process at most)
+        computing = [send_creation(server, token, seed) for token, seed in ((alice, 1), (carol, 2))]
         children = wait_for(
             lambda: len(creation_children(server)) == 2 and creation_children(server),
             "two creations computing",
         )
         # two more: one waits for a place, the other finds none and is answered at once
-        more = [send_creation(server, alice, seed) for seed in (3, 4)]
-        answered, _, _ = select.select(more, [], [], PATIENCE)
-        assert len(answered) == 1, answered
-        reply = answered[0].recv(65_536).decode()
+        waiting = send_creation(server, alice, 3)
+        wait_for(lambda: pool_places(bob, "waiting") == 1, "alice's third to wait for her turn")
+        assert pool_places(bob, "running") == 2
+        full = send_creation(server, dave, 4)
+        answered, _, _ = select.select([waiting, full], [], [], PATIENCE)
+        assert answered == [full], answered
+        reply = full.recv(65_536).decode()
         assert reply.startswith("HTTP/1.1 503 "), reply
         assert "\r\nretry-after: 5\r\n" in reply.lower(), reply
         assert "AD_CREATE_PROCESSES" in reply and "AD_CREATE_QUEUE" in reply, reply
@@ -231,11 +237,49 @@ def test_a_full_pool_answers_503_and_abandoned_creations_end_while_others_are_se
         assert bob.post("/api/v1/studies", json=study(BOX, "another")).status_code == 201
         assert creation_children(server) == children  # still computing all along
         # their clients go: the children are killed (before: the work went on)
-        for sock in [*computing, *more]:
+        for sock in [*computing, waiting, full]:
             sock.close()
         wait_for(lambda: creation_children(server) == set(), "the abandoned children to end")
         assert bob.post("/api/v1/studies", json=study(SMALL_SPACE, "small")).status_code == 201
         assert names_stored(bob) == ["another", "ordinary", "small"]
+
+
+def test_one_owners_creations_keep_to_their_share_and_others_are_served_at_once(
+    start_server: Callable[..., ServerProcess],
+) -> None:
+    """An owner holds at most ``AD_CREATE_PER_OWNER`` places (then 429 naming it) and runs
+    on all but one process, so another owner's creation is computed while its are."""
+    server = start_server(
+        AD_CREATE_SECONDS=LONG,
+        AD_CREATE_PROCESSES="2",
+        AD_CREATE_QUEUE="8",
+        AD_CREATE_PER_OWNER="2",
+    )
+    alice = make_token(server, "user", name="alice")
+    with user(server, "bob") as bob:
+        held = [send_creation(server, alice, seed) for seed in (1, 2)]
+        (child,) = wait_for(lambda: creation_children(server), "alice's first creation computing")
+        refused = send_creation(server, alice, 3)
+        reply = refused.recv(65_536).decode()
+        assert reply.startswith("HTTP/1.1 429 "), reply
+        assert "already has 2 study creations running or waiting (AD_CREATE_PER_OWNER)" in reply
+        # bob's creation does not wait behind alice's: it is computed beside her first
+        assert bob.post("/api/v1/studies", json=study(SMALL_SPACE, "small")).status_code == 201
+        assert creation_children(server) == {child}, "alice's first stopped computing"
+        answered, _, _ = select.select(held, [], [], 0)
+        assert answered == [], "an of alice's creations was answered"
+        for sock in [*held, refused]:
+            sock.close()
+        wait_for(lambda: creation_children(server) == set(), "the abandoned children to end")
+        assert names_stored(bob) == ["small"]
+
+
+def pool_places(http: httpx.Client, state: str) -> float:
+    """The creation pool's places ``running`` or ``waiting`` (/metrics)."""
+    text = http.get("/metrics").text
+    line = f'activedesign_pool_places{{pool="creations",state="{state}"}} '
+    (value,) = [row.removeprefix(line) for row in text.splitlines() if row.startswith(line)]
+    return float(value)
 
 
 def send_creation(server: ServerProcess, token: str, seed: int) -> socket.socket:

@@ -55,17 +55,18 @@ async def create_study(
     expansion pool), then store the study; InvalidError (or BusyError when a pool is
     full, ClientGoneError once ``disconnected()``), with nothing stored, otherwise."""
     await run_in_threadpool(_checked, body, creations.budget.seconds)
+    share = owner.token_id if owner.checked else None  # whose share of the pools it takes
     representation = None
     if isinstance(body.space, DesignSpace):
         representation = await creations.run(
-            space_representation, body.space, disconnected=disconnected
+            space_representation, body.space, disconnected=disconnected, owner=share
         )
         dim = len(representation["bounds"][0])
     else:
         dim = len(body.space.params)
     await run_in_threadpool(_check_memory, body, dim, budget)
     if isinstance(body.space, TemplateSpace):
-        await expansions.run(partial(_check_template, body, expansions.limits.per_urdf()))
+        await expansions.run(partial(_check_template, body, expansions.limits.per_urdf()), share)
 
     def store() -> StudyRow:
         with db.write() as session:

@@ -38,7 +38,7 @@ from adservice.expansions import Checks, Expansion, ExpansionPool, Place, UrdfLi
 from adservice.models import utcnow
 from adservice.repository import quotas as quota_repo
 from adservice.repository import urdfs as urdf_repo
-from adservice.services.configs import StudyConfigs
+from adservice.services.configs import StudyConfig, StudyConfigs
 from adservice.services.proposal_failures import MAX_ERROR_CHARS, Backoff
 
 log = logging.getLogger("adservice")
@@ -65,13 +65,24 @@ class Proposing(Protocol):
     def backoff(self) -> Backoff: ...
 
 
-async def template_of(proposing: Proposing, study_id: int) -> str | None:
-    """The study's template; None for a study of another space (from the cached
-    configuration: a dictionary lookup on the ask hot path)."""
+async def _config(proposing: Proposing, study_id: int) -> StudyConfig:
+    """The study's cached configuration (a dictionary lookup on the ask hot path)."""
     config = proposing.configs.cached(study_id)
     if config is None:
         config = await proposing.db.run(partial(proposing.configs.get, study_id))
+    return config
+
+
+async def template_of(proposing: Proposing, study_id: int) -> str | None:
+    """The study's template; None for a study of another space."""
+    config = await _config(proposing, study_id)
     return config.space["template"] if config.space.get("type") == "template" else None
+
+
+async def owner_of(proposing: Proposing, study_id: int) -> int | None:
+    """The token id of the study's owner, whose share of the expansion pool its
+    expansions take (None: an ownerless study's, not counted)."""
+    return (await _config(proposing, study_id)).owner_token_id
 
 
 async def with_urdfs(
@@ -84,7 +95,7 @@ async def with_urdfs(
     if template is None:
         return await fix()
     checks = await _checks(proposing, study_id)
-    with proposing.expansions.admit() as place:
+    with proposing.expansions.admit(await owner_of(proposing, study_id)) as place:
         trials = await fix()
         points = {trial.id: trial.params for trial in trials}
         _, failed = await _expand_new(proposing.db, place, template, points, checks)
@@ -109,7 +120,7 @@ async def with_urdf(
         return await lease()
     checks = await _checks(proposing, study_id)
     pool = proposing.expansions
-    place = pool.admit()
+    place = pool.admit(await owner_of(proposing, study_id))
     try:
         job = await lease()
     except BaseException:
@@ -154,7 +165,9 @@ async def expand_added(
     may be one whose params the template does not expand at: it keeps why);
     ConflictError once the study stores its limit."""
     checks = await _checks(proposing, study_id)
-    expanded = await proposing.expansions.run(partial(expand_each, template, params, checks))
+    expanded = await proposing.expansions.run(
+        partial(expand_each, template, params, checks), await owner_of(proposing, study_id)
+    )
     problems = [
         f"{'trial' if len(adds) == 1 else f'trials[{index}]'}.params: the template does not "
         f"expand at them: {expansion.error}"

@@ -18,4 +18,9 @@ router = APIRouter(tags=["metrics"])
 )
 def metrics(request: Request, session: SessionDep, _: ReaderDep) -> Response:
     app_metrics: Metrics = request.app.state.metrics
-    return Response(app_metrics.render(session), media_type=CONTENT_TYPE_LATEST)
+    state = request.app.state
+    pools = {
+        "creations": state.creations.counts(),
+        "expansions": state.proposing.expansions.counts(),
+    }
+    return Response(app_metrics.render(session, pools), media_type=CONTENT_TYPE_LATEST)
