@@ -73,6 +73,10 @@ from adservice.settings import Settings, get_settings
 log = logging.getLogger("adservice")
 
 STATIC_DIR = Path(__file__).parent / "static"
+SWITCH_INTERVAL_SECONDS = 0.001
+"""How often a computing thread of the server yields the interpreter
+(``sys.setswitchinterval``): against 5 ms, another user's reads beside a flood of large
+creations wait half as long (bench/RESULTS.md, "Noisy neighbour")."""
 
 STATUS_BY_ERROR: dict[type[DomainError], int] = {
     NotFoundError: 404,
@@ -262,6 +266,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # A thread that computes (a body's checks, a proposal's Python) hands the
+        # interpreter back to the event loop every millisecond, not Python's 5: a request
+        # waits for the loop at most that long per hand-over (docs/server.md)
+        sys.setswitchinterval(SWITCH_INTERVAL_SECONDS)
         # First, while the server is one thread: the helper that forks creations' children
         # (it ends with this process, however the start below goes)
         create_memory = settings.create_memory_mb

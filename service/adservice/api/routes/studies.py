@@ -25,6 +25,7 @@ from adclient.schemas import (
     WorkerInfo,
 )
 from adservice import serving, views
+from adservice.api.bodies import read_body
 from adservice.api.deps import (
     MAX_ID,
     ArtifactStoreDep,
@@ -71,10 +72,10 @@ TrialOrder = Annotated[
 ]
 
 
-@router.post("", status_code=201)
-async def create_study(
-    body: StudyCreate, request: Request, proposing: ProposingDep, caller: UserDep
-) -> Study:
+@router.post("", status_code=201, include_in_schema=False)
+async def create_study_served(request: Request, proposing: ProposingDep, caller: UserDep) -> Study:
+    """``create_study``, its body read off the event loop (``adservice.api.bodies``)."""
+    body = await read_body(request, StudyCreate)
     row = await study_service.create_study(
         proposing.db,
         proposing.expansions,
@@ -85,6 +86,13 @@ async def create_study(
         disconnected=request.is_disconnected,
     )
     return study_schema(row, {})
+
+
+@router.post("", status_code=201)
+async def create_study(body: StudyCreate, caller: UserDep) -> Study:
+    # The operation as documented; create_study_served, registered before it, serves
+    # every request (its body read off the event loop).
+    raise AssertionError("served by create_study_served")
 
 
 @router.get("")
