@@ -28,7 +28,11 @@ test: install
 	# run's last two minutes, 90% over the whole run, on this project's 2-core machine).
 	# Bytecode caches on (some machines set PYTHONDONTWRITEBYTECODE): else each of the
 	# three processes compiles and assert-rewrites every test module again, 12 CPU-s each.
-	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -n 3 --dist loadgroup -q --durations=30
+	# Then the tests that measure latency (marked `alone`), with nothing beside them.
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -n 3 --dist loadgroup -q --durations=30 \
+		-m "not alone"; status=$$?; \
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -m alone || status=1; \
+	exit $$status
 
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser and not postgres"

@@ -22,6 +22,7 @@ which give databases nothing has touched; tests/test_wheel.py makes its own.
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -34,6 +35,23 @@ from tests.service.chromium import Chromium, SharedChromium, find_chromium, leav
 from tests.system_packages import unavailable
 
 DATABASES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A test marked ``alone`` compares latencies, which other tests running beside it
+    would set: under several test processes it is skipped, saying so (``make test``
+    runs the ``alone`` tests after the others, in one process)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))  # set in xdist's workers
+    if workers <= 1:
+        return
+    skip = pytest.mark.skip(
+        reason="SKIPPED LOUDLY: an `alone` test measures latency and is run with no other "
+        f"test beside it, not among {workers} test processes: run `pytest -m alone` "
+        "(make test does, after the others)"
+    )
+    for item in items:
+        if item.get_closest_marker("alone") is not None:
+            item.add_marker(skip)
 
 
 @pytest.fixture(scope="session")

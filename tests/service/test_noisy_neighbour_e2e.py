@@ -22,7 +22,7 @@ from adclient.testing.neighbours import (
 from adclient.testing.servers import ServerProcess, make_token
 from adclient.testing.workers import WorkerProcess, stop_workers
 
-pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.alone]
 
 SCORER = "def score(job):\n    return job.params['x']\n"
 
