@@ -177,7 +177,7 @@ def test_submit_invalid_study_names_the_field(server: ServerProcess, tmp_path: P
 
 
 def test_submit_unreadable_or_unparsable_file(server: ServerProcess, tmp_path: Path) -> None:
-    failed_with(run(server.url, "submit", str(tmp_path / "missing.yaml")), "cannot read")
+    failed_with(run(server.url, "submit", str(tmp_path / "missing.yaml")), "cannot read", 2)
     broken = tmp_path / "broken.yaml"
     broken.write_text("name: [unclosed\n")
     failed_with(run(server.url, "submit", str(broken)), "cannot parse")

@@ -7,8 +7,9 @@ rich tables, or JSON with ``--json``. Errors end with one line on stderr and exi
 status 1 (2 for bad usage), never a traceback.
 
 The app, its options and what the commands share are in ``common``; the commands in
-``studies`` (submit, studies, status), ``workers``, ``trials`` (trials, best, pareto,
-ask, tell, enqueue) and ``data`` (import, export, delete).
+``studies`` (submit, studies, status, stop), ``workers``, ``trials`` (trials, best, pareto,
+ask, tell, enqueue), ``data`` (import, export, delete) and ``files`` (a trial's files, which
+``best --save`` writes too).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ __all__ = ["app", "main"]
 
 # A command module registers its commands on ``app`` when imported, and ``adclient
 # --help`` lists them in that order (which a sorted ``from ... import`` would not keep).
-for _module in ("studies", "workers", "trials", "data"):
+for _module in ("studies", "workers", "trials", "files", "data"):
     import_module(f"{__name__}.{_module}")
 
 

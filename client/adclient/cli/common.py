@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import sys
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -13,6 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn, TypeVar
+from urllib.parse import urlsplit
 
 import typer
 from pydantic import BaseModel
@@ -78,12 +80,24 @@ def get_settings(ctx: typer.Context) -> Settings:
     return settings
 
 
+UNBOUNDED_WIDTH = 100_000
+"""The width of a console that is not a terminal (a pipe, a file) and has no
+``COLUMNS``: tables as wide as their cells and lines never broken, where a terminal's
+width would be 80 columns."""
+
+
+def _sized(console: Console) -> Console:
+    if not console.is_terminal and "COLUMNS" not in os.environ:
+        console.width = UNBOUNDED_WIDTH
+    return console
+
+
 def stdout_console() -> Console:
-    return Console(highlight=False, soft_wrap=False)
+    return _sized(Console(highlight=False, soft_wrap=False))
 
 
 def stderr_console() -> Console:
-    return Console(stderr=True, highlight=False)
+    return _sized(Console(stderr=True, highlight=False))
 
 
 EXIT_REFUSED = 1
@@ -110,8 +124,15 @@ def exit_status(exc: ApiError) -> int:
 
 
 def fail(message: str, code: int = EXIT_REFUSED) -> NoReturn:
-    """End the command with one line on stderr."""
-    stderr_console().print(f"[bold red]error:[/] {escape(message)}", markup=True, highlight=False)
+    """End the command with one line on stderr (one line of a pipe or file, whatever its
+    length; a terminal wraps it at its width)."""
+    console = stderr_console()
+    console.print(
+        f"[bold red]error:[/] {escape(message)}",
+        markup=True,
+        highlight=False,
+        soft_wrap=not console.is_terminal,
+    )
     raise typer.Exit(code)
 
 
@@ -195,7 +216,20 @@ def _main(
         False, "--version", callback=_version, is_eager=True, help="Print the version."
     ),
 ) -> None:
+    _check_server_url(server)
     ctx.obj = Settings(server.rstrip("/"), token or None, str(ca_bundle) if ca_bundle else None)
+
+
+def _check_server_url(server: str) -> None:
+    """A usage error for a server that is no http(s) URL (``-s 127.0.0.1:8000``), which
+    would otherwise read as a server that does not answer."""
+    parts = urlsplit(server.strip())
+    if parts.scheme in ("http", "https") and parts.netloc:
+        return
+    given = f"--server (or AD_SERVER_URL) {server!r}"
+    if "://" not in server:
+        fail(f"{given} has no scheme: give http://{server.strip()} (or https://)", EXIT_USAGE)
+    fail(f"{given} is not an http:// or https:// URL with a host", EXIT_USAGE)
 
 
 # -- formatting ------------------------------------------------------------------------

@@ -3,6 +3,7 @@ the studies and show one."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import time
@@ -17,6 +18,7 @@ from rich.table import Table
 
 from adclient.cli.common import (
     EXIT_INTERRUPTED,
+    EXIT_USAGE,
     app,
     compact_text,
     fail,
@@ -32,10 +34,12 @@ from adclient.cli.common import (
     stdout_console,
     study_scope,
 )
+from adclient.cli.suggest import unknown_field_hints, with_hints
 from adclient.cli.workers import serving
 from adclient.client import StudyHandle
+from adclient.errors import Invalid
 from adclient.importing import EXPORT_DEPTH, load_json
-from adclient.schemas import BoxSpace, Study, StudySpread
+from adclient.schemas import BoxSpace, Study, StudySpread, StudyState
 
 ONE_DESIGN = "one design: nothing searched, each trial a repeat on its own seed"
 """How ``status`` and ``submit --wait`` name a study whose space searches nothing."""
@@ -157,8 +161,8 @@ TEXT_KEYS = ("name", "metadata")
 def _read_study_file(path: Path) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte-order mark, as Windows saves one
-    except OSError as exc:
-        fail(f"cannot read {path}: {exc.strerror or exc}")
+    except OSError as exc:  # a file named that is not there (or not readable): bad usage
+        fail(f"cannot read {path}: {exc.strerror or exc}", EXIT_USAGE)
     try:
         if path.suffix.lower() == ".json":
             data = load_json(text, deepest=EXPORT_DEPTH)
@@ -169,6 +173,10 @@ def _read_study_file(path: Path) -> dict[str, Any]:
                 data.update({key: as_text[key] for key in TEXT_KEYS if key in as_text})
     except RecursionError:  # YAML's parser, nested past the stack
         fail(f"cannot parse {path}: objects and arrays nest too deep")
+    except json.JSONDecodeError as exc:
+        fail(f"cannot parse {path} at line {exc.lineno}, column {exc.colno}: {exc.msg}")
+    except yaml.MarkedYAMLError as exc:
+        fail(f"cannot parse {path}{_yaml_error_text(exc)}")
     except (ValueError, yaml.YAMLError) as exc:
         first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         fail(f"cannot parse {path}: {first_line}")
@@ -179,6 +187,21 @@ def _read_study_file(path: Path) -> dict[str, Any]:
         fail(f"{path}: {where} is a number out of range (JSON has no infinity or NaN)")
     _read_template_file(data, path)
     return data
+
+
+def _yaml_error_text(exc: yaml.MarkedYAMLError) -> str:
+    """Where YAML stopped and why, lines and columns counted from 1: `` at line 2,
+    column 1: expected ',' or ']', but got '<stream end>' (while parsing a flow sequence
+    from line 1, column 7)``."""
+    mark = exc.problem_mark or exc.context_mark
+    text = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    text += f": {exc.problem or exc.context or type(exc).__name__}"
+    if exc.context and exc.problem:
+        start = exc.context_mark
+        moved = start is not None and mark is not None and start.index != mark.index
+        origin = f" from line {start.line + 1}, column {start.column + 1}" if moved else ""
+        text += f" ({exc.context}{origin})"
+    return text
 
 
 def _non_finite(value: Any, where: str) -> str | None:
@@ -231,7 +254,11 @@ def submit(
     body = _read_study_file(study_file)
     settings = get_settings(ctx)
     with settings.client() as client:
-        study = client.create_study(body)
+        try:
+            study = client.create_study(body)
+        except Invalid as exc:  # an unknown field gets its closest valid name
+            message = with_hints(exc.message, unknown_field_hints(body))
+            fail(f"invalid request: {message}")
         info = study.cached_info
         if quiet:
             typer.echo(str(study.id))
@@ -239,34 +266,44 @@ def submit(
             out = stdout_console()
             out.print(f"study {study.id} created: {escape(info.name)}")
             out.print(f"dashboard: {study.dashboard_url}")
-        if not wait:
-            return
-        info = _follow(study, poll)
-        if quiet:
-            return
-        out = stdout_console()
-        out.print(
-            f"study {study.id} {info.state.value}: {info.n_complete} complete, "
-            f"{info.n_failed} failed, {info.n_pruned} pruned"
-        )
-        if info.n_failed:
-            out.print("why trials failed:")
-            for line in failure_lines(study.get_trials("failed")):
-                out.print(f"  {escape(line)}")
-        if info.fixed:  # no best of repeats of one design: how they spread
-            out.print(f"{ONE_DESIGN}:")
-            for field, text in spread_rows(study.spread):
-                out.print(f"  {escape(field)}: {text}")
-            return
-        if len(info.directions) > 1:  # no single best trial: the front, as `pareto` shows it
-            front = study.best_trials
-            out.print(front_table(info, front) if front else "no complete trial")
-            return
-        best = study.best_trial
-        if best is None:
-            out.print("no complete trial")
-        else:
-            print_best(out, best, searched_keys(info))
+        if wait:
+            follow_to_end(study, poll, quiet=quiet)
+
+
+def follow_to_end(study: StudyHandle, poll: float, *, quiet: bool = False) -> Study:
+    """``submit --wait`` and ``status --wait``: a progress bar until the study ends, then
+    (unless ``quiet``) how it ended: its counts, why trials failed, and its best design,
+    the spread of its repeats or its Pareto front."""
+    info = _follow(study, poll)
+    if not quiet:
+        _print_end(study, info)
+    return info
+
+
+def _print_end(study: StudyHandle, info: Study) -> None:
+    out = stdout_console()
+    out.print(
+        f"study {study.id} {info.state.value}: {info.n_complete} complete, "
+        f"{info.n_failed} failed, {info.n_pruned} pruned"
+    )
+    if info.n_failed:
+        out.print("why trials failed:")
+        for line in failure_lines(study.get_trials("failed")):
+            out.print(f"  {escape(line)}")
+    if info.fixed:  # no best of repeats of one design: how they spread
+        out.print(f"{ONE_DESIGN}:")
+        for field, text in spread_rows(study.spread):
+            out.print(f"  {escape(field)}: {text}")
+        return
+    if len(info.directions) > 1:  # no single best trial: the front, as `pareto` shows it
+        front = study.best_trials
+        out.print(front_table(info, front) if front else "no complete trial")
+        return
+    best = study.best_trial
+    if best is None:
+        out.print("no complete trial")
+    else:
+        print_best(out, best, searched_keys(info))
 
 
 WORKERS_CHECK_SECONDS = 10.0
@@ -305,6 +342,10 @@ def _follow(study: StudyHandle, poll: float) -> Study:
                     progress.console.print(f"[yellow]no worker:[/yellow] {escape(workers.text)}")
 
         try:
+            progress.console.print(
+                f"following study {study.id} until it ends (Ctrl-C stops following; "
+                "the study keeps running)"
+            )
             return study.wait(poll=poll, on_update=update)
         except KeyboardInterrupt:
             progress.stop()
@@ -351,9 +392,21 @@ def status(
     ctx: typer.Context,
     study_id: int = typer.Argument(..., metavar="ID"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+    wait: bool = typer.Option(
+        False, "--wait", "-w", help="Follow the study until it ends, as submit --wait does."
+    ),
+    poll: float = typer.Option(2.0, "--poll", min=0.01, help="Seconds between polls with --wait."),
 ) -> None:
-    """Show one study: state, trial counts, best value."""
+    """Show one study: state, trial counts, best value.
+
+    With --wait, follow it until it ends (a progress bar), then show how it ended, as
+    submit --wait does."""
     with get_settings(ctx).client() as client, study_scope(study_id):
+        if wait:
+            ended = follow_to_end(client.get_study(study_id), poll, quiet=as_json)
+            if as_json:
+                print_json(ended)
+            return
         info = client.study_info(study_id)
         dashboard = client.dashboard_url(study_id)
         workers = None if as_json else serving(client, info)
@@ -365,3 +418,32 @@ def status(
     if workers is not None:
         table.add_row("workers", escape(workers.text))
     stdout_console().print(table)
+
+
+@app.command()
+@friendly
+def stop(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="ID"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Stop a study: no new trials are proposed or leased.
+
+    Its owner or an admin may; its queued trials end as failed, the running ones may
+    still be told."""
+    with get_settings(ctx).client() as client, study_scope(study_id):
+        before = client.study_info(study_id)
+        info = client.stop_study(study_id)
+    if as_json:
+        print_json(info)
+        return
+    counts = f"{info.n_complete} complete, {info.n_failed} failed, {info.n_pruned} pruned"
+    out = stdout_console()
+    if before.state != StudyState.running:
+        out.print(f"study {study_id} is already {before.state.value}: nothing to stop ({counts})")
+        return
+    out.print(f"study {study_id} stopped: no new trials are proposed or leased; {counts}")
+    if before.n_queued:
+        out.print(f'{before.n_queued} queued trials ended as failed ("study stopped")')
+    if info.n_running:
+        out.print(f"{info.n_running} running trials may still be told")

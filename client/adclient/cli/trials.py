@@ -4,6 +4,7 @@ study's trials, and asking, telling and queueing them by hand."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import typer
 from rich.markup import escape
@@ -19,11 +20,13 @@ from adclient.cli.common import (
     print_best,
     print_json,
     searched_keys,
+    stderr_console,
     stdout_console,
     study_scope,
     trial_scope,
     trial_table,
 )
+from adclient.cli.files import FORCE_OPTION, save_trial_files
 from adclient.importing import ImportFileError, load_json
 from adclient.schemas import MAX_JSON_DEPTH, TrialState
 
@@ -59,17 +62,29 @@ def best(
         False, "--all", help="The whole design, not only the params the study searched."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+    save: Path | None = typer.Option(
+        None,
+        "--save",
+        help="Also download the best trial's files (URDF, images, curve...) into this folder.",
+        file_okay=False,
+    ),
+    force: bool = FORCE_OPTION,
 ) -> None:
-    """Show a study's best complete trial (of a design study, the params it searched)."""
+    """Show a study's best complete trial (of a design study, the params it searched).
+
+    --save DIR also writes its files, as adclient files does."""
     with get_settings(ctx).client() as client, study_scope(study_id):
         trial = client.best_trial(study_id)
         searched = None if as_json or everything else searched_keys(client.study_info(study_id))
-    if trial is None:
-        fail(f"study {study_id} has no complete trial yet")
-    if as_json:
-        print_json(trial)
-        return
-    print_best(stdout_console(), trial, searched)
+        if trial is None:
+            fail(f"study {study_id} has no complete trial yet")
+        if as_json:
+            print_json(trial)
+        else:
+            print_best(stdout_console(), trial, searched)
+        if save is not None:  # what was written goes to stderr beside JSON on stdout
+            shown = stderr_console() if as_json else stdout_console()
+            save_trial_files(client, trial, save, force=force, out=shown)
 
 
 @app.command()
