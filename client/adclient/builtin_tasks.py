@@ -7,7 +7,7 @@ from typing import Annotated
 
 from pydantic import Field
 
-from adclient.plugins import SimulatorOptions, TaskSpec
+from adclient.plugins import SIMULATORS, SimulatorOptions, TaskSpec
 
 LinkName = Annotated[str, Field(min_length=1, max_length=64)]
 
@@ -44,6 +44,7 @@ STAND_UP = TaskSpec(
     "the height of b's centre while a and c both touch the ground, else 0.",
     factory="adworker.tasks.stand_up:StandUp.make_env",
     templates=True,
+    simulators=SIMULATORS,
 )
 DIAGONAL_GESTURE = TaskSpec(
     name="diagonal-gesture",
@@ -53,6 +54,7 @@ DIAGONAL_GESTURE = TaskSpec(
     factory="adworker.tasks.diagonal_gesture:DiagonalGesture.make_env",
     templates=True,
     fixed_base=True,
+    simulators=SIMULATORS,
 )
 LIFT_HIGHEST = TaskSpec(
     name="lift-highest",
@@ -61,6 +63,7 @@ LIFT_HIGHEST = TaskSpec(
     "top of its body.",
     factory="adworker.tasks.lift_highest:LiftHighest.make_env",
     templates=True,
+    simulators=SIMULATORS,
 )
 
 
@@ -88,4 +91,5 @@ WALK_FORWARD = TaskSpec(
     "centre of mass has moved at the end of the episode (m).",
     factory="adworker.tasks.walk_forward:WalkForward.make_env",
     templates=True,
+    simulators=SIMULATORS,
 )

@@ -29,6 +29,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 TASK_GROUP = "activedesign.tasks"
 LEARNER_GROUP = "activedesign.learners"
+SIMULATORS = ("pybullet", "mujoco")
+"""The physics engines a study may name (``task.simulator``); the first is the default."""
 
 
 class PluginError(LookupError):
@@ -57,7 +59,8 @@ class TaskOptions(BaseModel):
 
 
 class SimulatorOptions(TaskOptions):
-    """The options of a task on adworker's PyBullet simulator: physics settings."""
+    """The options of a task on adworker's simulator (PyBullet, or MuJoCo where a study
+    names it: ``task.simulator``): physics settings, the same on either engine."""
 
     frame_skip: int = Field(default=12, ge=1, le=1000, description="Physics steps per action")
     time_step: float = Field(default=1.0 / 120.0, gt=0.0, le=1.0, description="Physics step (s)")
@@ -150,10 +153,20 @@ class TaskSpec:
     """Its robot's root is fixed where its URDF puts it; False: the robot is free, set
     down on the ground (``adclient.spawn``: where the server says the robot starts, so
     it must be what adworker's task class says, ``Task.fixed_base``)."""
+    simulators: tuple[str, ...] = ("pybullet",)
+    """The engines of :data:`SIMULATORS` a study may name for it (``task.simulator``).
+    The worker passes the factory ``simulator=`` only for another engine than the
+    default, so a factory that takes no such argument declares the default alone."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.options, type) and issubclass(self.options, TaskOptions)):
             raise TypeError(f"task {self.name!r}: options must be a TaskOptions subclass")
+        unknown = [name for name in self.simulators if name not in SIMULATORS]
+        if unknown or SIMULATORS[0] not in self.simulators:
+            raise TypeError(
+                f"task {self.name!r}: simulators must include {SIMULATORS[0]!r} and name "
+                f"only engines of {', '.join(SIMULATORS)} (got {', '.join(self.simulators)})"
+            )
 
     def load_factory(self) -> Callable[..., Any]:
         """The environment factory, imported now (the worker's side only)."""

@@ -19,6 +19,7 @@ randomness.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import logging
@@ -34,7 +35,13 @@ from pydantic import BaseModel, ValidationError
 
 from adclient.design import DesignSpace
 from adclient.designs import Design
-from adclient.plugins import PluginError, TaskOptions, catalogue, learner_budget_problems
+from adclient.plugins import (
+    SIMULATORS,
+    PluginError,
+    TaskOptions,
+    catalogue,
+    learner_budget_problems,
+)
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import SHARED_ARTIFACT, Job, TaskConfig, option_problems
 from adworker import shared_weights
@@ -158,6 +165,22 @@ def learner_options(task: TaskConfig, options: TaskOptions, model: type[BaseMode
     return checked
 
 
+def env_factory(task: TaskConfig) -> Callable[..., Any]:
+    """The task's environment factory, building on the engine the study names
+    (``task.simulator``; the factory is passed ``simulator=`` only for another than the
+    default); a JobError for an engine the task does not declare."""
+    spec = catalogue().task(task.name)
+    if task.simulator not in spec.simulators:
+        raise JobError(
+            f"task {task.name!r} does not run on simulator {task.simulator!r} "
+            f"(its simulators: {', '.join(spec.simulators)})"
+        )
+    factory = spec.load_factory()
+    if task.simulator == SIMULATORS[0]:
+        return factory
+    return functools.partial(factory, simulator=task.simulator)
+
+
 def evaluate_job(
     job: Job,
     workdir: Path,
@@ -183,7 +206,7 @@ def evaluate_job(
         return now
 
     options = task_options(task)
-    make_env = catalogue().task(task.name).load_factory()
+    make_env = env_factory(task)
     learner = make_learner(task, options)
     start: Start = SCRATCH
     if job.resume is not None:  # a promoted trial: the worker put its checkpoint here

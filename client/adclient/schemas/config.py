@@ -14,7 +14,7 @@ from pydantic import (
     model_validator,
 )
 
-from adclient.plugins import PluginError, catalogue, learner_budget_problems
+from adclient.plugins import SIMULATORS, PluginError, catalogue, learner_budget_problems
 from adclient.schemas.common import (
     NAME_PATTERN,
     JsonObject,
@@ -62,6 +62,13 @@ class TaskConfig(StrictInput):
     )
     name: str = Field(pattern=NAME_PATTERN)
     learner: str = Field(default="fast", pattern=NAME_PATTERN)
+    simulator: str = Field(
+        default=SIMULATORS[0],
+        pattern=NAME_PATTERN,
+        description="the physics engine the worker builds the task's world on: "
+        f"{' or '.join(SIMULATORS)} (docs/worker.md, choosing the engine); the task must "
+        "declare it (GET /api/v1/tasks, simulators)",
+    )
     train_steps: int | None = Field(default=None, ge=0, le=10_000_000)
     eval_episodes: int = Field(default=3, ge=1, le=100)
     episode_steps: int | None = Field(default=None, ge=1, le=100_000)
@@ -175,6 +182,21 @@ class NewTaskConfig(TaskConfig):
                 raise ValueError(str(error)) from None
         return learner
 
+    @field_validator("simulator")
+    @classmethod
+    def _known_simulator(cls, simulator: str, info: ValidationInfo) -> str:
+        if simulator not in SIMULATORS:
+            raise ValueError(
+                f"{simulator!r} is not a simulator (simulators: {', '.join(SIMULATORS)})"
+            )
+        spec = None if info.data.get("external") else catalogue().tasks.get(info.data.get("name"))
+        if spec is not None and simulator not in spec.simulators:
+            raise ValueError(
+                f"task {spec.name!r} does not run on {simulator!r} (its simulators: "
+                f"{', '.join(spec.simulators)})"
+            )
+        return simulator
+
     @field_validator("options")
     @classmethod
     def _known_options(cls, options: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
@@ -262,6 +284,11 @@ class TaskInfo(BaseModel):
     templates: bool = Field(
         default=False,
         description="it builds its robot from the URDF alone: template studies may use it",
+    )
+    simulators: list[str] = Field(
+        default_factory=lambda: [SIMULATORS[0]],
+        description="the engines a study may name for it (task.simulator), the default "
+        f"{SIMULATORS[0]} among them",
     )
 
 

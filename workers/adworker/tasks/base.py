@@ -1,11 +1,12 @@
 """A task environment: a simulator, a robot and a task, composed into one Gymnasium env.
 
-The split follows panda-gym: the :class:`~adworker.tasks.simulator.Simulator` owns the
-PyBullet client (world, clock, camera), the :class:`~adworker.tasks.robot.Robot` is the
-typed Design in it (joints, shapes, state reads, motor commands), and a :class:`Task`
-reads both to say what the robot is asked to do (metric, reward, termination,
-observation extras, reset hook, metrics of its own, points marked in the picture).
-:class:`RobotEnv` runs the loop.
+The split follows panda-gym: the simulator owns the engine's world (world, clock,
+camera), the robot is the typed Design in it (joints, shapes, state reads, motor
+commands), and a :class:`Task` reads both to say what the robot is asked to do (metric,
+reward, termination, observation extras, reset hook, metrics of its own, points marked
+in the picture). :class:`RobotEnv` runs the loop. Simulator and robot are those of the
+engine a study names (``task.simulator``: PyBullet by default, or MuJoCo), through the
+interface of :mod:`adworker.tasks.engine`, so a task is written once for both.
 
 Each control step runs ``frame_skip`` physics steps, then reads the state once into a
 :class:`~adworker.tasks.snapshot.Snapshot`. The task turns the snapshot into its
@@ -35,10 +36,15 @@ import numpy as np
 from adclient.designs import Design
 from adclient.plugins import SimulatorOptions, catalogue
 from adclient.urdf_model import read_urdf
+from adworker.tasks.engine import (
+    Camera,
+    EngineMeter,
+    EngineRobot,
+    EngineSimulator,
+    build_engine,
+)
 from adworker.tasks.markers import Marker, checked_markers, draw_markers
 from adworker.tasks.model import RobotModel, model_of_design, model_of_urdf
-from adworker.tasks.robot import MotorMeter, Robot
-from adworker.tasks.simulator import Camera, Simulator
 from adworker.tasks.snapshot import Snapshot
 
 DEFAULT_EPISODE_STEPS = 32
@@ -80,7 +86,7 @@ class Task(Generic[OptionsT]):
     """Whether each step reads ground contacts (observed as one flag per link)."""
     default_episode_steps: ClassVar[int] = DEFAULT_EPISODE_STEPS
 
-    def __init__(self, robot: Robot, sim: Simulator, options: OptionsT) -> None:
+    def __init__(self, robot: EngineRobot, sim: EngineSimulator, options: OptionsT) -> None:
         self.robot = robot
         self.sim = sim
         self.options = options
@@ -96,12 +102,18 @@ class Task(Generic[OptionsT]):
         urdf_path: str | Path,
         options: OptionsT,
         render_mode: str | None = None,
+        simulator: str = "pybullet",
     ) -> RobotEnv:
         """This task's environment for one design (its URDF written at ``urdf_path``), or
-        for a template's robot (``design`` None: the URDF is all there is): the factory
-        a task declaration names."""
+        for a template's robot (``design`` None: the URDF is all there is), on the engine
+        ``simulator``: the factory a task declaration names."""
         return RobotEnv(
-            cls, design=design, urdf_path=urdf_path, options=options, render_mode=render_mode
+            cls,
+            design=design,
+            urdf_path=urdf_path,
+            options=options,
+            render_mode=render_mode,
+            simulator=simulator,
         )
 
     def observation_size(self) -> int:
@@ -169,9 +181,11 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         urdf_path: str | Path,
         options: OptionsT,
         render_mode: str | None = None,
+        simulator: str = "pybullet",
     ) -> None:
         super().__init__()
         self.options = options
+        self.simulator = simulator
         self.render_mode = render_mode
         self.episode_steps = options.episode_steps or task.default_episode_steps
         self.init_noise = options.init_noise
@@ -184,17 +198,18 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"declaration (TaskSpec) {declared.fixed_base}: the server would say the "
                 "robot starts where the worker does not put it"
             )
-        self.sim = Simulator(time_step=options.time_step, frame_skip=options.frame_skip)
+        self.sim, self.robot = build_engine(
+            simulator,
+            model=robot_model(design, urdf_path),
+            urdf_path=urdf_path,
+            fixed_base=task.fixed_base,
+            reads_contacts=task.reads_contacts,
+            time_step=options.time_step,
+            frame_skip=options.frame_skip,
+            rolling_friction=options.rolling_friction,
+            spinning_friction=options.spinning_friction,
+        )
         try:
-            self.robot = Robot(
-                self.sim,
-                robot_model(design, urdf_path),
-                urdf_path,
-                fixed_base=task.fixed_base,
-                reads_contacts=task.reads_contacts,
-                rolling_friction=options.rolling_friction,
-                spinning_friction=options.spinning_friction,
-            )
             self.task: Task[OptionsT] = task(self.robot, self.sim, options)
         except BaseException:
             self.sim.close()
@@ -214,7 +229,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.record = EpisodeRecord(self.task.score)
         self._step_count = 0
         self._last: Snapshot | None = None
-        self.meter: MotorMeter | None = None
+        self.meter: EngineMeter | None = None
         self._meter_each: Callable[[], None] | None = None
 
     @property
@@ -226,8 +241,8 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         """Physics steps simulated so far, all episodes together."""
         return self.sim.physics_steps
 
-    def meter_motors(self) -> MotorMeter:
-        """Meter the motors' effort and energy (:class:`MotorMeter`) of every episode
+    def meter_motors(self) -> EngineMeter:
+        """Meter the motors' effort and energy (:class:`EngineMeter`) of every episode
         from the next ``reset`` on (the evaluation episodes; training runs unmetered,
         saving a state read per physics step)."""
         self.meter = self.robot.motor_meter()

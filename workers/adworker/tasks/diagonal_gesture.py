@@ -27,9 +27,8 @@ import numpy as np
 
 from adclient.builtin_tasks import DiagonalGestureOptions
 from adworker.tasks.base import Task
+from adworker.tasks.engine import EngineRobot, EngineSimulator
 from adworker.tasks.markers import Marker
-from adworker.tasks.robot import Robot
-from adworker.tasks.simulator import Simulator
 from adworker.tasks.snapshot import Snapshot
 
 INV_SQRT3 = 1.0 / math.sqrt(3.0)
@@ -42,7 +41,9 @@ class DiagonalGesture(Task[DiagonalGestureOptions]):
     fixed_base: ClassVar[bool] = True
     reads_contacts: ClassVar[bool] = False
 
-    def __init__(self, robot: Robot, sim: Simulator, options: DiagonalGestureOptions) -> None:
+    def __init__(
+        self, robot: EngineRobot, sim: EngineSimulator, options: DiagonalGestureOptions
+    ) -> None:
         super().__init__(robot, sim, options)
         distal = options.distal_link
         if distal is None:

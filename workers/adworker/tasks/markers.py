@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from adworker.tasks.simulator import Camera
+from adworker.tasks.engine import Camera
 
 MAX_MARKERS = 16
 MAX_COORDINATE = 1000.0

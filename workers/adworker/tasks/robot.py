@@ -19,16 +19,13 @@ physics step.
 
 from __future__ import annotations
 
-import math
-import warnings
-from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pybullet
 
 from adclient.spawn import spawn_pose
+from adworker.tasks.engine import EngineMeter, EngineRobot, JointSpec
 from adworker.tasks.model import LinkShape, RobotModel
 from adworker.tasks.simulator import (
     BODY_BASE_NAME,
@@ -39,26 +36,14 @@ from adworker.tasks.simulator import (
     JOINT_STATE_MOTOR_TORQUE,
     JOINT_STATE_POSITION,
     JOINT_STATE_VELOCITY,
-    POSE_ORIENTATION,
-    POSE_POSITION,
     Simulator,
 )
 from adworker.tasks.snapshot import LinkGeometry, Snapshot
 
-
-@dataclass
-class JointSpec:
-    index: int
-    """The engine's joint index (also the index of its child link)."""
-    name: str
-    child: str
-    lower: float
-    upper: float
-    effort: float
-    velocity: float
+__all__ = ["JointSpec", "MotorMeter", "Robot"]
 
 
-class MotorMeter:
+class MotorMeter(EngineMeter):
     """The joint motors' effort and mechanical energy over episodes, read after every
     physics step (``Simulator.step``'s ``each``).
 
@@ -79,19 +64,10 @@ class MotorMeter:
     """
 
     def __init__(self, body: int, joint_indices: list[int], time_step: float, client: int):
+        super().__init__(len(joint_indices), time_step)
         self._body = body
         self._joints = list(joint_indices)
-        self._time_step = time_step
         self._client = client
-        self.episode_energy: list[float] = []
-        """Each metered episode's energy (J), in order; the last one may be running."""
-        self.torque_sum = 0.0
-        """Sum of |tau| over all metered physics steps and joints (N m)."""
-        self.samples = 0
-        """Metered physics steps, all episodes together."""
-
-    def begin_episode(self) -> None:
-        self.episode_energy.append(0.0)
 
     def sample(self) -> None:
         """Read the torques and velocities of the physics step just taken."""
@@ -104,20 +80,6 @@ class MotorMeter:
         self.torque_sum += torque
         self.episode_energy[-1] += power * self._time_step
         self.samples += 1
-
-    @property
-    def effort(self) -> float:
-        """Mean |torque| per joint per physics step (N m); 0 before any step."""
-        if not self.samples:
-            return 0.0
-        return self.torque_sum / (self.samples * len(self._joints))
-
-    @property
-    def energy(self) -> float:
-        """Mean energy per metered episode (J); 0 before any episode."""
-        if not self.episode_energy:
-            return 0.0
-        return math.fsum(self.episode_energy) / len(self.episode_energy)
 
 
 def _to_inertial(
@@ -136,9 +98,11 @@ _ENGINE_KIND = {
 }
 
 
-class Robot:
-    """A robot model in a Simulator: its joints, link shapes, state reads and motor
-    commands."""
+class Robot(EngineRobot):
+    """A robot model in a PyBullet Simulator: its joints, link shapes, state reads and
+    motor commands."""
+
+    sim: Simulator
 
     def __init__(
         self,
@@ -151,10 +115,7 @@ class Robot:
         rolling_friction: float,
         spinning_friction: float,
     ) -> None:
-        self.sim = sim
-        self.model = model
-        self.fixed_base = fixed_base
-        self.reads_contacts = reads_contacts
+        super().__init__(sim, model, fixed_base=fixed_base, reads_contacts=reads_contacts)
         self.body = sim.load_urdf(str(urdf_path), fixed_base=fixed_base)
         engine_index = self._engine_indices(Path(urdf_path).name)
         # The root first, then the engine's order (depth first through the tree).
@@ -162,15 +123,7 @@ class Robot:
         self.geometry = [self._geometry(name, engine_index[name]) for name in order]
         self.link_names = order
         self.joints = [
-            JointSpec(
-                index=engine_index[joint.child],
-                name=joint.name,
-                child=joint.child,
-                lower=joint.lower,
-                upper=joint.upper,
-                effort=joint.effort,
-                velocity=joint.velocity,
-            )
+            JointSpec.of(joint, engine_index[joint.child])
             for joint in sorted(model.joints, key=lambda joint: engine_index[joint.child])
             if joint.driven
         ]
@@ -208,13 +161,7 @@ class Robot:
             )
         self.joint_indices = [joint.index for joint in self.joints]
         self._child_indices = [g.index for g in self.geometry if g.index >= 0]
-        self.lower = np.array([joint.lower for joint in self.joints])
-        self.upper = np.array([joint.upper for joint in self.joints])
-        self._half_span = [(joint.upper - joint.lower) / 2 for joint in self.joints]
-        self._mid = [(joint.upper + joint.lower) / 2 for joint in self.joints]
-        self._inv_half = [2.0 / (joint.upper - joint.lower) for joint in self.joints]
-        self._inv_velocity = [1.0 / joint.velocity for joint in self.joints]
-        self.efforts = [joint.effort for joint in self.joints]
+        self._scale_joints()
         self._constants = [g.constants() for g in self.geometry]
         self._link_slot = {g.index: k for k, g in enumerate(self.geometry)}
         self.spawn = spawn_pose(model.kinematics, lay_down=model.lay_down, fixed_base=fixed_base)
@@ -285,20 +232,6 @@ class Robot:
 
     # ---------------------------------------------------------------- stepping
 
-    @property
-    def joint_count(self) -> int:
-        return len(self.joints)
-
-    def observation_size(self) -> int:
-        """Joint positions and velocities; for a free base its tilt, height and the links'
-        heights; one ground-contact flag per link where contacts are read."""
-        size = 2 * len(self.joints)
-        if not self.fixed_base:
-            size += 4 + len(self.geometry)
-        if self.reads_contacts:
-            size += len(self.geometry)
-        return size
-
     def reset(self, start: np.ndarray) -> Snapshot:
         """Back to the placed pose with the joints at ``start`` (clipped to their limits),
         holding there."""
@@ -309,16 +242,6 @@ class Robot:
             pybullet.resetJointState(self.body, joint.index, float(angle), 0.0, cid)
         self._command(start.tolist())
         return self.read()
-
-    def targets(self, action: np.ndarray) -> list[float]:
-        """Joint position targets: the action in [-1, 1] mapped onto [lower, upper]."""
-        values = action.tolist() if isinstance(action, np.ndarray) else list(action)
-        if len(values) != len(self._mid):
-            raise ValueError(f"expected {len(self._mid)} joint targets, got {len(values)}")
-        return [
-            mid + (1.0 if a > 1.0 else -1.0 if a < -1.0 else a) * half
-            for a, mid, half in zip(values, self._mid, self._half_span, strict=True)
-        ]
 
     def motor_meter(self) -> MotorMeter:
         """A new meter of this robot's motors (see :class:`MotorMeter`)."""
@@ -367,54 +290,3 @@ class Robot:
             self.geometry,
             self._constants,
         )
-
-    def observe(self, snapshot: Snapshot) -> list[float]:
-        """The robot's own senses, in the order of :meth:`observation_size`."""
-        values = [
-            (q - mid) * inv
-            for q, mid, inv in zip(snapshot.q, self._mid, self._inv_half, strict=True)
-        ]
-        values += [qd * inv for qd, inv in zip(snapshot.qd, self._inv_velocity, strict=True)]
-        if not self.fixed_base:
-            # A fixed base never moves: its pose and its links' heights (functions of the
-            # joint angles) would add nothing.
-            pose = snapshot.poses[0]
-            x, y, z, w = pose[POSE_ORIENTATION]
-            # World +z seen from the root frame: the body's tilt.
-            values += (2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
-            values.append(pose[POSE_POSITION][2])
-            values += snapshot.centre_z
-        if self.reads_contacts:
-            values += snapshot.touching
-        return values
-
-    def link_index(self, name: str) -> int:
-        """The index ``k`` of a link (a design's instance name, or a URDF's link name) in
-        the snapshot's arrays and ``geometry``; KeyError naming it if there is none."""
-        try:
-            return self.link_names.index(name)
-        except ValueError:
-            raise KeyError(f"the robot has no link named {name!r}") from None
-
-    def link_position(self, name: str) -> int:
-        """Deprecated alias of :meth:`link_index` (it returns an index, not a position),
-        kept for one release."""
-        warnings.warn(
-            "Robot.link_position is deprecated: it returns an index, use Robot.link_index",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return self.link_index(name)
-
-    def camera(
-        self, snapshot: Snapshot, also: Sequence[Sequence[float]] = ()
-    ) -> tuple[np.ndarray, float]:
-        """Where a camera should look to frame the whole robot and the points ``also``,
-        and from how far."""
-        points = np.array(
-            [snapshot.centre(k) for k in range(len(self.geometry))] + [list(p) for p in also]
-        )
-        extent = float(np.ptp(points, axis=0).max()) + max(
-            (g.length for g in self.geometry), default=0.4
-        )
-        return points.mean(axis=0), max(1.0, 1.6 * extent)

@@ -1,4 +1,5 @@
-"""The simulator: one PyBullet DIRECT client, its ground, its clock and its camera.
+"""The PyBullet simulator: one DIRECT client, its ground, its clock and its camera (the
+default engine of :mod:`adworker.tasks.engine`).
 
 Every env owns one :class:`Simulator` (no global PyBullet state; ``close()``
 disconnects it), so envs in one process never share a world. The robot and the task
@@ -12,21 +13,36 @@ on every control step, where building a named tuple would cost more than the rea
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
 import pybullet
 
-GROUND_FRICTION = 1.0
-CONTACT_SLACK = 0.002
-"""A link touches the ground when the engine reports a contact closer than this (m)."""
+from adworker.tasks.engine import CONTACT_SLACK, GROUND_FRICTION, Camera, EngineSimulator
+from adworker.tasks.snapshot import POSE_ORIENTATION, POSE_POSITION
 
-# Positions in the tuples PyBullet returns on every control step.
-POSE_POSITION = 0
-"""getBasePositionAndOrientation, getLinkState(s): the inertial frame's world position."""
-POSE_ORIENTATION = 1
-"""... and its world orientation, a quaternion (x, y, z, w)."""
+__all__ = [
+    "BODY_BASE_NAME",
+    "CAMERA_RGBA",
+    "CONTACT_DISTANCE",
+    "CONTACT_LINK_A",
+    "CONTACT_SLACK",
+    "GROUND_FRICTION",
+    "JOINT_STATE_MOTOR_TORQUE",
+    "JOINT_STATE_POSITION",
+    "JOINT_STATE_VELOCITY",
+    "POSE_ORIENTATION",
+    "POSE_POSITION",
+    "Camera",
+    "DynamicsInfo",
+    "JointInfo",
+    "Simulator",
+]
+
+# Positions in the tuples PyBullet returns on every control step (also POSE_POSITION and
+# POSE_ORIENTATION: getBasePositionAndOrientation's and getLinkState(s)'s answers, the
+# inertial frame's world pose).
 JOINT_STATE_POSITION = 0
 JOINT_STATE_VELOCITY = 1
 JOINT_STATE_MOTOR_TORQUE = 3
@@ -81,51 +97,20 @@ class DynamicsInfo(NamedTuple):
     collision_margin: float
 
 
-class Camera(NamedTuple):
-    """A camera as PyBullet takes it (view and projection matrices, column-major) and
-    the size of its pictures."""
-
-    view: tuple[float, ...]
-    projection: tuple[float, ...]
-    width: int
-    height: int
-
-    def pixel(self, point: Sequence[float]) -> tuple[float, float] | None:
-        """Where the world point ``point`` appears in this camera's pictures: (column,
-        row) from the top-left corner, in pixels (outside the picture when out of
-        view), or None when it is behind the camera."""
-        view = np.reshape(self.view, (4, 4), order="F")
-        projection = np.reshape(self.projection, (4, 4), order="F")
-        clip = projection @ view @ np.array([*point, 1.0], dtype=float)
-        if clip[3] <= 0.0:
-            return None
-        x, y = clip[0] / clip[3], clip[1] / clip[3]
-        return (x + 1.0) / 2.0 * self.width, (1.0 - y) / 2.0 * self.height
-
-
-class Simulator:
+class Simulator(EngineSimulator):
     """A PyBullet DIRECT client with gravity, a ground plane and a fixed control period.
 
     One control step is ``frame_skip`` physics steps of ``time_step`` seconds.
     """
 
     def __init__(self, *, time_step: float, frame_skip: int) -> None:
-        if frame_skip < 1 or time_step <= 0:
-            raise ValueError("frame_skip >= 1 and time_step > 0 required")
-        self.time_step = time_step
-        self.frame_skip = frame_skip
-        self.physics_steps = 0
+        super().__init__(time_step=time_step, frame_skip=frame_skip)
         self.client = pybullet.connect(pybullet.DIRECT)
         try:
             self.ground = self._build_world()
         except BaseException:
             self.close()
             raise
-
-    @property
-    def control_period(self) -> float:
-        """Seconds of simulated time per control step."""
-        return self.time_step * self.frame_skip
 
     def _build_world(self) -> int:
         cid = self.client

@@ -13,14 +13,18 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pybullet
 
-from adworker.tasks.simulator import POSE_ORIENTATION, POSE_POSITION
+# Positions in a pose, as every engine's snapshot holds it (PyBullet's own answers).
+POSE_POSITION = 0
+"""A pose's world position (of the link's centre of mass)."""
+POSE_ORIENTATION = 1
+"""... and its world orientation, a quaternion (x, y, z, w)."""
 
 
 @dataclass
 class LinkGeometry:
-    """One link's collision shape, as points in the link's *inertial* frame.
+    """One link's collision shape, as points in the link's *pose frame* (see
+    ``Snapshot.poses``: PyBullet's inertial frame).
 
     A cylinder is its axis segment ``p0 -> p1`` plus ``radius`` (its rim about
     ``axis``); a box is its eight corners (``radius`` 0); a sphere or capsule is its
@@ -29,7 +33,7 @@ class LinkGeometry:
 
     name: str
     index: int
-    """The engine's link index (-1: the base)."""
+    """The engine's link index (PyBullet's: -1 for the base; MuJoCo's: the body id)."""
     kind: str
     centre: np.ndarray
     points: np.ndarray
@@ -37,7 +41,7 @@ class LinkGeometry:
     length: float
     mass: float
     axis: np.ndarray
-    """The link's long axis in the inertial frame: a design link's frame +z, a URDF
+    """The link's long axis in the pose frame: a design link's frame +z, a URDF
     cylinder's or capsule's own axis, a box's longest side."""
     ball: float = 0.0
 
@@ -76,7 +80,9 @@ class Snapshot:
         self.qd = qd
         self.poses = poses
         """Per link, the engine's pose answer: ``POSE_POSITION`` and ``POSE_ORIENTATION``
-        (xyzw) of the link's inertial frame, in world."""
+        (xyzw) of the link's *pose frame*, in world: a frame at its centre of mass, in
+        which its ``geometry`` is given (PyBullet's: the inertial frame; MuJoCo's: the
+        link frame's axes moved to the centre of mass)."""
         self.touching = touching
         """The engine reports a contact between the link and the ground."""
         self.geometry = geometry
@@ -84,11 +90,11 @@ class Snapshot:
         self._axes: dict[int, tuple[float, float, float]] = {}
 
     def position(self, k: int) -> tuple[float, float, float]:
-        """World position of link k's inertial frame (its centre of mass)."""
+        """World position of link k's centre of mass (its pose frame's origin)."""
         return self.poses[k][POSE_POSITION]
 
     def orientation(self, k: int) -> tuple[float, float, float, float]:
-        """World orientation (xyzw) of link k's inertial frame."""
+        """World orientation (xyzw) of link k's pose frame."""
         return self.poses[k][POSE_ORIENTATION]
 
     @functools.cached_property
@@ -147,7 +153,7 @@ class Snapshot:
         return self._extent[1]
 
     def rotation(self, k: int) -> np.ndarray:
-        return np.reshape(pybullet.getMatrixFromQuaternion(self.orientation(k)), (3, 3))
+        return quaternion_matrix(self.orientation(k))
 
     def centre(self, k: int) -> np.ndarray:
         """World position of link k's shape centre."""
@@ -170,3 +176,17 @@ class Snapshot:
             2.0 * (xy + wz) * ax + (1.0 - 2.0 * (xx + zz)) * ay + 2.0 * (yz - wx) * az,
             2.0 * (xz - wy) * ax + 2.0 * (yz + wx) * ay + (1.0 - 2.0 * (xx + yy)) * az,
         )
+
+
+def quaternion_matrix(quaternion: tuple[float, float, float, float]) -> np.ndarray:
+    """The rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = quaternion
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    return np.array(
+        [
+            [1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)],
+            [2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)],
+            [2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)],
+        ]
+    )

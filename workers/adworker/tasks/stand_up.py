@@ -16,8 +16,7 @@ from typing import ClassVar
 
 from adclient.builtin_tasks import StandUpOptions
 from adworker.tasks.base import Task
-from adworker.tasks.robot import Robot
-from adworker.tasks.simulator import Simulator
+from adworker.tasks.engine import EngineRobot, EngineSimulator
 from adworker.tasks.snapshot import Snapshot
 
 
@@ -25,7 +24,7 @@ class StandUp(Task[StandUpOptions]):
     name: ClassVar[str] = "stand-up"
     fixed_base: ClassVar[bool] = False
 
-    def __init__(self, robot: Robot, sim: Simulator, options: StandUpOptions) -> None:
+    def __init__(self, robot: EngineRobot, sim: EngineSimulator, options: StandUpOptions) -> None:
         super().__init__(robot, sim, options)
         self.lifted = robot.link_index(options.lifted_link)
         self.feet = [robot.link_index(name) for name in options.feet_links]

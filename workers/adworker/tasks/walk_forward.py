@@ -22,8 +22,7 @@ from typing import ClassVar
 
 from adclient.builtin_tasks import WalkForwardOptions
 from adworker.tasks.base import Task
-from adworker.tasks.robot import Robot
-from adworker.tasks.simulator import Simulator
+from adworker.tasks.engine import EngineRobot, EngineSimulator
 from adworker.tasks.snapshot import Snapshot
 
 
@@ -31,7 +30,9 @@ class WalkForward(Task[WalkForwardOptions]):
     name: ClassVar[str] = "walk-forward"
     fixed_base: ClassVar[bool] = False
 
-    def __init__(self, robot: Robot, sim: Simulator, options: WalkForwardOptions) -> None:
+    def __init__(
+        self, robot: EngineRobot, sim: EngineSimulator, options: WalkForwardOptions
+    ) -> None:
         super().__init__(robot, sim, options)
         self.gait_period = options.gait_period
         total = sum(g.mass for g in robot.geometry)

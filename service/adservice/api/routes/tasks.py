@@ -1,5 +1,5 @@
 """The installed tasks: what a study may name, each with its options' JSON schema and
-how it holds its robot."""
+how it holds its robot and the engines it runs on."""
 
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ def _tasks() -> list[TaskInfo]:
             options_schema=spec.options.model_json_schema(),
             fixed_base=spec.fixed_base,
             templates=spec.templates,
+            simulators=list(spec.simulators),
         )
         for name, spec in sorted(catalogue().tasks.items())
     ]
