@@ -97,6 +97,7 @@ PRELOAD = {
         "torch",
         "torch._dynamo",  # torch.optim imports it at a learner's first optimizer: 1.7 s
         "pybullet",
+        "adworker.tasks.mujoco_engine",  # mujoco, for a study's task.simulator: mujoco
     ),
     "adclient": ("adclient.cli",),
 }

@@ -11,15 +11,17 @@ The world is the URDF the PyBullet path loads (a design's, or a template's own),
   takes the task's rolling and spinning friction, as PyBullet's ``changeDynamics``;
 - a free joint at the root of a free robot, set down where ``adclient.spawn`` says;
   a fixed-base robot's root welded where its URDF puts it;
-- a position servo on every driven joint, its force capped at the joint's effort as
-  PyBullet's motor is. PyBullet's motor drives the joint's velocity towards
-  ``0.1 / time_step`` times its position error (its default position gain), whatever
-  force (within the effort) that takes; the servo here is the PD law that approaches
-  its target at that same rate (``kv = kp * time_step / 0.1``), with ``kp`` the
-  effort over ``SERVO_FULL_EFFORT_ERROR``: under a steady load it holds within that
-  error where PyBullet's holds exactly. PyBullet also caps the approach at the joint's
-  velocity limit; MuJoCo's servo has no such cap (a fast target is reached as fast as
-  the effort allows);
+- a servo on every driven joint that moves as PyBullet's position-controlled motor
+  does, its force capped at the joint's effort. PyBullet's motor drives the joint's
+  velocity towards ``0.1 / time_step`` times its position error (its default position
+  gain), capped at the joint's velocity limit, with whatever force (within the effort)
+  that takes. Here each joint's servo (MuJoCo's ``intvelocity``) follows a setpoint
+  that moves, over each control step, at that same rate towards the action's target
+  (the exponential approach over the step), capped at the joint's velocity limit; a
+  PD spring (``kp`` the effort over ``SERVO_FULL_EFFORT_ERROR``, damping
+  ``SERVO_DAMPING_STEPS`` time steps) pulls the joint to the setpoint. Under a steady
+  load it holds within that spring's give where PyBullet's holds exactly (stand-up's
+  arch bent to 1.41 rad holds at 1.39);
 - the same time step, ``frame_skip`` and gravity; MuJoCo's ``implicitfast`` integrator
   (the servo's damping integrated implicitly, stable at a 120 Hz step).
 
@@ -38,6 +40,7 @@ and need no OpenGL on the worker.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -58,9 +61,13 @@ from adworker.tasks.engine import (
 from adworker.tasks.model import RobotModel
 from adworker.tasks.snapshot import LinkGeometry, Snapshot
 
-SERVO_FULL_EFFORT_ERROR = 0.05
-"""Position error (rad, or m for a prismatic joint) at which a servo's spring alone
-reaches the joint's effort."""
+SERVO_FULL_EFFORT_ERROR = 0.2
+"""Position error (rad, or m for a prismatic joint) from its setpoint at which a
+servo's spring alone reaches the joint's effort (stiffer servos ring on light legs at a
+120 Hz step)."""
+SERVO_DAMPING_STEPS = 2.0
+"""The servo's damping over its stiffness, in time steps (``kv = kp * 2 * time_step``):
+it follows its moving setpoint about this far behind."""
 PYBULLET_POSITION_GAIN = 0.1
 """PyBullet's default position gain: its motor's velocity target is this times the
 error per time step."""
@@ -233,6 +240,11 @@ class MujocoRobot(EngineRobot):
         self._qadr = np.array([compiled.jnt_qposadr[j.index] for j in self.joints])
         self._dadr = np.array([compiled.jnt_dofadr[j.index] for j in self.joints])
         self._ctrl = np.array([compiled.actuator(j.name).id for j in self.joints])
+        self._setpoint = np.array([compiled.actuator_actadr[k] for k in self._ctrl])
+        self._speed = np.array([j.velocity for j in self.joints])
+        rate = PYBULLET_POSITION_GAIN / sim.time_step
+        period = sim.control_period
+        self._approach = (1.0 - math.exp(-rate * period)) / period
         self._scale_joints()
         self._constants = [g.constants() for g in self.geometry]
         self._links = len(self.geometry)
@@ -310,7 +322,9 @@ class MujocoRobot(EngineRobot):
             servo.name = joint.name
             servo.target = joint.name
             servo.trntype = mujoco.mjtTrn.mjTRN_JOINT
-            servo.set_to_position(kp=kp, kv=kp * time_step / PYBULLET_POSITION_GAIN)
+            servo.set_to_intvelocity(kp=kp, kv=kp * SERVO_DAMPING_STEPS * time_step)
+            servo.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            servo.actrange = (joint.lower, joint.upper)
             servo.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
             servo.forcerange = (-joint.effort, joint.effort)
         return spec
@@ -361,7 +375,7 @@ class MujocoRobot(EngineRobot):
         data.qpos[:] = self._placed
         start = np.clip(start, self.lower, self.upper)
         data.qpos[self._qadr] = start
-        data.ctrl[self._ctrl] = start
+        data.act[self._setpoint] = start
         mujoco.mj_forward(model, data)
         return self.read()
 
@@ -369,7 +383,10 @@ class MujocoRobot(EngineRobot):
         return MujocoMeter(self.sim, self._ctrl.tolist(), self._dadr.tolist())
 
     def act(self, action: np.ndarray) -> None:
-        self.sim.data.ctrl[self._ctrl] = self.targets(action)
+        data = self.sim.data
+        setpoint = data.act[self._setpoint]
+        speed = self._approach * (np.array(self.targets(action)) - setpoint)
+        data.ctrl[self._ctrl] = np.clip(speed, -self._speed, self._speed)
 
     def read(self) -> Snapshot:
         model, data = self.sim.model, self.sim.data
