@@ -279,3 +279,61 @@ def test_a_picture_of_the_robot_on_either_engine(engine_env, engine: str) -> Non
     # the robot is in it: colours other than the ground's grey and the sky's white
     coloured = np.abs(image.astype(int) - image.mean(axis=2, keepdims=True)).max(axis=2) > 40
     assert coloured.sum() > 200
+
+
+def template_env(task: Any, urdf: str, tmp_path: Path, engine: str, options: Any) -> Any:
+    """A template's robot (its URDF alone, ``design`` None) on ``engine``."""
+    path = tmp_path / f"template-{engine}.urdf"
+    path.write_text(urdf)
+    return task.make_env(design=None, urdf_path=path, options=options, simulator=engine)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_a_templates_urdf_builds_the_same_robot_on_either_engine(tmp_path, engine: str) -> None:
+    from adclient.plugins import SimulatorOptions
+    from adclient.templates import expand
+    from adworker.tasks.lift_highest import LiftHighest
+    from tests.workers.test_templates_physics import ARM, VALUES
+
+    env = template_env(
+        LiftHighest, expand(ARM.read_text(), VALUES), tmp_path, engine, SimulatorOptions()
+    )
+    try:
+        robot = env.robot
+        assert [joint.name for joint in robot.joints] == ["shoulder", "elbow"]  # wrist: fixed
+        assert robot.link_names == ["foot", "upper_arm", "forearm", "hand"]
+        env.reset(seed=0)
+        snapshot = env.snapshot()
+        assert min(snapshot.bottom) == pytest.approx(0.0, abs=0.002)  # set down on the ground
+        hand = robot.link_index("hand")
+        assert snapshot.position(hand)[0] == pytest.approx(0.08 + 0.2 + 0.15, abs=1e-3)
+        rest = max(snapshot.top)
+        for _ in range(60):  # shoulder up: the arm lifts what its motor can
+            env.step(np.array([1.0, 0.0], dtype=np.float32))
+        assert max(env.snapshot().top) > rest + 0.05
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_prismatic_and_continuous_joints_on_either_engine(tmp_path, engine: str) -> None:
+    from adclient.builtin_tasks import DiagonalGestureOptions
+    from adworker.tasks.diagonal_gesture import DiagonalGesture
+    from tests.workers.test_templates_physics import SLIDER
+
+    options = DiagonalGestureOptions(init_noise=0.0)
+    env = template_env(DiagonalGesture, SLIDER, tmp_path, engine, options)
+    try:
+        carriage = env.robot.link_index("carriage")
+        env.reset(seed=0)
+        start = env.snapshot()
+        for _ in range(40):  # lift to the top of the rail (metres), spin half round
+            env.step(np.array([1.0, 0.5], dtype=np.float32))
+        end = env.snapshot()
+        assert end.q[0] == pytest.approx(0.3, abs=0.01)
+        assert end.position(carriage)[2] - start.position(carriage)[2] == pytest.approx(
+            0.3, abs=0.01
+        )
+        assert end.q[1] == pytest.approx(np.pi / 2, abs=0.05)
+    finally:
+        env.close()

@@ -18,8 +18,9 @@ The world is the URDF the PyBullet path loads (a design's, or a template's own),
   that takes. Here each joint's servo (MuJoCo's ``intvelocity``) follows a setpoint
   that moves, over each control step, at that same rate towards the action's target
   (the exponential approach over the step), capped at the joint's velocity limit; a
-  PD spring (``kp`` the effort over ``SERVO_FULL_EFFORT_ERROR``, damping
-  ``SERVO_DAMPING_STEPS`` time steps) pulls the joint to the setpoint. Under a steady
+  PD spring (``kp`` the effort over ``SERVO_FULL_EFFORT_ERROR`` or a tenth of the
+  joint's range, whichever is less, damping ``SERVO_DAMPING_STEPS`` time steps) pulls
+  the joint to the setpoint. Under a steady
   load it holds within that spring's give where PyBullet's holds exactly (stand-up's
   arch bent to 1.41 rad holds at 1.39);
 - the same time step, ``frame_skip`` and gravity; MuJoCo's ``implicitfast`` integrator
@@ -65,6 +66,9 @@ SERVO_FULL_EFFORT_ERROR = 0.2
 """Position error (rad, or m for a prismatic joint) from its setpoint at which a
 servo's spring alone reaches the joint's effort (stiffer servos ring on light legs at a
 120 Hz step)."""
+SERVO_RANGE_FRACTION = 0.1
+"""... or this fraction of the joint's range where that is less (a prismatic joint's
+range is metres: a 0.3 m rail's servo reaches its effort 3 cm off)."""
 SERVO_DAMPING_STEPS = 2.0
 """The servo's damping over its stiffness, in time steps (``kv = kp * 2 * time_step``):
 it follows its moving setpoint about this far behind."""
@@ -317,7 +321,8 @@ class MujocoRobot(EngineRobot):
         for joint in model.joints:
             if not joint.driven:
                 continue
-            kp = joint.effort / SERVO_FULL_EFFORT_ERROR
+            give = min(SERVO_FULL_EFFORT_ERROR, SERVO_RANGE_FRACTION * (joint.upper - joint.lower))
+            kp = joint.effort / give
             servo = spec.add_actuator()
             servo.name = joint.name
             servo.target = joint.name
