@@ -1,0 +1,181 @@
+"""Engines (issue 59): control steps per CPU-second of each simulator on the same design,
+random actions (the limit a learner could reach) and stable-baselines3 PPO with one env
+as the worker configures it (today's baseline arm), in one run on one core.
+
+    python bench/engines.py [--tasks stand-up,walk-forward] [--steps 3000] \\
+        [--ppo-steps 4096] [--core 0] [--json FILE]
+
+Per task and engine: ``random``, control steps per CPU-second of ``env.step`` with a new
+uniform random action each step (resets counted, as an episode's end needs one); and,
+unless ``--ppo-steps 0``, ``ppo``, env steps per CPU-second of the ``ppo`` learner's
+``train`` (adworker.learners, the worker's PPO: its first training in the process is
+left out of the figure, as torch's set-up is a worker's once). Each is the process's CPU
+time, one thread (``OMP_NUM_THREADS=1``, torch on one thread), the process pinned to
+``--core``. Designs: stand-up's arch of three 0.4 m links (bench/shared_policy.py's
+``make_env('stand-up', 0)``), walk-forward's quadruped of examples/quadruped.yaml (its
+searched lengths at 0.2 m, its axes across the body), lift-highest's chain of four.
+
+Prints a table and one ``BENCH`` line per figure (``bench/compare.py``); ``--json``
+writes the rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from adclient.testing.figures import emit  # noqa: E402
+
+ENGINES = ("pybullet", "mujoco")
+TASKS = ("stand-up", "walk-forward", "lift-highest")
+HALF_PI = 1.5707963267948966
+
+
+def design_of(task: str) -> Any:
+    from adworker import designs
+
+    if task == "stand-up":
+        return designs.arch_chain()
+    if task == "lift-highest":
+        return designs.tree_design(
+            [("a", "b"), ("b", "c"), ("c", "d")],
+            {"b": (HALF_PI, HALF_PI), "c": (HALF_PI, HALF_PI), "d": (HALF_PI, 0.0)},
+            length=0.4,
+        )
+    return quadruped()
+
+
+def quadruped() -> Any:
+    """examples/quadruped.yaml's robot, its searched specs at mid-range."""
+    import yaml
+
+    from adclient.decode import decode, identity_representation
+    from adclient.encode import encode
+    from adclient.schemas import StudyCreate
+
+    study = StudyCreate.model_validate(
+        yaml.safe_load((ROOT / "examples" / "quadruped.yaml").read_text())
+    )
+    specs = {
+        "front_left.length": 0.2,
+        "front_left_shin.length": 0.2,
+        "front_left.joint.axis_theta": HALF_PI,
+        "front_left.joint.axis_phi": HALF_PI,
+        "front_left_shin.joint.axis_theta": HALF_PI,
+        "front_left_shin.joint.axis_phi": HALF_PI,
+    }
+    representation = identity_representation(study.space)
+    return decode(study.space, representation, encode(study.space, representation, specs))
+
+
+def make_env(task: str, engine: str, folder: Path) -> Any:
+    from adclient.plugins import catalogue
+    from adclient.urdf import design_to_urdf
+
+    design = design_of(task)
+    path = folder / f"{task}-{engine}.urdf"
+    path.write_text(design_to_urdf(design, robot_name="robot"))
+    spec = catalogue().task(task)
+    return spec.load_factory()(
+        design=design, urdf_path=path, options=spec.options(), simulator=engine
+    )
+
+
+def random_rate(env: Any, steps: int) -> float:
+    """Control steps per CPU-second with random actions, resets included."""
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps, env.action_space.shape[0])).astype(np.float32)
+    env.reset(seed=0)
+    started = time.process_time()
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+    return steps / (time.process_time() - started)
+
+
+def ppo_rate(env: Any, steps: int) -> float:
+    """The worker's PPO: env steps per CPU-second of one ``train``."""
+    from adclient.plugins import catalogue
+
+    learner = catalogue().learner("ppo").load_factory()(None)
+    started = time.process_time()
+    trained = learner.train(env, steps=steps, seed=0)
+    seconds = time.process_time() - started
+    return trained.train_steps / seconds
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tasks", default="stand-up,walk-forward")
+    parser.add_argument("--steps", type=int, default=3000, help="random-action control steps")
+    parser.add_argument("--ppo-steps", type=int, default=4096, help="0: no PPO arm")
+    parser.add_argument("--core", type=int, default=0)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    tasks = args.tasks.split(",")
+    unknown = [task for task in tasks if task not in TASKS]
+    if unknown:
+        parser.error(f"unknown task(s) {', '.join(unknown)} (tasks: {', '.join(TASKS)})")
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {args.core})
+    import torch
+
+    torch.set_num_threads(1)
+    rows = []
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = Path(scratch)
+        if args.ppo_steps:  # torch's and the learner's first-use set-up, left out
+            warm = make_env("stand-up", "pybullet", folder)
+            ppo_rate(warm, 512)
+            warm.close()
+        for task in tasks:
+            for engine in ENGINES:
+                env = make_env(task, engine, folder)
+                try:
+                    row = {
+                        "task": task,
+                        "engine": engine,
+                        "joints": env.joint_count,
+                        "frame_skip": env.options.frame_skip,
+                        "random": random_rate(env, args.steps),
+                    }
+                    if args.ppo_steps:
+                        row["ppo"] = ppo_rate(env, args.ppo_steps)
+                finally:
+                    env.close()
+                rows.append(row)
+    print(f"{'task':<14} {'engine':<9} {'random steps/CPU-s':>19} {'PPO steps/CPU-s':>16}")
+    for row in rows:
+        ppo = f"{row['ppo']:>16,.0f}" if "ppo" in row else f"{'-':>16}"
+        print(f"{row['task']:<14} {row['engine']:<9} {row['random']:>19,.0f} {ppo}")
+    for task in tasks:
+        by_engine = {row["engine"]: row for row in rows if row["task"] == task}
+        for arm in ("random", "ppo"):
+            if arm not in by_engine["pybullet"]:
+                continue
+            for engine, row in by_engine.items():
+                emit(f"{task}.{engine}.{arm}", row[arm], higher_is_better=True, unit="steps/CPU-s")
+            ratio = by_engine["mujoco"][arm] / by_engine["pybullet"][arm]
+            print(f"{task}: mujoco / pybullet, {arm}: {ratio:.2f}x")
+            emit(f"{task}.mujoco_over_pybullet.{arm}", ratio, higher_is_better=True, unit="x")
+    if args.json is not None:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

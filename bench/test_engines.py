@@ -1,0 +1,38 @@
+"""bench/engines.py, run as a program on a short budget: a figure per engine and arm, and
+the ratio of the two engines', as BENCH lines bench/compare.py reads."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_bench_reports_each_engines_rate_and_their_ratio(tmp_path: Path) -> None:
+    rows_file = tmp_path / "rows.json"
+    done = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "bench" / "engines.py"), "--tasks", "stand-up",
+         "--steps", "64", "--ppo-steps", "256", "--json", str(rows_file)],
+        cwd=REPO_ROOT, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    figures = {}
+    for line in done.stdout.splitlines():
+        if line.startswith("BENCH "):
+            figure = json.loads(line.removeprefix("BENCH "))
+            figures[figure["metric"]] = figure["value"]
+    for engine in ("pybullet", "mujoco"):
+        for arm in ("random", "ppo"):
+            assert figures[f"stand-up.{engine}.{arm}"] > 0
+    for arm in ("random", "ppo"):
+        ratio = figures[f"stand-up.mujoco.{arm}"] / figures[f"stand-up.pybullet.{arm}"]
+        assert figures[f"stand-up.mujoco_over_pybullet.{arm}"] == ratio
+    rows = json.loads(rows_file.read_text())
+    assert [(row["task"], row["engine"]) for row in rows] == [
+        ("stand-up", "pybullet"),
+        ("stand-up", "mujoco"),
+    ]
+    assert all(row["frame_skip"] == 12 and row["joints"] == 2 for row in rows)
