@@ -3,7 +3,7 @@ random actions (the limit a learner could reach) and stable-baselines3 PPO with 
 as the worker configures it (today's baseline arm), in one run on one core.
 
     python bench/engines.py [--tasks stand-up,walk-forward] [--steps 3000] \\
-        [--ppo-steps 4096] [--core 0] [--json FILE]
+        [--ppo-steps 4096] [--agree 0] [--core 0] [--json FILE]
 
 Per task and engine: ``random``, control steps per CPU-second of ``env.step`` with a new
 uniform random action each step (resets counted, as an episode's end needs one); and,
@@ -14,6 +14,11 @@ time, one thread (``OMP_NUM_THREADS=1``, torch on one thread), the process pinne
 ``--core``. Designs: stand-up's arch of three 0.4 m links (bench/shared_policy.py's
 ``make_env('stand-up', 0)``), walk-forward's quadruped of examples/quadruped.yaml (its
 searched lengths at 0.2 m, its axes across the body), lift-highest's chain of four.
+
+``--agree N``: N random designs of stand-up (examples/stand-up.yaml's space) and of
+lift-highest (examples/multi-structure.yaml's, several trees), each scored with the
+``fast`` learner on both engines as the worker scores it; Spearman's rank correlation of
+the two engines' scores, per task.
 
 Prints a table and one ``BENCH`` line per figure (``bench/compare.py``); ``--json``
 writes the rows.
@@ -118,11 +123,73 @@ def ppo_rate(env: Any, steps: int) -> float:
     return trained.train_steps / seconds
 
 
+AGREEMENT_STUDIES = {"stand-up": "stand-up", "lift-highest": "multi-structure"}
+"""The example study whose space the agreement arm draws a task's designs from."""
+
+
+def random_designs(task: str, count: int, seed: int) -> list[Any]:
+    """``count`` designs drawn uniformly from the task's example space."""
+    import yaml
+
+    from adclient.decode import decode, identity_representation, onehot_representation
+    from adclient.schemas import StudyCreate
+
+    path = ROOT / "examples" / f"{AGREEMENT_STUDIES[task]}.yaml"
+    space = StudyCreate.model_validate(yaml.safe_load(path.read_text())).space
+    several = len(space.structures) > 1
+    representation = (onehot_representation if several else identity_representation)(space)
+    rng = np.random.default_rng(seed)
+    size = len(representation.bounds[0])
+    return [decode(space, representation, rng.uniform(0, 1, size).tolist()) for _ in range(count)]
+
+
+def fast_score(task: str, design: Any, engine: str, folder: Path) -> float:
+    """The worker's score of ``design`` with the ``fast`` learner (its default budget,
+    three evaluation episodes)."""
+    from adclient.plugins import catalogue
+    from adclient.urdf import design_to_urdf
+    from adworker.learners import evaluate_policy
+
+    path = folder / f"agree-{engine}.urdf"
+    path.write_text(design_to_urdf(design, robot_name="robot"))
+    spec = catalogue().task(task)
+    env = spec.load_factory()(
+        design=design, urdf_path=path, options=spec.options(), simulator=engine
+    )
+    try:
+        learner = catalogue().learner("fast").load_factory()(None)
+        trained = learner.train(env, steps=learner.default_steps, seed=0)
+        episodes = evaluate_policy(env, trained.policy, [1000, 1001, 1002])
+    finally:
+        env.close()
+    return float(np.mean([episode.score for episode in episodes]))
+
+
+def agreement(task: str, count: int, folder: Path) -> dict[str, Any]:
+    """Spearman's rank correlation of the two engines' fast-learner scores of ``count``
+    random designs of the task."""
+    from scipy.stats import spearmanr
+
+    scores: dict[str, list[float]] = {engine: [] for engine in ENGINES}
+    for design in random_designs(task, count, seed=59):
+        for engine in ENGINES:
+            scores[engine].append(fast_score(task, design, engine, folder))
+    rho = float(spearmanr(scores["pybullet"], scores["mujoco"]).statistic)
+    return {"task": task, "designs": count, "spearman": rho, "scores": scores}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", default="stand-up,walk-forward")
     parser.add_argument("--steps", type=int, default=3000, help="random-action control steps")
     parser.add_argument("--ppo-steps", type=int, default=4096, help="0: no PPO arm")
+    parser.add_argument(
+        "--agree",
+        type=int,
+        default=0,
+        help="random designs of stand-up and lift-highest scored with the fast learner on "
+        "both engines, for their rank correlation (0: none)",
+    )
     parser.add_argument("--core", type=int, default=0)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
@@ -158,6 +225,11 @@ def main() -> int:
                 finally:
                     env.close()
                 rows.append(row)
+        agreed = (
+            [agreement(task, args.agree, folder) for task in AGREEMENT_STUDIES]
+            if args.agree
+            else []
+        )
     print(f"{'task':<14} {'engine':<9} {'random steps/CPU-s':>19} {'PPO steps/CPU-s':>16}")
     for row in rows:
         ppo = f"{row['ppo']:>16,.0f}" if "ppo" in row else f"{'-':>16}"
@@ -172,8 +244,12 @@ def main() -> int:
             ratio = by_engine["mujoco"][arm] / by_engine["pybullet"][arm]
             print(f"{task}: mujoco / pybullet, {arm}: {ratio:.2f}x")
             emit(f"{task}.mujoco_over_pybullet.{arm}", ratio, higher_is_better=True, unit="x")
+    for agreed_task in agreed:
+        name, rho = agreed_task["task"], agreed_task["spearman"]
+        print(f"{name}: {agreed_task['designs']} random designs, fast learner, Spearman {rho:.3f}")
+        emit(f"{name}.agreement.spearman", rho, higher_is_better=True)
     if args.json is not None:
-        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        args.json.write_text(json.dumps({"rates": rows, "agreement": agreed}, indent=2) + "\n")
     return 0
 
 

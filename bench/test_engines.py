@@ -30,7 +30,7 @@ def test_the_bench_reports_each_engines_rate_and_their_ratio(tmp_path: Path) -> 
     for arm in ("random", "ppo"):
         ratio = figures[f"stand-up.mujoco.{arm}"] / figures[f"stand-up.pybullet.{arm}"]
         assert figures[f"stand-up.mujoco_over_pybullet.{arm}"] == ratio
-    rows = json.loads(rows_file.read_text())
+    rows = json.loads(rows_file.read_text())["rates"]
     assert [(row["task"], row["engine"]) for row in rows] == [
         ("stand-up", "pybullet"),
         ("stand-up", "mujoco"),
