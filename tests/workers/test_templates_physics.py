@@ -1,7 +1,8 @@
-"""A template's robot in real PyBullet (issue 28): a task's environment built from the
-URDF alone (no design) drives its revolute, prismatic and continuous joints, holds its
-fixed ones, reads box, cylinder, sphere, capsule and several-shape links where their
-origins put them, and sets a free robot down as built."""
+"""A template's robot in real PyBullet and real MuJoCo (issues 28, 59): a task's
+environment built from the URDF alone (no design) drives its revolute, prismatic and
+continuous joints, holds its fixed ones, reads box, cylinder, sphere, capsule and
+several-shape links where their origins put them, and sets a free robot down as built,
+alike on both engines."""
 
 from __future__ import annotations
 
@@ -48,16 +49,20 @@ SLIDER = """<robot name="slider">
 )
 
 
-def _env(task, urdf: str, tmp_path: Path, options):
+ENGINES = ("pybullet", "mujoco")
+
+
+def _env(task, urdf: str, tmp_path: Path, options, simulator: str = "pybullet"):
     path = tmp_path / "robot.urdf"
     path.write_text(urdf)
-    return task.make_env(design=None, urdf_path=path, options=options)
+    return task.make_env(design=None, urdf_path=path, options=options, simulator=simulator)
 
 
-def test_the_arm_template_is_built_from_its_urdf(tmp_path) -> None:
+@pytest.mark.parametrize("engine", ENGINES)
+def test_the_arm_template_is_built_from_its_urdf(tmp_path, engine: str) -> None:
     urdf = expand(ARM.read_text(), VALUES)
     model = read_urdf(urdf)
-    env = _env(LiftHighest, urdf, tmp_path, SimulatorOptions(init_noise=0.0))
+    env = _env(LiftHighest, urdf, tmp_path, SimulatorOptions(init_noise=0.0), engine)
     try:
         robot = env.robot
         assert [joint.name for joint in robot.joints] == ["shoulder", "elbow"]  # wrist: fixed
@@ -93,8 +98,10 @@ def test_a_link_without_inertial_weighs_what_pybullet_simulates(tmp_path) -> Non
         env.close()
 
 
-def test_prismatic_continuous_capsule_and_several_shapes(tmp_path) -> None:
-    env = _env(DiagonalGesture, SLIDER, tmp_path, DiagonalGestureOptions(init_noise=0.0))
+@pytest.mark.parametrize("engine", ENGINES)
+def test_prismatic_continuous_capsule_and_several_shapes(tmp_path, engine: str) -> None:
+    options = DiagonalGestureOptions(init_noise=0.0)
+    env = _env(DiagonalGesture, SLIDER, tmp_path, options, engine)
     try:
         robot = env.robot
         assert [(j.name, j.lower, j.upper) for j in robot.joints] == [
