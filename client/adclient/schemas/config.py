@@ -189,7 +189,10 @@ class NewTaskConfig(TaskConfig):
             raise ValueError(
                 f"{simulator!r} is not a simulator (simulators: {', '.join(SIMULATORS)})"
             )
-        spec = None if info.data.get("external") else catalogue().tasks.get(info.data.get("name"))
+        name = info.data.get("name")
+        spec = None
+        if isinstance(name, str) and not info.data.get("external"):
+            spec = catalogue().tasks.get(name)
         if spec is not None and simulator not in spec.simulators:
             raise ValueError(
                 f"task {spec.name!r} does not run on {simulator!r} (its simulators: "

@@ -144,7 +144,7 @@ class MujocoSimulator(EngineSimulator):
         self, target: np.ndarray, distance: float, width: int = 320, height: int = 240
     ) -> Camera:
         sim = self._picture_world()[0]
-        return sim.camera(target, distance, width, height)  # type: ignore[no-any-return]
+        return sim.camera(target, distance, width, height)
 
     def render(self, camera: Camera) -> np.ndarray:
         """The current pose drawn by PyBullet's software renderer (see the module
@@ -168,7 +168,7 @@ class MujocoSimulator(EngineSimulator):
             if index is not None:
                 angle = float(data.qpos[model.jnt_qposadr[j]])
                 pybullet.resetJointState(body, index, angle, 0.0, cid)
-        return sim.render(camera)  # type: ignore[no-any-return]
+        return sim.render(camera)
 
     @property
     def connected(self) -> bool:
