@@ -23,10 +23,12 @@ from adclient.pruning import (
     TrialReport,
 )
 from adclient.schemas import (
+    CURVE_ARTIFACT,
     MAX_TRIAL_PAGE,
     MAX_WORKER_PAGE,
     ArtifactInfo,
     AskResponse,
+    Curve,
     HeartbeatResponse,
     Job,
     LearnerInfo,
@@ -458,6 +460,12 @@ class ServerCalls(Transport):
         path or query)."""
         path = f"{API}/trials/{trial_id_of(trial)}/artifacts/{quote(name, safe='')}"
         return self.request("GET", path, headers={"Accept": "*/*"}).content
+
+    def trial_curve(self, trial: TrialRef) -> Curve:
+        """The trial's learning curve (its worker's ``curve.json``): the training points
+        and the evaluation episodes. NotFound without one; pydantic's ValidationError
+        for a file that is not a curve (a ``--function`` job may upload its own)."""
+        return Curve.model_validate_json(self.get_artifact(trial, CURVE_ARTIFACT))
 
     def artifacts(self, trial: TrialRef) -> list[ArtifactInfo]:
         """The trial's stored artifacts."""

@@ -5,7 +5,6 @@ other tasks alone."""
 
 from __future__ import annotations
 
-import json
 import signal
 from pathlib import Path
 from typing import Any
@@ -96,8 +95,8 @@ def test_function_workers_serve_their_tasks_only(
                 assert trial.metrics["x_squared"] == pytest.approx(x * x)
                 assert trial.metrics["time_total_s"] >= 0
                 assert client.get_artifact(trial, "note.txt") == f"x={x} seed=7".encode()
-                curve = json.loads(client.get_artifact(trial, "curve.json"))
-                assert curve == {"steps": [0, 1, 2], "y": [0.0, x, 2 * x]}
+                curve = client.trial_curve(trial)  # the SDK reads what the worker wrote
+                assert [(p.steps, p.score) for p in curve.train] == [(0, 0.0), (1, x), (2, 2 * x)]
 
             assert arm.wait(poll=0.2, timeout=PATIENCE).n_complete == 2, single.log()
             for trial in arm.trials:

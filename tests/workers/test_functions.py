@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from adclient.schemas import Job
+from adclient.schemas import Curve, Job
 from adworker.functions import FunctionJob, FunctionRunner
 from adworker.runner import Cancelled
 from tests.workers.robots import HALF_PI, make_job, stand_up_specs
@@ -92,7 +92,15 @@ def test_report_records_a_curve_and_stops_a_cancelled_job(runner_of, tmp_path: P
 
     outcome = runner_of(function)(box_job(0.0), tmp_path / "ok", lambda: None)
     curve = {artifact.name: artifact for artifact in outcome.artifacts}["curve.json"]
-    assert curve.data == b'{"steps":[0,10,20,30,40],"y":[0.0,0.5,1.0,1.5,2.0]}'
+    read = Curve.model_validate_json(curve.data)
+    assert [(point.steps, point.score) for point in read.train] == [
+        (0, 0.0),
+        (10, 0.5),
+        (20, 1.0),
+        (30, 1.5),
+        (40, 2.0),
+    ]
+    assert read.evaluation == [] and read.score is not None and "reported" in read.score
 
     calls: list[int] = []
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import functools
 import io
-import json
 import logging
 import math
 import time
@@ -43,8 +42,9 @@ from adclient.plugins import (
     learner_budget_problems,
 )
 from adclient.pruning import CHECKPOINT_ARTIFACT
-from adclient.schemas import SHARED_ARTIFACT, Job, TaskConfig, option_problems
+from adclient.schemas import CURVE_ARTIFACT, SHARED_ARTIFACT, Job, TaskConfig, option_problems
 from adworker import shared_weights
+from adworker.curves import evaluation_curve
 from adworker.job_robots import job_robot
 from adworker.learners import (
     EpisodeResult,
@@ -275,7 +275,7 @@ def evaluate_job(
         t = lap("evaluate", t)
         artifacts = [
             Artifact("robot.urdf", "application/xml", urdf_text.encode()),
-            Artifact("curve.json", "application/json", _curve_json(job, trained, episodes)),
+            Artifact(CURVE_ARTIFACT, "application/json", _curve_json(job, trained, episodes, env)),
         ]
         if trained.checkpoint is not None:
             artifacts.append(Artifact(CHECKPOINT_ARTIFACT, "application/zip", trained.checkpoint))
@@ -322,7 +322,7 @@ def evaluate_job(
     for key, value in metrics.items():
         if not math.isfinite(value):
             raise ValueError(f"metric {key} is not finite ({value})")
-    (workdir / "curve.json").write_bytes(artifacts[1].data)
+    (workdir / CURVE_ARTIFACT).write_bytes(artifacts[1].data)
     for artifact in artifacts:
         if artifact.name == "robot.png":
             (workdir / "robot.png").write_bytes(artifact.data)
@@ -442,25 +442,13 @@ class TaskRunner:
         )
 
 
-def _curve_json(job: Job, trained: TrainResult, episodes: list[EpisodeResult]) -> bytes:
-    document = {
-        "trial_id": job.trial_id,
-        "task": job.task.name,
-        "learner": job.task.learner,
-        "score": "mean over evaluation episodes of the per-step metric's second-half mean",
-        "train": trained.curve,
-        "evaluation": [
-            {
-                "seed": episode.seed,
-                "score": episode.score,
-                "return": episode.episode_return,
-                "metric": [round(value, 6) for value in episode.metric],
-                **({"task_metrics": episode.task_metrics} if episode.task_metrics else {}),
-            }
-            for episode in episodes
-        ],
-    }
-    return json.dumps(document, separators=(",", ":")).encode()
+def _curve_json(
+    job: Job, trained: TrainResult, episodes: list[EpisodeResult], env: object
+) -> bytes:
+    """The trial's ``curve.json`` (:class:`adclient.schemas.Curve`); its score text from
+    the rule ``env`` scored the episodes with (its task's)."""
+    score_of = getattr(getattr(env, "record", None), "score_of", None)
+    return evaluation_curve(job, trained, episodes, score_of).to_json()
 
 
 def _png(rgb: np.ndarray) -> bytes:

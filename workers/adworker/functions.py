@@ -10,7 +10,6 @@ PyBullet or torch.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import sys
@@ -23,7 +22,15 @@ from typing import Any
 from adclient.design import DesignSpace
 from adclient.designs import Design
 from adclient.plugins import load_object
-from adclient.schemas import NAME_PATTERN, Job, TaskConfig, TemplateSpace
+from adclient.schemas import (
+    CURVE_ARTIFACT,
+    NAME_PATTERN,
+    Curve,
+    Job,
+    TaskConfig,
+    TemplateSpace,
+    TrainPoint,
+)
 from adworker.runner import Artifact, Outcome, Report, no_report
 
 CONTENT_TYPES = {
@@ -130,16 +137,26 @@ class FunctionRunner:
             call.urdf_path.write_text(urdf)
         value, metrics = _score(self.function(call))
         metrics["time_total_s"] = time.perf_counter() - started
-        if call.reports and not (artifact_dir / "curve.json").exists():
-            steps, values = zip(*call.reports, strict=True)
-            curve = {"steps": list(steps), "y": list(values)}
-            (artifact_dir / "curve.json").write_text(json.dumps(curve, separators=(",", ":")))
+        if call.reports and not (artifact_dir / CURVE_ARTIFACT).exists():
+            (artifact_dir / CURVE_ARTIFACT).write_bytes(_reported_curve(job, call.reports))
         artifacts = [
             Artifact(path.name, _content_type(path), path.read_bytes())
             for path in sorted(artifact_dir.iterdir())
             if path.is_file() and not path.name.startswith(".")
         ]
         return Outcome(value, metrics, artifacts, summary=f"value {value:.6g}")
+
+
+def _reported_curve(job: Job, reports: list[tuple[int, float]]) -> bytes:
+    """The job's ``curve.json`` (:class:`adclient.schemas.Curve`): its reported values,
+    by step, as the training points."""
+    curve = Curve(
+        trial_id=job.trial_id,
+        task=job.task.name,
+        score="the values the function reported (job.report), by step",
+        train=[TrainPoint(steps=step, score=value) for step, value in reports],
+    )
+    return curve.to_json()
 
 
 def _score(result: Any) -> tuple[float, dict[str, float]]:

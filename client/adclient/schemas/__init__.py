@@ -7,7 +7,8 @@ them). Fields may be added; the paths, names and codes of v1 stay.
 What every body shares (limits, states, checks of free JSON) is in ``common``; the
 search space in ``space``; proposer and task configuration in ``config``; the bodies of
 ``studies``, ``trials``, ``workers`` (leases, jobs, artifacts), ``auth`` and ``errors``
-in their modules. Import from this package: its names are the contract.
+in their modules; a trial's learning curve (its ``curve.json`` artifact) in ``curves``.
+Import from this package: its names are the contract.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from adclient.schemas.config import (
     TaskInfo,
     option_problems,
 )
+from adclient.schemas.curves import CURVE_ARTIFACT, Curve, EvaluationEpisode, TrainPoint
 from adclient.schemas.errors import ErrorBody
 from adclient.schemas.space import (
     MAX_CHOICES,
@@ -106,6 +108,7 @@ from adclient.schemas.workers import (
 )
 
 __all__ = [
+    "CURVE_ARTIFACT",
     "CUT_JSON",
     "MAX_ASK",
     "MAX_CHOICES",
@@ -132,9 +135,11 @@ __all__ = [
     "Checkpoint",
     "Choice",
     "Constraint",
+    "Curve",
     "DesignSpace",
     "Direction",
     "ErrorBody",
+    "EvaluationEpisode",
     "HeartbeatRequest",
     "HeartbeatResponse",
     "Job",
@@ -171,6 +176,7 @@ __all__ = [
     "TaskInfo",
     "TellRequest",
     "TemplateSpace",
+    "TrainPoint",
     "TransferSource",
     "Trial",
     "TrialAdd",
