@@ -9,7 +9,8 @@ status 1 (2 for bad usage), never a traceback.
 The app, its options and what the commands share are in ``common``; the commands in
 ``studies`` (submit, studies, status, stop), ``workers``, ``trials`` (trials, best, pareto,
 ask, tell, enqueue), ``data`` (import, export, delete) and ``files`` (a trial's files, which
-``best --save`` writes too).
+``best --save`` writes too); what ``submit`` reads in ``study_file``, and the closest
+valid name for an unknown field in ``suggest``.
 """
 
 from __future__ import annotations

@@ -104,7 +104,8 @@ EXIT_REFUSED = 1
 """The server refused the request (invalid, not found, conflict, too large), or the
 command failed otherwise."""
 EXIT_USAGE = 2
-"""A usage error: an unknown option or a missing argument (Click's own status)."""
+"""A usage error: an unknown option or a missing argument (Click's own status), a study
+file that cannot be read, a server URL without a scheme."""
 EXIT_NO_SERVER = 3
 """The server could not be reached, did not answer, or answered that it is unavailable:
 worth retrying later."""
@@ -115,7 +116,7 @@ EXIT_INTERRUPTED = 130
 
 
 def exit_status(exc: ApiError) -> int:
-    """The exit status of a command that ended in ``exc`` (docs/server.md, "Exit statuses")."""
+    """The exit status of a command that ended in ``exc`` (the README's "Exit statuses")."""
     if isinstance(exc, Unavailable):
         return EXIT_NO_SERVER
     if isinstance(exc, Unauthorized | Forbidden):

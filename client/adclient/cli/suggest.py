@@ -17,6 +17,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from adclient.schemas import StudyCreate
+
 EXTRA_FIELD = "Extra inputs are not permitted"
 """Pydantic's message for a field a model does not have, as the server words it too."""
 
@@ -24,8 +26,6 @@ EXTRA_FIELD = "Extra inputs are not permitted"
 def unknown_field_hints(body: dict[str, Any]) -> dict[str, str]:
     """``"max_trial: Extra inputs are not permitted"`` -> ``"max_trials"`` for each
     unknown field of ``body`` that has a close valid name where it stands."""
-    from adclient.schemas import StudyCreate
-
     try:
         StudyCreate.model_validate(body)
     except ValidationError as exc:
@@ -55,8 +55,9 @@ def with_hints(message: str, hints: dict[str, str]) -> str:
     after each whole problem a hint is for."""
     for problem, name in hints.items():
         whole = re.compile(f"(?:^|; ){re.escape(problem)}(?=; |$)")
-        hint = f" (did you mean `{name}`?)"
-        message = whole.sub(lambda found, hint=hint: found[0] + hint, message, count=1)
+        found = whole.search(message)
+        if found is not None:
+            message = f"{message[: found.end()]} (did you mean `{name}`?){message[found.end() :]}"
     return message
 
 
