@@ -87,6 +87,25 @@ def stand_up_study(client: Client, *, max_trials: int, **task: object) -> StudyH
     return client.create_study(body)
 
 
+def ppo_trained_trial(
+    client: Client, server: ServerProcess, workdir: Path, *, train_steps: int
+) -> Trial:
+    """The one trial of a stand-up study that a real ``adworker`` trained with PPO for
+    ``train_steps`` (a training episode every 32) and evaluated, complete."""
+    body = example_study("stand-up").model_dump(mode="json")
+    body["max_trials"] = 1
+    body["task"].update(learner="ppo", train_steps=train_steps)
+    study = client.create_study(body)
+    worker = WorkerProcess(server, workdir, "ppo", "--no-render", "--max-jobs", "1")
+    try:
+        assert worker.wait() == 0, worker.log()
+    finally:
+        worker.stop()
+    [trial] = client.trials(study.id)
+    assert trial.state == "complete", worker.log()
+    return trial
+
+
 def running_trial(client: Client, study_id: int, worker_id: str) -> Trial | None:
     """The study's running trial that ``worker_id`` holds, if any."""
     for trial in client.trials(study_id, state="running"):

@@ -14,11 +14,10 @@ from adclient import Client
 from adclient.plugins import catalogue
 from adclient.schemas import Curve
 from adclient.testing.servers import ServerProcess
-from adclient.testing.workers import WorkerProcess
 from adworker import designs
 from adworker.curves import KNOWN_RULES, evaluation_score_text, score_rule_text
 from adworker.learners import evaluate_policy
-from tests.workers.robots import example_study, write_urdf
+from tests.workers.robots import ppo_trained_trial, write_urdf
 
 TRAIN_STEPS = 128
 """Four PPO training episodes of stand-up's 32 steps."""
@@ -28,18 +27,8 @@ TRAIN_STEPS = 128
 def test_a_real_workers_ppo_curve_reads_back_through_the_contract(
     server: ServerProcess, tmp_path: Path
 ) -> None:
-    body = example_study("stand-up").model_dump(mode="json")
-    body["max_trials"] = 1
-    body["task"].update(learner="ppo", train_steps=TRAIN_STEPS)
     with Client(server.url) as client:
-        study = client.create_study(body)
-        worker = WorkerProcess(server, tmp_path, "ppo", "--no-render", "--max-jobs", "1")
-        try:
-            assert worker.wait() == 0, worker.log()
-        finally:
-            worker.stop()
-        [trial] = client.trials(study.id)
-        assert trial.state == "complete", worker.log()
+        trial = ppo_trained_trial(client, server, tmp_path, train_steps=TRAIN_STEPS)
         written = client.get_artifact(trial, "curve.json")
         curve = client.trial_curve(trial)
 

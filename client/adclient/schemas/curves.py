@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AliasChoices, BaseModel, Field, model_validator
 
 CURVE_ARTIFACT = "curve.json"
 """The artifact name a worker uploads the curve as."""
@@ -29,11 +29,13 @@ class EvaluationEpisode(BaseModel):
     """One deterministic episode of the trained policy; the trial's value is the mean of
     their scores."""
 
-    model_config = ConfigDict(populate_by_name=True)
-
     seed: int
     score: float
-    episode_return: float = Field(alias="return", description="the sum of its rewards")
+    episode_return: float = Field(
+        validation_alias=AliasChoices("return", "episode_return"),
+        serialization_alias="return",
+        description="the sum of its rewards (``return`` in the file)",
+    )
     metric: list[float] = Field(default_factory=list, description="the task's per-step metric")
     task_metrics: dict[str, float] = Field(
         default_factory=dict, description="the task's own metrics of the episode"
