@@ -5,6 +5,7 @@ through the API (over HTTP or in-process: anything with httpx's ``get`` and ``po
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +95,19 @@ TABLE_STATES = (
     "[...document.querySelectorAll('[data-trials] tbody tr[data-trial-id]')]"
     ".map(row => row.cells[1].textContent.trim())"
 )
+
+
+def sign_in(browser: Any, url: str, token: str) -> None:
+    """Open the study page at ``url`` of a server with auth on and sign in with ``token``
+    through the page's form (``browser``: a :class:`~tests.service.chromium.Chromium`),
+    until the page is ready."""
+    browser.navigate(url)
+    browser.wait_for("!document.querySelector('[data-auth]').hidden")
+    browser.evaluate(
+        f"(() => {{ const form = document.querySelector('[data-auth] form');"
+        f" form.elements.token.value = {json.dumps(token)}; form.requestSubmit(); }})()"
+    )
+    browser.wait_for(STUDY_PAGE_READY)
 
 
 def png(width: int, height: int) -> bytes:

@@ -13,6 +13,7 @@ import pytest
 
 from adclient.testing.servers import SDK_HEADERS, ServerProcess, make_token
 from tests.service.chromium import Chromium
+from tests.service.dashboard_pages import sign_in as dashboard_sign_in
 
 pytestmark = [
     pytest.mark.browser,
@@ -123,13 +124,7 @@ def test_only_those_who_may_see_delete_and_a_signed_in_owner_deletes(
         study = http.post("/api/v1/studies", json={**MANAGED, "name": "olga's"}).json()["id"]
 
     def sign_in(token: str) -> None:
-        browser.navigate(f"{server.url}/#/studies/{study}")
-        browser.wait_for("!document.querySelector('[data-auth]').hidden")
-        browser.evaluate(
-            f"(() => {{ const form = document.querySelector('[data-auth] form');"
-            f" form.elements.token.value = {json.dumps(token)}; form.requestSubmit(); }})()"
-        )
-        browser.wait_for(READY)
+        dashboard_sign_in(browser, f"{server.url}/#/studies/{study}", token)
 
     sign_in(reader)
     assert browser.evaluate("document.querySelector('[data-delete]').hidden") is True

@@ -67,6 +67,16 @@ export function mayManage(study) {
   return session.role === 'user' && Boolean(session.name) && session.name === study.created_by;
 }
 
+/** Stop a study: no more proposals or leases, its queued trials dropped as failed, its
+ * running ones left to finish. Resolves to the study as it is now. */
+export async function stopStudy(studyId) {
+  const response = await request(`/api/v1/studies/${studyId}/stop`, {
+    method: 'POST',
+    headers: changeHeaders(),
+  });
+  return response.json();
+}
+
 /** Delete a study; `force` also cancels the leases workers hold on its trials. */
 export async function deleteStudy(studyId, { force = false } = {}) {
   const query = force ? '?force=true' : '';

@@ -1,7 +1,7 @@
-// The dashboard: a studies list (#/) and a study page (#/studies/ID), kept current by
-// polling. This module routes between them and polls; each panel is its own module
-// (header, history, pareto, params, best, workers, trials, trial-dialog, robot-view), composed
-// by study.js.
+// The dashboard: a studies list (#/) and a study page (#/studies/ID; a trial's dialog at
+// #/studies/ID/trials/N), kept current by polling. This module routes between them and
+// polls; each panel is its own module (header, history, pareto, params, best, workers,
+// trials, trial-dialog, robot-view), composed by study.js.
 
 import { HttpError } from './api.js';
 import { esc } from './html.js';
@@ -9,6 +9,7 @@ import { setLive, showError } from './shell.js';
 import { bindSignIn, checkSession } from './signin.js';
 import { StudiesPage } from './studies.js';
 import { StudyPage } from './study.js';
+import { closeTrialDialog } from './trial-dialog.js';
 
 const POLL_MS = 2000;
 
@@ -17,15 +18,34 @@ let page = null;
 
 const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
 
+/** The address's study and trial: #/studies/ID, #/studies/ID/trials/N, or neither. */
+function place() {
+  const match = window.location.hash.match(/^#\/studies\/(\d+)(?:\/trials\/(\d+))?/);
+  return {
+    studyId: match ? Number(match[1]) : null,
+    trialNumber: match?.[2] !== undefined ? Number(match[2]) : null,
+  };
+}
+
 async function route() {
+  const { studyId, trialNumber } = place();
+  const same = page instanceof StudyPage && page.studyId === studyId;
+  if (same && page.alive && page.ready && !page.gone) {
+    page.showTrial(trialNumber); // the same study: only its dialog opens or closes
+    return;
+  }
+  closeTrialDialog();
   page?.stop();
-  const match = window.location.hash.match(/^#\/studies\/(\d+)/);
-  const current = match ? new StudyPage(view, Number(match[1])) : new StudiesPage(view);
+  const current = studyId !== null ? new StudyPage(view, studyId) : new StudiesPage(view);
   page = current;
   try {
     await current.start();
     current.ready = true;
     setLive(true);
+    const named = place(); // the address now: it may have moved while the page loaded
+    if (page === current && named.studyId === studyId && named.trialNumber !== null) {
+      current.showTrial(named.trialNumber);
+    }
   } catch (error) {
     if (error instanceof HttpError && error.status === 404) {
       current.gone = true;
@@ -56,6 +76,7 @@ async function start() {
     signedIn: route,
     signedOut: () => {
       page?.stop();
+      closeTrialDialog();
       view.innerHTML = '';
     },
   });

@@ -175,9 +175,26 @@ export function bindPoints(canvas, tooltip, { nearest, describe, open, flip = fa
   });
 }
 
-/** A small line chart of a worker's learning curve (curve.json): numbers, or {x, y}. */
-export function drawCurve(canvas, curve) {
-  const { ctx, width, height } = prepare(canvas);
+const isNumber = (v) => typeof v === 'number' && Number.isFinite(v);
+
+/**
+ * The points of a trial's curve.json: its training points ({x: steps, y: score}) and its
+ * evaluation episodes ({x, y: score, seed}), marked at the steps trained before them.
+ * The contract is adclient.schemas.Curve ({train: [{steps, score}], evaluation: [{seed,
+ * score, ...}], train_steps}); a file of another shape a --function job uploaded (a list
+ * of numbers, or an object of number arrays such as {steps, y}) is its training points.
+ */
+export function curvePoints(curve) {
+  if (curve && typeof curve === 'object' && (Array.isArray(curve.train) || Array.isArray(curve.evaluation))) {
+    const train = (curve.train ?? [])
+      .filter((p) => isNumber(p?.steps) && isNumber(p?.score))
+      .map((p) => ({ x: p.steps, y: p.score }));
+    const at = isNumber(curve.train_steps) ? curve.train_steps : (train.at(-1)?.x ?? 0);
+    const evaluation = (curve.evaluation ?? [])
+      .filter((e) => isNumber(e?.score))
+      .map((e) => ({ x: at, y: e.score, seed: e.seed }));
+    return { train, evaluation };
+  }
   let ys = Array.isArray(curve) ? curve : null;
   let xs = null;
   if (!ys && curve && typeof curve === 'object') {
@@ -188,22 +205,51 @@ export function drawCurve(canvas, curve) {
     ys = named.y ?? named.returns ?? named.reward ?? named.rewards ?? arrays.at(-1)?.[1] ?? null;
     xs = named.x ?? named.steps ?? named.timesteps ?? null;
   }
-  if (!ys || ys.length === 0 || !ys.every((v) => typeof v === 'number')) {
+  if (!ys || !ys.every(isNumber)) return { train: [], evaluation: [] };
+  if (!xs || xs.length !== ys.length || !xs.every(isNumber)) xs = ys.map((_, i) => i);
+  return { train: ys.map((y, i) => ({ x: xs[i], y })), evaluation: [] };
+}
+
+const EVALUATION = '#ea580c';
+
+/**
+ * A small chart of a trial's learning curve (curve.json): the training score against
+ * steps as a line, each evaluation episode's score a dot at the steps trained. Leaves
+ * `data-train-points` and `data-evaluation-points` (what it drew) for the browser tests.
+ */
+export function drawCurve(canvas, curve) {
+  const { ctx, width, height } = prepare(canvas);
+  const { train, evaluation } = curvePoints(curve);
+  canvas.dataset.trainPoints = String(train.length);
+  canvas.dataset.evaluationPoints = String(evaluation.length);
+  const all = [...train, ...evaluation];
+  if (all.length === 0) {
     message(ctx, width, height, 'curve.json has no numbers to plot');
     return false;
   }
-  if (!xs || xs.length !== ys.length) xs = ys.map((_, i) => i);
-  const pad = { left: 50, right: 10, top: 8, bottom: 22 };
-  const [xLow, xHigh] = extent(xs);
-  const [yLow, yHigh] = extent(ys);
+  const pad = { left: 50, right: 12, top: 8, bottom: 22 };
+  const [xLow, xHigh] = extent(all.map((p) => p.x));
+  const [yLow, yHigh] = extent(all.map((p) => p.y));
   const x = (v) => pad.left + ((v - xLow) / (xHigh - xLow)) * (width - pad.left - pad.right);
   const y = (v) => height - pad.bottom - ((v - yLow) / (yHigh - yLow)) * (height - pad.top - pad.bottom);
   drawYAxis(ctx, pad.left, pad.top, height - pad.bottom, width - pad.right, yLow, yHigh, y);
   drawXAxis(ctx, pad.left, width - pad.right, height - pad.bottom, xLow, xHigh, x, false);
   ctx.strokeStyle = '#2563eb';
+  ctx.fillStyle = '#2563eb';
   ctx.lineWidth = 1.5;
   ctx.beginPath();
-  ys.forEach((v, i) => (i ? ctx.lineTo(x(xs[i]), y(v)) : ctx.moveTo(x(xs[i]), y(v))));
+  train.forEach((p, i) => (i ? ctx.lineTo(x(p.x), y(p.y)) : ctx.moveTo(x(p.x), y(p.y))));
   ctx.stroke();
+  if (train.length === 1) {
+    ctx.beginPath();
+    ctx.arc(x(train[0].x), y(train[0].y), 2.5, 0, 2 * Math.PI);
+    ctx.fill();
+  }
+  ctx.fillStyle = EVALUATION;
+  for (const p of evaluation) {
+    ctx.beginPath();
+    ctx.arc(x(p.x), y(p.y), 3.5, 0, 2 * Math.PI);
+    ctx.fill();
+  }
   return true;
 }

@@ -1,8 +1,8 @@
-// A study's header (name, state, what it searches and how, its user attributes, and a
-// delete button for those who may) and its progress bar with counts; the progress bar
+// A study's header (name, state, what it searches and how, its user attributes, and stop
+// and delete buttons for those who may) and its progress bar with counts; the progress bar
 // and counts text serve the studies list too.
 
-import { deleteStudy, mayManage } from './api.js';
+import { deleteStudy, mayManage, stopStudy } from './api.js';
 import { ago, attrText, badge, element, esc, finder } from './html.js';
 import { setCrumbs } from './shell.js';
 
@@ -41,27 +41,35 @@ function aims(s) {
   return constraints.length ? `${goal} · subject to ${constraints.join(', ')}` : goal;
 }
 
+/** A confirmation dialog of an action (data-NAME-dialog: its question, an error, Cancel and
+ * the action's button). */
+function confirmation(name, label) {
+  return `<dialog class="confirm" data-${name}-dialog>
+        <form method="dialog">
+          <p data-${name}-question></p>
+          <p class="error" data-${name}-error hidden></p>
+          <div class="actions">
+            <button value="cancel" data-${name}-cancel>Cancel</button>
+            <button value="${name}" class="danger" data-${name}-confirm>${label}</button>
+          </div>
+        </form>
+      </dialog>`;
+}
+
 export class StudyHeader {
   constructor(studyId) {
     this.root = element(`<div>
       <section class="study-head">
         <h1><span data-name>Study ${studyId}</span> <span data-state></span>
+          <button type="button" class="stop" data-stop hidden>Stop study</button>
           <button type="button" class="danger" data-delete hidden>Delete study</button></h1>
         <p class="meta" data-meta></p>
         <p class="meta" data-attrs hidden></p>
         <p class="error" data-proposal-error hidden></p>
         <p class="warning" data-fallback hidden></p>
       </section>
-      <dialog class="confirm" data-delete-dialog>
-        <form method="dialog">
-          <p data-delete-question></p>
-          <p class="error" data-delete-error hidden></p>
-          <div class="actions">
-            <button value="cancel" data-delete-cancel>Cancel</button>
-            <button value="delete" class="danger" data-delete-confirm>Delete</button>
-          </div>
-        </form>
-      </dialog>
+      ${confirmation('stop', 'Stop')}
+      ${confirmation('delete', 'Delete')}
       <section class="card">
         <div data-progress></div>
         <p class="counts" data-counts></p>
@@ -69,11 +77,45 @@ export class StudyHeader {
     </div>`);
     this.$ = finder(this.root);
     this.study = null;
+    this.$('stop').addEventListener('click', () => this.askToStop());
+    this.$('stop-confirm').addEventListener('click', (event) => {
+      event.preventDefault();
+      this.stop();
+    });
     this.$('delete').addEventListener('click', () => this.askToDelete());
     this.$('delete-confirm').addEventListener('click', (event) => {
       event.preventDefault();
       this.delete();
     });
+  }
+
+  /** The confirmation: names the study (as text) and what stopping does to its trials. */
+  askToStop() {
+    const s = this.study;
+    const queued = s.n_queued ? ` Its ${s.n_queued} queued trials are dropped as failed.` : '';
+    const running = s.n_running ? ` Its ${s.n_running} running trials may still be told.` : '';
+    this.$('stop-question').textContent =
+      `Stop study “${s.name}” (#${s.id})? No new trials are proposed or leased.` +
+      `${queued}${running} Its trials and their files stay.`;
+    this.$('stop-error').hidden = true;
+    this.$('stop-dialog').showModal();
+  }
+
+  /** Stop; a refusal (a token that may not, a study gone) is said in the dialog. The
+   * header shows the stopped study at once; the page's next poll brings the rest. */
+  async stop() {
+    const button = this.$('stop-confirm');
+    button.disabled = true;
+    try {
+      this.render(await stopStudy(this.study.id));
+    } catch (error) {
+      this.$('stop-error').textContent = String(error.detail ?? error.message);
+      this.$('stop-error').hidden = false;
+      return;
+    } finally {
+      button.disabled = false;
+    }
+    this.$('stop-dialog').close();
   }
 
   /** The confirmation: names the study (as text) and what goes with it. */
@@ -135,6 +177,7 @@ export class StudyHeader {
   render(s) {
     this.study = s;
     this.$('delete').hidden = !mayManage(s);
+    this.$('stop').hidden = !mayManage(s) || s.state !== 'running';
     const attrs = Object.entries(s.user_attrs ?? {});
     this.$('attrs').hidden = attrs.length === 0;
     this.$('attrs').textContent = attrs.map(([k, v]) => `${k}: ${attrText(v)}`).join(' · ');

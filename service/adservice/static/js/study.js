@@ -1,4 +1,5 @@
-// A study's page (#/studies/ID): its panels, kept current by polling. A poll re-fetches
+// A study's page (#/studies/ID; #/studies/ID/trials/N with trial N's dialog open): its
+// panels, kept current by polling. A poll re-fetches
 // only what changed: the study itself every poll (one small read), and the chart columns,
 // the table page, the best design, (several objectives) the Pareto front and (one design)
 // the repeats' spread only when the study's counts or updated_at moved;
@@ -16,7 +17,12 @@ import { ParetoPanel } from './pareto.js';
 import { Series, paramCorrelations } from './series.js';
 import { showError } from './shell.js';
 import { SpreadCard } from './spread.js';
-import { openTrialDialog } from './trial-dialog.js';
+import {
+  closeTrialDialog,
+  openTrialDialog,
+  openTrialNumber,
+  showMissingTrial,
+} from './trial-dialog.js';
 import { TrialsPanel } from './trials.js';
 import { UnservedCard, WorkersPanel } from './workers.js';
 
@@ -176,14 +182,43 @@ export class StudyPage {
     this.params.draw();
   }
 
-  async openTrialByNumber(number) {
+  /** Trial `number`'s id, or null when the study has no such trial. */
+  async trialIdOf(number) {
     const [trial] = await getJSON(this.api(`/trials?offset=${number}&limit=1&order_by=number`));
-    if (trial && trial.number === number) this.openTrial(trial.id);
+    return trial && trial.number === number ? trial.id : null;
   }
 
+  async openTrialByNumber(number) {
+    try {
+      const trialId = await this.trialIdOf(number);
+      if (trialId !== null) await this.openTrial(trialId);
+    } catch (error) {
+      showError(error);
+    }
+  }
+
+  /** Open a trial's dialog (a click on it); the dialog gives it its address. */
   async openTrial(trialId) {
     try {
       await openTrialDialog(this.study, trialId);
+    } catch (error) {
+      showError(error);
+    }
+  }
+
+  /** What the address says of the dialog (#/studies/ID/trials/N, or the study alone):
+   * trial N's dialog open, or none. A number the study has no trial of: a dialog that
+   * says so. */
+  async showTrial(number) {
+    if (number === null) {
+      closeTrialDialog();
+      return;
+    }
+    if (openTrialNumber() === number) return;
+    try {
+      const trialId = await this.trialIdOf(number);
+      if (trialId === null) showMissingTrial(this.study, number);
+      else await openTrialDialog(this.study, trialId);
     } catch (error) {
       showError(error);
     }

@@ -9,11 +9,47 @@ import { objectiveNames } from './pareto.js';
 import { RobotView } from './robot-view.js';
 
 const dialog = document.querySelector('[data-trial-dialog]');
+
+/** The learning curve's place (curve.json, adclient.schemas.Curve): training episodes as a
+ * line, evaluation episodes as dots, and what their score is, in the task's words. */
+const CURVE = `<h3>Learning curve
+    <span class="legend"><i class="line curve"></i>training episodes
+    <i class="dot front"></i>evaluation episodes</span></h3>
+  <canvas class="chart small" data-curve></canvas>
+  <p class="meta" data-curve-score hidden></p>`;
 let model = null; // the open trial's 3D view: one GPU context at a time
+let shown = null; // the open trial: {studyId, number}
+
+/** A trial's own address: its study's page with its dialog open. */
+export function trialAddress(studyId, number) {
+  return `#/studies/${studyId}/trials/${number}`;
+}
+
+/** The number of the trial the dialog shows, or null when it is closed. */
+export function openTrialNumber() {
+  return dialog.open && shown ? shown.number : null;
+}
+
+/** Close the dialog without touching the address (it already names no trial). */
+export function closeTrialDialog() {
+  if (dialog.open) dialog.close();
+}
+
+/** Closed by the reader (×, Esc) while the address names this trial: back to the study's
+ * address, as the entry before it if opening the dialog added this one, else in its
+ * place (the trial's address was opened as it is). */
+function leaveTrialAddress(closed) {
+  if (!closed || window.location.hash !== trialAddress(closed.studyId, closed.number)) return;
+  if (window.history.state?.trialOpened) window.history.back();
+  else window.history.replaceState(null, '', `#/studies/${closed.studyId}`);
+}
 
 dialog.addEventListener('close', () => {
   model?.dispose();
   model = null;
+  const closed = shown;
+  shown = null;
+  leaveTrialAddress(closed);
 });
 
 /** The trial's score, or its value of each objective, and whether it meets the study's
@@ -30,6 +66,22 @@ function outcome(study, trial) {
   return `${values}<p class="meta" data-trial-feasible="${trial.feasible}">${verdict}</p>`;
 }
 
+/** The dialog of an address whose study has no such trial: says so; closing it leaves
+ * the address as closing a trial's does. */
+export function showMissingTrial(study, number) {
+  model?.dispose();
+  model = null;
+  dialog.innerHTML = `<article class="trial" data-missing-trial>
+    <header><h2>No trial #${number}</h2>
+      <button class="close" data-close aria-label="Close">×</button></header>
+    <p>Study “${esc(study.name)}” (#${study.id}) has no trial #${number}.</p></article>`;
+  dialog.querySelector('[data-close]').addEventListener('click', () => dialog.close());
+  shown = { studyId: study.id, number };
+  if (!dialog.open) dialog.showModal();
+}
+
+/** Open trial `trialId` of `study` in the dialog and give it its address (a new history
+ * entry, unless the address names it already); resolves to the trial. */
 export async function openTrialDialog(study, trialId) {
   const [trial, artifacts] = await Promise.all([
     getJSON(`/api/v1/trials/${trialId}`),
@@ -72,7 +124,7 @@ export async function openTrialDialog(study, trialId) {
       <div>
         ${modelUrl ? '<h3>Robot</h3><div data-trial-model></div>' : ''}
         ${names.includes('robot.png') ? '<img data-trial-image alt="The trial\'s rendered design">' : ''}
-        ${names.includes('curve.json') ? '<h3>Learning curve</h3><canvas class="chart small" data-curve></canvas>' : ''}
+        ${names.includes('curve.json') ? CURVE : ''}
         <h3>Files</h3>
         <ul class="files">${urdf ? `<li>${urdf}</li>` : ''}${files || '<li class="meta">No artifacts</li>'}</ul>
       </div>
@@ -83,7 +135,10 @@ export async function openTrialDialog(study, trialId) {
     dialog.querySelector('[data-trial-attrs]').append(heading, attrsTable(trial.user_attrs));
   }
   dialog.querySelector('[data-close]').addEventListener('click', () => dialog.close());
+  shown = { studyId: study.id, number: trial.number };
   if (!dialog.open) dialog.showModal();
+  const address = trialAddress(study.id, trial.number);
+  if (window.location.hash !== address) window.history.pushState({ trialOpened: true }, '', address);
   if (modelUrl) {
     model = new RobotView();
     dialog.querySelector('[data-trial-model]').append(model.root);
@@ -91,6 +146,13 @@ export async function openTrialDialog(study, trialId) {
   }
   const image = dialog.querySelector('[data-trial-image]');
   if (image) image.src = `/api/v1/trials/${trial.id}/artifacts/robot.png`;
-  const curve = dialog.querySelector('[data-curve]');
-  if (curve) drawCurve(curve, await getJSON(`/api/v1/trials/${trial.id}/artifacts/curve.json`));
+  const canvas = dialog.querySelector('[data-curve]');
+  if (canvas) {
+    const curve = await getJSON(`/api/v1/trials/${trial.id}/artifacts/curve.json`);
+    drawCurve(canvas, curve);
+    const said = dialog.querySelector('[data-curve-score]');
+    said.hidden = typeof curve?.score !== 'string';
+    said.textContent = said.hidden ? '' : `score: ${curve.score}`;
+  }
+  return trial;
 }

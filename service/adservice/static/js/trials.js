@@ -8,6 +8,7 @@ import { formatNumber } from './charts.js';
 import { objectiveLabel, objectiveNames } from './pareto.js';
 import { ago, badge, duration, element, esc, finder, formatParam, urdfLink } from './html.js';
 import { showError } from './shell.js';
+import { trialAddress } from './trial-dialog.js';
 
 const HANDED_OVER = {
   enqueued: 'queued by its owner (POST /studies/{id}/trials), not proposed',
@@ -252,7 +253,7 @@ export class TrialsPanel {
         const best = several ? pareto.frontIds.has(trial.id) : trial.id === study.best_trial_id;
         const star = several ? 'on the Pareto front' : 'best';
         return `<tr data-trial-id="${trial.id}" class="${best ? 'is-best' : ''}">
-          <td class="num">${trial.number}${best ? ` <span title="${star}">★</span>` : ''}</td>
+          <td class="num"><a href="${trialAddress(study.id, trial.number)}" data-open-trial="${trial.id}">${trial.number}</a>${best ? ` <span title="${star}">★</span>` : ''}</td>
           <td>${badge(trial.state)}${trial.feasible === false ? INFEASIBLE : ''}${handedOver(trial)}${warmStarted(trial)}</td>
           ${outcomeCells(study, trial)}
           <td>${esc(trial.worker_id ?? '—')}</td>
