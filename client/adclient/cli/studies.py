@@ -202,7 +202,8 @@ def _print_end(study: StudyHandle, info: Study) -> None:
 
 
 WORKERS_CHECK_SECONDS = 10.0
-"""How long ``submit --wait`` sees no trial start before it checks for a serving worker."""
+"""How long ``--wait`` (submit, status) sees no trial start before it checks for a serving
+worker."""
 
 
 def _follow(study: StudyHandle, poll: float) -> Study:
