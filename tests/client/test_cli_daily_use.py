@@ -16,7 +16,7 @@ import yaml
 from typer.testing import Result
 
 from adclient import Client, Conflict
-from adclient.testing.servers import ServerProcess
+from adclient.testing.servers import ServerProcess, make_token
 from adclient.testing.workers import ADCLIENT, PATIENCE, wait_for
 from tests.client.cli_harness import failed_with, ok, run, write_study
 from tests.client.scripted_server import Reply, ScriptedServer
@@ -63,6 +63,26 @@ def test_stop_stops_a_running_study_and_says_what_became_of_its_trials(
     as_json = json.loads(ok(run(server.url, "stop", str(study_id), "--json")).stdout)
     assert as_json["state"] == "stopped" and as_json["n_complete"] == 2
     failed_with(run(server.url, "stop", "987654"), "study 987654 not found", code=1)
+
+
+def test_stop_by_another_user_or_without_a_token_is_refused_with_exit_4(tmp_path: Path) -> None:
+    """Exit statuses as the README's table has them: only the study's owner (or an admin)
+    stops it."""
+    server = ServerProcess(
+        database_url=f"sqlite:///{tmp_path / 'auth.db'}", workdir=tmp_path, env={"AD_AUTH": "true"}
+    ).start()
+    try:
+        alice, bob = make_token(server, "user", "alice"), make_token(server, "user", "bob")
+        with Client(server.url, alice) as api:
+            study_id = box_study(api, "alice-only")
+        failed_with(run(server.url, "--token", bob, "stop", str(study_id)), "forbidden:", code=4)
+        failed_with(run(server.url, "stop", str(study_id)), "unauthorized:", code=4)
+        with Client(server.url, alice) as api:
+            assert api.study_info(study_id).state == "running"
+        stopped = ok(run(server.url, "--token", alice, "stop", str(study_id))).stdout
+        assert f"study {study_id} stopped" in stopped
+    finally:
+        server.stop()
 
 
 # -- status --wait ---------------------------------------------------------------------
