@@ -15,9 +15,16 @@ from adclient.plugins import catalogue
 from adclient.schemas import Curve
 from adclient.testing.servers import ServerProcess
 from adworker import designs
-from adworker.curves import KNOWN_RULES, evaluation_score_text, score_rule_text
-from adworker.learners import evaluate_policy
-from tests.workers.robots import ppo_trained_trial, write_urdf
+from adworker.curves import KNOWN_RULES, evaluation_curve, evaluation_score_text, score_rule_text
+from adworker.learners import EpisodeResult, evaluate_policy
+from adworker.starts import TrainResult
+from tests.workers.robots import (
+    HALF_PI,
+    make_job,
+    ppo_trained_trial,
+    stand_up_specs,
+    write_urdf,
+)
 
 TRAIN_STEPS = 128
 """Four PPO training episodes of stand-up's 32 steps."""
@@ -89,3 +96,15 @@ def test_the_earlier_function_curve_shape_still_reads() -> None:
     curve = Curve.model_validate_json(b'{"steps":[0,10],"y":[0.5,1.5]}')
     assert [(point.steps, point.score) for point in curve.train] == [(0, 0.5), (10, 1.5)]
     assert curve.evaluation == []
+
+
+def test_a_diverged_training_episode_is_left_out_so_the_file_stays_json() -> None:
+    job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI))
+    points = [{"steps": 32.0, "score": 0.5}, {"steps": 64.0, "score": float("nan")}]
+    trained = TrainResult(policy=lambda observation: observation, train_steps=64, curve=points)
+    episode = EpisodeResult(seed=0, score=0.25, episode_return=1.0, metric=[0.25, 0.25])
+    curve = evaluation_curve(job, trained, [episode], score_of=None)
+    read = Curve.model_validate_json(curve.to_json())
+    assert [(point.steps, point.score) for point in read.train] == [(32.0, 0.5)]
+    assert read.evaluation[0].episode_return == 1.0
+    assert b'"return":1.0' in curve.to_json()

@@ -5,6 +5,7 @@ value, not a second-half mean)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -61,14 +62,19 @@ def evaluation_score_text(score_of: ScoreRule | None) -> str:
 def evaluation_curve(
     job: Job, trained: TrainResult, episodes: Sequence[EpisodeResult], score_of: ScoreRule | None
 ) -> Curve:
-    """A task job's curve: the learner's training points and the evaluation episodes."""
+    """A task job's curve: the learner's training points (those with a finite score) and
+    the evaluation episodes."""
     return Curve(
         trial_id=job.trial_id,
         task=job.task.name,
         learner=job.task.learner,
         score=evaluation_score_text(score_of),
         train_steps=float(trained.train_steps),
-        train=[TrainPoint(steps=point["steps"], score=point["score"]) for point in trained.curve],
+        train=[
+            TrainPoint(steps=point["steps"], score=point["score"])
+            for point in trained.curve
+            if math.isfinite(point["score"])  # JSON has no NaN: a diverged episode is left out
+        ],
         evaluation=[
             EvaluationEpisode(
                 seed=episode.seed,
