@@ -82,6 +82,7 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(
     )
     reach = tasks["reach-up"]
     assert "fixed base" in reach.description
+    assert reach.simulators == ["pybullet"]  # its TaskSpec names no other engine
     tip = reach.options_schema["properties"]["tip_link"]
     assert (tip["default"], tip["minLength"]) == ("c", 1)
     assert reach.options_schema["properties"]["frame_skip"]["default"] == 12
@@ -102,6 +103,7 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(
         ({"options": {"reach": 2}}, ["unknown option of task 'reach-up'", "tip_link"]),
         ({"options": {"learner_kwargs": {"pose": 2}}}, ["learner_kwargs.pose:", "1"]),
         ({"options": {"tip_link": "hand"}}, ["looks up link 'hand' (task.options.tip_link)"]),
+        ({"simulator": "mujoco"}, ["task 'reach-up' does not run on 'mujoco'", "pybullet)"]),
     ],
 )
 def test_a_study_of_the_plugin_is_checked_with_its_declarations(
