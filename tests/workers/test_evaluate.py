@@ -253,3 +253,18 @@ def test_secondary_metrics_measure_the_design_and_its_evaluation_episodes(tmp_pa
     assert len(meter.episode_energy) == job.task.eval_episodes
     assert long.metrics["energy"] == pytest.approx(meter.energy, rel=1e-9)
     assert long.metrics["effort"] == pytest.approx(meter.effort, rel=1e-9)
+
+
+def test_evaluate_job_builds_on_the_studys_engine_and_refuses_an_unknown_one(tmp_path) -> None:
+    specs = stand_up_specs(HALF_PI, HALF_PI)
+    on = {
+        engine: evaluate_job(make_job("stand-up", specs, train_steps=256, simulator=engine),
+                             tmp_path / engine)
+        for engine in ("pybullet", "mujoco")
+    }  # fmt: skip
+    for evaluation in on.values():  # the arch stands on either engine
+        assert evaluation.value > 0.3 and evaluation.metrics["sim_steps"] > 0
+    assert on["mujoco"].value != on["pybullet"].value  # another engine simulated it
+    stored = make_job("stand-up", specs, simulator="gazebo")  # a study stored with it
+    with pytest.raises(JobError, match="'stand-up' does not run on simulator 'gazebo'"):
+        evaluate_job(stored, tmp_path / "gazebo")
