@@ -19,11 +19,10 @@ The world is the URDF the PyBullet path loads (a design's, or a template's own),
   that moves, over each control step, at that same rate towards the action's target
   (the exponential approach over the step), capped at the joint's velocity limit; a
   PD spring (``kp`` the effort over ``SERVO_FULL_EFFORT_ERROR`` or a tenth of the
-  joint's range, whichever is less; damped at ``SERVO_DAMPING_RATIO`` for the spawn
-  pose's inertia, at least ``SERVO_DAMPING_STEPS`` time steps of its stiffness) pulls
-  the joint to the setpoint. Under a steady load it holds within that spring's give
-  where PyBullet's holds exactly (diagonal-gesture's crossed arm: 0.97 rad where
-  PyBullet's holds 0.94);
+  joint's range, whichever is less, damping ``SERVO_DAMPING_STEPS`` time steps) pulls
+  the joint to the setpoint. Under a steady
+  load it holds within that spring's give where PyBullet's holds exactly (stand-up's
+  arch bent to 1.41 rad holds at 1.39);
 - the same time step, ``frame_skip`` and gravity; MuJoCo's ``implicitfast`` integrator
   (the servo's damping integrated implicitly, stable at a 120 Hz step).
 
@@ -63,19 +62,16 @@ from adworker.tasks.engine import (
 from adworker.tasks.model import RobotModel
 from adworker.tasks.snapshot import LinkGeometry, Snapshot
 
-SERVO_FULL_EFFORT_ERROR = 0.1
+SERVO_FULL_EFFORT_ERROR = 0.2
 """Position error (rad, or m for a prismatic joint) from its setpoint at which a
-servo's spring alone reaches the joint's effort."""
+servo's spring alone reaches the joint's effort (stiffer servos ring on light legs at a
+120 Hz step)."""
 SERVO_RANGE_FRACTION = 0.1
 """... or this fraction of the joint's range where that is less (a prismatic joint's
 range is metres: a 0.3 m rail's servo reaches its effort 3 cm off)."""
-SERVO_DAMPING_RATIO = 0.5
-"""The servo's damping ratio for its joint's inertia at the spawn pose (MuJoCo's
-``dampratio``): a heavy link's joint settles as PyBullet's motor does, without ringing."""
 SERVO_DAMPING_STEPS = 2.0
-"""... and never less damping than this many time steps of its stiffness
-(``kv >= kp * 2 * time_step``): a light link far from the spawn pose stays stable at a
-120 Hz step."""
+"""The servo's damping over its stiffness, in time steps (``kv = kp * 2 * time_step``):
+it follows its moving setpoint about this far behind."""
 PYBULLET_POSITION_GAIN = 0.1
 """PyBullet's default position gain: its motor's velocity target is this times the
 error per time step."""
@@ -233,10 +229,6 @@ class MujocoRobot(EngineRobot):
             spinning_friction=spinning_friction,
         )
         compiled = spec.compile()
-        for k in range(compiled.nu):  # the damping's floor (SERVO_DAMPING_STEPS)
-            kp = compiled.actuator_gainprm[k, 0]
-            floor = kp * SERVO_DAMPING_STEPS * sim.time_step
-            compiled.actuator_biasprm[k, 2] = min(compiled.actuator_biasprm[k, 2], -floor)
         sim.attach(compiled, str(urdf_path), fixed_base=fixed_base)
         self._check_tree(compiled, what)
         # The root first, then MuJoCo's body order (depth first through the tree).
@@ -335,7 +327,7 @@ class MujocoRobot(EngineRobot):
             servo.name = joint.name
             servo.target = joint.name
             servo.trntype = mujoco.mjtTrn.mjTRN_JOINT
-            servo.set_to_intvelocity(kp=kp, dampratio=SERVO_DAMPING_RATIO)
+            servo.set_to_intvelocity(kp=kp, kv=kp * SERVO_DAMPING_STEPS * time_step)
             servo.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
             servo.actrange = (joint.lower, joint.upper)
             servo.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
