@@ -19,7 +19,7 @@ from adclient.plugins import SIMULATORS, catalogue
 from adworker import designs
 from adworker.learners import evaluate_policy
 from adworker.tasks.base import robot_model
-from adworker.tasks.engine import build_engine
+from adworker.tasks.build import build_engine
 from tests.workers.robots import HALF_PI, make_job, write_urdf
 
 ENGINES = ("pybullet", "mujoco")

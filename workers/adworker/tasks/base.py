@@ -36,13 +36,8 @@ import numpy as np
 from adclient.designs import Design
 from adclient.plugins import SimulatorOptions, catalogue
 from adclient.urdf_model import read_urdf
-from adworker.tasks.engine import (
-    Camera,
-    EngineMeter,
-    EngineRobot,
-    EngineSimulator,
-    build_engine,
-)
+from adworker.tasks.build import build_engine
+from adworker.tasks.engine import Camera, EngineMeter, EngineRobot, EngineSimulator
 from adworker.tasks.markers import Marker, checked_markers, draw_markers
 from adworker.tasks.model import RobotModel, model_of_design, model_of_urdf
 from adworker.tasks.snapshot import Snapshot

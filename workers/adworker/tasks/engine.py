@@ -2,9 +2,10 @@
 the simulator, the robot in it and its motor meter, whichever engine runs them.
 
 Two engines implement it: PyBullet (:mod:`adworker.tasks.simulator` and
-:mod:`adworker.tasks.robot`, the default) and MuJoCo (:mod:`adworker.tasks.mujoco_engine`).
-A study names one with ``task.simulator``; :func:`build_engine` builds the simulator
-and the robot on it from the same URDF and model. Both read the state into the same
+:mod:`adworker.tasks.robot`, the default) and MuJoCo
+(:mod:`adworker.tasks.mujoco_engine`). A study names one with ``task.simulator``;
+:func:`adworker.tasks.build.build_engine` builds the simulator and the robot on it
+from the same URDF and model. Both read the state into the same
 :class:`~adworker.tasks.snapshot.Snapshot` (the links' centre-of-mass positions and
 frame orientations, joint positions and velocities, ground contacts) and meter the same
 motor quantities, so a task is written once against this module's classes and scores the
@@ -21,12 +22,10 @@ import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from adclient.plugins import SIMULATORS
 from adworker.tasks.model import JointModel, RobotModel
 from adworker.tasks.snapshot import POSE_ORIENTATION, POSE_POSITION, LinkGeometry, Snapshot
 
@@ -281,48 +280,3 @@ class EngineRobot(ABC):
             (g.length for g in self.geometry), default=0.4
         )
         return points.mean(axis=0), max(1.0, 1.6 * extent)
-
-
-def build_engine(
-    simulator: str,
-    *,
-    model: RobotModel,
-    urdf_path: str | Path,
-    fixed_base: bool,
-    reads_contacts: bool,
-    time_step: float,
-    frame_skip: int,
-    rolling_friction: float,
-    spinning_friction: float,
-) -> tuple[EngineSimulator, EngineRobot]:
-    """A simulator of the engine ``simulator`` (one of ``adclient.plugins.SIMULATORS``)
-    with the robot of ``model`` (its URDF at ``urdf_path``) in it; ValueError naming an
-    engine that is not one. The engine's module is imported here, on first use."""
-    sim: EngineSimulator
-    if simulator == "pybullet":
-        from adworker.tasks.robot import Robot
-        from adworker.tasks.simulator import Simulator
-
-        sim = Simulator(time_step=time_step, frame_skip=frame_skip)
-        robot_class: Any = Robot
-    elif simulator == "mujoco":
-        from adworker.tasks.mujoco_engine import MujocoRobot, MujocoSimulator
-
-        sim = MujocoSimulator(time_step=time_step, frame_skip=frame_skip)
-        robot_class = MujocoRobot
-    else:
-        raise ValueError(f"simulator {simulator!r} is not one ({', '.join(SIMULATORS)})")
-    try:
-        robot = robot_class(
-            sim,
-            model,
-            urdf_path,
-            fixed_base=fixed_base,
-            reads_contacts=reads_contacts,
-            rolling_friction=rolling_friction,
-            spinning_friction=spinning_friction,
-        )
-    except BaseException:
-        sim.close()
-        raise
-    return sim, robot
