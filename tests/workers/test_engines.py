@@ -279,3 +279,42 @@ def test_a_picture_of_the_robot_on_either_engine(engine_env, engine: str) -> Non
     # the robot is in it: colours other than the ground's grey and the sky's white
     coloured = np.abs(image.astype(int) - image.mean(axis=2, keepdims=True)).max(axis=2) > 40
     assert coloured.sum() > 200
+
+
+UNSTABLE_URDF = """<robot name="unstable">
+<link name="a"><inertial><mass value="1"/>
+<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>
+<collision><geometry><box size="0.2 0.2 0.2"/></geometry></collision></link>
+<link name="b"><inertial><mass value="0.0001"/>
+<inertia ixx="1e-10" iyy="1e-10" izz="1e-10" ixy="0" ixz="0" iyz="0"/></inertial>
+<collision><origin xyz="0.1 0 0"/><geometry><box size="0.2 0.02 0.02"/></geometry></collision>
+</link>
+<joint name="j" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0.1 0 0"/>
+<axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="10000000" velocity="1000"/></joint>
+</robot>"""
+
+
+def test_a_design_that_diverges_on_mujoco_ends_its_episode_naming_it_and_writes_no_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A 0.1 g link on a 10 MN joint: MuJoCo's acceleration blows up and it resets the
+    world to its rest pose, which would score a fresh start. The episode ends there with
+    the reason, and MuJoCo's warning goes to the log, not to MUJOCO_LOG.TXT in the
+    worker's folder."""
+    from adworker.tasks.mujoco_engine import SimulationDiverged
+
+    monkeypatch.chdir(tmp_path)
+    urdf = tmp_path / "unstable.urdf"
+    urdf.write_text(UNSTABLE_URDF)
+    spec = catalogue().task("lift-highest")
+    env = spec.load_factory()(
+        design=None, urdf_path=urdf, options=spec.options.model_validate({}), simulator="mujoco"
+    )
+    try:
+        env.reset(seed=0)
+        with pytest.raises(SimulationDiverged, match="MuJoCo simulation diverged"):
+            for step in range(env.episode_steps):
+                env.step(np.full(env.action_space.shape, 1.0 if step % 2 else -1.0))
+    finally:
+        env.close()
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()

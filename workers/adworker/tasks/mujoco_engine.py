@@ -41,6 +41,7 @@ and need no OpenGL on the worker.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -72,6 +73,22 @@ range is metres: a 0.3 m rail's servo reaches its effort 3 cm off)."""
 SERVO_DAMPING_STEPS = 2.0
 """The servo's damping over its stiffness, in time steps (``kv = kp * 2 * time_step``):
 it follows its moving setpoint about this far behind."""
+log = logging.getLogger(__name__)
+
+
+class SimulationDiverged(RuntimeError):
+    """MuJoCo found a huge or NaN acceleration (and reset the world to its rest pose, as
+    it does): what the episode measured after it would be a fresh start's, so the job
+    ends here, naming it, instead of scoring it."""
+
+
+def _log_warning(message: str) -> None:
+    """MuJoCo's warnings to the worker's log, not to ``MUJOCO_LOG.TXT`` in its folder."""
+    log.warning("MuJoCo: %s", message)
+
+
+mujoco.set_mju_user_warning(_log_warning)
+
 PYBULLET_POSITION_GAIN = 0.1
 """PyBullet's default position gain: its motor's velocity target is this times the
 error per time step."""
@@ -115,6 +132,14 @@ class MujocoSimulator(EngineSimulator):
                 mujoco.mj_step(model, data)
                 each()
         self.physics_steps += self.frame_skip
+        diverged = data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
+        if diverged.number:
+            raise SimulationDiverged(
+                f"the MuJoCo simulation diverged (a huge or NaN acceleration of degree of "
+                f"freedom {diverged.lastinfo}, by physics step {self.physics_steps} at a "
+                f"{self.time_step:g} s step): the design is "
+                "unstable on this engine at this step; PyBullet may simulate it"
+            )
 
     # ---------------------------------------------------------------- pictures
 
