@@ -12,7 +12,8 @@ Each control step runs ``frame_skip`` physics steps, then reads the state once i
 :class:`~adworker.tasks.snapshot.Snapshot`. The task turns the snapshot into its
 *metric* (the quantity the score is made of) and its reward. By default the *score*
 of an episode is the mean metric over its second half, so a design is judged on the
-pose it holds, not on the transient that gets it there; a task may score otherwise.
+pose it holds, not on the transient that gets it there; a task may score otherwise,
+and says how in words beside its rule (``Task.score_rule``: the curve's text).
 
 Evaluation episodes are deterministic for a given seed: ``reset`` restores a state
 saved at build time (positions, velocities and contact caches) before applying the
@@ -48,6 +49,10 @@ DEFAULT_EPISODE_STEPS = 32
 OptionsT = TypeVar("OptionsT", bound=SimulatorOptions)
 
 
+SECOND_HALF_MEAN = "the per-step metric's second-half mean"
+""":func:`episode_score` in words: the default ``Task.score_rule``."""
+
+
 def episode_score(metric: list[float] | np.ndarray) -> float:
     """Mean of the per-step metric over the second half of an episode."""
     values = np.asarray(metric, dtype=float)
@@ -80,6 +85,10 @@ class Task(Generic[OptionsT]):
     reads_contacts: ClassVar[bool] = True
     """Whether each step reads ground contacts (observed as one flag per link)."""
     default_episode_steps: ClassVar[int] = DEFAULT_EPISODE_STEPS
+    score_rule: ClassVar[str] = SECOND_HALF_MEAN
+    """What :meth:`score` computes from the per-step metric, in words (``curve.json``'s
+    ``score``): a task that overrides ``score`` declares its own beside it, as the class
+    that defines ``score`` states it (:meth:`score_text`)."""
 
     def __init__(self, robot: EngineRobot, sim: EngineSimulator, options: OptionsT) -> None:
         self.robot = robot
@@ -136,6 +145,23 @@ class Task(Generic[OptionsT]):
         """An episode's score from its per-step metric."""
         return episode_score(metric)
 
+    @classmethod
+    def score_text(cls) -> str:
+        """:meth:`score`'s rule in words: the ``score_rule`` of the class that defines the
+        ``score`` it runs, so a subclass that changes the rule without saying so is not
+        described by its parent's words; without one, ``score``'s docstring's first line,
+        else its name."""
+        for owner in cls.__mro__:
+            if "score" in vars(owner):
+                break
+        rule = vars(owner).get("score_rule")
+        if isinstance(rule, str):
+            return rule
+        doc = (vars(owner)["score"].__doc__ or "").strip()
+        if doc:
+            return doc.splitlines()[0].rstrip(".")
+        return f"the task's own score of its per-step metric ({owner.__qualname__}.score)"
+
     def metrics(self, snapshot: Snapshot) -> Mapping[str, float]:
         """The task's own metrics of an evaluation episode, ``snapshot`` its last: the
         trial reports each as ``task.<name>``, its mean over the evaluation episodes
@@ -181,6 +207,10 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         super().__init__()
         self.options = options
         self.simulator = simulator
+        self.design = design
+        self.urdf_path = Path(urdf_path)
+        """What this env was built of: another world of it is built the same way
+        (:mod:`adworker.batched`)."""
         self.render_mode = render_mode
         self.episode_steps = options.episode_steps or task.default_episode_steps
         self.init_noise = options.init_noise
@@ -230,6 +260,12 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     @property
     def joint_count(self) -> int:
         return self.robot.joint_count
+
+    @property
+    def score_text(self) -> str:
+        """What an episode's score is, in words: its task's declared rule
+        (:meth:`Task.score_text`)."""
+        return self.task.score_text()
 
     @property
     def sim_steps(self) -> int:
