@@ -82,13 +82,23 @@ class WalkForwardOptions(SimulatorOptions):
         description="The episode ends when the centre of mass rises above this (m): a robot "
         "flung off the ground, or a diverged simulation, travels no further",
     )
+    fall_angle: float = Field(
+        default=45.0,
+        gt=0.0,
+        le=90.0,
+        description="Degrees past which the body has fallen: its root rolled onto its side "
+        "(the axis level across it at the start tilted more than this) or over onto its back "
+        "(the axis up at the start more than this below level). A fallen robot's progress "
+        "does not count: its metric is then min(distance, 0). 90 never calls it fallen",
+    )
 
 
 WALK_FORWARD = TaskSpec(
     name="walk-forward",
     options=WalkForwardOptions,
     description="A free robot lying on the ground travels along +x: the distance its "
-    "centre of mass has moved at the end of the episode (m).",
+    "centre of mass has moved at the end of the episode (m), if it has not fallen (on its "
+    "side or back: then no progress counts).",
     factory="adworker.tasks.walk_forward:WalkForward.make_env",
     templates=True,
     simulators=SIMULATORS,

@@ -130,3 +130,5 @@ def test_a_walk_forward_job_from_the_example_study(tmp_path) -> None:
     )
     assert evaluation.value > 0.05
     assert evaluation.metrics["train_steps"] == 256
+    # the share of its evaluation episodes that ended fallen: this chain never rolls over
+    assert evaluation.metrics["task.fell"] == 0.0

@@ -1,66 +1,37 @@
 """The trial's ``curve.json``, written through its contract (:class:`adclient.schemas.Curve`),
-and the words for what an evaluation episode's score is, taken from the rule the task's
-env scores its episodes with, so the text says what the number is (walk-forward's last
-value, not a second-half mean)."""
+and the words for what an evaluation episode's score is: the rule the task declares
+beside its ``score`` (``Task.score_rule``, read through the env's ``score_text``), so the
+text says what the number is (walk-forward's last value, not a second-half mean) without
+guessing it from what the rule computes."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-
-import numpy as np
+from collections.abc import Sequence
 
 from adclient.schemas import Curve, EvaluationEpisode, Job, TrainPoint
 from adworker.learners import EpisodeResult
 from adworker.starts import TrainResult
-from adworker.tasks.base import Task, episode_score
 
-ScoreRule = Callable[[list[float]], float]
-
-KNOWN_RULES: tuple[tuple[str, ScoreRule], ...] = (
-    ("the per-step metric's second-half mean", episode_score),
-    ("the per-step metric's last value (at the episode's end)", lambda m: m[-1]),
-    ("the per-step metric's mean over the episode", lambda m: float(np.mean(m))),
-    ("the per-step metric's largest value", max),
-    ("the per-step metric's smallest value", min),
-    ("the per-step metric's sum", lambda m: float(np.sum(m))),
-)
-"""Rules a task's score may follow, each in words."""
-
-PROBES = ([0.5, 2.0, -1.0, 3.0, 1.25], [1.0, 4.0, 2.0, 8.0, -3.0, 0.5, 0.25])
-"""Metrics on which every known rule gives another value than each other rule."""
+UNDECLARED = "the env's episode score"
+"""The words for an env that does not say what its score is (a plugin's own env without
+a ``score_text``)."""
 
 
-def score_rule_text(score_of: ScoreRule | None) -> str:
-    """What an episode's score is under ``score_of`` (the env's rule: its task's
-    ``score``): the known rule it computes on every probe, else its docstring's first
-    line, else its name."""
-    if score_of is None:
-        return "the env's episode score"
-    try:
-        results = [float(score_of(list(probe))) for probe in PROBES]
-    except Exception:  # a plugin's rule that needs real episodes: described otherwise
-        results = []
-    for text, rule in KNOWN_RULES:
-        if results and all(
-            np.isclose(result, float(rule(list(probe))))
-            for result, probe in zip(results, PROBES, strict=True)
-        ):
-            return text
-    rule = getattr(score_of, "__func__", score_of)  # a task's bound ``score``
-    doc = (getattr(rule, "__doc__", None) or "").strip()
-    if doc and rule is not Task.score:
-        return doc.splitlines()[0].rstrip(".")
-    return f"the task's own score of its per-step metric ({getattr(rule, '__qualname__', rule)})"
+def env_score_text(env: object) -> str:
+    """What an episode's score is on ``env``: its ``score_text`` (a ``RobotEnv``'s: its
+    task's declared rule), else :data:`UNDECLARED`."""
+    text = getattr(env, "score_text", None)
+    return text if isinstance(text, str) and text.strip() else UNDECLARED
 
 
-def evaluation_score_text(score_of: ScoreRule | None) -> str:
+def evaluation_score_text(rule_text: str) -> str:
     """The trial's value in words: the mean over its evaluation episodes of their score."""
-    return f"mean over evaluation episodes of {score_rule_text(score_of)}"
+    return f"mean over evaluation episodes of {rule_text}"
 
 
 def evaluation_curve(
-    job: Job, trained: TrainResult, episodes: Sequence[EpisodeResult], score_of: ScoreRule | None
+    job: Job, trained: TrainResult, episodes: Sequence[EpisodeResult], rule_text: str
 ) -> Curve:
     """A task job's curve: the learner's training points (those with a finite score) and
     the evaluation episodes."""
@@ -68,7 +39,7 @@ def evaluation_curve(
         trial_id=job.trial_id,
         task=job.task.name,
         learner=job.task.learner,
-        score=evaluation_score_text(score_of),
+        score=evaluation_score_text(rule_text),
         train_steps=float(trained.train_steps),
         train=[
             TrainPoint(steps=point["steps"], score=point["score"])

@@ -44,7 +44,7 @@ from adclient.plugins import (
 from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import CURVE_ARTIFACT, SHARED_ARTIFACT, Job, TaskConfig, option_problems
 from adworker import shared_weights
-from adworker.curves import evaluation_curve
+from adworker.curves import env_score_text, evaluation_curve
 from adworker.job_robots import job_robot
 from adworker.learners import (
     EpisodeResult,
@@ -445,10 +445,9 @@ class TaskRunner:
 def _curve_json(
     job: Job, trained: TrainResult, episodes: list[EpisodeResult], env: object
 ) -> bytes:
-    """The trial's ``curve.json`` (:class:`adclient.schemas.Curve`); its score text from
-    the rule ``env`` scored the episodes with (its task's)."""
-    score_of = getattr(getattr(env, "record", None), "score_of", None)
-    return evaluation_curve(job, trained, episodes, score_of).to_json()
+    """The trial's ``curve.json`` (:class:`adclient.schemas.Curve`); its score text the
+    rule ``env`` declares it scores the episodes with (its task's ``score_rule``)."""
+    return evaluation_curve(job, trained, episodes, env_score_text(env)).to_json()
 
 
 def _png(rgb: np.ndarray) -> bytes:

@@ -3,7 +3,8 @@
 adworker calls ``MujocoReach(design=, urdf_path=, options=)`` (the factory the
 declaration names) and uses, besides Gymnasium's ``reset`` and ``step``:
 ``joint_count``; ``episode_steps``; ``gait_period`` (None: no gait clock); ``record``,
-the episode's per-step ``metric`` and its ``score()``; ``sim_steps``;
+the episode's per-step ``metric`` and its ``score()``, and ``score_text``, that score in
+words; ``sim_steps``;
 ``task_metrics()``, the task's own metrics of the episode just ended (the trial's
 ``task.tip_distance``); and ``render_image()`` for the trial's picture. Actions are
 in [-1, 1] per joint and the observation starts with the joints' positions on the
@@ -51,6 +52,9 @@ class MujocoReach(gym.Env[np.ndarray, np.ndarray]):
     """One design in its own MuJoCo model; the metric is minus the tip's distance to
     the target (m). Observation: joint positions in [-1, 1], joint velocities, and the
     tip's offset from the target."""
+
+    score_text = "the per-step metric's second-half mean"
+    """What ``record.score()`` is, in words: the trial's ``curve.json`` says it."""
 
     metadata = {"render_modes": ["rgb_array"]}
 

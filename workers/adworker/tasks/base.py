@@ -147,20 +147,21 @@ class Task(Generic[OptionsT]):
 
     @classmethod
     def score_text(cls) -> str:
-        """:meth:`score`'s rule in words: the ``score_rule`` of the class that defines the
-        ``score`` it runs, so a subclass that changes the rule without saying so is not
-        described by its parent's words; without one, ``score``'s docstring's first line,
-        else its name."""
+        """:meth:`score`'s rule in words: the nearest ``score_rule`` declared no further up
+        than the ``score`` it runs, so a subclass that changes the rule without saying so
+        is not described by its parent's words; without one, that ``score``'s docstring's
+        first line, else its name."""
         for owner in cls.__mro__:
-            if "score" in vars(owner):
-                break
-        rule = vars(owner).get("score_rule")
-        if isinstance(rule, str):
-            return rule
-        doc = (vars(owner)["score"].__doc__ or "").strip()
-        if doc:
-            return doc.splitlines()[0].rstrip(".")
-        return f"the task's own score of its per-step metric ({owner.__qualname__}.score)"
+            declared = vars(owner)
+            rule = declared.get("score_rule")
+            if isinstance(rule, str):
+                return rule
+            if "score" in declared:
+                doc = (declared["score"].__doc__ or "").strip()
+                if doc:
+                    return doc.splitlines()[0].rstrip(".")
+                return f"the task's own score of its per-step metric ({owner.__qualname__}.score)"
+        return SECOND_HALF_MEAN
 
     def metrics(self, snapshot: Snapshot) -> Mapping[str, float]:
         """The task's own metrics of an evaluation episode, ``snapshot`` its last: the
