@@ -167,7 +167,7 @@ def _laid_down(model: UrdfModel) -> tuple[float, float, float, float]:
     return _product(_about((1.0, 0.0, 0.0), roll), _about((0.0, 1.0, 0.0), math.pi / 2))
 
 
-def _frames(
+def link_frames(
     model: UrdfModel, rotation: np.ndarray, position: np.ndarray, joints: Mapping[str, float]
 ) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
     """Each link's frame in the world (name, rotation, origin), the root's given, the
@@ -194,7 +194,7 @@ def _lowest_points(
     model: UrdfModel, rotation: np.ndarray, position: np.ndarray, joints: Mapping[str, float]
 ) -> Iterator[float]:
     """The height of each link's lowest point (of a link with no shape, its origin's)."""
-    for name, turn, at in _frames(model, rotation, position, joints):
+    for name, turn, at in link_frames(model, rotation, position, joints):
         shapes = model.links[name].shapes
         if not shapes:
             yield float(at[2])
