@@ -145,6 +145,9 @@ async def with_urdf(
             "(AD_LEASE_EXPAND_SECONDS): the trial waits in the queue while it expands",
             expanding_for=EXPAND_SECONDS + 1 - waited,
         )
+        telling = asyncio.ensure_future(_tell_failure_when_known(proposing, study_id, expanding))
+        _BACKGROUND.add(telling)
+        telling.add_done_callback(_finished)
         raise ProposalFailedError(detail) from None
     if failed:
         await _back_off(proposing, study_id, _failure(failed))
@@ -257,6 +260,38 @@ async def _back_off(
         f"{text} ({failures} in a row; workers' leases skip the study until "
         f"{retry_at:%Y-%m-%d %H:%M:%S} UTC)"
     )
+
+
+async def _tell_failure_when_known(
+    proposing: Proposing,
+    study_id: int,
+    expanding: asyncio.Future[tuple[dict[int, Expansion], dict[int, Trial]]],
+) -> None:
+    """Once an expansion a lease stopped waiting for ends, a failure it found replaces
+    the study's "took over" error with its reason (the same failure in a row, not one
+    more), its backoff counted from then."""
+    try:
+        _, failed = await asyncio.shield(expanding)
+    except Exception:  # said by _finished
+        return
+    if not failed:
+        return
+    try:
+        pool, backoff = proposing.expansions, proposing.backoff
+        failures = pool.failing.get(study_id, 1)
+        delay = min(backoff.max_seconds, backoff.seconds * 2.0 ** min(failures - 1, 64))
+        retry_at = utcnow() + timedelta(seconds=delay)
+        text = f"study {study_id}: {_failure(failed)}"[:MAX_ERROR_CHARS]
+
+        def write() -> None:
+            with proposing.db.write() as session:
+                urdf_repo.back_off(
+                    session, study_id=study_id, failures=failures, error=text, retry_at=retry_at
+                )
+
+        await proposing.db.run(write)
+    except Exception:
+        log.warning("study %d: its expansion's failure was not recorded", study_id, exc_info=True)
 
 
 async def _holding(place: Place, work: Coroutine[Any, Any, T]) -> T:
