@@ -1,9 +1,10 @@
 """Engines (issue 59): control steps per CPU-second of each simulator on the same design,
 random actions (the limit a learner could reach) and stable-baselines3 PPO with one env
-as the worker configures it (today's baseline arm), in one run on one core.
+as the worker configures it (today's baseline arm), and the same on batched worlds
+(adworker.batched: PPO's ``n_envs``), in one run on one core.
 
     python bench/engines.py [--tasks stand-up,walk-forward] [--steps 3000] \\
-        [--ppo-steps 4096] [--agree 0] [--core 0] [--json FILE]
+        [--ppo-steps 4096] [--worlds 8,16,32] [--agree 0] [--core 0] [--json FILE]
 
 Per task and engine: ``random``, control steps per CPU-second of ``env.step`` with a new
 uniform random action each step (resets counted, as an episode's end needs one); and,
@@ -19,6 +20,14 @@ searched lengths at 0.2 m, its axes across the body), lift-highest's chain of fo
 lift-highest (examples/multi-structure.yaml's, several trees), each scored with the
 ``fast`` learner on both engines as the worker scores it; Spearman's rank correlation of
 the two engines' scores, per task.
+
+``--worlds N,...`` (unless empty): per task and engine, ``random-batch``, control steps
+per CPU-second of a batch of the largest N worlds stepped with random actions (the
+batch's limit), and ``ppo-N``, the ``ppo`` learner with ``n_envs: N`` on the same
+budget (``--ppo-steps`` env steps, all worlds together; the same rollout of 512 samples,
+minibatches and epochs as one env). Then issue 59's goals per task: the best batched
+PPO on MuJoCo and on PyBullet over today's baseline (SB3 PPO, one env, PyBullet), and
+the learner's share of a batched PPO step, ``1 - ppo / random-batch``.
 
 Prints a table and one ``BENCH`` line per figure (``bench/compare.py``); ``--json``
 writes the rows.
@@ -112,11 +121,34 @@ def random_rate(env: Any, steps: int) -> float:
     return steps / (time.process_time() - started)
 
 
-def ppo_rate(env: Any, steps: int) -> float:
-    """The worker's PPO: env steps per CPU-second of one ``train``."""
+def random_batch_rate(env: Any, worlds: int, steps: int) -> float:
+    """Control steps per CPU-second of a batch of ``worlds`` worlds of ``env`` stepped with
+    random actions, all worlds together (resets included)."""
+    from adworker.batched import BatchedEnv
+
+    batch = BatchedEnv.of(env, worlds)
+    try:
+        rng = np.random.default_rng(0)
+        rounds = max(1, steps // worlds)
+        shape = (rounds, worlds, env.action_space.shape[0])
+        actions = rng.uniform(-1, 1, shape).astype(np.float32)
+        batch.seed(0)
+        batch.reset()
+        started = time.process_time()
+        for action in actions:
+            batch.step(action)
+        return rounds * worlds / (time.process_time() - started)
+    finally:
+        batch.close_copies()
+
+
+def ppo_rate(env: Any, steps: int, worlds: int = 1) -> float:
+    """The worker's PPO (``n_envs: worlds``): env steps per CPU-second of one ``train``,
+    the batch's building counted."""
+    from adclient.builtin_learners import PPOOptions
     from adclient.plugins import catalogue
 
-    learner = catalogue().learner("ppo").load_factory()(None)
+    learner = catalogue().learner("ppo").load_factory()(PPOOptions(n_envs=worlds))
     started = time.process_time()
     trained = learner.train(env, steps=steps, seed=0)
     seconds = time.process_time() - started
@@ -178,6 +210,26 @@ def agreement(task: str, count: int, folder: Path) -> dict[str, Any]:
     return {"task": task, "designs": count, "spearman": rho, "scores": scores}
 
 
+def goals(task: str, by_engine: dict[str, dict[str, Any]], world_counts: list[int]) -> None:
+    """Issue 59's goals for ``task``: the best batched PPO on each engine over today's
+    baseline (SB3 PPO, one env, PyBullet; 10x for MuJoCo, 2x for PyBullet), and the
+    learner's share of that batched PPO's CPU (at most half)."""
+    baseline = by_engine["pybullet"]["ppo"]
+    for engine, goal in (("mujoco", 10.0), ("pybullet", 2.0)):
+        row = by_engine[engine]
+        best = max(world_counts, key=lambda count: row[f"ppo-{count}"])
+        speedup = row[f"ppo-{best}"] / baseline
+        share = 1.0 - row[f"ppo-{best}"] / row["random-batch"]
+        verdict = "met" if speedup >= goal else "missed"
+        print(
+            f"{task}: batched {engine} PPO (n_envs {best}) {speedup:.2f}x today's SB3 + "
+            f"PyBullet (goal {goal:g}x: {verdict}); learner's share {share:.1%} "
+            f"(goal <= 50%: {'met' if share <= 0.5 else 'missed'})"
+        )
+        emit(f"{task}.{engine}.batched_over_baseline", speedup, higher_is_better=True, unit="x")
+        emit(f"{task}.{engine}.batched_learner_share", share, higher_is_better=False)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", default="stand-up,walk-forward")
@@ -190,10 +242,14 @@ def main() -> int:
         help="random designs of stand-up and lift-highest scored with the fast learner on "
         "both engines, for their rank correlation (0: none)",
     )
+    parser.add_argument(
+        "--worlds", default="8,16,32", help="batched arms' world counts ('': no batched arm)"
+    )
     parser.add_argument("--core", type=int, default=0)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     tasks = args.tasks.split(",")
+    world_counts = [int(count) for count in args.worlds.split(",") if count]
     unknown = [task for task in tasks if task not in TASKS]
     if unknown:
         parser.error(f"unknown task(s) {', '.join(unknown)} (tasks: {', '.join(TASKS)})")
@@ -220,8 +276,13 @@ def main() -> int:
                         "frame_skip": env.options.frame_skip,
                         "random": random_rate(env, args.steps),
                     }
+                    if world_counts:
+                        row["random-batch"] = random_batch_rate(env, max(world_counts), args.steps)
+                        row["random-batch-worlds"] = max(world_counts)
                     if args.ppo_steps:
                         row["ppo"] = ppo_rate(env, args.ppo_steps)
+                        for count in world_counts:
+                            row[f"ppo-{count}"] = ppo_rate(env, args.ppo_steps, count)
                 finally:
                     env.close()
                 rows.append(row)
@@ -230,13 +291,17 @@ def main() -> int:
             if args.agree
             else []
         )
-    print(f"{'task':<14} {'engine':<9} {'random steps/CPU-s':>19} {'PPO steps/CPU-s':>16}")
+    arms = ["random", *(["random-batch"] if world_counts else [])]
+    if args.ppo_steps:
+        arms += ["ppo", *(f"ppo-{count}" for count in world_counts)]
+    print(f"{'task':<14} {'engine':<9} " + " ".join(f"{arm:>12}" for arm in arms))
     for row in rows:
-        ppo = f"{row['ppo']:>16,.0f}" if "ppo" in row else f"{'-':>16}"
-        print(f"{row['task']:<14} {row['engine']:<9} {row['random']:>19,.0f} {ppo}")
+        figures = " ".join(f"{row[arm]:>12,.0f}" for arm in arms)
+        print(f"{row['task']:<14} {row['engine']:<9} {figures}")
+    print("(control steps per CPU-second; random-batch: the largest batch; ppo-N: n_envs N)")
     for task in tasks:
         by_engine = {row["engine"]: row for row in rows if row["task"] == task}
-        for arm in ("random", "ppo"):
+        for arm in arms:
             if arm not in by_engine["pybullet"]:
                 continue
             for engine, row in by_engine.items():
@@ -244,6 +309,8 @@ def main() -> int:
             ratio = by_engine["mujoco"][arm] / by_engine["pybullet"][arm]
             print(f"{task}: mujoco / pybullet, {arm}: {ratio:.2f}x")
             emit(f"{task}.mujoco_over_pybullet.{arm}", ratio, higher_is_better=True, unit="x")
+        if args.ppo_steps and world_counts:
+            goals(task, by_engine, world_counts)
     for agreed_task in agreed:
         name, rho = agreed_task["task"], agreed_task["spearman"]
         print(f"{name}: {agreed_task['designs']} random designs, fast learner, Spearman {rho:.3f}")

@@ -27,6 +27,11 @@ MAX_GRADIENT_SAMPLES = 1_000_000_000
 MAX_NET_WEIGHTS = 65_536
 """The most weights between a network's hidden layers (``[256, 256]``)."""
 
+MAX_BATCH_WORLDS = 32
+"""The most worlds PPO's ``n_envs`` may train on together: each is a whole simulator (a
+PyBullet client holds about 28 MB), so 32 stay well within a job's default memory
+(``--job-memory-mb`` 2048); 8 to 32 measured alike on one core (bench/engines.py)."""
+
 Width = Annotated[int, Field(ge=1, le=256)]
 
 
@@ -169,6 +174,18 @@ class PPOOptions(StableBaselinesOptions):
     vf_coef: float = Field(default=0.5, ge=0.0, le=100.0, description="Value loss weight")
     max_grad_norm: float = Field(default=0.5, gt=0.0, le=1000.0)
     target_kl: float | None = Field(default=None, gt=0.0, le=100.0)
+    n_envs: int = Field(
+        default=1,
+        ge=1,
+        le=MAX_BATCH_WORLDS,
+        description="Worlds of the design trained on together (adworker.batched), the "
+        "policy evaluated once for all of them; n_steps is the rollout of all together",
+    )
+
+    def hyperparameters(self) -> dict[str, Any]:
+        kwargs = super().hyperparameters()
+        del kwargs["n_envs"]  # the worker's batch of worlds, not an argument of SB3's PPO
+        return kwargs
 
     def work(self, steps: int) -> Work:
         passes = math.ceil(steps / self.n_steps) * self.n_epochs

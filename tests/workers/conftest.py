@@ -66,10 +66,16 @@ def workers(tmp_path: Path) -> Iterator[Callable[..., WorkerProcess]]:
 def env_of(tmp_path: Path):
     """An installed task's env for a design (a Design, or the name of a reference design in
     adworker.designs), built as the worker builds it: the task's factory, given the
-    design, its URDF and the task's options model."""
+    design, its URDF and the task's options model (``simulator``: on that engine)."""
     numbers = itertools.count()
 
-    def make(task: str, design: Design | str, render_mode: str | None = None, **options: object):
+    def make(
+        task: str,
+        design: Design | str,
+        render_mode: str | None = None,
+        simulator: str = "pybullet",
+        **options: object,
+    ):
         robot = getattr(designs, design)() if isinstance(design, str) else design
         urdf_path = write_urdf(robot, tmp_path / f"robot-{next(numbers)}.urdf")
         spec = catalogue().task(task)
@@ -78,6 +84,7 @@ def env_of(tmp_path: Path):
             urdf_path=urdf_path,
             options=spec.options.model_validate(options),
             render_mode=render_mode,
+            simulator=simulator,
         )
 
     return make

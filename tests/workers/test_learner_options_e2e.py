@@ -76,6 +76,8 @@ def study(learner: str, learner_kwargs: dict[str, Any], **task: Any) -> dict[str
         ("ddpg", {"policy_kwargs": {"net_arch": [4096]}}, {}, ["policy_kwargs", "net_arch"]),
         ("sac", {"device": "cuda"}, {}, ["learner_kwargs.device", "learning_rate, gamma"]),
         ("ppo", {"net_arch": [4096, 4096]}, {}, ["learner_kwargs.net_arch.0", "256"]),
+        # issue 59's batch of worlds: each a whole simulator, 32 at most
+        ("ppo", {"n_envs": 33}, {}, ["learner_kwargs.n_envs", "32"]),
         ("td3", {"net_arch": [256, 256, 256]}, {}, ["more than the limit of 65,536"]),
         ("ddpg", {"buffer_size": 10**9}, {}, ["learner_kwargs.buffer_size"]),
         ("ddpg", {"action_noise": {"kind": "ou", "sigma": 0.2, "size": 9}}, {}, ["size"]),

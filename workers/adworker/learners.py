@@ -31,6 +31,7 @@ direction long enough to find a pose.
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -168,8 +169,23 @@ class StableBaselinesLearner(Learner):
     ) -> Any:
         """A fresh model of this learner's settings for ``env``: an MLP of ``net_arch``
         unless ``policy`` and its ``policy_kwargs`` are given (the modular policy)."""
+        env = self.training_env(env)
+        try:
+            return self._model_on(env, steps=steps, seed=seed, policy=policy, kwargs=policy_kwargs)
+        except BaseException:
+            release_batch(env, None)
+            raise
+
+    def training_env(self, env: Any) -> Any:
+        """The env the model trains on, given the job's (PPO: maybe a batch of it)."""
+        return env
+
+    def _model_on(
+        self, env: Any, *, steps: int, seed: int, policy: Any, kwargs: dict[str, Any] | None
+    ) -> Any:
         import stable_baselines3
 
+        policy_kwargs = kwargs
         kwargs = self.settings.hyperparameters()
         if policy_kwargs is not None:
             kwargs["policy_kwargs"] = policy_kwargs
@@ -180,6 +196,13 @@ class StableBaselinesLearner(Learner):
         if "n_steps" in kwargs and steps < 2 * int(kwargs["n_steps"]):
             kwargs["n_steps"] = max(32, steps // 2)
             kwargs["batch_size"] = min(int(kwargs.get("batch_size", 64)), kwargs["n_steps"])
+        worlds = int(getattr(env, "num_envs", 1))
+        if "n_steps" in kwargs and worlds > 1:
+            # n_steps is the rollout of all worlds together (SB3's is per world): the same
+            # samples per update, so a batch trains as one env on the same budget does
+            kwargs["n_steps"] = max(1, math.ceil(int(kwargs["n_steps"]) / worlds))
+            rollout = kwargs["n_steps"] * worlds
+            kwargs["batch_size"] = min(int(kwargs.get("batch_size", 64)), rollout)
         noise = kwargs.pop("action_noise", None)
         if noise is not None:
             kwargs["action_noise"] = _action_noise(env, **noise)
@@ -262,6 +285,8 @@ class StableBaselinesLearner(Learner):
             if stopped.pause:
                 stopped.checkpoint = self.checkpoint(model)
             raise
+        finally:
+            release_batch(model, env)
         result = TrainResult(
             policy=_deterministic(model),
             train_steps=int(model.num_timesteps),
@@ -323,10 +348,28 @@ class StableBaselinesLearner(Learner):
         unpickled: it cannot choose what is built. The env is reset at the next
         ``learn``."""
         model = self.make_model(env, steps=steps, seed=seed)
-        checkpoints.load_into(model, checkpoint)
+        try:
+            checkpoints.load_into(model, checkpoint)
+        except BaseException:
+            release_batch(model, env)
+            raise
         # Seeded from the step it resumes at: not the exploration it started with.
         model.set_random_seed(seed + int(model.num_timesteps))
         return model
+
+
+def release_batch(model: Any, env: Any) -> None:
+    """After training on a batch of worlds (:mod:`adworker.batched`; ``model`` the SB3
+    model trained on it, or the batch itself): close the worlds it built and count their
+    physics steps in ``env``'s (its world 0), which the job reports as its
+    ``sim_steps``."""
+    from adworker.batched import BatchedEnv
+
+    batch = model.get_env() if hasattr(model, "get_env") else model
+    if isinstance(batch, BatchedEnv):
+        steps = batch.close_copies()
+        if env is not None and batch.worlds[0] is env:
+            env.sim.physics_steps += steps
 
 
 def _without_log_folder(model: Any) -> Any:
@@ -392,6 +435,19 @@ class PPOLearner(StableBaselinesLearner):
     algorithm: ClassVar[str] = "PPO"
     options_model: ClassVar[type[StableBaselinesOptions]] = PPOOptions
     default_steps: ClassVar[int] = PPOOptions.default_steps
+
+    def training_env(self, env: Any) -> Any:
+        """With ``n_envs`` above 1, a batch of that many worlds of ``env``'s design
+        (:mod:`adworker.batched`; ``env`` its world 0), whose other worlds
+        :func:`release_batch` closes after training; else ``env``."""
+        from stable_baselines3.common.vec_env import VecEnv
+
+        worlds = self.settings.n_envs if isinstance(self.settings, PPOOptions) else 1
+        if worlds > 1 and not isinstance(env, VecEnv):
+            from adworker.batched import BatchedEnv
+
+            return BatchedEnv.of(env, worlds)
+        return env
 
     def _shared_model(
         self, env: Any, start: Shared, *, steps: int, seed: int
