@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from adclient.design import DesignSpace
 from adclient.designs import Design, Link
 from adclient.spawn import design_model, link_frames, spawn_pose
 
@@ -171,29 +172,29 @@ def rest_overlaps(design: Design, *, tolerance: float = TOLERANCE) -> list[Overl
             for second in names:
                 if first < second:
                     balls.setdefault(frozenset((first, second)), []).append((point, sum(largest)))
+    samples = {name: shape.samples() for name, shape in shapes.items()}
     found = []
     order = [link.name for link in design.links]
     for i, first in enumerate(order):
         for second in order[i + 1 :]:
-            depth = _depth(shapes[first], shapes[second], balls.get(frozenset((first, second)), []))
+            a, b = shapes[first], shapes[second]
+            if np.linalg.norm(a.centre - b.centre) > a.bound + b.bound:
+                continue
+            meeting = balls.get(frozenset((first, second)), [])
+            depth = max(_depth(samples[first], b, meeting), _depth(samples[second], a, meeting))
             if depth > tolerance:
                 found.append(Overlap(first, second, depth))
     return sorted(found, key=lambda overlap: -overlap.depth)
 
 
-def _depth(a: _Shape, b: _Shape, balls: Sequence[tuple[np.ndarray, float]]) -> float:
-    """How deep a point of either shape lies inside the other, outside ``balls`` (the
-    joint points where they meet); 0 where none does."""
-    if np.linalg.norm(a.centre - b.centre) > a.bound + b.bound:
+def _depth(points: np.ndarray, shape: _Shape, balls: Sequence[tuple[np.ndarray, float]]) -> float:
+    """How deep the deepest of ``points`` lies inside ``shape``, leaving out those in
+    ``balls`` (the joint points where the two links meet); 0 where none does."""
+    for point, radius in balls:
+        points = points[np.linalg.norm(points - point, axis=1) > radius]
+    if not len(points):
         return 0.0
-    deepest = 0.0
-    for inner, outer in ((a, b), (b, a)):
-        points = inner.samples()
-        for point, radius in balls:
-            points = points[np.linalg.norm(points - point, axis=1) > radius]
-        if len(points):
-            deepest = max(deepest, float(-outer.distance(points).min()))
-    return deepest
+    return max(0.0, float(-shape.distance(points).min()))
 
 
 def overlap_reason(overlaps: Iterable[Overlap], *, limit: int = 6) -> str:
@@ -203,3 +204,45 @@ def overlap_reason(overlaps: Iterable[Overlap], *, limit: int = 6) -> str:
     named = ", ".join(str(overlap) for overlap in listed[:limit])
     more = f" and {len(listed) - limit} more pairs" if len(listed) > limit else ""
     return f"links interpenetrate at the rest pose: {named}{more}"
+
+
+SPACE_SAMPLES = 16
+"""Designs of a space checked at its creation (at least one of each structure, of the
+first 16 structures): each structure's middle, its lower and upper corners, then
+seeded random points of its specs."""
+
+
+def space_overlaps(space: DesignSpace) -> str | None:
+    """Why no design of ``space`` can be built, or None: when every design checked
+    (:data:`SPACE_SAMPLES`, spread over its structures) has links interpenetrating at
+    the rest pose, the pairs that do in all of them (else in the first), by structure."""
+    from adclient.decode import build_design, spec_layout
+
+    layout = spec_layout(space)
+    structures = range(min(len(layout.structures), SPACE_SAMPLES))
+    each = max(1, SPACE_SAMPLES // len(structures))
+    rng = np.random.default_rng(0)
+    points = [np.full(layout.size, 0.5), np.zeros(layout.size), np.ones(layout.size)]
+    points += [rng.random(layout.size) for _ in range(max(0, each - len(points)))]
+    named: list[str] = []
+    for structure in structures:
+        common: set[frozenset[str]] | None = None
+        first: list[Overlap] = []
+        for x in points[:each]:
+            values = dict(zip(layout.names, layout.denormalise(x).tolist(), strict=True))
+            found = rest_overlaps(build_design(space, layout, structure, values))
+            if not found:
+                return None
+            first = first or found
+            pairs = {frozenset((o.first, o.second)) for o in found}
+            common = pairs if common is None else common & pairs
+        shown = [o for o in first if frozenset((o.first, o.second)) in (common or set())]
+        where = f"structure {structure}: " if len(structures) > 1 else ""
+        named.append(where + ", ".join(f"{o.first} and {o.second}" for o in (shown or first)[:6]))
+    checked = len(structures) * min(each, len(points))
+    return (
+        f"every design's links interpenetrate at the rest pose ({checked} designs checked): "
+        f"{'; '.join(named)}. Turn the joints apart (offset_roll, offset_pitch, offset_yaw) "
+        "or move them (position), or set allow_overlaps: true to evaluate such designs "
+        "(docs/study-file.md, Designs that can exist)"
+    )

@@ -57,6 +57,7 @@ TIED = {
         {"name": "c", "same_as": "b", "mirror": "y"},
     ],
     "structures": [[["a", "b"], ["a", "c"]]],
+    "allow_overlaps": True,  # b and c leave a's end along its axis, through each other
     "spec_constraints": [
         {"terms": {"c.joint.axis_theta": 1.0}, "op": ">=", "bound": 2.5},
         {"terms": {"a.length": 1.0, "c.length": 3.0}, "op": "<=", "bound": 1.0},

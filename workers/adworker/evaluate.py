@@ -45,7 +45,7 @@ from adclient.pruning import CHECKPOINT_ARTIFACT
 from adclient.schemas import CURVE_ARTIFACT, SHARED_ARTIFACT, Job, TaskConfig, option_problems
 from adworker import shared_weights
 from adworker.curves import env_score_text, evaluation_curve
-from adworker.job_robots import job_robot
+from adworker.job_robots import check_buildable, job_robot
 from adworker.learners import (
     EpisodeResult,
     Learner,
@@ -219,6 +219,7 @@ def evaluate_job(
 
     t = time.perf_counter()
     design, urdf_text = job_robot(job)
+    check_buildable(job, design)
     t = lap("decode", t)
     urdf_path = workdir / "robot.urdf"
     urdf_path.write_text(urdf_text)

@@ -58,3 +58,19 @@ def decode_job(job: Job) -> Design:
         )
     representation = job.representation or identity_representation(job.space)
     return decode(job.space, representation, job.vector)
+
+
+def check_buildable(job: Job, design: Design | None) -> None:
+    """A JobError naming the links of ``design`` that interpenetrate at its rest pose
+    (``adclient.overlaps``), unless its space allows it (``allow_overlaps``): such a
+    design's trial fails before any simulation. A template's robot is not checked."""
+    from adclient.overlaps import overlap_reason, rest_overlaps
+
+    if design is None or not isinstance(job.space, DesignSpace) or job.space.allow_overlaps:
+        return
+    found = rest_overlaps(design)
+    if found:
+        raise JobError(
+            f"{overlap_reason(found)}: the design cannot be built (the study's space may "
+            "allow it: allow_overlaps: true)"
+        )

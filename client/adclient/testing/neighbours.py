@@ -85,6 +85,9 @@ def random_trees_space(count: int, links: int, seed: int) -> dict[str, Any]:
         "instances": [{"name": name, "part": "link"} for name in names],
         "structures": trees,
         "max_structures": 1000,
+        # a creation's cost is the point, not the robots: siblings at rest lie along one
+        # line, through each other, and the overlap check would refuse the space at once
+        "allow_overlaps": True,
     }
 
 

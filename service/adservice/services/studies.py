@@ -13,6 +13,7 @@ from starlette.concurrency import run_in_threadpool
 from adclient.design import DesignSpace
 from adclient.designs import Representation
 from adclient.devices import device_problem
+from adclient.overlaps import space_overlaps
 from adclient.polytope import spec_polytope
 from adclient.schemas import ProposerConfig, StudyCreate, TemplateSpace
 from adclient.similarity import similarity_steps
@@ -140,10 +141,15 @@ def warm_up() -> None:
 
 
 def space_representation(space: DesignSpace) -> dict[str, Any]:
-    """The search representation of a new design space, checked (its numbers finite, its
-    spec constraints satisfiable), as stored: the creation pool's work, in a child."""
+    """The search representation of a new design space, checked (some design of it can
+    be built, unless it allows overlaps; its numbers finite, its spec constraints
+    satisfiable), as stored: the creation pool's work, in a child."""
     from adservice.representation import build_representation
 
+    if not space.allow_overlaps:
+        reason = space_overlaps(space)
+        if reason is not None:
+            raise InvalidError(f"space: {reason}")
     built = build_representation(space)
     representation = built.model_dump(mode="json")
     _check_finite(space, representation)
