@@ -1,10 +1,13 @@
 """Designs that cheat score no better than honest ones (issue 60), on both engines: a
 quadruped that throws itself forward onto its side has not walked (walk-forward counts no
 progress while the body has fallen, and reports ``task.fell``), while an inchworm that
-pitches its end link up and down still walks."""
+pitches its end link up and down still walks; an arch that hops or flails scores less on
+stand-up and lift-highest than one that holds its pose. (A link hidden in another is
+refused before any simulation, whatever the task: tests/workers/test_overlaps_e2e.py.)"""
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -12,6 +15,7 @@ import numpy as np
 import pytest
 
 from adclient.designs import Design, Joint, Link
+from adworker.learners import evaluate_policy
 from adworker.tasks.snapshot import quaternion_matrix
 from tests.workers import test_engines
 from tests.workers.robots import HALF_PI
@@ -127,3 +131,29 @@ def test_an_inchworm_pitching_its_end_link_up_has_not_fallen(engine_env, engine:
     assert score == run(unchecked, swing)[0]
     assert abs(score) > 0.02  # it moved
     assert max(chain.tilts) > 50.0  # its root pitched past the fall angle, up and down
+
+
+def flail(env: Any, period: int) -> float:
+    """The mean score of two episodes of every joint thrown from one end of its range to
+    the other every ``period`` control steps: hops, kicks and falls."""
+    steps = itertools.count()
+
+    def policy(observation: np.ndarray) -> np.ndarray:
+        sign = 1.0 if (next(steps) // period) % 2 == 0 else -1.0
+        return np.full(env.joint_count, sign, dtype=np.float32)
+
+    return float(np.mean([episode.score for episode in evaluate_policy(env, policy, [1, 2])]))
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+@pytest.mark.parametrize("task", ["stand-up", "lift-highest"])
+def test_hopping_and_flailing_score_less_than_holding_a_pose(
+    engine_env, task: str, engine: str
+) -> None:
+    """A jump counts only while it lasts and a lifted foot counts 0: throwing the arch
+    about (its best hop scored 0.03 to 0.38 where its held pose scored 0.35 to 0.44)
+    never beats the pose the fast learner holds."""
+    env = engine_env(task, "arch_chain", engine)
+    held = test_engines.fast_score(env)
+    assert held > 0.3
+    assert max(flail(env, period) for period in (1, 2, 4)) < held - 0.03
