@@ -134,6 +134,20 @@ def test_ppo_on_a_batch_trains_the_budget_counts_every_world_and_closes_its_worl
     env.close()
 
 
+def test_training_on_a_batch_checks_for_cancellation_every_64_steps(env_of) -> None:
+    """``check`` (a cancelled job's way out) runs once every 64 env steps, though a batch
+    of 3 worlds steps 3 at a time and seldom lands on a multiple of 64."""
+    env = env_of("stand-up", "arch_chain", simulator="mujoco")
+    checked: list[int] = []
+    learner = PPOLearner(PPOOptions(n_envs=3, n_steps=96, batch_size=48, n_epochs=1))
+    try:
+        trained = learner.train(env, steps=384, seed=0, check=lambda: checked.append(1))
+    finally:
+        env.close()
+    assert trained.train_steps == 384
+    assert len(checked) == 384 // 64
+
+
 def test_n_envs_is_bounded() -> None:
     assert PPOOptions(n_envs=MAX_BATCH_WORLDS).n_envs == MAX_BATCH_WORLDS
     with pytest.raises(ValidationError, match="n_envs"):

@@ -232,7 +232,8 @@ class StableBaselinesLearner(Learner):
 
         class EpisodeScores(BaseCallback):
             def _on_step(self) -> bool:
-                if self.num_timesteps % 64 == 0:
+                # once every 64 steps, however many worlds each call steps
+                if self.num_timesteps % 64 < self.training_env.num_envs:
                     check()
                 if reporting is not None and reporting.due <= self.num_timesteps < steps:
                     # The current deterministic policy, scored as the final one will be.
