@@ -119,11 +119,12 @@ class DesignSpace(StrictInput):
         max_length=64,
         description="Linear budgets on specs every design satisfies",
     )
-    allow_overlaps: bool = Field(
-        default=False,
+    allow_overlaps: bool | None = Field(
+        default=None,
         description="Evaluate designs whose links interpenetrate at the rest pose "
         "(adclient.overlaps); false: a space where every design does is refused, and a "
-        "design that does fails its trial before any simulation",
+        "design that does fails its trial before any simulation. null: false for a new "
+        "study (the server stores false); a study stored before the check is not checked",
     )
     fusion_solver: Literal["osqp", "exact"] = "osqp"
     fusion_margin: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)

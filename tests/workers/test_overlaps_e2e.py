@@ -16,7 +16,7 @@ import pytest
 from adclient import Client
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import WorkerProcess
-from tests.workers.robots import CHAIN, HALF_PI, STAR, tree_design, two_tree_body
+from tests.workers.robots import CHAIN, HALF_PI, STAR, make_job, tree_design, two_tree_body
 
 pytestmark = pytest.mark.e2e
 
@@ -65,7 +65,9 @@ def test_a_space_whose_every_design_hides_its_legs_in_its_torso_is_refused(
         # legs turned out of the torso's sides (the right one mirrors the left's roll)
         turned = copy.deepcopy(SIDE_LEGS)
         turned["space"]["instances"][1]["joint_overrides"] = {"offset_roll": -math.pi / 2}
-        assert http.post("/api/v1/studies", json=turned).status_code == 201
+        created = http.post("/api/v1/studies", json=turned)
+        assert created.status_code == 201, created.text
+        assert created.json()["space"]["allow_overlaps"] is False  # stored as checked
         # or the study says it means it
         allowed = http.post("/api/v1/studies", json=with_space(SIDE_LEGS, allow_overlaps=True))
         assert allowed.status_code == 201, allowed.text
@@ -104,3 +106,24 @@ def test_a_design_whose_limbs_lie_through_each_other_fails_before_any_simulation
         assert "allow_overlaps: true" in message
         assert star.metrics.get("train_steps") is None  # nothing was trained or simulated
         assert client.artifacts(star) == []
+
+
+def test_a_study_stored_before_the_check_is_evaluated_as_it_was() -> None:
+    """Its space has no ``allow_overlaps`` (null): its designs are not checked, so its
+    new trials do not start failing; the server stores false for every new study."""
+    from adworker.job_robots import check_buildable, decode_job
+    from adworker.runner import JobError
+
+    specs = {"front_left.length": 0.2, "front_left_shin.length": 0.2}
+    for name in ("front_left", "front_left_shin"):
+        specs[f"{name}.joint.axis_theta"] = specs[f"{name}.joint.axis_phi"] = HALF_PI
+    job = make_job("quadruped", specs)  # its legs along the torso at rest
+    design = decode_job(job)
+    for allowed in (None, True):
+        check_buildable(job.model_copy(update={"space": space_with(job, allowed)}), design)
+    with pytest.raises(JobError, match="torso and back_left"):
+        check_buildable(job.model_copy(update={"space": space_with(job, False)}), design)
+
+
+def space_with(job: Any, allowed: bool | None) -> Any:
+    return job.space.model_copy(update={"allow_overlaps": allowed})

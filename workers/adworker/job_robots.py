@@ -62,11 +62,15 @@ def decode_job(job: Job) -> Design:
 
 def check_buildable(job: Job, design: Design | None) -> None:
     """A JobError naming the links of ``design`` that interpenetrate at its rest pose
-    (``adclient.overlaps``), unless its space allows it (``allow_overlaps``): such a
-    design's trial fails before any simulation. A template's robot is not checked."""
+    (``adclient.overlaps``), where its space says they may not (``allow_overlaps:
+    false``, what the server stores for a new study): such a design's trial fails before
+    any simulation. A study stored before the check (null) is evaluated as it was; a
+    template's robot is not checked."""
     from adclient.overlaps import overlap_reason, rest_overlaps
 
-    if design is None or not isinstance(job.space, DesignSpace) or job.space.allow_overlaps:
+    if design is None or not isinstance(job.space, DesignSpace):
+        return
+    if job.space.allow_overlaps is not False:
         return
     found = rest_overlaps(design)
     if found:

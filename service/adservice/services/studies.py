@@ -69,6 +69,12 @@ async def create_study(
     if isinstance(body.space, TemplateSpace):
         await expansions.run(partial(_check_template, body, expansions.limits.per_urdf()), share)
 
+    if isinstance(body.space, DesignSpace) and body.space.allow_overlaps is None:
+        # stored as said: a study stored before the overlap check keeps null, unchecked
+        body = body.model_copy(
+            update={"space": body.space.model_copy(update={"allow_overlaps": False})}
+        )
+
     def store() -> StudyRow:
         with db.write() as session:
             return study_repo.create_study(
