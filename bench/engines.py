@@ -29,6 +29,11 @@ minibatches and epochs as one env). Then issue 59's goals per task: the best bat
 PPO on MuJoCo and on PyBullet over today's baseline (SB3 PPO, one env, PyBullet), and
 the learner's share of a batched PPO step, ``1 - ppo / random-batch``.
 
+``--learn N``: what the batch learns, not how fast: stand-up's arch trained with the
+``ppo`` learner's default budget (12,288 steps) with one env and with ``n_envs: 16``,
+seeds 0 to N-1, on each engine, each scored as the worker scores it (3 evaluation
+episodes); the mean score per engine and arm.
+
 Prints a table and one ``BENCH`` line per figure (``bench/compare.py``); ``--json``
 writes the rows.
 """
@@ -155,6 +160,36 @@ def ppo_rate(env: Any, steps: int, worlds: int = 1) -> float:
     return trained.train_steps / seconds
 
 
+LEARN_WORLDS = (1, 16)
+"""The ``--learn`` arms' ``n_envs``: today's one env and a batch."""
+
+
+def learned_scores(seeds: int, folder: Path) -> list[dict[str, Any]]:
+    """Stand-up's arch trained by the ``ppo`` learner on its default budget with each of
+    ``LEARN_WORLDS``, seeds 0 to ``seeds - 1``, on each engine: the scores."""
+    from adclient.builtin_learners import PPOOptions
+    from adclient.plugins import catalogue
+    from adworker.learners import evaluate_policy
+
+    factory = catalogue().learner("ppo").load_factory()
+    rows = []
+    for engine in ENGINES:
+        for worlds in LEARN_WORLDS:
+            scores = []
+            for seed in range(seeds):
+                env = make_env("stand-up", engine, folder)
+                try:
+                    learner = factory(PPOOptions(n_envs=worlds))
+                    trained = learner.train(env, steps=learner.default_steps, seed=seed)
+                    evaluation = [(seed + 1) * 10_000 + i for i in range(3)]
+                    episodes = evaluate_policy(env, trained.policy, evaluation)
+                finally:
+                    env.close()
+                scores.append(float(np.mean([episode.score for episode in episodes])))
+            rows.append({"engine": engine, "n_envs": worlds, "scores": scores})
+    return rows
+
+
 AGREEMENT_STUDIES = {"stand-up": "stand-up", "lift-highest": "multi-structure"}
 """The example study whose space the agreement arm draws a task's designs from."""
 
@@ -245,6 +280,7 @@ def main() -> int:
     parser.add_argument(
         "--worlds", default="8,16,32", help="batched arms' world counts ('': no batched arm)"
     )
+    parser.add_argument("--learn", type=int, default=0, help="seeds of the learning arm (0: none)")
     parser.add_argument("--core", type=int, default=0)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
@@ -291,6 +327,7 @@ def main() -> int:
             if args.agree
             else []
         )
+        learned = learned_scores(args.learn, folder) if args.learn else []
     arms = ["random", *(["random-batch"] if world_counts else [])]
     if args.ppo_steps:
         arms += ["ppo", *(f"ppo-{count}" for count in world_counts)]
@@ -315,8 +352,15 @@ def main() -> int:
         name, rho = agreed_task["task"], agreed_task["spearman"]
         print(f"{name}: {agreed_task['designs']} random designs, fast learner, Spearman {rho:.3f}")
         emit(f"{name}.agreement.spearman", rho, higher_is_better=True)
+    for learned_row in learned:
+        engine, worlds, scores = learned_row["engine"], learned_row["n_envs"], learned_row["scores"]
+        mean = float(np.mean(scores))
+        listed = ", ".join(f"{score:.3f}" for score in scores)
+        print(f"stand-up, {engine}, PPO n_envs {worlds}: mean score {mean:.3f} ({listed})")
+        emit(f"stand-up.{engine}.learned.n_envs_{worlds}", mean, higher_is_better=True)
     if args.json is not None:
-        args.json.write_text(json.dumps({"rates": rows, "agreement": agreed}, indent=2) + "\n")
+        found = {"rates": rows, "agreement": agreed, "learned": learned}
+        args.json.write_text(json.dumps(found, indent=2) + "\n")
     return 0
 
 
