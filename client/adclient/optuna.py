@@ -26,6 +26,13 @@ What it promises (docs/optuna.md says it for users):
   An enqueued trial's evaluation is added to the study.
 - Pending points are the service's: each ask is a trial running there until told, so
   threads (``n_jobs``) and processes share one study and its pending trials.
+- It says, once per service study, which one it uses (Optuna's logger, as Optuna says
+  "A new study created"): created, or attached to with how many trials it holds. An
+  attach to a study holding trials this Optuna study did not give it (an earlier run's
+  history, another process's) is a warning, since that history is the service study's
+  best and progress. The service study stays running when ``optimize`` returns (an
+  Optuna study never ends: another ``optimize`` or a rerun continues it), and the
+  message says so and how to stop it.
 
 Needs Optuna (``pip install activedesign[optuna]``); ``import adclient`` never imports it.
 """
@@ -40,6 +47,7 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, cast
 from uuid import uuid4
 
+from optuna.logging import get_logger
 from optuna.samplers import BaseSampler, RandomSampler
 from optuna.search_space import IntersectionSearchSpace
 from optuna.trial import TrialState
@@ -66,6 +74,9 @@ ADDED_ATTR = "adclient:added"
 """Prefix of the Optuna study's system attributes ``adclient:added:<study>:<token>``:
 the numbers of finished trials added to service study ``<study>`` at one attach."""
 ADD_CHUNK = 1000
+LOGGER = get_logger("optuna.adclient")
+"""Under Optuna's root logger, so it shows as Optuna's own lines do (INFO by default) and
+``optuna.logging.set_verbosity`` quiets it."""
 
 
 class IndependentSamplingWarning(UserWarning):
@@ -231,19 +242,21 @@ class ServiceSampler(BaseSampler):
         with self._lock:
             handle = self._studies.get(key)
             if handle is None:
-                handle = self._find_or_create(study, space, directions)
-                self._add_history(study, space, handle)
+                handle, found = self._find_or_create(study, space, directions)
+                held = self._add_history(study, space, handle)
                 self._studies[key] = handle
+                _say_attached(handle, found, held)
             self._current = (space, handle)
             return handle
 
     def _find_or_create(
         self, study: OptunaStudy, space: RelativeSpace, directions: list[str]
-    ) -> StudyHandle:
+    ) -> tuple[StudyHandle, Study | None]:
+        """The service study and, where it was found running, its state when found."""
         name = self._study_name or study.study_name
         found = self._matching(name, space, directions)
         if found:
-            return StudyHandle(self._client, found[0].id, found[0])
+            return StudyHandle(self._client, found[0].id, found[0]), found[0]
         objectives: dict[str, Any] = (
             {"direction": directions[0]} if len(directions) == 1 else {"directions": directions}
         )
@@ -260,9 +273,9 @@ class ServiceSampler(BaseSampler):
         # Another process may have created the same study meanwhile: the first one wins.
         first = min(self._matching(name, space, directions), key=lambda s: s.id, default=None)
         if first is None or first.id == created.id:
-            return created
+            return created, None
         created.delete()
-        return StudyHandle(self._client, first.id, first)
+        return StudyHandle(self._client, first.id, first), first
 
     def _matching(self, name: str, space: RelativeSpace, directions: list[str]) -> list[Study]:
         """Running studies of this name, box space and directions, oldest first."""
@@ -280,8 +293,11 @@ class ServiceSampler(BaseSampler):
             key=lambda found: found.id,
         )
 
-    def _add_history(self, study: OptunaStudy, space: RelativeSpace, handle: StudyHandle) -> None:
-        """Add the finished Optuna trials the service study does not hold yet."""
+    def _add_history(
+        self, study: OptunaStudy, space: RelativeSpace, handle: StudyHandle
+    ) -> tuple[int, int]:
+        """Add the finished Optuna trials the service study does not hold yet; how many
+        of this Optuna study's trials it held before, and how many were added."""
         trials = study.get_trials(deepcopy=False)
         held = {
             trial.number
@@ -314,6 +330,40 @@ class ServiceSampler(BaseSampler):
                 f"{prefix}{uuid4().hex}",
                 numbers[start : start + ADD_CHUNK],
             )
+        return len(held), len(bodies)
+
+
+def _say_attached(handle: StudyHandle, found: Study | None, held: tuple[int, int]) -> None:
+    """Say once which service study the sampler uses and what it holds (module docstring)."""
+    own, added = held
+    where = f"service study {handle.id} {handle.name!r} ({handle.dashboard_url})"
+    history = f"; {_count(added, 'finished Optuna trial')} added to it" if added else ""
+    stays = (
+        "It stays running when optimize() returns: another optimize() or a rerun of this "
+        "name and space continues it"
+    )
+    stop = f"`adclient stop {handle.id}` (or sampler.service_study.stop()) ends it."
+    if found is None:
+        LOGGER.info(f"ServiceSampler created {where}{history}. {stays}; {stop}")
+        return
+    others = max(found.n_trials - own, 0)
+    if others == 0:
+        LOGGER.info(
+            f"ServiceSampler attached to running {where}, which holds "
+            f"{_count(found.n_trials, 'trial')}, all this Optuna study's{history}. "
+            f"{stays}; {stop}"
+        )
+        return
+    LOGGER.warning(
+        f"ServiceSampler attached to running {where}, which holds "
+        f"{_count(found.n_trials, 'trial')}, {others} of them not this Optuna study's (an "
+        f"earlier run's or another process's): its best and progress count them{history}. "
+        f"{stays}. For a fresh study pass another study_name, or stop this one: {stop}"
+    )
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def _mark(study: OptunaStudy, trial: FrozenTrial, mark: dict[str, Any]) -> None:

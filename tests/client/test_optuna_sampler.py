@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import ast
+import logging
 import math
 import re
 import subprocess
@@ -205,8 +206,18 @@ def test_a_rerun_resumes_the_service_study_by_name(client: Client, tmp_path) -> 
         study.optimize(quadratic, n_trials=n_trials)
         return sampler
 
-    first = run(4)
-    second = run(3)
+    said: list[logging.LogRecord] = []
+    handler = logging.Handler(logging.INFO)
+    handler.emit = said.append  # type: ignore[method-assign]
+    logger = logging.getLogger("optuna.adclient")
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    try:
+        first = run(4)
+        second = run(3)
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(logging.NOTSET)
 
     assert first.service_study is not None and second.service_study is not None
     assert second.service_study.id == first.service_study.id
@@ -217,6 +228,10 @@ def test_a_rerun_resumes_the_service_study_by_name(client: Client, tmp_path) -> 
     assert sorted(t.value for t in held) == sorted(t.value for t in optuna_trials)  # type: ignore[misc]
     # every trial of the rerun asked the study: its space was known from the history
     assert all("asked" in t.system_attrs[TRIAL_ATTR] for t in optuna_trials[4:])
+    # the rerun's study held only this Optuna study's trials: said, not warned
+    assert [record.levelno for record in said] == [logging.INFO, logging.INFO]
+    assert "created" in said[0].getMessage()
+    assert "which holds 4 trials, all this Optuna study's" in said[1].getMessage()
 
 
 def test_threads_and_processes_share_one_service_study(client: Client) -> None:
@@ -360,3 +375,45 @@ def test_the_guides_script_runs_as_written(server: ServerProcess, client: Client
     assert set(best) == {"x", "n", "lr", "kind"}
     (held,) = studies_named(client, "guide")
     assert held.n_complete == 30 and held.proposer.name == "tpe"
+
+
+RERUN_SCRIPT = """
+import optuna
+from adclient import Client
+from adclient.optuna import ServiceSampler
+
+def objective(trial):
+    return (trial.suggest_float("x", -5.0, 5.0) - 1.0) ** 2
+
+sampler = ServiceSampler(Client({url!r}), proposer={{"name": "random", "seed": 3}})
+study = optuna.create_study(study_name="rerun", sampler=sampler)
+study.optimize(objective, n_trials=5)
+"""
+
+
+def test_a_script_says_which_service_study_it_created_or_attached_to(
+    server: ServerProcess, client: Client
+) -> None:
+    """Optuna's default logging (a script as users run it, twice): the first run says it
+    created its study, the second that it attached to one holding the first's 5 trials,
+    a warning, each once; both say the study stays running and how to stop it."""
+    script = RERUN_SCRIPT.format(url=server.url)
+
+    def run() -> str:
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        return done.stderr
+
+    first, second = run(), run()
+    (held,) = studies_named(client, "rerun")
+    assert held.n_trials == 10 and held.state == "running"
+    where = f"service study {held.id} 'rerun' ({client.dashboard_url(held.id)})"
+    (created,) = [line for line in first.splitlines() if "ServiceSampler" in line]
+    assert created.startswith("[I ") and f"ServiceSampler created {where}" in created
+    assert "1 finished Optuna trial added to it" in created  # trial 0, sampled before
+    (attached,) = [line for line in second.splitlines() if "ServiceSampler" in line]
+    assert attached.startswith("[W ")
+    assert f"attached to running {where}, which holds 5 trials, 5 of them not" in attached
+    for line in (created, attached):
+        assert "stays running when optimize() returns" in line
+        assert f"`adclient stop {held.id}`" in line
