@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import functools
 import json
+from datetime import datetime, timedelta
 from typing import Any
 
 from adclient.design import DesignSpace
 from adclient.objectives import stored_outcomes
 from adclient.schemas import ArtifactInfo, Space, Study, Trial, WorkerInfo
-from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow
+from adservice.models import ArtifactRow, StudyRow, TrialRow, WorkerRow, utcnow
 
 
 def study_schema(row: StudyRow, counts: dict[str, int]) -> Study:
@@ -96,5 +97,16 @@ def artifact_schema(row: ArtifactRow) -> ArtifactInfo:
     return ArtifactInfo.model_validate(row, from_attributes=True)
 
 
-def worker_schema(row: WorkerRow) -> WorkerInfo:
-    return WorkerInfo.model_validate(row, from_attributes=True)
+WORKER_RECENT_SECONDS = 90.0
+"""A worker heard from this recently is there (serving, idle or working): an idle
+adworker asks for work at least every 30 s, a working one heartbeats at least every 20 s.
+Past it the worker is ``gone``: a stopped adworker says nothing as it exits."""
+
+
+def worker_schema(row: WorkerRow, *, now: datetime | None = None) -> WorkerInfo:
+    info = WorkerInfo.model_validate(row, from_attributes=True)
+    if (now or utcnow()) - row.last_seen_at > timedelta(seconds=WORKER_RECENT_SECONDS):
+        info.state = "gone"
+    else:
+        info.state = "idle" if row.current_trial_id is None else "working"
+    return info

@@ -10,13 +10,13 @@ from datetime import timedelta
 from sqlalchemy.orm import Session
 
 from adclient.schemas import StudyServing
+from adservice.convert import WORKER_RECENT_SECONDS
 from adservice.models import WorkerRow, utcnow
 from adservice.repository import leases as lease_repo
 from adservice.repository import studies as study_repo
 
-RECENT_SECONDS = 90.0
-"""A worker seen this recently is serving: an idle adworker asks for work at least every
-30 s."""
+RECENT_SECONDS = WORKER_RECENT_SECONDS
+"""A worker seen this recently is serving (and not ``gone`` in the workers list)."""
 
 
 def serves(worker: WorkerRow, *, task: str, learner: str) -> bool:

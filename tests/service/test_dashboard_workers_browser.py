@@ -14,6 +14,7 @@ instead of after a minute) and one browser.
 from __future__ import annotations
 
 import re
+import sqlite3
 from collections.abc import Iterator
 from typing import Any
 
@@ -97,4 +98,53 @@ def test_the_studies_list_shows_every_worker_with_its_tasks_and_learners(
     assert rows["picky"][:2] == ["stand-up, walk-forward", "ppo"]
     assert rows["any-learner"][:2] == ["other-sim", "any"]
     assert re.fullmatch(r"just now|\d+ s ago", rows["picky"][2])  # last contact
+    assert browser.errors == []
+
+
+def test_a_worker_not_heard_from_lately_is_gone_not_idle(
+    server: ServerProcess, browser: Chromium, http: httpx.Client
+) -> None:
+    """A stopped adworker says nothing as it exits: one the server has not heard from in
+    its last 90 s is ``gone`` in GET /workers and on the dashboard, whatever it held
+    (its row's last contact backdated an hour in the server's SQLite file); one heard
+    from is idle, or working while it holds a trial."""
+    body = {**MANAGED_BOX, "name": "gone", "task": {"name": "gone-sim", "external": True}}
+    study = http.post("/api/v1/studies", json=body).raise_for_status().json()
+    assert lease(http, "stopped-sim", tasks=["other-gone-sim"]) is None
+    assert lease(http, "killed-sim", tasks=["gone-sim"], learners=["fast"]) is not None
+    assert lease(http, "waiting-sim", tasks=["other-gone-sim"]) is None
+    assert lease(http, "busy-sim", tasks=["gone-sim"], learners=["fast"]) is not None
+    database = server.database_url.removeprefix("sqlite:///")
+    with sqlite3.connect(database) as db:
+        db.execute(
+            "UPDATE workers SET last_seen_at = datetime(last_seen_at, '-1 hour') "
+            "WHERE worker_id IN ('stopped-sim', 'killed-sim')"
+        )
+    states = {w["worker_id"]: w["state"] for w in http.get("/api/v1/workers").json()}
+    assert {name: states[name] for name in ("stopped-sim", "killed-sim")} == {
+        "stopped-sim": "gone",
+        "killed-sim": "gone",
+    }
+    assert (states["waiting-sim"], states["busy-sim"]) == ("idle", "working")
+    listed = http.get(f"/api/v1/studies/{study['id']}/workers").json()
+    assert {w["worker_id"]: w["state"] for w in listed} == {
+        "killed-sim": "gone",
+        "busy-sim": "working",
+    }
+
+    lease_cells = (
+        "Object.fromEntries([...document.querySelectorAll('{table} tr[data-worker]')]"
+        ".map(row => [row.dataset.worker, row.cells[1].textContent.trim()]))"
+    )
+    browser.navigate(f"{server.url}/#/")
+    browser.wait_for(f"{WORKER_ROWS}.some(row => row[0] === 'busy-sim')")
+    cells = browser.evaluate(lease_cells.format(table="[data-server-workers]"))
+    assert (cells["stopped-sim"], cells["killed-sim"]) == ("gone", "gone")
+    assert cells["waiting-sim"] == "idle" and cells["busy-sim"].startswith("trial id ")
+
+    browser.navigate(f"{server.url}/#/studies/{study['id']}")
+    browser.wait_for(STUDY_PAGE_READY)
+    browser.wait_for("document.querySelectorAll('[data-workers] tr[data-worker]').length === 2")
+    cells = browser.evaluate(lease_cells.format(table="[data-workers]"))
+    assert cells["killed-sim"] == "gone" and cells["busy-sim"].startswith("trial #")
     assert browser.errors == []

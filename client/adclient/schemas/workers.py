@@ -4,7 +4,7 @@ evaluates, the artifacts it uploads, and the workers the server has seen."""
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -173,6 +173,13 @@ class WorkerInfo(BaseModel):
     worker_id: str
     last_seen_at: datetime
     current_trial_id: int | None
+    state: Literal["working", "idle", "gone"] | None = Field(
+        default=None,
+        description="working: holds a trial; idle: holds none and was heard from in the "
+        "server's last 90 s (an idle adworker asks for work at least every 30 s, a working "
+        "one heartbeats at least every 20 s); gone: not heard from since (stopped, killed "
+        "or cut off). Null from a server older than this field",
+    )
     jobs_done: int
     jobs_failed: int
     tasks: list[str] | None = Field(

@@ -1,6 +1,7 @@
 // Workers: the study page's panel (who has leased this study's trials, what each holds
 // now, the tasks and learners it serves, when it was last heard from, its jobs done and
-// failed), the same table of every worker the server has seen on the studies list, and
+// failed; "gone" for one the server has not heard from lately), the same table of every
+// worker the server has seen on the studies list, and
 // the study page's warning when no recent worker serves the study's task and learner
 // (GET /studies/{id}/serving: the server's rule, the one `adclient status` prints).
 
@@ -16,13 +17,20 @@ function served(names) {
     : esc(names.join(', '));
 }
 
-/** A table of workers; `holds(worker)` is the markup of its lease column. */
+/** A worker the server has not heard from lately (its `state`, the server's rule): it
+ * stopped, was killed or lost the server; a stopped adworker says nothing as it exits. */
+const GONE =
+  '<span class="meta" data-worker-state="gone" title="not heard from in the server\'s last 90 s: stopped, killed or cut off">gone</span>';
+
+/** A table of workers; `holds(worker)` is the markup of its lease column (a gone worker's
+ * is "gone", whatever it held). */
 function workersTable(workers, holds) {
   const rows = workers
     .map((w) => {
       const age = (Date.now() - Date.parse(w.last_seen_at)) / 1000;
-      return `<tr class="${age > STALE_SECONDS ? 'stale' : ''}" data-worker="${esc(w.worker_id)}">
-        <td>${esc(w.worker_id)}</td><td>${holds(w)}</td>
+      const gone = w.state === 'gone';
+      return `<tr class="${gone || age > STALE_SECONDS ? 'stale' : ''}" data-worker="${esc(w.worker_id)}">
+        <td>${esc(w.worker_id)}</td><td>${gone ? GONE : holds(w)}</td>
         <td title="${esc(w.last_seen_at)}">${ago(w.last_seen_at)}</td>
         <td class="num">${w.jobs_done}</td><td class="num">${w.jobs_failed}</td>
         <td data-worker-tasks>${served(w.tasks)}</td>
