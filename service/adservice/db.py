@@ -8,6 +8,7 @@ through. PostgreSQL needs neither.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -20,6 +21,7 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
 
 
 def _migrations_dir() -> Path:
@@ -262,27 +264,65 @@ MIGRATION_LOCK = {"ns": 0x414D, "id": 0}  # "AM": apart from the per-study propo
 def upgrade_to_head(url: str) -> None:
     """Bring the schema to the newest Alembic revision (the server does this at start).
 
+    A schema already at head is said in one line, with none of Alembic's own (its
+    plugins and context, about 10 INFO lines a start); a migration logs each revision it
+    runs, as Alembic does.
+
     On PostgreSQL an advisory lock makes processes that start at once (several servers,
     or a server and ``adserver token create``) migrate one after the other: otherwise
     both try to create the same tables and one fails."""
-    from alembic import command
-    from alembic.config import Config
+    with _alembic_quiet():  # importing alembic sets up its plugins, a line each
+        from alembic.config import Config
 
     config = Config()
     config.set_main_option("script_location", str(MIGRATIONS_DIR))
     config.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
-    if sa.make_url(url).get_backend_name() != "postgresql":
-        command.upgrade(config, "head")
-        return
     engine = sa.create_engine(url, poolclass=sa.NullPool)
     try:
         with engine.connect() as connection:
+            if sa.make_url(url).get_backend_name() != "postgresql":
+                _upgrade_if_behind(config, connection)
+                return
             connection.execute(sa.text("SELECT pg_advisory_lock(:ns, :id)"), MIGRATION_LOCK)
             connection.commit()
             try:
-                command.upgrade(config, "head")
+                _upgrade_if_behind(config, connection)
             finally:
                 connection.execute(sa.text("SELECT pg_advisory_unlock(:ns, :id)"), MIGRATION_LOCK)
                 connection.commit()
     finally:
         engine.dispose()
+
+
+def _upgrade_if_behind(config: Any, connection: sa.Connection) -> None:
+    """Run Alembic's upgrade only where the stored revisions are not the scripts' heads."""
+    with _alembic_quiet():  # the migration context's INFO lines
+        from alembic import command
+        from alembic.runtime.migration import MigrationContext
+        from alembic.script import ScriptDirectory
+
+        heads = set(ScriptDirectory.from_config(config).get_heads())
+        stored = set(MigrationContext.configure(connection).get_current_heads())
+    connection.rollback()  # the check's transaction, before the upgrade's own connection
+    if stored == heads:
+        log.info("database schema at head (revision %s): nothing to migrate", _revisions(heads))
+        return
+    start = f"revision {_revisions(stored)}" if stored else "an empty database"
+    log.info("migrating the database schema from %s to revision %s", start, _revisions(heads))
+    command.upgrade(config, "head")
+
+
+@contextmanager
+def _alembic_quiet() -> Iterator[None]:
+    """Alembic's INFO lines left out for the block."""
+    alembic_log = logging.getLogger("alembic")
+    level = alembic_log.level
+    alembic_log.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        alembic_log.setLevel(level)
+
+
+def _revisions(revisions: set[str]) -> str:
+    return ", ".join(sorted(revisions))

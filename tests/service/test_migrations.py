@@ -19,7 +19,8 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 
 from adclient.testing.forked import run_adserver
-from adservice.db import upgrade_to_head
+from adclient.testing.servers import ServerProcess
+from adservice.db import MIGRATIONS_DIR, upgrade_to_head
 from adservice.models import Base
 
 TABLES = {
@@ -32,6 +33,7 @@ TABLES = {
     "tokens",
     "alembic_version",
 }
+HEAD = max(path.name.split("_")[0] for path in (MIGRATIONS_DIR / "versions").glob("*.py"))
 
 
 def test_upgrade_head_matches_models(empty_database_url: str) -> None:
@@ -92,6 +94,33 @@ def test_adserver_migrate_brings_the_schema_to_head_and_exits(
     tables = set(sa.inspect(engine).get_table_names())
     engine.dispose()
     assert tables >= TABLES
+
+
+def test_a_server_start_says_the_schema_is_at_head_in_one_line(
+    empty_database_url: str, tmp_path: Path
+) -> None:
+    """Issue 62: a start on a migrated database logs one line for the schema, none of
+    Alembic's (about 15 INFO lines a start before); the first start, which migrates,
+    says so and logs each revision it runs."""
+    logs = []
+    for run in ("first", "again"):
+        (tmp_path / run).mkdir()
+        server = ServerProcess(
+            database_url=empty_database_url, workdir=tmp_path / run, log_level="info"
+        ).start()
+        server.stop()
+        logs.append(server.log().splitlines())
+    migrating, at_head = logs
+    (head,) = [line for line in at_head if "adservice.db" in line]
+    assert head.endswith(
+        f"INFO adservice.db database schema at head (revision {HEAD}): nothing to migrate"
+    )
+    assert not [line for line in at_head if "alembic" in line]
+    (said,) = [line for line in migrating if "adservice.db" in line]
+    assert said.endswith(f"migrating the database schema from an empty database to revision {HEAD}")
+    ran = [line for line in migrating if "alembic.runtime.migration Running upgrade" in line]
+    assert len(ran) == len(list((MIGRATIONS_DIR / "versions").glob("*.py")))
+    assert not [line for line in migrating if "alembic.runtime.plugins" in line]
 
 
 @pytest.mark.postgres

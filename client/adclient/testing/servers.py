@@ -40,6 +40,8 @@ class ServerProcess:
     (:mod:`.forked`), else started by command."""
     program: list[str] = field(default_factory=lambda: [str(ADSERVER)])
     """The command that runs adserver (a bench runs it through a launcher of its own)."""
+    log_level: str = "warning"
+    """``--log-level``: a test of what a start logs asks for the default, ``info``."""
 
     @property
     def url(self) -> str:
@@ -68,7 +70,7 @@ class ServerProcess:
             "--database-url",
             self.database_url,
             "--log-level",
-            "warning",
+            self.log_level,
         ]
         self.process = None
         if self.program == [str(ADSERVER)] and can_fork(env):
