@@ -26,12 +26,14 @@ from adclient.schemas import (
     CURVE_ARTIFACT,
     MAX_TRIAL_PAGE,
     MAX_WORKER_PAGE,
+    REPLAY_ARTIFACT,
     ArtifactInfo,
     AskResponse,
     Curve,
     HeartbeatResponse,
     Job,
     LearnerInfo,
+    Replay,
     SharedUpdate,
     SharedVersion,
     Study,
@@ -466,6 +468,11 @@ class ServerCalls(Transport):
         and the evaluation episodes. NotFound without one; pydantic's ValidationError
         for a file that is not a curve (a ``--function`` job may upload its own)."""
         return Curve.model_validate_json(self.get_artifact(trial, CURVE_ARTIFACT))
+
+    def trial_replay(self, trial: TrialRef) -> Replay:
+        """The trial's replayable evaluation episode (its worker's ``replay.json``): the
+        root's pose and the joints' positions per control step. NotFound without one."""
+        return Replay.model_validate_json(self.get_artifact(trial, REPLAY_ARTIFACT))
 
     def artifacts(self, trial: TrialRef) -> list[ArtifactInfo]:
         """The trial's stored artifacts."""

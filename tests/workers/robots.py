@@ -92,11 +92,23 @@ def ppo_trained_trial(
 ) -> Trial:
     """The one trial of a stand-up study that a real ``adworker`` trained with PPO for
     ``train_steps`` (a training episode every 32) and evaluated, complete."""
+    return trained_trial(client, server, workdir, learner="ppo", train_steps=train_steps)
+
+
+def fast_trained_trial(client: Client, server: ServerProcess, workdir: Path) -> Trial:
+    """The one trial of a stand-up study that a real ``adworker`` trained with the fast
+    learner (the cheapest that runs evaluation episodes) and evaluated, complete."""
+    return trained_trial(client, server, workdir, learner="fast")
+
+
+def trained_trial(client: Client, server: ServerProcess, workdir: Path, **task: object) -> Trial:
+    """The one trial of a stand-up study (its task updated with ``task``) that a real
+    ``adworker`` trained and evaluated, complete."""
     body = example_study("stand-up").model_dump(mode="json")
     body["max_trials"] = 1
-    body["task"].update(learner="ppo", train_steps=train_steps)
+    body["task"].update(task)
     study = client.create_study(body)
-    worker = WorkerProcess(server, workdir, "ppo", "--no-render", "--max-jobs", "1")
+    worker = WorkerProcess(server, workdir, str(task["learner"]), "--no-render", "--max-jobs", "1")
     try:
         assert worker.wait() == 0, worker.log()
     finally:

@@ -87,7 +87,7 @@ def test_evaluate_job_reports_score_metrics_and_artifacts(tmp_path) -> None:
     assert all(math.isfinite(value) for value in metrics.values())
 
     artifacts = {artifact.name: artifact for artifact in evaluation.artifacts}
-    assert set(artifacts) == {"robot.urdf", "robot.png", "curve.json"}
+    assert set(artifacts) == {"robot.urdf", "robot.png", "curve.json", "replay.json"}
     robot = ElementTree.fromstring(artifacts["robot.urdf"].data)
     assert sorted(link.get("name") for link in robot.iter("link")) == ["a", "b", "c"]
     assert artifacts["robot.png"].data.startswith(b"\x89PNG\r\n\x1a\n")

@@ -174,7 +174,7 @@ def test_a_plugin_task_runs_end_to_end_and_only_workers_with_it_lease_it(
                 length = sum(trial.params[f"{link}.length"] for link in "abc")
                 assert trial.value == pytest.approx(length, abs=0.01), trial.params
                 names = {artifact.name for artifact in client.artifacts(trial)}
-                assert names == {"robot.urdf", "robot.png", "curve.json"}
+                assert names == {"robot.urdf", "robot.png", "curve.json", "replay.json"}
     finally:
         for worker in started:
             worker.stop()

@@ -126,7 +126,7 @@ def test_stand_up_study_completes_on_a_local_ray_cluster(cluster) -> None:
             assert trial.value is not None and trial.value == trial.metrics["score_mean"]
             assert trial.metrics["train_steps"] == 256
             names = {artifact.name for artifact in client.artifacts(trial)}
-            assert names == {"robot.urdf", "robot.png", "curve.json"}
+            assert names == {"robot.urdf", "robot.png", "curve.json", "replay.json"}
             curve = json.loads(client.get_artifact(trial, "curve.json"))
             assert len(curve["evaluation"]) == 3
     log = driver.log()

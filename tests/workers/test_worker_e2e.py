@@ -68,7 +68,7 @@ def test_managed_study_runs_to_completion_with_a_pool_of_workers(server_factory,
             assert 0.75 <= trial.metrics["link_length"] <= 1.8
             assert trial.metrics["effort"] >= 0.0 and trial.metrics["energy"] >= 0.0
             names = {artifact.name for artifact in client.artifacts(trial)}
-            assert names == {"robot.urdf", "robot.png", "curve.json"}
+            assert names == {"robot.urdf", "robot.png", "curve.json", "replay.json"}
         best = study.best_trial
         assert best is not None
         urdf = ElementTree.fromstring(client.get_artifact(best, "robot.urdf"))

@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from pydantic import BaseModel, ValidationError
@@ -42,7 +42,14 @@ from adclient.plugins import (
     learner_budget_problems,
 )
 from adclient.pruning import CHECKPOINT_ARTIFACT
-from adclient.schemas import CURVE_ARTIFACT, SHARED_ARTIFACT, Job, TaskConfig, option_problems
+from adclient.schemas import (
+    CURVE_ARTIFACT,
+    REPLAY_ARTIFACT,
+    SHARED_ARTIFACT,
+    Job,
+    TaskConfig,
+    option_problems,
+)
 from adworker import shared_weights
 from adworker.curves import env_score_text, evaluation_curve
 from adworker.job_robots import check_buildable, job_robot
@@ -54,6 +61,7 @@ from adworker.learners import (
     TrainResult,
     evaluate_policy,
 )
+from adworker.replay import ReplayRecorder
 from adworker.runner import (
     SHARED_FILE,
     TRANSFER_FILE,
@@ -67,6 +75,7 @@ from adworker.runner import (
 )
 from adworker.starts import SCRATCH, Resume, Shared, Start, Warm, train_learner
 from adworker.task_metrics import merge_task_metrics
+from adworker.tasks.base import RobotEnv
 
 log = logging.getLogger("adworker")
 
@@ -272,12 +281,19 @@ def evaluate_job(
         # A task env of this package meters its motors; a plugin's env may not.
         meter_motors = getattr(env, "meter_motors", None)
         meter = meter_motors() if callable(meter_motors) else None
-        episodes = evaluate_policy(env, trained.policy, evaluation_seeds(task), check=check)
+        # A task env of this package has a robot to replay; a plugin's env may not.
+        recorder = ReplayRecorder(env) if _replayable(env) else None
+        episodes = evaluate_policy(
+            cast(RobotEnv, recorder or env), trained.policy, evaluation_seeds(task), check=check
+        )
         t = lap("evaluate", t)
         artifacts = [
             Artifact("robot.urdf", "application/xml", urdf_text.encode()),
             Artifact(CURVE_ARTIFACT, "application/json", _curve_json(job, trained, episodes, env)),
         ]
+        replay = None if recorder is None else recorder.replay(trial_id=job.trial_id)
+        if replay is not None:
+            artifacts.append(Artifact(REPLAY_ARTIFACT, "application/json", replay.to_json()))
         if trained.checkpoint is not None:
             artifacts.append(Artifact(CHECKPOINT_ARTIFACT, "application/zip", trained.checkpoint))
         if trained.shared is not None and trained.shared_start is not None:
@@ -449,6 +465,17 @@ def _curve_json(
     """The trial's ``curve.json`` (:class:`adclient.schemas.Curve`); its score text the
     rule ``env`` declares it scores the episodes with (its task's ``score_rule``)."""
     return evaluation_curve(job, trained, episodes, env_score_text(env)).to_json()
+
+
+def _replayable(env: object) -> bool:
+    """An env whose robot the replay can read: this package's task envs."""
+    robot = getattr(env, "robot", None)
+    return (
+        callable(getattr(env, "snapshot", None))
+        and hasattr(getattr(env, "sim", None), "control_period")
+        and hasattr(robot, "spawn")
+        and hasattr(robot, "joints")
+    )
 
 
 def _png(rgb: np.ndarray) -> bytes:

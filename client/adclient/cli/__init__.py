@@ -8,9 +8,9 @@ status 1 (2 for bad usage), never a traceback.
 
 The app, its options and what the commands share are in ``common``; the commands in
 ``studies`` (submit, studies, status, stop), ``workers``, ``trials`` (trials, best, pareto,
-ask, tell, enqueue), ``data`` (import, export, delete) and ``files`` (a trial's files, which
-``best --save`` writes too); what ``submit`` reads in ``study_file``, and the closest
-valid name for an unknown field in ``suggest``.
+ask, tell, enqueue), ``data`` (import, export, delete), ``files`` (a trial's files, which
+``best --save`` writes too) and ``replay`` (a trial's episode as a GIF); what ``submit``
+reads in ``study_file``, and the closest valid name for an unknown field in ``suggest``.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ __all__ = ["app", "main"]
 
 # A command module registers its commands on ``app`` when imported, and ``adclient
 # --help`` lists them in that order (which a sorted ``from ... import`` would not keep).
-for _module in ("studies", "workers", "trials", "files", "data"):
+for _module in ("studies", "workers", "trials", "files", "replay", "data"):
     import_module(f"{__name__}.{_module}")
 
 

@@ -7,7 +7,8 @@ them). Fields may be added; the paths, names and codes of v1 stay.
 What every body shares (limits, states, checks of free JSON) is in ``common``; the
 search space in ``space``; proposer and task configuration in ``config``; the bodies of
 ``studies``, ``trials``, ``workers`` (leases, jobs, artifacts), ``auth`` and ``errors``
-in their modules; a trial's learning curve (its ``curve.json`` artifact) in ``curves``.
+in their modules; a trial's learning curve (its ``curve.json`` artifact) in ``curves``, its
+replayable evaluation episode (``replay.json``) in ``replays``.
 Import from this package: its names are the contract.
 """
 
@@ -59,6 +60,7 @@ from adclient.schemas.config import (
 )
 from adclient.schemas.curves import CURVE_ARTIFACT, Curve, EvaluationEpisode, TrainPoint
 from adclient.schemas.errors import ErrorBody
+from adclient.schemas.replays import REPLAY_ARTIFACT, Replay
 from adclient.schemas.space import (
     MAX_CHOICES,
     MAX_STEPS,
@@ -126,6 +128,7 @@ __all__ = [
     "NAME_PATTERN",
     "NO_NUL_PATTERN",
     "ONE_DESIGN_REPEATS",
+    "REPLAY_ARTIFACT",
     "SHARED_ARTIFACT",
     "ArtifactInfo",
     "AskRequest",
@@ -156,6 +159,7 @@ __all__ = [
     "ProposerConfig",
     "PrunerConfig",
     "ReleaseRequest",
+    "Replay",
     "Representation",
     "SessionInfo",
     "SharedUpdate",

@@ -6,6 +6,9 @@
 // time a view shows a robot. It draws primitive shapes (box, cylinder, sphere) and fetches
 // nothing but the URDF: the mesh files a URDF names are left out (the view says how many),
 // and its textures (colours stay). It renders on demand (a move, a slider, a resize).
+// Given the trial's replay (replay.json, adclient.schemas.Replay: the root frame's pose and
+// the joints per recorded control step), it plays the evaluation episode in the
+// simulator's own pose: play, pause, a scrubber and a speed.
 
 import { getJSON, getText } from './api.js';
 import { formatNumber } from './charts.js';
@@ -13,6 +16,8 @@ import { element, esc, finder } from './html.js';
 
 const BACKGROUND = 0xf9fafb;
 const UNITS = { revolute: 'rad', continuous: 'rad', prismatic: 'm' };
+const SPEEDS = [0.25, 0.5, 1, 2, 4];
+const BASE_SIZE = 7; // a replay frame's root position (3) and quaternion x, y, z, w (4)
 
 let vendor = null;
 
@@ -45,6 +50,15 @@ export class RobotView {
         <button type="button" class="robot-reset" data-robot-reset
           title="Joints back to where they start, camera back to the whole robot">Reset</button>
       </div>
+      <div class="replay" data-replay hidden>
+        <button type="button" data-replay-play aria-label="Play the evaluation episode">Play</button>
+        <input type="range" data-replay-scrub min="0" max="0" step="1" value="0"
+          aria-label="Time in the evaluation episode">
+        <output data-replay-time></output>
+        <select data-replay-speed aria-label="Playback speed">
+          ${SPEEDS.map((speed) => `<option value="${speed}"${speed === 1 ? ' selected' : ''}>${speed}×</option>`).join('')}
+        </select>
+      </div>
       <p class="meta" data-robot-note hidden></p>
       <div class="joints" data-sliders></div>
     </div>`);
@@ -57,6 +71,93 @@ export class RobotView {
     this.robot = null;
     this.sliders.addEventListener('input', (event) => this.moveJoint(event.target));
     $('robot-reset').addEventListener('click', () => this.reset());
+    this.player = $('replay');
+    this.playButton = $('replay-play');
+    this.scrubber = $('replay-scrub');
+    this.timeText = $('replay-time');
+    this.speed = $('replay-speed');
+    this.replay = null;
+    this.frame = 0;
+    this.playing = null; // the animation frame request while playing
+    this.playButton.addEventListener('click', () => (this.playing ? this.pause() : this.play()));
+    this.scrubber.addEventListener('input', () => {
+      this.pause();
+      this.showFrame(Number(this.scrubber.value));
+    });
+    this.speed.addEventListener('change', () => {
+      if (!this.playing) return;
+      this.pause(); // on from this frame at the new speed
+      this.play();
+    });
+  }
+
+  /** Play `replay` (replay.json) here: the player shows, at its first frame. */
+  setReplay(replay) {
+    if (!this.robot || !replay?.frames?.length) return;
+    this.replay = replay;
+    this.period = replay.control_period * (replay.every ?? 1);
+    this.scrubber.max = String(replay.frames.length - 1);
+    this.player.hidden = false;
+    this.canvas.dataset.replayFrames = String(replay.frames.length);
+    this.showFrame(0);
+  }
+
+  /** The robot as the simulator had it at frame `k` of the replay. */
+  showFrame(k) {
+    const replay = this.replay;
+    const frame = replay.frames[k];
+    this.frame = k;
+    this.robot.position.set(frame[0], frame[1], frame[2]).applyQuaternion(this.upright);
+    this.robot.quaternion.set(frame[3], frame[4], frame[5], frame[6]).premultiply(this.upright);
+    replay.joints.forEach((name, j) => {
+      const value = frame[BASE_SIZE + j];
+      const input = [...this.sliders.querySelectorAll('input[data-joint]')].find(
+        (slider) => slider.dataset.joint === name,
+      );
+      if (input) {
+        input.value = String(value);
+        this.setJoint(input);
+      } else {
+        this.robot.setJointValue(name, value);
+      }
+    });
+    this.scrubber.value = String(k);
+    const seconds = k * this.period;
+    const total = (replay.frames.length - 1) * this.period;
+    this.timeText.textContent = `${seconds.toFixed(2)} / ${total.toFixed(2)} s`;
+    this.canvas.dataset.frame = String(k);
+    this.canvas.dataset.base = JSON.stringify(this.basePose());
+    this.render();
+  }
+
+  /** From the scrubber's frame (the start, when at the end) at the chosen speed, in
+   * simulated time; stops at the episode's last frame. */
+  play() {
+    if (!this.replay || this.playing) return;
+    const last = this.replay.frames.length - 1;
+    const from = this.frame >= last ? 0 : this.frame;
+    let started = null;
+    const tick = (now) => {
+      started ??= now - from * this.period * 1000 / Number(this.speed.value);
+      const seconds = ((now - started) / 1000) * Number(this.speed.value);
+      const k = Math.min(last, Math.floor(seconds / this.period));
+      if (k !== this.frame) this.showFrame(k);
+      if (k >= last) {
+        this.pause();
+        return;
+      }
+      this.playing = requestAnimationFrame(tick);
+    };
+    this.playing = requestAnimationFrame(tick);
+    this.playButton.textContent = 'Pause';
+    this.player.dataset.playing = 'true';
+  }
+
+  pause() {
+    if (this.playing) cancelAnimationFrame(this.playing);
+    this.playing = null;
+    this.playButton.textContent = 'Play';
+    this.player.dataset.playing = 'false';
   }
 
   /** Show the robot whose URDF is at `url`, where the spawn pose at `spawnUrl` puts it
@@ -135,6 +236,7 @@ export class RobotView {
     this.robot.position.set(...(spawn?.position ?? [0, 0, 0])).applyQuaternion(this.upright);
     this.robot.quaternion.set(...(spawn?.orientation ?? [0, 0, 0, 1])).premultiply(this.upright);
     this.start = spawn?.joints ?? {};
+    this.home = [this.robot.position.clone(), this.robot.quaternion.clone()];
     this.scene.add(this.robot);
 
     const movable = Object.values(this.robot.joints)
@@ -234,7 +336,11 @@ export class RobotView {
 
   reset() {
     if (!this.robot) return;
+    this.pause();
+    this.robot.position.copy(this.home[0]);
+    this.robot.quaternion.copy(this.home[1]);
     this.startJoints();
+    this.canvas.dataset.base = JSON.stringify(this.basePose());
     this.fit();
     this.render();
   }
@@ -262,6 +368,7 @@ export class RobotView {
   /** Let go of the GPU context and the listeners; the view is not used again. */
   dispose() {
     this.requests += 1;
+    this.pause();
     this.resizer?.disconnect();
     this.controls?.dispose();
     if (this.robot) disposeObject(this.robot);

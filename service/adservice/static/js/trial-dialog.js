@@ -1,6 +1,7 @@
 // One trial in a dialog: its score, timings, message, metrics, params and user attributes;
 // its robot in 3D
-// (when it has a URDF), its image, its learning curve, and its files.
+// (when it has a URDF; with its worker's replay.json, playing the evaluation episode), its
+// image, its learning curve, and its files.
 
 import { getJSON } from './api.js';
 import { drawCurve, formatNumber } from './charts.js';
@@ -142,7 +143,13 @@ export async function openTrialDialog(study, trialId) {
   if (modelUrl) {
     model = new RobotView();
     dialog.querySelector('[data-trial-model]').append(model.root);
-    model.show(modelUrl, spawnUrl(study, trial));
+    const showing = model.show(modelUrl, spawnUrl(study, trial));
+    if (names.includes('replay.json')) {
+      const view = model;
+      Promise.all([showing, getJSON(`/api/v1/trials/${trial.id}/artifacts/replay.json`)])
+        .then(([, replay]) => view.setReplay(replay))
+        .catch((error) => view.note(`No replay: ${error.message}`));
+    }
   }
   const image = dialog.querySelector('[data-trial-image]');
   if (image) image.src = `/api/v1/trials/${trial.id}/artifacts/robot.png`;
