@@ -253,9 +253,9 @@ def test_a_forked_worker_starts_as_an_execd_one(
     """torch, imported in the fork server, takes the thread count the worker sets from
     OMP_NUM_THREADS (1 where unset); the temporary folder is the worker's own TMPDIR; the
     environment and ``sys.path`` are its own; the job's process ignores SIGTERM, which
-    reaches the worker's handler and ends it with 0; the objects the fork server made are frozen (the worker's
-    collections do not copy their pages); what a learner's first model imports is
-    preloaded."""
+    reaches the worker's handler and ends it with 0; the objects the fork server made
+    are frozen (the worker's collections do not copy their pages); what a learner's
+    first model imports is preloaded."""
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     app, tmp = tmp_path / "app", tmp_path / "tmp"
     app.mkdir()
