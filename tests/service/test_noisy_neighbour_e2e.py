@@ -67,7 +67,9 @@ def test_an_ordinary_study_keeps_its_pace_beside_the_worst_a_user_may_send(
         assert answers.get("upload 413", 0) > 0, answers
         assert answers.get("lease 204", 0) > 0, answers
         assert all(
-            status.startswith("4") for key in answers if key.startswith("harmful")
+            status.startswith("4")
+            for key in answers
+            if key.startswith("harmful")
             for status in [key.split()[-1]]
         ), answers
         # the ordinary study kept its pace and its worker
