@@ -16,8 +16,9 @@ from adclient.spawn import link_frames
 from adclient.testing.servers import ServerProcess
 from adclient.testing.workers import run_adclient
 from adclient.urdf_model import read_urdf
+from adworker.evaluate import evaluate_job
 from adworker.replay import ReplayRecorder, quaternion_products, root_frames, rotation_matrices
-from tests.workers.robots import fast_trained_trial
+from tests.workers.robots import HALF_PI, fast_trained_trial, make_job, stand_up_specs
 
 
 @pytest.mark.e2e
@@ -48,17 +49,7 @@ def test_a_real_workers_replay_reads_back_and_ends_where_the_task_scored(
     # the last frame posed on the URDF: the replay is the simulator's pose.
     assert last.metric[-1] > 0.1
     k = len(replay.frames) - 1
-    turn = rotation_matrices(np.array(replay.orientation(k)))
-    poses = {
-        name: (rotation, origin)
-        for name, rotation, origin in link_frames(
-            model, turn, np.array(replay.position(k)), replay.joint_positions(k)
-        )
-    }
-    rotation, origin = poses["b"]
-    [shape] = model.links["b"].shapes
-    centre = origin + rotation @ np.array(shape.origin.xyz)
-    assert centre[2] == pytest.approx(last.metric[-1], abs=2e-3)
+    assert b_centre_height(model, replay, k) == pytest.approx(last.metric[-1], abs=2e-3)
 
     # adclient writes it as an animated GIF, one picture per recorded step, that moves.
     gif = tmp_path / "stand.gif"
@@ -75,6 +66,36 @@ def test_a_real_workers_replay_reads_back_and_ends_where_the_task_scored(
     assert (first != final).any(axis=2).mean() > 0.01  # the arch has risen
     again = run_adclient(server, "replay", str(trial.id), "--out", str(gif))
     assert again.returncode == 1 and "--force" in again.stderr
+
+
+def b_centre_height(model, replay: Replay, k: int) -> float:
+    """stand-up's metric at frame ``k``, recomputed from the replay posed on the URDF: the
+    height of link b's shape centre."""
+    turn = rotation_matrices(np.array(replay.orientation(k)))
+    at = np.array(replay.position(k))
+    for name, rotation, origin in link_frames(model, turn, at, replay.joint_positions(k)):
+        if name == "b":
+            [shape] = model.links["b"].shapes
+            return float((origin + rotation @ np.array(shape.origin.xyz))[2])
+    raise AssertionError("no link b")
+
+
+@pytest.mark.parametrize("simulator", ["pybullet", "mujoco"])
+def test_each_engines_replay_ends_in_the_pose_it_scored(simulator: str, tmp_path: Path) -> None:
+    """Each engine reports the root at its own pose frame (PyBullet's inertial frame,
+    MuJoCo's body axes at the centre of mass): the replay holds the URDF's root frame on
+    both, so its frames posed on the URDF give the task's per-step metric."""
+    job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), simulator=simulator)
+    evaluation = evaluate_job(job, tmp_path, render=False)
+    artifacts = {artifact.name: artifact.data for artifact in evaluation.artifacts}
+    replay = Replay.model_validate_json(artifacts[REPLAY_ARTIFACT])
+    model = read_urdf(artifacts["robot.urdf"].decode())
+    last = evaluation.episodes[-1]
+    assert replay.seed == last.seed and len(replay.frames) == len(last.metric) + 1
+    standing = [k for k, value in enumerate(last.metric, start=1) if value > 0]
+    assert len(standing) > 10
+    for k in standing:
+        assert b_centre_height(model, replay, k) == pytest.approx(last.metric[k - 1], abs=2e-3)
 
 
 def test_root_frames_undo_the_engines_constant_offset() -> None:
