@@ -14,25 +14,42 @@ export const INFEASIBLE = 'rgba(156, 163, 175, 0.55)';
 const GRID = '#e5e7eb';
 export const FONT = '11px system-ui, sans-serif';
 
+/** A number as a person reads it: integers exactly (a train_steps of 12288 is 12288, not
+ * 12290), others to 4 significant digits, tiny or huge ones in exponent form. */
 export function formatNumber(value) {
   if (value === null || value === undefined || Number.isNaN(value)) return '—';
   if (typeof value !== 'number') return String(value);
   const magnitude = Math.abs(value);
+  if (Number.isInteger(value) && magnitude < 1e15) return String(value);
   if (magnitude !== 0 && (magnitude >= 1e5 || magnitude < 1e-3)) return value.toExponential(2);
   return String(Number(value.toPrecision(4)));
 }
 
+/** About `count` round ticks over [low, high]: each a whole number of steps, rounded to
+ * the step's own decimals (summing steps left float noise: 0 labelled -2.78e-17). */
 export function niceTicks(low, high, count = 5) {
   if (!(high > low)) return [low];
   const rough = (high - low) / count;
   const magnitude = 10 ** Math.floor(Math.log10(rough));
   const ratio = rough / magnitude;
   const step = (ratio >= 7.5 ? 10 : ratio >= 3.5 ? 5 : ratio >= 1.5 ? 2 : 1) * magnitude;
+  const decimals = Math.max(0, -Math.floor(Math.log10(step) + 1e-9));
+  const round = (tick) =>
+    decimals <= 100 ? Number(tick.toFixed(decimals)) : Number(tick.toPrecision(12));
   const ticks = [];
-  for (let tick = Math.ceil(low / step) * step; tick <= high + step * 1e-9; tick += step) {
-    ticks.push(Number(tick.toPrecision(12)));
+  for (let k = Math.ceil(low / step - 1e-9); k * step <= high + step * 1e-9; k++) {
+    ticks.push(round(k * step) || 0); // never -0
   }
   return ticks;
+}
+
+/** Ticks of a log axis over exponents [low, high] (log10 of the values): the powers of
+ * ten within it, or round values between where it spans less than two decades. */
+export function logTicks(low, high) {
+  const powers = niceTicks(low, high).filter((exponent) => Number.isInteger(exponent));
+  if (powers.length >= 2) return powers.map((exponent) => Number(`1e${exponent}`));
+  const values = niceTicks(10 ** low, 10 ** high, 4).filter((value) => value > 0);
+  return values.length ? values : [10 ** low];
 }
 
 export function extent(values) {
@@ -103,13 +120,15 @@ export function bucket(good) {
   return Math.min(PALETTE.length - 1, Math.floor(good * PALETTE.length));
 }
 
-export function drawYAxis(ctx, left, top, bottom, right, low, high, y) {
+/** The y axis and its grid; with `log`, low and high are log10 of the range and `y`
+ * takes a value (not its log). */
+export function drawYAxis(ctx, left, top, bottom, right, low, high, y, { log = false } = {}) {
   ctx.strokeStyle = GRID;
   ctx.fillStyle = AXIS;
   ctx.textAlign = 'right';
   ctx.textBaseline = 'middle';
   ctx.lineWidth = 1;
-  for (const tick of niceTicks(low, high)) {
+  for (const tick of log ? logTicks(low, high) : niceTicks(low, high)) {
     const py = Math.round(y(tick)) + 0.5;
     ctx.beginPath();
     ctx.moveTo(left, py);

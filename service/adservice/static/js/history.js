@@ -2,7 +2,8 @@
 // failed and open trials; hovering names a point, clicking opens its trial. Under
 // constraints an infeasible trial is a grey point and never the best so far; a study of
 // several objectives charts its first objective, without a best so far (its best
-// designs are the Pareto panel's).
+// designs are the Pareto panel's). A log scale toggle spreads scores over decades
+// (1e-4 to 60 looks flat on a linear axis); it needs every score above 0.
 
 import { INFEASIBLE, bindPoints, drawXAxis, drawYAxis, extent, formatNumber, message, prepare } from './charts.js';
 import { element, finder } from './html.js';
@@ -11,10 +12,11 @@ import { element, finder } from './html.js';
  * Every complete trial's score against its number, the best-so-far curve over them,
  * and ticks for failed (red) and unfinished (grey) trials along the bottom.
  * Leaves on the canvas what hovering needs (`canvas.hit`), and `data-points`,
- * `data-failed`, `data-infeasible` and `data-best-so-far` (the curve's last value) for
- * tests.
+ * `data-failed`, `data-infeasible`, `data-best-so-far` (the curve's last value) and
+ * `data-scale` (`log` or `linear`) for tests. With `log`, the score axis is log10 of
+ * the scores where all are above 0 (linear otherwise).
  */
-function drawHistory(canvas, series, direction, { bestSoFar = true } = {}) {
+function drawHistory(canvas, series, direction, { bestSoFar = true, log = false } = {}) {
   const { ctx, width, height } = prepare(canvas);
   const pad = { left: 58, right: 14, top: 10, bottom: 28 };
   const numbers = series.complete.map((i) => series.number[i]);
@@ -38,15 +40,18 @@ function drawHistory(canvas, series, direction, { bestSoFar = true } = {}) {
   }
   const lastNumber = series.number[series.number.length - 1];
   const xHigh = Math.max(lastNumber, 1);
-  const [yLow, yHigh] = extent(values);
+  const logScale = log && values.length > 0 && values.every((v) => v > 0);
+  canvas.dataset.scale = logScale ? 'log' : 'linear';
+  const scale = logScale ? Math.log10 : (v) => v;
+  const [yLow, yHigh] = extent(values.map(scale));
   const left = pad.left;
   const right = width - pad.right;
   const top = pad.top;
   const bottom = height - pad.bottom;
   const x = (n) => left + ((n - 0) / (xHigh - 0 || 1)) * (right - left);
-  const y = (v) => bottom - ((v - yLow) / (yHigh - yLow)) * (bottom - top);
+  const y = (v) => bottom - ((scale(v) - yLow) / (yHigh - yLow)) * (bottom - top);
 
-  drawYAxis(ctx, left, top, bottom, right, yLow, yHigh, y);
+  drawYAxis(ctx, left, top, bottom, right, yLow, yHigh, y, { log: logScale });
   drawXAxis(ctx, left, right, bottom, 0, xHigh, x, true);
 
   const size = values.length > 2000 ? 2 : 4;
@@ -111,7 +116,8 @@ export class HistoryPanel {
         <span class="legend"><i class="dot"></i>score
         <span data-infeasible-key hidden><i class="dot infeasible"></i>infeasible</span>
         <span data-best-key><i class="line"></i>best so far</span>
-        <i class="tick failed"></i>failed <i class="tick open"></i>queued/running</span></h2>
+        <i class="tick failed"></i>failed <i class="tick open"></i>queued/running</span>
+        <label class="meta"><input type="checkbox" data-history-log> log scale</label></h2>
       <div class="chart-wrap">
         <canvas class="chart" data-history></canvas>
         <div class="tooltip" data-tooltip hidden></div>
@@ -120,6 +126,11 @@ export class HistoryPanel {
     const $ = finder(this.root);
     this.$ = $;
     this.canvas = $('history');
+    this.log = false;
+    $('history-log').addEventListener('change', (event) => {
+      this.log = event.target.checked;
+      this.draw();
+    });
     bindPoints(this.canvas, $('tooltip'), {
       nearest: (x, y) => nearestPoint(this.canvas, x, y),
       describe: (point) =>
@@ -134,6 +145,12 @@ export class HistoryPanel {
     if (several) this.$('history-title').textContent = `${study.objective_names[0]} by trial`;
     this.$('infeasible-key').hidden = !series.feasible;
     this.$('best-key').hidden = several;
-    drawHistory(this.canvas, series, study.direction, { bestSoFar: !several });
+    // A log axis needs every score above 0: the toggle says so where one is not.
+    const scores = series.complete.map((i) => series.value[i]);
+    const positive = scores.every((v) => v > 0);
+    const toggle = this.$('history-log');
+    toggle.disabled = !positive;
+    toggle.parentElement.title = positive ? 'score axis in powers of ten' : 'a log scale needs every score above 0';
+    drawHistory(this.canvas, series, study.direction, { bestSoFar: !several, log: this.log && positive });
   }
 }
