@@ -4,17 +4,22 @@ a delta), of a constrained single objective, of int and categorical params and o
 design study's spec names, and a study's learning curves.
 
 The browser tests of those pages (test_pareto_browser, test_dashboard_importance_browser,
-test_curves_browser, test_dashboard_browser) run on SQLite alone: a page sees only these
-answers, so what the database changes is asserted here, in-process, on both."""
+test_curves_browser, test_dashboard_browser, test_dashboard_workers_browser) run on
+SQLite alone: a page sees only these answers, so what the database changes is asserted
+here, in-process, on both."""
 
 from __future__ import annotations
 
 import random
+from datetime import timedelta
 from typing import Any
 
 import yaml
 from fastapi.testclient import TestClient
 
+from adservice.db import Database
+from adservice.models import WorkerRow
+from adservice.settings import Settings
 from tests.service.dashboard_pages import EXAMPLES, seed_curves
 from tests.service.fronts import brute_front
 
@@ -195,3 +200,25 @@ def test_the_trials_table_reads_who_handed_a_trial_over_and_its_transfer_source(
         first["trial_id"]: None,
         second["trial_id"]: first["trial_id"],
     }
+
+
+def test_workers_not_heard_from_lately_are_gone(api: TestClient, settings: Settings) -> None:
+    """The workers tables' state (test_dashboard_workers_browser draws it): gone past the
+    server's 90 s without contact, whatever the worker held; idle or working before."""
+    managed = {"task": {"name": "reads-sim", "external": True}, "max_trials": 5}
+    study = create(api, name="workers", **managed)
+    for worker, tasks in (("left", ["reads-sim"]), ("busy", ["reads-sim"]), ("idle", ["x"])):
+        leased = api.post("/api/v1/jobs/lease", json={"worker_id": worker, "tasks": tasks})
+        assert leased.status_code == (204 if worker == "idle" else 200), leased.text
+    db = Database(settings.database_url)
+    try:
+        with db.write() as session:
+            left = session.get(WorkerRow, "left")
+            assert left is not None
+            left.last_seen_at -= timedelta(seconds=91)
+    finally:
+        db.dispose()
+    listed = {w["worker_id"]: w["state"] for w in api.get("/api/v1/workers").json()}
+    assert listed == {"left": "gone", "busy": "working", "idle": "idle"}
+    of_study = api.get(f"/api/v1/studies/{study}/workers").json()
+    assert {w["worker_id"]: w["state"] for w in of_study} == {"left": "gone", "busy": "working"}
