@@ -1,13 +1,18 @@
 // A study's header (name, state, what it searches and how, its user attributes, and stop
 // and delete buttons for those who may) and its progress bar with counts; the progress bar
-// and counts text serve the studies list too.
+// and counts text serve the studies list too. A running study with no max_trials (an
+// Optuna sampler's, an ask/tell script's) has no end to measure progress against: its bar
+// is faded and its counts say "no trial limit", so all complete does not read as done.
 
 import { deleteStudy, mayManage, stopStudy } from './api.js';
 import { ago, attrText, badge, element, esc, finder } from './html.js';
 import { setCrumbs } from './shell.js';
 
+/** A running study with no max_trials: it ends only when stopped. */
+const openEnded = (study) => !study.max_trials && study.state === 'running';
+
 export function countsText(study) {
-  const of = study.max_trials ? ` of ${study.max_trials}` : '';
+  const of = study.max_trials ? ` of ${study.max_trials}` : openEnded(study) ? ' · no trial limit' : '';
   return (
     `${study.n_complete} complete · ${study.n_running} running · ${study.n_queued} queued · ` +
     `${study.n_failed} failed${study.n_pruned ? ` · ${study.n_pruned} pruned` : ''}${of}`
@@ -21,7 +26,10 @@ export function progressBar(study, extraClass = '') {
       ? `<span class="segment ${state}" style="width:${((100 * count) / total).toFixed(3)}%"
            title="${count} ${state}"></span>`
       : '';
-  return `<div class="progress ${extraClass}" role="img" aria-label="${esc(countsText(study))}">
+  const faded = openEnded(study)
+    ? ` data-open-ended style="opacity:0.5" title="no trial limit (max_trials): the bar shows its trials' states, not how far it has come; it runs until stopped"`
+    : '';
+  return `<div class="progress ${extraClass}" role="img" aria-label="${esc(countsText(study))}"${faded}>
     ${segment(study.n_complete, 'complete')}${segment(study.n_pruned ?? 0, 'pruned')}
     ${segment(study.n_failed, 'failed')}
     ${segment(study.n_running, 'running')}${segment(study.n_queued, 'queued')}</div>`;
@@ -203,6 +211,7 @@ export class StudyHeader {
       `<span class="count queued">${s.n_queued} queued</span>` +
       `<span class="count failed">${s.n_failed} failed</span>` +
       (s.n_pruned ? `<span class="count pruned">${s.n_pruned} pruned</span>` : '') +
-      `<span class="meta">${s.n_trials} asked${s.max_trials ? ` of ${s.max_trials}` : ''}</span>`;
+      `<span class="meta">${s.n_trials} asked` +
+      `${s.max_trials ? ` of ${s.max_trials}` : openEnded(s) ? ', no trial limit' : ''}</span>`;
   }
 }
