@@ -7,8 +7,10 @@ server; workers are raw leases, as a worker of any language makes them."""
 
 from __future__ import annotations
 
+import sqlite3
 import threading
 from collections.abc import Iterator
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import httpx
@@ -128,3 +130,27 @@ def test_a_worker_without_the_study_s_learner_does_not_serve_it(server: ServerPr
         assert learners == {"no-fast": ["ppo"], "has-fast": ["fast", "ppo"]}
     table = words(ok(run(server.url, "workers")).stdout)
     assert "learners" in table and "reach-point fast, ppo" in table, table
+
+
+def test_workers_table_shows_each_worker_s_state(server: ServerProcess, tmp_path: Path) -> None:
+    """The state column: working (holds a trial), idle (holds none, heard from lately),
+    gone (its last contact set back past the server's 90 s in the SQLite file)."""
+    with Client(server.url) as client:
+        client.create_study(managed("state-sim", "states"))
+        assert client.lease("busy", tasks=["state-sim"]) is not None
+        assert client.lease("left", tasks=["state-sim"]) is not None
+        assert client.lease("resting", tasks=["other-sim"]) is None
+    with sqlite3.connect(tmp_path / "s.db") as db:
+        (seen,) = db.execute("SELECT last_seen_at FROM workers WHERE worker_id = 'left'").fetchone()
+        back = datetime.fromisoformat(seen) - timedelta(seconds=91)
+        db.execute(
+            "UPDATE workers SET last_seen_at = ? WHERE worker_id = 'left'",
+            (back.isoformat(sep=" "),),
+        )
+    with Client(server.url) as client:
+        states = {w.worker_id: w.state for w in client.workers()}
+    assert states == {"busy": "working", "left": "gone", "resting": "idle"}
+    lines = ok(run(server.url, "workers")).stdout.splitlines()
+    rows = {cells[0]: cells[1] for line in lines if len(cells := words(line).split()) > 2}
+    assert rows["busy"] == "working" and rows["left"] == "gone" and rows["resting"] == "idle"
+    assert "state" in words(" ".join(lines)).split()  # the header

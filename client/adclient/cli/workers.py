@@ -47,11 +47,12 @@ def workers(
         return
     now = datetime.now(UTC)
     table = Table(title=f"workers: {len(items)}")
-    for column in ("worker", "last seen", "tasks", "learners", "trial", "done", "failed"):
+    for column in ("worker", "state", "last seen", "tasks", "learners", "trial", "done", "failed"):
         table.add_column(column, justify="right" if column in {"done", "failed"} else "left")
     for worker in items:
         table.add_row(
             escape(worker.worker_id),
+            worker.state or "unknown",  # null: a server older than the field
             f"{_age(worker, now):.0f} s ago",
             escape(", ".join(worker.tasks)) if worker.tasks is not None else "any",
             escape(", ".join(worker.learners)) if worker.learners is not None else "any",
