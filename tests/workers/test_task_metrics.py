@@ -16,7 +16,15 @@ from adworker import designs
 from adworker.learners import evaluate_policy
 from adworker.task_metrics import MAX_TASK_METRICS, checked_task_metrics, merge_task_metrics
 from adworker.tasks.base import RobotEnv, Task
-from adworker.tasks.markers import MAX_MARKERS, Marker, checked_markers, draw_markers
+from adworker.tasks.engine import Camera
+from adworker.tasks.markers import (
+    DOT_RADIUS,
+    MAX_MARKERS,
+    Marker,
+    checked_markers,
+    draw_markers,
+    label_places,
+)
 from adworker.tasks.snapshot import Snapshot
 from tests.workers.robots import write_urdf
 
@@ -240,3 +248,52 @@ def test_what_docs_plugins_md_says_of_a_tasks_hooks_and_markers_is_so() -> None:
     assert f"`{quoted}`" in own
     with pytest.raises(ValueError, match=f"^{re.escape(quoted)}$"):
         checked_markers([Marker((0, 0, 1)), Marker((0, math.nan, 1))])
+
+
+def test_labels_of_markers_close_together_do_not_overlap() -> None:
+    """Two marked points a few pixels apart (a tip on its target) and a third beside
+    them: each label is drawn where it covers no other label and no other dot, inside
+    the picture; on a blank picture, each label's pixels are where its box says."""
+    flat = tuple(np.eye(4).flatten(order="F").tolist())
+    camera = Camera(view=flat, projection=flat, width=200, height=200)
+    markers = [
+        Marker((0.0, 0.0, 0.0), colour=(0.0, 0.8, 0.0), label="target"),
+        Marker((0.04, 0.0, 0.0), colour=(0.0, 0.0, 1.0), label="tip"),
+        Marker((0.16, 0.0, 0.0), colour=(1.0, 0.0, 0.0), label="elbow"),
+        Marker((0.98, 0.0, 0.0), colour=(1.0, 0.0, 1.0), label="by the edge"),
+    ]
+    pixels = [camera.pixel(marker.position) for marker in markers]
+    dots = [
+        (round(u) - DOT_RADIUS, round(v) - DOT_RADIUS, round(u) + DOT_RADIUS, round(v) + DOT_RADIUS)
+        for u, v in pixels
+    ]
+    sizes = [(6 * len(marker.label), 11) for marker in markers]
+    boxes = label_places(dots, sizes, (camera.width, camera.height))
+    for index, box in enumerate(boxes):
+        assert box is not None
+        assert box[0] >= 0 and box[2] <= camera.width and box[1] >= 0 and box[3] <= camera.height
+        others = [dot for k, dot in enumerate(dots) if k != index] + [
+            other for k, other in enumerate(boxes) if k != index
+        ]
+        for other in others:
+            assert _shared(box, other) == 0, (markers[index].label, box, other)
+    assert label_places(dots[:1], [None], (200, 200)) == [None]
+
+    blank = np.full((200, 200, 3), 255, dtype=np.uint8)
+    drawn = draw_markers(blank, camera, markers)
+    dark = np.argwhere((drawn < 60).all(axis=2))  # the rims and the labels' text
+    assert len(dark) > 100
+    inside_some = [
+        any(
+            left - 1 <= x <= right + 1 and top - 1 <= y <= bottom + 1
+            for left, top, right, bottom in dots
+        )
+        for y, x in dark
+    ]
+    assert not all(inside_some)  # the labels are drawn, beside the dots
+
+
+def _shared(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> int:
+    width = min(a[2], b[2]) - max(a[0], b[0])
+    height = min(a[3], b[3]) - max(a[1], b[1])
+    return max(width, 0) * max(height, 0)

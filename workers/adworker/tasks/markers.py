@@ -96,22 +96,96 @@ def _numbers(value: object, where: str) -> tuple[float, float, float]:
     return numbers[0], numbers[1], numbers[2]
 
 
+Box = tuple[int, int, int, int]
+"""A pixel rectangle: left, top, right, bottom."""
+LABEL_GAP = 3
+"""Pixels between a dot's rim and its label."""
+
+
 def draw_markers(rgb: np.ndarray, camera: Camera, markers: Sequence[Marker]) -> np.ndarray:
     """``rgb`` (a picture ``camera`` took) with each marker drawn where the camera sees
-    its point: a dot of its colour with a dark rim, its label to the right."""
+    its point: a dot of its colour with a dark rim, its label beside it where it
+    overlaps no other label or dot (:func:`label_places`)."""
     if not markers:
         return rgb
     from PIL import Image, ImageDraw
 
     image = Image.fromarray(rgb)
     draw = ImageDraw.Draw(image)
+    seen = []
     for marker in markers:
         pixel = camera.pixel(marker.position)
-        if pixel is None:
-            continue
-        u, v = pixel
-        box = (u - DOT_RADIUS, v - DOT_RADIUS, u + DOT_RADIUS, v + DOT_RADIUS)
-        draw.ellipse(box, fill=marker.rgb(), outline=RIM, width=1)
-        if marker.label:
-            draw.text((u + DOT_RADIUS + 3, v - DOT_RADIUS - 1), marker.label, fill=RIM)
+        if pixel is not None:
+            seen.append((marker, (round(pixel[0]), round(pixel[1]))))
+    dots = [(u - DOT_RADIUS, v - DOT_RADIUS, u + DOT_RADIUS, v + DOT_RADIUS) for _, (u, v) in seen]
+    for (marker, _), dot in zip(seen, dots, strict=True):
+        draw.ellipse(dot, fill=marker.rgb(), outline=RIM, width=1)
+    sizes: list[tuple[int, int] | None] = []
+    for marker, _ in seen:
+        left, top, right, bottom = draw.textbbox((0, 0), marker.label)
+        sizes.append((round(right - left), round(bottom - top)) if marker.label else None)
+    for (marker, _), box in zip(seen, label_places(dots, sizes, image.size), strict=True):
+        if box is not None:
+            draw.text((box[0], box[1]), marker.label, fill=RIM)
     return np.asarray(image, dtype=np.uint8).copy()
+
+
+def label_places(
+    dots: Sequence[Box], sizes: Sequence[tuple[int, int] | None], image_size: tuple[int, int]
+) -> list[Box | None]:
+    """Where each dot's label goes (``None`` for a dot without one): the first of right,
+    left, above and below the dot, then the same farther out (each moved inside the
+    picture where it fits), whose box lies inside the picture and overlaps no dot and no
+    label placed before it; if none does, the least
+    overlapped of them. Labels are placed in the markers' order, so a task's first
+    markers keep the places nearest their dots."""
+    width, height = image_size
+    placed: list[Box] = []
+    places: list[Box | None] = []
+    for dot, size in zip(dots, sizes, strict=True):
+        if size is None:
+            places.append(None)
+            continue
+        candidates = _candidates(dot, size, image_size)
+        others = [other for other in dots if other != dot] + placed
+
+        costs = [_placement_cost(box, others, width, height) for box in candidates]
+        best = candidates[costs.index(min(costs))]
+        placed.append(best)
+        places.append(best)
+    return places
+
+
+def _placement_cost(box: Box, others: Sequence[Box], width: int, height: int) -> tuple[int, int]:
+    """Whether ``box`` leaves the picture, then the pixels it shares with ``others``."""
+    outside = int(box[0] < 0 or box[1] < 0 or box[2] > width or box[3] > height)
+    return outside, sum(_overlap(box, other) for other in others)
+
+
+def _candidates(dot: Box, size: tuple[int, int], image_size: tuple[int, int]) -> list[Box]:
+    """Boxes of ``size`` around ``dot``, nearest first, each shifted into the picture
+    where it fits there (a label by the picture's edge moves along it)."""
+    left, top, right, bottom = dot
+    label_width, label_height = size
+    middle = (top + bottom) // 2 - label_height // 2
+    centre = (left + right) // 2 - label_width // 2
+    boxes = []
+    for ring in range(4):
+        reach = LABEL_GAP + ring * (label_height + LABEL_GAP)
+        for x, y in (
+            (right + reach, middle),
+            (left - reach - label_width, middle),
+            (centre, top - reach - label_height),
+            (centre, bottom + reach),
+        ):
+            x = min(max(x, 0), max(image_size[0] - label_width, 0))
+            y = min(max(y, 0), max(image_size[1] - label_height, 0))
+            boxes.append((x, y, x + label_width, y + label_height))
+    return list(dict.fromkeys(boxes))
+
+
+def _overlap(a: Box, b: Box) -> int:
+    """The pixels two boxes share."""
+    width = min(a[2], b[2]) - max(a[0], b[0])
+    height = min(a[3], b[3]) - max(a[1], b[1])
+    return max(width, 0) * max(height, 0)
