@@ -194,6 +194,24 @@ class SharedControllerRow(Base):
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class NoteRow(Base):
+    """A study's note (``trial_id`` None) or one of its trials' notes: free text its
+    owner keeps. At most one per study or trial, kept so by writing under the study's
+    row lock (``repository.notes``); each goes with its study or trial."""
+
+    __tablename__ = "notes"
+    __table_args__ = (sa.Index("ix_notes_study_trial", "study_id", "trial_id"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    study_id: Mapped[int] = mapped_column(sa.ForeignKey("studies.id", ondelete="CASCADE"))
+    trial_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("trials.id", ondelete="CASCADE"), nullable=True
+    )
+    text: Mapped[str] = mapped_column(sa.Text)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    updated_by: Mapped[str | None] = mapped_column(sa.String(128), nullable=True)
+
+
 class TrialURDFRow(Base):
     """A trial's URDF, expanded once from its study's template when its params were
     fixed; reads serve this text instead of expanding again. Exactly one of ``urdf``

@@ -60,6 +60,7 @@ from adclient.schemas.config import (
 )
 from adclient.schemas.curves import CURVE_ARTIFACT, Curve, EvaluationEpisode, TrainPoint
 from adclient.schemas.errors import ErrorBody
+from adclient.schemas.notes import MAX_NOTE_CHARS, Note, NoteUpdate
 from adclient.schemas.replays import REPLAY_ARTIFACT, Replay
 from adclient.schemas.space import (
     MAX_CHOICES,
@@ -117,6 +118,7 @@ __all__ = [
     "MAX_CONSTRAINTS",
     "MAX_JSON_BYTES",
     "MAX_JSON_DEPTH",
+    "MAX_NOTE_CHARS",
     "MAX_OBJECTIVES",
     "MAX_STEPS",
     "MAX_STUDY_NAME",
@@ -151,6 +153,8 @@ __all__ = [
     "LeaseRequest",
     "NewProposerConfig",
     "NewTaskConfig",
+    "Note",
+    "NoteUpdate",
     "Objective",
     "ObjectiveName",
     "ObjectiveSpread",
