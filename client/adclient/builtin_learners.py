@@ -199,6 +199,52 @@ class PPOOptions(StableBaselinesOptions):
         )
 
 
+class BatchPPOOptions(StableBaselinesOptions):
+    """``ppo-batch`` (adworker.batch_ppo): a PPO of the worker's own that trains on a batch
+    of ``n_envs`` worlds, as batched RL sets it (Brax, MuJoCo Playground): a rollout of
+    ``n_envs`` x ``unroll`` samples, cut into ``n_minibatches``, ``n_epochs`` passes over
+    it. The defaults: a rollout of 512 (as ``ppo``'s), 4 minibatches of 128 and 4 epochs,
+    16 updates per rollout against ``ppo``'s 40 (bench/engines.py ``--learn`` measured
+    what each learns at the same steps)."""
+
+    default_steps: ClassVar[int] = PPOOptions.default_steps
+
+    n_envs: int = Field(
+        default=16, ge=1, le=MAX_BATCH_WORLDS, description="Worlds trained on together"
+    )
+    unroll: int = Field(default=32, ge=1, le=4096, description="Steps of each world a rollout")
+    n_minibatches: int = Field(default=4, ge=1, le=1024, description="Minibatches a rollout")
+    n_epochs: int = Field(default=4, ge=1, le=100, description="Passes over each rollout")
+    gae_lambda: float = Field(default=0.9, ge=0.0, le=1.0)
+    clip_range: float = Field(default=0.2, gt=0.0, le=10.0)
+    ent_coef: float = Field(default=0.0, ge=0.0, le=10.0, description="Entropy weight")
+    vf_coef: float = Field(default=0.5, ge=0.0, le=100.0, description="Value loss weight")
+    max_grad_norm: float = Field(default=0.5, gt=0.0, le=1000.0)
+    log_std_init: float = Field(
+        default=0.0, ge=-10.0, le=2.0, description="The policy's initial log standard deviation"
+    )
+
+    @property
+    def rollout(self) -> int:
+        """Samples of one rollout, all worlds together."""
+        return self.n_envs * self.unroll
+
+    def work(self, steps: int) -> Work:
+        rollouts = math.ceil(steps / self.rollout)
+        minibatches = min(self.n_minibatches, self.rollout)
+        counted = (
+            f"{steps:,} steps / (n_envs {self.n_envs} x unroll {self.unroll}) x n_epochs "
+            f"{self.n_epochs}"
+        )
+        passes = rollouts * self.n_epochs
+        return Work(
+            passes * minibatches,
+            passes * self.rollout,
+            f"{counted} x n_minibatches {minibatches}",
+            f"{counted} x {self.rollout} samples",
+        )
+
+
 FAST = LearnerSpec(
     name="fast",
     description="A search over constant joint targets: the best pose the design can reach "
@@ -234,4 +280,91 @@ PPO = LearnerSpec(
     options=PPOOptions,
     transfers=True,
     shares=True,
+)
+PPO_BATCH = LearnerSpec(
+    name="ppo-batch",
+    description="PPO of the worker's own on a batch of worlds (16 by default), the policy "
+    "evaluated once per batch step, [64, 64] networks, rollouts of 16 x 32.",
+    factory="adworker.batch_ppo:BatchPPOLearner",
+    options=BatchPPOOptions,
+    transfers=True,
+)
+
+
+# ---------------------------------------------------------------- mpc (issue 59)
+
+MAX_MPC_ROLLOUT_STEPS = 1_000_000
+"""The most control steps ``mpc``'s planner may simulate in its rollouts for one
+evaluation episode (``max_rollout_steps``): about 100 s of one core on a small design."""
+
+
+class MPCOptions(LearnerOptions):
+    """Sampling-based model-predictive control from the current state (adworker.mpc): no
+    training; each plan samples ``samples`` action sequences of ``horizon`` control steps
+    around the nominal plan, rolls them out on copies of the world and keeps the best.
+    What a plan costs is ``samples x horizon`` control steps (``x cem_iterations`` for
+    CEM); an episode plans once every ``replan_every`` of its steps, within
+    ``max_rollout_steps``."""
+
+    method: Literal["sampling", "cem"] = Field(
+        default="sampling",
+        description="sampling: predictive sampling (the best sample is the new plan); cem: "
+        "the cross-entropy method (cem_iterations refits to the elite samples)",
+    )
+    samples: int = Field(default=16, ge=2, le=256, description="Action sequences per plan")
+    horizon: int = Field(default=8, ge=1, le=64, description="Control steps each one looks ahead")
+    knots: int = Field(
+        default=3,
+        ge=1,
+        le=16,
+        description="Knots of a plan (linear between them, over the horizon)",
+    )
+    sigma: float = Field(
+        default=0.3, gt=0.0, le=2.0, description="Sampling noise on the knots (actions in [-1, 1])"
+    )
+    replan_every: int = Field(default=1, ge=1, le=64, description="Control steps between plans")
+    cem_iterations: int = Field(default=3, ge=1, le=16, description="cem only: refits per plan")
+    cem_elites: int = Field(default=4, ge=1, le=64, description="cem only: samples refitted to")
+    max_rollout_steps: int = Field(
+        default=65_536,
+        ge=1,
+        le=MAX_MPC_ROLLOUT_STEPS,
+        description="The most control steps the planner simulates for one evaluation "
+        "episode, all its plans together (the job fails naming it where the episode's "
+        "plans need more)",
+    )
+
+    def plan_steps(self) -> int:
+        """Control steps one plan simulates."""
+        iterations = self.cem_iterations if self.method == "cem" else 1
+        return self.samples * self.horizon * iterations
+
+    def episode_rollout_steps(self, episode_steps: int) -> int:
+        """Control steps the plans of an episode of ``episode_steps`` steps simulate."""
+        return math.ceil(episode_steps / self.replan_every) * self.plan_steps()
+
+    def budget_problems(self, steps: int | None) -> list[str]:
+        """``steps`` is not used: mpc trains nothing (its cost is its evaluation's)."""
+        problems = []
+        if self.method == "cem" and self.cem_elites >= self.samples:
+            problems.append(
+                f"cem_elites {self.cem_elites} must be fewer than samples {self.samples}"
+            )
+        if self.plan_steps() > self.max_rollout_steps:
+            problems.append(
+                f"one plan simulates {self.plan_steps():,} control steps (samples x horizon"
+                f"{' x cem_iterations' if self.method == 'cem' else ''}), more than "
+                f"max_rollout_steps {self.max_rollout_steps:,} (at most "
+                f"{MAX_MPC_ROLLOUT_STEPS:,})"
+            )
+        return problems
+
+
+MPC = LearnerSpec(
+    name="mpc",
+    description="Sampling-based model-predictive control on MuJoCo (predictive sampling or "
+    "CEM from the current state): no training, a design judged in seconds.",
+    factory="adworker.mpc:MPCLearner",
+    options=MPCOptions,
+    simulators=("mujoco",),
 )

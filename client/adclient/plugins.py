@@ -23,9 +23,9 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 TASK_GROUP = "activedesign.tasks"
 LEARNER_GROUP = "activedesign.learners"
@@ -58,6 +58,20 @@ class TaskOptions(BaseModel):
         return []
 
 
+ScaleRange = tuple[
+    Annotated[float, Field(ge=0.1, le=10.0)], Annotated[float, Field(ge=0.1, le=10.0)]
+]
+"""A [low, high] range of mass scales, each 0.1 to 10."""
+FrictionRange = tuple[
+    Annotated[float, Field(ge=0.0, le=5.0)], Annotated[float, Field(ge=0.0, le=5.0)]
+]
+"""A [low, high] range of friction coefficients, each 0 to 5."""
+StrengthRange = tuple[
+    Annotated[float, Field(ge=0.1, le=2.0)], Annotated[float, Field(ge=0.1, le=2.0)]
+]
+"""A [low, high] range of motor-strength scales, each 0.1 to 2."""
+
+
 class SimulatorOptions(TaskOptions):
     """The options of a task on adworker's simulator (PyBullet, or MuJoCo where a study
     names it: ``task.simulator``): physics settings, the same on either engine."""
@@ -76,6 +90,41 @@ class SimulatorOptions(TaskOptions):
     spinning_friction: float = Field(
         default=0.0, ge=0.0, le=1000.0, description="Spinning friction of the links"
     )
+    control: Literal["position", "torque"] = Field(
+        default="position",
+        description="What an action commands: 'position', a target in each joint's range "
+        "(its motor applies up to the joint's effort to reach it, at up to its velocity); "
+        "'torque', each joint's torque (force) as a fraction of its effort, -1 to 1",
+    )
+    mass_scale: ScaleRange | None = Field(
+        default=None,
+        description="[low, high]: each evaluation and training episode scales each link's "
+        "mass (and inertia) by its own factor drawn uniformly from it, seeded by the "
+        "episode's seed; null: the URDF's masses",
+    )
+    friction: FrictionRange | None = Field(
+        default=None,
+        description="[low, high]: each episode's friction coefficient between the links and "
+        "the ground, drawn uniformly from it (seeded); null: 1.0",
+    )
+    motor_strength: StrengthRange | None = Field(
+        default=None,
+        description="[low, high]: each episode scales each joint's effort (its motor's "
+        "largest torque or force, in either control) by its own factor drawn uniformly "
+        "from it (seeded); null: the URDF's efforts",
+    )
+
+    @field_validator("mass_scale", "friction", "motor_strength")
+    @classmethod
+    def _ordered(cls, value: tuple[float, float] | None) -> tuple[float, float] | None:
+        if value is not None and value[0] > value[1]:
+            raise ValueError(f"a range is [low, high]: low ({value[0]}) must be <= high")
+        return value
+
+    @property
+    def randomises(self) -> bool:
+        """Whether an episode draws any of its physics (mass, friction, strength)."""
+        return any(v is not None for v in (self.mass_scale, self.friction, self.motor_strength))
 
 
 class LearnerOptions(BaseModel):
@@ -202,8 +251,16 @@ class LearnerSpec:
     options: type[BaseModel] | None = None
     transfers: bool = False
     shares: bool = False
+    simulators: tuple[str, ...] | None = None
+    """The engines of :data:`SIMULATORS` it runs on (a study's ``task.simulator``);
+    None: every one. A study naming another is refused at creation, naming both."""
 
     def __post_init__(self) -> None:
+        if self.simulators is not None and not set(self.simulators) <= set(SIMULATORS):
+            raise TypeError(
+                f"learner {self.name!r}: simulators must name engines of "
+                f"{', '.join(SIMULATORS)} (got {', '.join(self.simulators)})"
+            )
         options = self.options
         if options is None:
             return

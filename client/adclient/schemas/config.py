@@ -48,6 +48,55 @@ class NewProposerConfig(ProposerConfig):
     options: JsonObject = Field(default_factory=dict)
 
 
+class Fidelity(StrictInput):
+    """A study's fidelity (``task.fidelity``): how long each design trains, chosen per
+    trial by the default proposer between ``min`` and ``max`` (the target fidelity, at
+    which the study's best is reported), at a cost ``fixed_cost + steps ** cost_exponent``
+    in steps' worth of worker CPU (docs/method.md, multi-fidelity studies)."""
+
+    param: Literal["train_steps"] = Field(
+        default="train_steps", description="what the fidelity sets: the learner's train_steps"
+    )
+    min: int = Field(ge=1, le=10_000_000, description="the lowest fidelity a trial trains to")
+    max: int = Field(
+        ge=2,
+        le=10_000_000,
+        description="the target fidelity: the study's best is the best trial trained to it",
+    )
+    levels: int = Field(
+        default=4,
+        ge=2,
+        le=16,
+        description="how many fidelities the proposer chooses among, geometric from min to max",
+    )
+    cost_exponent: float = Field(
+        default=1.0, ge=0.25, le=3.0, description="a trial's cost grows as steps ** this"
+    )
+    fixed_cost: int = Field(
+        default=0,
+        ge=0,
+        le=10_000_000,
+        description="steps' worth of cost every trial pays whatever its fidelity (building "
+        "the robot, evaluating it)",
+    )
+
+    @model_validator(mode="after")
+    def _range(self) -> Fidelity:
+        if self.min >= self.max:
+            raise ValueError(f"fidelity min {self.min} must be below max {self.max}")
+        return self
+
+    def grid(self) -> list[int]:
+        """The fidelities trials train to, lowest first, geometric from min to max."""
+        ratio = (self.max / self.min) ** (1.0 / (self.levels - 1))
+        steps = [round(self.min * ratio**level) for level in range(self.levels - 1)]
+        return sorted({*steps, self.max})
+
+    def cost(self, steps: float) -> float:
+        """A trial's cost at ``steps`` (steps' worth of worker CPU)."""
+        return float(self.fixed_cost + steps**self.cost_exponent)
+
+
 class TaskConfig(StrictInput):
     """What a worker does with a design: the task, the learner and their budgets.
 
@@ -101,6 +150,12 @@ class TaskConfig(StrictInput):
         le=1000,
         description="the source is the nearest of this many best evaluated designs of the tree",
     )
+    fidelity: Fidelity | None = Field(
+        default=None,
+        description="train each design to a fidelity the proposer chooses (its train_steps "
+        "between min and max), the best reported at max (docs/study-file.md, fidelity); "
+        "None: every design trains train_steps",
+    )
 
     @field_validator("options")
     @classmethod
@@ -114,6 +169,14 @@ class TaskConfig(StrictInput):
             return self.transfer_steps
         budget = self.train_steps if self.train_steps is not None else default_steps
         return max(1, budget // 4)
+
+    def at_fidelity(self, steps: int | None) -> TaskConfig:
+        """The task a trial of a study with a ``fidelity`` runs: train_steps its
+        fidelity, else (a trial the proposer did not choose one for, an enqueued one)
+        the target fidelity; the task itself without a fidelity."""
+        if self.fidelity is None:
+            return self
+        return self.model_copy(update={"train_steps": steps or self.fidelity.max})
 
 
 def option_problems(
@@ -200,6 +263,19 @@ class NewTaskConfig(TaskConfig):
             )
         return simulator
 
+    @model_validator(mode="after")
+    def _learner_simulator(self) -> NewTaskConfig:
+        """A learner that runs on some engines only (``LearnerSpec.simulators``: mpc on
+        MuJoCo) on one of them, the default engine included."""
+        spec = None if self.external else catalogue().learners.get(self.learner)
+        engines = None if spec is None else spec.simulators
+        if engines is not None and self.simulator not in engines:
+            raise ValueError(
+                f"learner {self.learner!r} does not run on simulator {self.simulator!r} "
+                f"(its simulators: {', '.join(engines)}; task.simulator: {engines[0]})"
+            )
+        return self
+
     @field_validator("options")
     @classmethod
     def _known_options(cls, options: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
@@ -243,6 +319,45 @@ class NewTaskConfig(TaskConfig):
         if problems:
             owner = f"learner {self.learner!r}"
             raise ValueError("; ".join(f"options.learner_kwargs: {p} ({owner})" for p in problems))
+        return self
+
+    @model_validator(mode="after")
+    def _fidelity_fits(self) -> NewTaskConfig:
+        """A fidelity its learner can train to: one with a step budget, whose options
+        allow the top fidelity's steps, training from scratch, ``train_steps`` (if given)
+        the top fidelity."""
+        fidelity = self.fidelity
+        if fidelity is None or self.external:
+            return self
+        spec = catalogue().learners.get(self.learner)
+        if spec is None or getattr(spec.options, "default_steps", None) is None:
+            takes = [
+                name
+                for name, other in catalogue().learners.items()
+                if getattr(other.options, "default_steps", None) is not None
+            ]
+            raise ValueError(
+                f"task.fidelity: learner {self.learner!r} has no training steps to choose "
+                f"(learners that have: {', '.join(takes)})"
+            )
+        if self.train_steps is not None and self.train_steps != fidelity.max:
+            raise ValueError(
+                f"task.fidelity: train_steps {self.train_steps} is not the top fidelity "
+                f"(max {fidelity.max}): leave train_steps out or make it max"
+            )
+        if self.transfer != "none":
+            raise ValueError(
+                f"task.fidelity with transfer {self.transfer!r}: a warm-started design "
+                "trains transfer_steps, not its fidelity; use transfer none"
+            )
+        assert spec.options is not None
+        options = validate_strictly(spec.options, self.options.get("learner_kwargs") or {})
+        problems = learner_budget_problems(options, fidelity.max)
+        if problems:
+            owner = f"learner {self.learner!r}"
+            raise ValueError(
+                "; ".join(f"task.fidelity.max {fidelity.max}: {p} ({owner})" for p in problems)
+            )
         return self
 
     @field_validator("transfer")
