@@ -38,7 +38,13 @@ from adclient.designs import Design
 from adclient.plugins import SimulatorOptions, catalogue
 from adclient.urdf_model import read_urdf
 from adworker.tasks.build import build_engine
-from adworker.tasks.engine import Camera, EngineMeter, EngineRobot, EngineSimulator
+from adworker.tasks.engine import (
+    Camera,
+    EngineMeter,
+    EngineRobot,
+    EngineSimulator,
+    PayloadSpec,
+)
 from adworker.tasks.markers import Marker, checked_markers, draw_markers
 from adworker.tasks.model import RobotModel, model_of_design, model_of_urdf
 from adworker.tasks.snapshot import Snapshot
@@ -97,6 +103,14 @@ class Task(Generic[OptionsT]):
         self.gait_period: float | None = None
         """Seconds per cycle of a gait clock the policy sees, for a task done by repeating a
         motion (walking); None: no clock. See :class:`RobotEnv`."""
+        self.rng = np.random.default_rng(0)
+        """The episode's random numbers (the env's, seeded by ``reset``): what a task
+        draws per episode (targets) it draws from this in :meth:`reset`."""
+
+    @classmethod
+    def payload(cls, options: OptionsT) -> PayloadSpec | None:
+        """A box the robot carries, built into its world (None: none)."""
+        return None
 
     @classmethod
     def make_env(
@@ -234,6 +248,8 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
             frame_skip=options.frame_skip,
             rolling_friction=options.rolling_friction,
             spinning_friction=options.spinning_friction,
+            control=options.control,
+            payload=task.payload(options),
         )
         try:
             self.task: Task[OptionsT] = task(self.robot, self.sim, options)
@@ -294,7 +310,10 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         noise = self.np_random.uniform(-self.init_noise, self.init_noise, self.robot.joint_count)
+        if self.options.randomises:
+            self._randomise()
         snapshot = self.robot.reset(noise)
+        self.task.rng = self.np_random
         self.task.reset(snapshot)
         self.record = EpisodeRecord(self.task.score)
         self._step_count = 0
@@ -303,6 +322,20 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
             self.meter.begin_episode()
             self._meter_each = self.meter.sample
         return self._observe(snapshot), {}
+
+    def _randomise(self) -> None:
+        """This episode's physics, drawn from the episode's seeded random numbers (after
+        its joint noise, so an episode without randomisation starts as before): a mass
+        scale per link, one friction, a strength per joint."""
+        options, rng = self.options, self.np_random
+        masses = friction = strength = None
+        if options.mass_scale is not None:
+            masses = rng.uniform(*options.mass_scale, len(self.robot.geometry))
+        if options.friction is not None:
+            friction = float(rng.uniform(*options.friction))
+        if options.motor_strength is not None:
+            strength = rng.uniform(*options.motor_strength, self.robot.joint_count)
+        self.robot.randomise(masses, friction, strength)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self.robot.act(action)

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from adclient.plugins import SIMULATORS
-from adworker.tasks.engine import EngineRobot, EngineSimulator
+from adworker.tasks.engine import EngineRobot, EngineSimulator, PayloadSpec
 from adworker.tasks.model import RobotModel
 
 
@@ -22,10 +22,14 @@ def build_engine(
     frame_skip: int,
     rolling_friction: float,
     spinning_friction: float,
+    control: str = "position",
+    payload: PayloadSpec | None = None,
 ) -> tuple[EngineSimulator, EngineRobot]:
     """A simulator of the engine ``simulator`` (one of ``adclient.plugins.SIMULATORS``)
     with the robot of ``model`` (its URDF at ``urdf_path``) in it; ValueError naming an
-    engine that is not one. The engine's module is imported here, on first use."""
+    engine that is not one. The engine's module is imported here, on first use.
+    ``control`` is what an action commands (``position`` or ``torque``); ``payload``, a
+    box the robot carries."""
     sim: EngineSimulator
     if simulator == "pybullet":
         from adworker.tasks.robot import Robot
@@ -49,6 +53,8 @@ def build_engine(
             reads_contacts=reads_contacts,
             rolling_friction=rolling_friction,
             spinning_friction=spinning_friction,
+            control=control,
+            payload=payload,
         )
     except BaseException:
         sim.close()

@@ -81,6 +81,38 @@ class JointSpec:
         )
 
 
+CONTROLS = ("position", "torque")
+"""What an action commands (``SimulatorOptions.control``): joint position targets, or
+joint torques as fractions of each joint's effort."""
+
+
+@dataclass(frozen=True)
+class PayloadSpec:
+    """A box of ``mass`` kg and side ``size`` m set down resting on top of the link
+    ``link`` at the start of every episode (a task's ``Task.payload``): a body of its own
+    that touches the robot's links and the ground, and so can be dropped."""
+
+    link: str
+    mass: float
+    size: float
+
+
+@dataclass(frozen=True)
+class PayloadState:
+    """Where the payload is after a control step, and what it touches."""
+
+    position: tuple[float, float, float]
+    on_ground: bool
+    on_robot: bool
+
+
+def payload_start(snapshot: Snapshot, k: int, size: float) -> tuple[float, float, float]:
+    """Where a payload of side ``size`` starts: its centre above link ``k``'s shape
+    centre, its bottom 1 mm above the link's top."""
+    x, y, _ = (float(v) for v in snapshot.centre(k))
+    return x, y, snapshot.top[k] + size / 2 + 0.001
+
+
 class EngineSimulator(ABC):
     """One world of one engine: gravity, a ground plane, a fixed control period (one
     control step is ``frame_skip`` physics steps of ``time_step`` seconds), a camera."""
@@ -164,12 +196,23 @@ class EngineRobot(ABC):
     calls :meth:`_scale_joints`."""
 
     def __init__(
-        self, sim: EngineSimulator, model: RobotModel, *, fixed_base: bool, reads_contacts: bool
+        self,
+        sim: EngineSimulator,
+        model: RobotModel,
+        *,
+        fixed_base: bool,
+        reads_contacts: bool,
+        control: str = "position",
     ) -> None:
+        if control not in CONTROLS:
+            raise ValueError(f"control {control!r} is not one ({', '.join(CONTROLS)})")
         self.sim = sim
         self.model = model
         self.fixed_base = fixed_base
         self.reads_contacts = reads_contacts
+        self.control = control
+        """``position``: an action is joint targets (:meth:`targets`); ``torque``: joint
+        torques (:meth:`torques`)."""
 
     geometry: list[LinkGeometry]
     """Per link, in the snapshot's order (the root first, then depth first)."""
@@ -187,6 +230,49 @@ class EngineRobot(ABC):
         self._inv_half = [2.0 / (joint.upper - joint.lower) for joint in self.joints]
         self._inv_velocity = [1.0 / joint.velocity for joint in self.joints]
         self.efforts = [joint.effort for joint in self.joints]
+        self._nominal_efforts = np.array(self.efforts)
+        self._peak_power = math.fsum(joint.effort * joint.velocity for joint in self.joints)
+
+    def randomise(
+        self, masses: np.ndarray | None, friction: float | None, strength: np.ndarray | None
+    ) -> None:
+        """This episode's physics: each link's mass (and inertia) scaled by ``masses`` (in
+        ``geometry``'s order), the links' friction with the ground ``friction``, each
+        joint's effort scaled by ``strength`` (None: as built). Called before
+        :meth:`reset`; it holds until the next call."""
+        raise NotImplementedError(f"{type(self).__name__} does not randomise its physics")
+
+    def _set_strength(self, strength: np.ndarray | None) -> None:
+        scale = np.ones(len(self.joints)) if strength is None else np.asarray(strength)
+        self.efforts = (self._nominal_efforts * scale).tolist()
+
+    def torques(self, action: np.ndarray) -> list[float]:
+        """Joint torques (forces, for a prismatic joint): the action in [-1, 1] times
+        each joint's effort (this episode's, :meth:`randomise`)."""
+        values = action.tolist() if isinstance(action, np.ndarray) else list(action)
+        if len(values) != len(self.efforts):
+            raise ValueError(f"expected {len(self.efforts)} joint torques, got {len(values)}")
+        return [
+            (1.0 if a > 1.0 else -1.0 if a < -1.0 else a) * effort
+            for a, effort in zip(values, self.efforts, strict=True)
+        ]
+
+    def applied_torques(self) -> list[float]:
+        """The torque each driven joint's motor applied in the last physics step."""
+        raise NotImplementedError(f"{type(self).__name__} does not read its motors' torques")
+
+    def power_fraction(self, snapshot: Snapshot) -> float:
+        """The motors' mechanical power at ``snapshot`` (sum of |torque x joint speed|,
+        the last physics step's torques) over their peak (sum of effort x velocity
+        limit, as built): 0 at rest, 1 with every motor at full torque and full speed."""
+        power = math.fsum(
+            abs(tau * qd) for tau, qd in zip(self.applied_torques(), snapshot.qd, strict=True)
+        )
+        return power / self._peak_power if self._peak_power > 0 else 0.0
+
+    def payload_state(self) -> PayloadState:
+        """The payload's state (a robot built with a :class:`PayloadSpec`)."""
+        raise NotImplementedError(f"{type(self).__name__} carries no payload")
 
     @abstractmethod
     def reset(self, start: np.ndarray) -> Snapshot:

@@ -59,6 +59,9 @@ from adworker.tasks.engine import (
     EngineRobot,
     EngineSimulator,
     JointSpec,
+    PayloadSpec,
+    PayloadState,
+    payload_start,
 )
 from adworker.tasks.model import RobotModel
 from adworker.tasks.snapshot import LinkGeometry, Snapshot
@@ -242,8 +245,12 @@ class MujocoRobot(EngineRobot):
         reads_contacts: bool,
         rolling_friction: float,
         spinning_friction: float,
+        control: str = "position",
+        payload: PayloadSpec | None = None,
     ) -> None:
-        super().__init__(sim, model, fixed_base=fixed_base, reads_contacts=reads_contacts)
+        super().__init__(
+            sim, model, fixed_base=fixed_base, reads_contacts=reads_contacts, control=control
+        )
         what = Path(urdf_path).name
         spec = self._spec(
             str(urdf_path),
@@ -252,12 +259,16 @@ class MujocoRobot(EngineRobot):
             fixed_base=fixed_base,
             rolling_friction=rolling_friction,
             spinning_friction=spinning_friction,
+            control=control,
         )
+        if payload is not None:
+            self._add_payload(spec, payload)
         compiled = spec.compile()
         sim.attach(compiled, str(urdf_path), fixed_base=fixed_base)
-        self._check_tree(compiled, what)
+        links = compiled.nbody - (1 if payload is None else 2)
+        self._check_tree(compiled, what, links)
         # The root first, then MuJoCo's body order (depth first through the tree).
-        self.link_names = [compiled.body(b).name for b in range(1, compiled.nbody)]
+        self.link_names = [compiled.body(b).name for b in range(1, links + 1)]
         body_of = {name: b for b, name in enumerate(self.link_names, start=1)}
         self.geometry = [self._geometry(compiled, name, body_of[name]) for name in self.link_names]
         driven = sorted(
@@ -280,9 +291,14 @@ class MujocoRobot(EngineRobot):
         slot = np.full(compiled.ngeom, -1, dtype=int)
         for g in range(compiled.ngeom):
             body = int(compiled.geom_bodyid[g])
-            if body > 0:
+            if 0 < body <= links:
                 slot[g] = body - 1
         self._geom_slot = slot
+        self._ground = compiled.geom("ground").id
+        self._link_bodies = np.arange(1, links + 1)
+        self._link_geoms = np.flatnonzero(slot >= 0)
+        self._nominal_mass = np.array(compiled.body_mass[1 : links + 1])
+        self._nominal_inertia = np.array(compiled.body_inertia[1 : links + 1])
         self.spawn = spawn_pose(model.kinematics, lay_down=model.lay_down, fixed_base=fixed_base)
         """Where every episode starts, before its noise (``adclient.spawn``)."""
         placed = np.array(compiled.qpos0)
@@ -292,6 +308,32 @@ class MujocoRobot(EngineRobot):
         for joint, adr in zip(self.joints, self._qadr, strict=True):
             placed[adr] = self.spawn.joints[joint.name]
         self._placed = placed
+        self._payload = -1
+        if payload is not None:
+            self._payload = compiled.body("payload").id
+            self._payload_geom = compiled.geom("payload").id
+            start = compiled.jnt_qposadr[compiled.joint("payload").id]
+            sim.data.qpos[:] = placed
+            mujoco.mj_forward(compiled, sim.data)
+            where = payload_start(self.read(), self.link_index(payload.link), payload.size)
+            placed[start : start + 7] = (*where, 1.0, 0.0, 0.0, 0.0)
+
+    @staticmethod
+    def _add_payload(spec: Any, payload: PayloadSpec) -> None:
+        """A free box body after the robot's: it touches the links and the ground."""
+        body = spec.worldbody.add_body()
+        body.name = "payload"
+        freejoint = body.add_freejoint()
+        freejoint.name = "payload"
+        box = body.add_geom()
+        box.name = "payload"
+        box.type = mujoco.mjtGeom.mjGEOM_BOX
+        box.size = (payload.size / 2,) * 3
+        box.mass = payload.mass
+        box.contype = 1
+        box.conaffinity = 1
+        box.condim = 3
+        box.friction = (GROUND_FRICTION, 0.0, 0.0)
 
     # ----------------------------------------------------------------- building
 
@@ -304,6 +346,7 @@ class MujocoRobot(EngineRobot):
         fixed_base: bool,
         rolling_friction: float,
         spinning_friction: float,
+        control: str = "position",
     ) -> Any:
         spec = mujoco.MjSpec.from_file(urdf_path)
         spec.compiler.fusestatic = False
@@ -352,20 +395,21 @@ class MujocoRobot(EngineRobot):
             servo.name = joint.name
             servo.target = joint.name
             servo.trntype = mujoco.mjtTrn.mjTRN_JOINT
-            servo.set_to_intvelocity(kp=kp, kv=kp * SERVO_DAMPING_STEPS * time_step)
-            servo.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            servo.actrange = (joint.lower, joint.upper)
+            if control == "torque":
+                servo.set_to_motor()  # the control is the torque, capped below
+            else:
+                servo.set_to_intvelocity(kp=kp, kv=kp * SERVO_DAMPING_STEPS * time_step)
+                servo.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
+                servo.actrange = (joint.lower, joint.upper)
             servo.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
             servo.forcerange = (-joint.effort, joint.effort)
         return spec
 
-    def _check_tree(self, compiled: Any, what: str) -> None:
+    def _check_tree(self, compiled: Any, what: str, links: int) -> None:
         """The body MuJoCo built is this model's tree (as PyBullet's Robot checks it)."""
         model = self.model
-        if compiled.nbody - 1 != len(model.shapes):
-            raise ValueError(
-                f"{what}: the URDF has {compiled.nbody - 1} links, the model {len(model.shapes)}"
-            )
+        if links != len(model.shapes):
+            raise ValueError(f"{what}: the URDF has {links} links, the model {len(model.shapes)}")
         if compiled.body(1).name != model.root:
             raise ValueError(
                 f"{what}: the URDF's root is {compiled.body(1).name!r}, not the model's"
@@ -405,7 +449,10 @@ class MujocoRobot(EngineRobot):
         data.qpos[:] = self._placed
         start = np.clip(start, self.lower, self.upper)
         data.qpos[self._qadr] = start
-        data.act[self._setpoint] = start
+        if self.control == "torque":
+            data.ctrl[self._ctrl] = 0.0
+        else:
+            data.act[self._setpoint] = start
         mujoco.mj_forward(model, data)
         return self.read()
 
@@ -414,9 +461,45 @@ class MujocoRobot(EngineRobot):
 
     def act(self, action: np.ndarray) -> None:
         data = self.sim.data
+        if self.control == "torque":
+            data.ctrl[self._ctrl] = self.torques(action)
+            return
         setpoint = data.act[self._setpoint]
         speed = self._approach * (np.array(self.targets(action)) - setpoint)
         data.ctrl[self._ctrl] = np.clip(speed, -self._speed, self._speed)
+
+    def applied_torques(self) -> list[float]:
+        return list(self.sim.data.actuator_force[self._ctrl].tolist())
+
+    def randomise(
+        self, masses: np.ndarray | None, friction: float | None, strength: np.ndarray | None
+    ) -> None:
+        model = self.sim.model
+        scale = np.ones(len(self._link_bodies)) if masses is None else np.asarray(masses)
+        model.body_mass[self._link_bodies] = self._nominal_mass * scale
+        model.body_inertia[self._link_bodies] = self._nominal_inertia * scale[:, None]
+        # MuJoCo takes the larger of two geoms' frictions: the ground's set too.
+        value = GROUND_FRICTION if friction is None else friction
+        model.geom_friction[self._link_geoms, 0] = value
+        model.geom_friction[self._ground, 0] = value
+        self._set_strength(strength)
+        efforts = np.array(self.efforts)
+        model.actuator_forcerange[self._ctrl] = np.stack([-efforts, efforts], axis=1)
+
+    def payload_state(self) -> PayloadState:
+        model, data = self.sim.model, self.sim.data
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        on_ground = on_robot = False
+        if data.ncon:
+            contact = data.contact
+            geoms = contact.geom[contact.dist <= CONTACT_SLACK]
+            mine = geoms[(geoms == self._payload_geom).any(axis=1)]
+            other = mine.sum(axis=1) - self._payload_geom
+            on_ground = bool((other == self._ground).any())
+            on_robot = bool((self._geom_slot[other] >= 0).any())
+        x, y, z = data.xpos[self._payload].tolist()
+        return PayloadState((x, y, z), on_ground, on_robot)
 
     def read(self) -> Snapshot:
         model, data = self.sim.model, self.sim.data
@@ -429,6 +512,8 @@ class MujocoRobot(EngineRobot):
             if data.ncon:
                 contact = data.contact
                 near = contact.dist <= CONTACT_SLACK
+                if self._payload >= 0:  # the links' contacts with the payload are not ground
+                    near &= (contact.geom == self._ground).any(axis=1)
                 for k in set(self._geom_slot[contact.geom[near]].max(axis=1).tolist()):
                     if k >= 0:
                         touching[k] = True

@@ -25,7 +25,14 @@ import numpy as np
 import pybullet
 
 from adclient.spawn import spawn_pose
-from adworker.tasks.engine import EngineMeter, EngineRobot, JointSpec
+from adworker.tasks.engine import (
+    EngineMeter,
+    EngineRobot,
+    JointSpec,
+    PayloadSpec,
+    PayloadState,
+    payload_start,
+)
 from adworker.tasks.model import LinkShape, RobotModel
 from adworker.tasks.simulator import (
     BODY_BASE_NAME,
@@ -63,18 +70,28 @@ class MotorMeter(EngineMeter):
     target pose, its weight on the ground or along its joints' axes, costs neither.
     """
 
-    def __init__(self, body: int, joint_indices: list[int], time_step: float, client: int):
+    def __init__(
+        self,
+        body: int,
+        joint_indices: list[int],
+        time_step: float,
+        client: int,
+        commanded: list[float] | None = None,
+    ):
         super().__init__(len(joint_indices), time_step)
         self._body = body
         self._joints = list(joint_indices)
         self._client = client
+        self._commanded = commanded
+        """Torque control: the torques applied (PyBullet reports none for them)."""
 
     def sample(self) -> None:
         """Read the torques and velocities of the physics step just taken."""
         states = pybullet.getJointStates(self._body, self._joints, physicsClientId=self._client)
         torque = power = 0.0
-        for state in states:
-            tau = state[JOINT_STATE_MOTOR_TORQUE]
+        commanded = self._commanded
+        for j, state in enumerate(states):
+            tau = state[JOINT_STATE_MOTOR_TORQUE] if commanded is None else commanded[j]
             torque += abs(tau)
             power += abs(tau * state[JOINT_STATE_VELOCITY])
         self.torque_sum += torque
@@ -114,8 +131,12 @@ class Robot(EngineRobot):
         reads_contacts: bool,
         rolling_friction: float,
         spinning_friction: float,
+        control: str = "position",
+        payload: PayloadSpec | None = None,
     ) -> None:
-        super().__init__(sim, model, fixed_base=fixed_base, reads_contacts=reads_contacts)
+        super().__init__(
+            sim, model, fixed_base=fixed_base, reads_contacts=reads_contacts, control=control
+        )
         self.body = sim.load_urdf(str(urdf_path), fixed_base=fixed_base)
         engine_index = self._engine_indices(Path(urdf_path).name)
         # The root first, then the engine's order (depth first through the tree).
@@ -162,12 +183,45 @@ class Robot(EngineRobot):
         self.joint_indices = [joint.index for joint in self.joints]
         self._child_indices = [g.index for g in self.geometry if g.index >= 0]
         self._scale_joints()
+        self._torque = [0.0] * len(self.joints)
+        """Torque control: this control step's torques, applied before every physics step."""
+        if control == "torque":
+            # A position motor holds its joint until disabled (a velocity motor of no force).
+            pybullet.setJointMotorControlArray(
+                self.body,
+                self.joint_indices,
+                pybullet.VELOCITY_CONTROL,
+                forces=[0.0] * len(self.joints),
+                physicsClientId=cid,
+            )
+            sim.before_step = self._apply_torques
+        self._nominal = [
+            (g.index, d.mass, d.inertia_diagonal)
+            for g in self.geometry
+            for d in (sim.dynamics_info(self.body, g.index),)
+        ]
         self._constants = [g.constants() for g in self.geometry]
         self._link_slot = {g.index: k for k, g in enumerate(self.geometry)}
         self.spawn = spawn_pose(model.kinematics, lay_down=model.lay_down, fixed_base=fixed_base)
         """Where every episode starts, before its noise (``adclient.spawn``)."""
         self._place()
+        self.payload = -1 if payload is None else self._add_payload(payload)
         self._saved_state = sim.save_state()
+
+    def _add_payload(self, payload: PayloadSpec) -> int:
+        """The payload's body, resting on its link in the placed pose."""
+        cid = self.sim.client
+        half = [payload.size / 2] * 3
+        shape = pybullet.createCollisionShape(
+            pybullet.GEOM_BOX, halfExtents=half, physicsClientId=cid
+        )
+        visual = pybullet.createVisualShape(
+            pybullet.GEOM_BOX, halfExtents=half, rgbaColor=[0.9, 0.5, 0.1, 1], physicsClientId=cid
+        )
+        start = payload_start(self.read(), self.link_index(payload.link), payload.size)
+        body = pybullet.createMultiBody(payload.mass, shape, visual, start, physicsClientId=cid)
+        pybullet.changeDynamics(body, -1, lateralFriction=GROUND_FRICTION, physicsClientId=cid)
+        return int(body)
 
     # ----------------------------------------------------------------- building
 
@@ -236,21 +290,77 @@ class Robot(EngineRobot):
         """Back to the placed pose with the joints at ``start`` (clipped to their limits),
         holding there."""
         cid = self.sim.client
-        self.sim.restore_state(self._saved_state, self.body)
+        if self.payload >= 0:
+            self.sim.restore_state(self._saved_state, self.body, self.payload)
+        else:
+            self.sim.restore_state(self._saved_state, self.body)
         start = np.clip(start, self.lower, self.upper)
         for joint, angle in zip(self.joints, start, strict=True):
             pybullet.resetJointState(self.body, joint.index, float(angle), 0.0, cid)
-        self._command(start.tolist())
+        if self.control == "torque":
+            self._torque[:] = [0.0] * len(self.joints)
+        else:
+            self._command(start.tolist())
         return self.read()
 
     def motor_meter(self) -> MotorMeter:
         """A new meter of this robot's motors (see :class:`MotorMeter`)."""
-        return MotorMeter(self.body, self.joint_indices, self.sim.time_step, self.sim.client)
+        commanded = self._torque if self.control == "torque" else None
+        return MotorMeter(
+            self.body, self.joint_indices, self.sim.time_step, self.sim.client, commanded
+        )
 
     def act(self, action: np.ndarray) -> None:
-        """Command the joints towards the action's targets (takes effect as the simulator
-        steps)."""
-        self._command(self.targets(action))
+        """Command the joints towards the action's targets, or their torques (takes effect
+        as the simulator steps)."""
+        if self.control == "torque":
+            self._torque[:] = self.torques(action)
+        else:
+            self._command(self.targets(action))
+
+    def _apply_torques(self) -> None:
+        pybullet.setJointMotorControlArray(
+            self.body,
+            self.joint_indices,
+            pybullet.TORQUE_CONTROL,
+            forces=self._torque,
+            physicsClientId=self.sim.client,
+        )
+
+    def applied_torques(self) -> list[float]:
+        if self.control == "torque":
+            return list(self._torque)
+        states = pybullet.getJointStates(
+            self.body, self.joint_indices, physicsClientId=self.sim.client
+        )
+        return [s[JOINT_STATE_MOTOR_TORQUE] for s in states]
+
+    def randomise(
+        self, masses: np.ndarray | None, friction: float | None, strength: np.ndarray | None
+    ) -> None:
+        cid = self.sim.client
+        for k, (index, mass, inertia) in enumerate(self._nominal):
+            scale = 1.0 if masses is None else float(masses[k])
+            pybullet.changeDynamics(
+                self.body,
+                index,
+                mass=mass * scale,
+                localInertiaDiagonal=[value * scale for value in inertia],
+                # The ground's is 1 and PyBullet multiplies the two.
+                lateralFriction=GROUND_FRICTION if friction is None else friction,
+                physicsClientId=cid,
+            )
+        self._set_strength(strength)
+
+    def payload_state(self) -> PayloadState:
+        cid = self.sim.client
+        position = pybullet.getBasePositionAndOrientation(self.payload, physicsClientId=cid)[0]
+
+        def touches(other: int) -> bool:
+            contacts = pybullet.getContactPoints(self.payload, other, physicsClientId=cid)
+            return any(c[CONTACT_DISTANCE] <= CONTACT_SLACK for c in contacts)
+
+        return PayloadState(tuple(position), touches(self.sim.ground), touches(self.body))
 
     def _command(self, targets: list[float]) -> None:
         pybullet.setJointMotorControlArray(

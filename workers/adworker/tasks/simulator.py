@@ -105,6 +105,9 @@ class Simulator(EngineSimulator):
 
     def __init__(self, *, time_step: float, frame_skip: int) -> None:
         super().__init__(time_step=time_step, frame_skip=frame_skip)
+        self.before_step: Callable[[], None] | None = None
+        """Called before every physics step (torque control: PyBullet applies a joint's
+        torque for one step only)."""
         self.client = pybullet.connect(pybullet.DIRECT)
         try:
             self.ground = self._build_world()
@@ -152,7 +155,14 @@ class Simulator(EngineSimulator):
         """One control step: ``frame_skip`` physics steps, ``each`` called after every
         one (a meter that reads what happened during that physics step)."""
         cid = self.client
-        if each is None:
+        before = self.before_step
+        if before is not None:
+            for _ in range(self.frame_skip):
+                before()
+                pybullet.stepSimulation(physicsClientId=cid)
+                if each is not None:
+                    each()
+        elif each is None:
             for _ in range(self.frame_skip):
                 pybullet.stepSimulation(physicsClientId=cid)
         else:
@@ -164,15 +174,18 @@ class Simulator(EngineSimulator):
     def save_state(self) -> int:
         return int(pybullet.saveState(physicsClientId=self.client))
 
-    def restore_state(self, state: int, body: int) -> None:
+    def restore_state(self, state: int, body: int, *others: int) -> None:
         """Restore a saved state with no contact cached from before.
 
         Bullet keeps contact manifolds across restoreState: points cached from the last
-        episode would seed the next one's contacts. Lifting ``body`` clear and running
-        collision detection once drops them, so every episode starts alike.
+        episode would seed the next one's contacts. Lifting ``body`` (and ``others``, a
+        payload) clear and running collision detection once drops them, so every
+        episode starts alike.
         """
         cid = self.client
         pybullet.resetBasePositionAndOrientation(body, [0, 0, 100.0], [0, 0, 0, 1], cid)
+        for k, other in enumerate(others, start=2):  # apart from it and from each other
+            pybullet.resetBasePositionAndOrientation(other, [0, 0, 100.0 * k], [0, 0, 0, 1], cid)
         pybullet.performCollisionDetection(physicsClientId=cid)
         pybullet.restoreState(state, physicsClientId=cid)
 
