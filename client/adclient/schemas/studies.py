@@ -193,6 +193,8 @@ class StudyCreate(StrictInput):
                 "resume outside the study's shared controller; use promotion false or "
                 "transfer nearest"
             )
+        if self.task.fidelity is not None:
+            self._fidelity_study()
         if self.task.external:
             return self
         if isinstance(self.space, TemplateSpace):
@@ -216,6 +218,26 @@ class StudyCreate(StrictInput):
                     f"instances accordingly or set task.options.{option}"
                 )
         return self
+
+    def _fidelity_study(self) -> None:
+        """A fidelity is chosen by the default proposer (qei), and replaces a pruner:
+        each trial trains to the fidelity it carries, whole."""
+        if self.proposer.name != "qei":
+            raise ValueError(
+                f"task.fidelity: proposer {self.proposer.name!r} does not choose fidelities; "
+                "use proposer qei (the default), or leave task.fidelity out"
+            )
+        several = len(self.directions or []) > 1 or len(self.objectives or []) > 1
+        if several or self.constraints:
+            raise ValueError(
+                "task.fidelity: a multi-fidelity study has one objective and no "
+                "constraints; leave task.fidelity out for objectives or constraints"
+            )
+        if self.pruner.name != "none":
+            raise ValueError(
+                f"task.fidelity with pruner {self.pruner.name!r}: the proposer chooses how "
+                "long each design trains; use pruner none"
+            )
 
     def _one_design(self) -> None:
         """A space that searches nothing is one design, evaluated ``max_trials`` times

@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict
 if TYPE_CHECKING:
     from adclient.boxspace import BoxEncoding
     from adclient.polytope import SpecPolytope
+    from adservice.proposers.fidelity import FidelityHistory
 
 FloatArray = NDArray[np.float64]
 
@@ -207,6 +208,9 @@ class ProposalRequest:
     ref_point: FloatArray | None = None
     slacks: FloatArray | None = None
     spec_polytope: SpecPolytope | None = None
+    fidelities: FidelityHistory | None = None
+    """A study with ``task.fidelity``: each trial's fidelity and the grid and costs the
+    multi-fidelity proposer (``adservice.proposers.fidelity``) chooses among; None: none."""
 
     @property
     def dim(self) -> int:

@@ -8,7 +8,7 @@ keyword-only arguments, domain errors, rows out).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -205,6 +205,10 @@ class History:
     pending: np.ndarray
     values: np.ndarray | None = None
     slacks: np.ndarray | None = None
+    fidelities: np.ndarray | None = None
+    """A study with a fidelity: the train_steps of each row of ``X`` (its trial's
+    ``info.fidelity``, else the target), then of each row of ``pending``."""
+    pending_fidelities: np.ndarray | None = None
 
 
 def study_history(
@@ -214,15 +218,19 @@ def study_history(
     dim: int,
     pruned_as_observed: bool = True,
     outcomes: Outcomes | None = None,
+    fidelity_max: int | None = None,
 ) -> History:
     """``pruned_as_observed``: a pruned trial with a value (its last report) counts as an
     observation of that value; otherwise it is left out (docs/pruning.md). A study of
     several objectives observes its complete trials only (a pruned one has no values);
-    an infeasible trial is observed, with its slacks."""
+    an infeasible trial is observed, with its slacks. ``fidelity_max``: a study's target
+    fidelity, where it has one (``History.fidelities``, from each trial's info)."""
     outcomes = outcomes or Outcomes()
     columns: list[Any] = [TrialRow.state, TrialRow.vector, TrialRow.value]
     if not outcomes.plain:
         columns += [TrialRow.values, TrialRow.metrics]
+    if fidelity_max is not None:
+        columns.append(TrialRow.info)
     rows = session.execute(
         sa.select(*columns).where(TrialRow.study_id == study_id).order_by(TrialRow.number)
     ).all()
@@ -246,7 +254,7 @@ def study_history(
         slacks = np.asarray(
             [_slacks(outcomes, row, p) for row, p in seen], dtype=np.float64
         ).reshape(-1, len(outcomes.constraints))
-    return History(
+    history = History(
         X=stack([row.vector for row, _ in seen]),
         y=values[:, 0].copy(),
         failed=stack([row.vector for row in rows if row.state == TrialState.failed]),
@@ -255,6 +263,20 @@ def study_history(
         ),
         values=values if outcomes.multi else None,
         slacks=slacks,
+    )
+    if fidelity_max is None:
+        return history
+
+    def steps(row: Any) -> float:
+        return float((row.info or {}).get("fidelity") or fidelity_max)
+
+    running = (TrialState.queued, TrialState.running)
+    return replace(
+        history,
+        fidelities=np.asarray([steps(row) for row, _ in seen], dtype=np.float64),
+        pending_fidelities=np.asarray(
+            [steps(row) for row in rows if row.state in running], dtype=np.float64
+        ),
     )
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
@@ -144,7 +145,8 @@ def tell_trial(
             value = counted_value(outcome)
     if info is not None:  # the returned row was read before the ORM's write
         finished = {**finished, "info": info}
-    if body.state == "complete" and value is not None:  # several objectives, infeasible: none
+    if body.state == "complete" and value is not None and at_target(finished["info"]):
+        # several objectives, infeasible: no value; below a study's target fidelity: no best
         BEST.rows(
             session, [{"sid": finished["study_id"], "tid": trial_id, "value": value, "now": now}]
         )
@@ -155,6 +157,13 @@ def tell_trial(
     if full and not locking(session):
         finish_if_done(session, study_id=finished["study_id"])
     return Trial.model_validate(finished)
+
+
+def at_target(info: dict[str, Any] | None) -> bool:
+    """Whether a trial trained to its study's target fidelity (a study without a
+    fidelity: always), so that its value may be the study's best."""
+    fidelity = (info or {}).get("fidelity")
+    return fidelity is None or fidelity >= (info or {}).get("fidelity_max", fidelity)
 
 
 def _last_reported_value(session: Session, *, trial_id: int) -> float | None:

@@ -174,7 +174,7 @@ def job_for(db: Database, configs: StudyConfigs, trial: Trial) -> Job:
     (``StudyConfig.repeat_seed``), so its repeats differ."""
     config = configs.get(trial.study_id)
     assert config.task is not None and trial.lease_expires_at is not None
-    task = config.task
+    task = config.task.at_fidelity(trial.info.get("fidelity"))
     if config.fixed:
         task = task.model_copy(update={"seed": config.repeat_seed(trial.number)})
     transfer = None

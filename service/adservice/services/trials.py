@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sqlalchemy.orm import Session
@@ -27,7 +27,7 @@ from adservice.expansions import Expansion, ExpansionPool
 from adservice.locks import StudyLocks
 from adservice.principals import Principal, check_manager
 from adservice.proposal_runner import AskBudget, ProposalRunner
-from adservice.proposers import Proposal, ProposalRequest, get_proposer
+from adservice.proposers import DEFAULT_PROPOSER, Proposal, ProposalRequest, Proposer, get_proposer
 from adservice.proposers.base import DEGRADED, empty_history
 from adservice.repository import promotion as promotion_repo
 from adservice.repository import quotas as quota_repo
@@ -40,6 +40,9 @@ from adservice.services.budget import check_ask_memory
 from adservice.services.configs import StudyConfig, StudyConfigs
 from adservice.services.proposal_failures import Backoff, failures_recorded
 
+if TYPE_CHECKING:
+    from adservice.proposers.fidelity import FidelityHistory
+
 
 def _request(
     config: StudyConfig,
@@ -48,6 +51,7 @@ def _request(
     n_issued: int,
     history: History | None,
     budget: AskBudget | None = None,
+    max_trials: int | None = None,
 ) -> ProposalRequest:
     empty = empty_history(config.dim)
     sign = 1.0 if config.maximize else -1.0
@@ -84,7 +88,44 @@ def _request(
         objectives=objectives,
         ref_point=ref_point,
         slacks=slacks,
+        fidelities=_fidelities(config, history, n_issued=n_issued, max_trials=max_trials),
     )
+
+
+def _fidelities(
+    config: StudyConfig, history: History | None, *, n_issued: int, max_trials: int | None
+) -> FidelityHistory | None:
+    """A study with ``task.fidelity``: its grid, costs and each trial's fidelity, for the
+    multi-fidelity proposer (``adservice.proposers.fidelity``)."""
+    fidelity = config.task.fidelity if config.task is not None else None
+    if fidelity is None:
+        return None
+    from adservice.proposers.fidelity import FidelityHistory
+
+    grid = np.asarray(fidelity.grid(), dtype=np.float64)
+    empty = np.zeros(0)
+    return FidelityHistory(
+        grid=grid,
+        cost=np.asarray([fidelity.cost(steps) for steps in grid]),
+        observed=history.fidelities if history and history.fidelities is not None else empty,
+        pending=(
+            history.pending_fidelities
+            if history and history.pending_fidelities is not None
+            else empty
+        ),
+        remaining=None if max_trials is None else max(max_trials - n_issued, 0),
+    )
+
+
+def proposer_of(config: StudyConfig) -> Proposer:
+    """The study's proposer: the multi-fidelity one for the default proposer of a study
+    whose task declares a fidelity (``task.fidelity``), else the one it names."""
+    fidelity = config.task.fidelity if config.task is not None else None
+    if fidelity is not None and config.proposer.name == DEFAULT_PROPOSER:
+        from adservice.proposers.fidelity import FidelityProposer
+
+        return FidelityProposer()
+    return get_proposer(config.proposer.name)
 
 
 def _record(
@@ -231,12 +272,14 @@ def proposer_history(session: Session, config: StudyConfig) -> History:
     """The study's trials as its proposer sees them: pruned and paused trials are their
     last values (or left out, as ``pruner.pruned_as`` says), each trial counted once."""
     observed = config.pruner.pruned_as == "last_value"
+    fidelity = config.task.fidelity if config.task is not None else None
     history = study_repo.study_history(
         session,
         study_id=config.study_id,
         dim=config.dim,
         pruned_as_observed=observed,
         outcomes=config.outcomes,
+        fidelity_max=fidelity.max if fidelity is not None else None,
     )
     if observed and promotion_repo.asha_promotion(config.pruner):
         history = promotion_repo.with_paused(
@@ -331,7 +374,7 @@ def propose_trials(
             lease_seconds=lease_seconds,
             storage_quota=storage_quota,
         )
-    proposer = get_proposer(config.proposer.name)
+    proposer = proposer_of(config)
     with locks.hold(db, study_id):
         with db.read() as session:
             study = study_repo.get_study(session, study_id=study_id)
@@ -355,7 +398,12 @@ def propose_trials(
                 )
             proposal = proposer.propose(
                 _request(
-                    config, count=wanted, n_issued=study.n_trials, history=history, budget=budget
+                    config,
+                    count=wanted,
+                    n_issued=study.n_trials,
+                    history=history,
+                    budget=budget,
+                    max_trials=study.max_trials,
                 )
             )
         return _record(
