@@ -45,12 +45,15 @@ class DiagonalGesture(Task[DiagonalGestureOptions]):
         self, robot: EngineRobot, sim: EngineSimulator, options: DiagonalGestureOptions
     ) -> None:
         super().__init__(robot, sim, options)
-        distal = options.distal_link
+        self.distal = self.distal_index(robot, options.distal_link)
+
+    @staticmethod
+    def distal_index(robot: EngineRobot, distal: str | None) -> int:
+        """The index of the link ``distal``, by default c if there is one, else the
+        deepest link: the child of the last joint in the engine's (depth-first) order."""
         if distal is None:
-            # The deepest link: the child of the last joint in the engine's (depth-first)
-            # order.
             distal = "c" if "c" in robot.link_names else robot.joints[-1].child
-        self.distal = robot.link_index(distal)
+        return robot.link_index(distal)
 
     def observation_size(self) -> int:
         return 3

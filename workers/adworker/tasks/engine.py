@@ -89,10 +89,11 @@ joint torques as fractions of each joint's effort."""
 @dataclass(frozen=True)
 class PayloadSpec:
     """A box of ``mass`` kg and side ``size`` m set down resting on top of the link
-    ``link`` at the start of every episode (a task's ``Task.payload``): a body of its own
-    that touches the robot's links and the ground, and so can be dropped."""
+    ``link`` (None: the root) at the start of every episode (a task's ``Task.payload``):
+    a body of its own that touches the robot's links and the ground, and so can be
+    dropped."""
 
-    link: str
+    link: str | None
     mass: float
     size: float
 
@@ -106,11 +107,13 @@ class PayloadState:
     on_robot: bool
 
 
-def payload_start(snapshot: Snapshot, k: int, size: float) -> tuple[float, float, float]:
-    """Where a payload of side ``size`` starts: its centre above link ``k``'s shape
-    centre, its bottom 1 mm above the link's top."""
+def payload_start(robot: EngineRobot, payload: PayloadSpec) -> tuple[float, float, float]:
+    """Where ``payload`` starts: its centre above its link's shape centre, its bottom
+    1 mm above the link's top, the robot as placed."""
+    snapshot = robot.read()
+    k = 0 if payload.link is None else robot.link_index(payload.link)
     x, y, _ = (float(v) for v in snapshot.centre(k))
-    return x, y, snapshot.top[k] + size / 2 + 0.001
+    return x, y, snapshot.top[k] + payload.size / 2 + 0.001
 
 
 class EngineSimulator(ABC):

@@ -315,8 +315,10 @@ class MujocoRobot(EngineRobot):
             start = compiled.jnt_qposadr[compiled.joint("payload").id]
             sim.data.qpos[:] = placed
             mujoco.mj_forward(compiled, sim.data)
-            where = payload_start(self.read(), self.link_index(payload.link), payload.size)
+            where = payload_start(self, payload)
             placed[start : start + 7] = (*where, 1.0, 0.0, 0.0, 0.0)
+            sim.data.qpos[:] = placed
+            mujoco.mj_forward(compiled, sim.data)
 
     @staticmethod
     def _add_payload(spec: Any, payload: PayloadSpec) -> None:
@@ -504,8 +506,10 @@ class MujocoRobot(EngineRobot):
     def read(self) -> Snapshot:
         model, data = self.sim.model, self.sim.data
         mujoco.mj_kinematics(model, data)
-        positions = data.xipos[1:].tolist()
-        poses = list(zip(positions, data.xquat[1:, [1, 2, 3, 0]].tolist(), strict=True))
+        positions = data.xipos[1 : self._links + 1].tolist()
+        poses = list(
+            zip(positions, data.xquat[1 : self._links + 1, [1, 2, 3, 0]].tolist(), strict=True)
+        )
         touching = [False] * self._links
         if self.reads_contacts:
             mujoco.mj_collision(model, data)

@@ -218,7 +218,7 @@ class Robot(EngineRobot):
         visual = pybullet.createVisualShape(
             pybullet.GEOM_BOX, halfExtents=half, rgbaColor=[0.9, 0.5, 0.1, 1], physicsClientId=cid
         )
-        start = payload_start(self.read(), self.link_index(payload.link), payload.size)
+        start = payload_start(self, payload)
         body = pybullet.createMultiBody(payload.mass, shape, visual, start, physicsClientId=cid)
         pybullet.changeDynamics(body, -1, lateralFriction=GROUND_FRICTION, physicsClientId=cid)
         return int(body)
