@@ -104,6 +104,8 @@ class Planner:
         joint's mid-range target), the sampling seeded from the learner's seed and this
         first state (which the episode's seed drew)."""
         first = zlib.crc32(np.ascontiguousarray(self.sim.data.qpos).tobytes())
+        # the episode's model (one that draws its physics per episode may rebuild it)
+        self.scratch = mujoco.MjData(self.sim.model)
         self._rng = np.random.default_rng([self.seed, first])
         self._nominal = np.zeros_like(self._nominal)
         self._step = 0
