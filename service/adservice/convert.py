@@ -74,6 +74,14 @@ def searched_keys(space: Space, stored: dict[str, Any]) -> list[str]:
     return [param.name for param in space.params]
 
 
+def design_searched(stored: dict[str, Any]) -> tuple[str, ...]:
+    """The params keys a design space (as stored) searches, as ``searched_keys`` gives
+    them; empty for a space of another type."""
+    if stored.get("type") != "design":
+        return ()
+    return _design_searched(json.dumps(stored, sort_keys=True))
+
+
 @functools.lru_cache(maxsize=256)
 def _design_searched(space: str) -> tuple[str, ...]:
     from adclient.decode import searched_params

@@ -24,7 +24,7 @@ from adclient.schemas import (
     TrialCurve,
     TrialState,
 )
-from adservice.convert import searches_nothing
+from adservice.convert import design_searched, searches_nothing
 from adservice.models import ArtifactRow, TrialReportRow, TrialRow
 from adservice.repository import studies as study_repo
 
@@ -63,6 +63,13 @@ def trial_columns(
         param["name"]
         for param in study.space.get("params", [])
         if param.get("type") == "categorical"
+    }
+    # A design study's searched structure and catalogue choices are charted as choices
+    # too (text), as its best design lists them.
+    chosen = {
+        name
+        for name in design_searched(study.space)
+        if name == "structure" or name.endswith(".choice")
     }
     changed = TrialRow.number >= after
     if numbers:
@@ -105,7 +112,7 @@ def trial_columns(
         found = [row[3].get(name) for row in rows]
         # Numbers only (what can be plotted); exact types, as parsed JSON has, leave out bools.
         # A categorical param's choices are plotted too (the dashboard places them on ticks).
-        kinds = (float, int, str, bool) if name in choices else (float, int)
+        kinds = (float, int, str, bool) if name in choices | chosen else (float, int)
         column = [item if type(item) in kinds else None for item in found]
         if any(item is not None for item in column):
             params[name] = column

@@ -17,6 +17,7 @@ from adclient.schemas import MAX_WORKER_PAGE
 from adservice.artifacts import ArtifactStore
 from adservice.auth import Principal, Role, require
 from adservice.db import Database
+from adservice.errors import InvalidError
 from adservice.services.trials import Proposing
 from adservice.settings import Settings
 
@@ -65,3 +66,20 @@ PageOffset = Annotated[int, Query(ge=0, le=MAX_ID, description="how many to skip
 WorkerLimit = Annotated[
     int, Query(ge=1, le=MAX_WORKER_PAGE, description="the most workers to answer, newest first")
 ]
+
+
+MAX_LISTED = 1000
+
+
+def listed_numbers(text: str, what: str) -> list[int]:
+    """A comma-separated list of integers in [0, MAX_ID], at most ``MAX_LISTED`` of them."""
+    parts = [part for part in text.split(",") if part.strip()]
+    if len(parts) > MAX_LISTED:
+        raise InvalidError(f"{what}: at most {MAX_LISTED} numbers, got {len(parts)}")
+    try:
+        numbers = [int(part) for part in parts]
+    except ValueError:
+        raise InvalidError(f"{what}: expected comma-separated integers: {text[:40]!r}") from None
+    if any(not 0 <= number <= MAX_ID for number in numbers):
+        raise InvalidError(f"{what}: numbers must be between 0 and {MAX_ID}")
+    return numbers

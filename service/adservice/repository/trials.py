@@ -313,18 +313,21 @@ def list_trials(
     *,
     study_id: int,
     state: TrialState | None = None,
+    numbers: Sequence[int] | None = None,
     after: int = 0,
     offset: int = 0,
     limit: int | None = None,
     order_by: str = "number",
     descending: bool = False,
 ) -> tuple[list[TrialRow], int]:
-    """A page of a study's trials (those numbered ``after`` or more) and the total that
-    match."""
+    """A page of a study's trials (those numbered ``after`` or more, of ``numbers`` when
+    given) and the total that match."""
     get_study(session, study_id=study_id)
     where = [TrialRow.study_id == study_id]
     if state is not None:
         where.append(TrialRow.state == state.value)
+    if numbers is not None:
+        where.append(TrialRow.number.in_(sorted(set(numbers))))
     if after:
         where.append(TrialRow.number >= after)
     total = session.scalar(sa.select(sa.func.count()).select_from(TrialRow).where(*where)) or 0

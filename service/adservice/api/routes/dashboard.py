@@ -9,27 +9,10 @@ from fastapi import APIRouter, Query, Response
 
 from adclient.schemas import StudyCurves, TrialColumns
 from adservice import views
-from adservice.api.deps import MAX_ID, ReaderDep, SessionDep, StudyId
+from adservice.api.deps import MAX_ID, ReaderDep, SessionDep, StudyId, listed_numbers
 from adservice.api.responses import model_response
-from adservice.errors import InvalidError
 
 router = APIRouter(prefix="/api/v1/dashboard", tags=["dashboard"])
-
-MAX_LISTED = 1000
-
-
-def _numbers(text: str, what: str) -> list[int]:
-    """A comma-separated list of integers in [0, MAX_ID], at most ``MAX_LISTED`` of them."""
-    parts = [part for part in text.split(",") if part.strip()]
-    if len(parts) > MAX_LISTED:
-        raise InvalidError(f"{what}: at most {MAX_LISTED} numbers, got {len(parts)}")
-    try:
-        numbers = [int(part) for part in parts]
-    except ValueError:
-        raise InvalidError(f"{what}: expected comma-separated integers: {text[:40]!r}") from None
-    if any(not 0 <= number <= MAX_ID for number in numbers):
-        raise InvalidError(f"{what}: numbers must be between 0 and {MAX_ID}")
-    return numbers
 
 
 @router.get("/studies/{study_id}/series", response_model=TrialColumns)
@@ -47,7 +30,7 @@ def changed_series(
         session,
         study_id=study_id,
         after=after,
-        numbers=_numbers(numbers, "numbers"),
+        numbers=listed_numbers(numbers, "numbers"),
         limit=limit,
     )
     return model_response(columns)
@@ -74,5 +57,5 @@ def artifact_names(
 ) -> dict[int, list[str]]:
     """Artifact names of each listed trial of the study (one request for a table page)."""
     return views.artifact_names(
-        session, study_id=study_id, trial_ids=_numbers(trial_ids, "trial_ids")
+        session, study_id=study_id, trial_ids=listed_numbers(trial_ids, "trial_ids")
     )

@@ -38,6 +38,7 @@ from adservice.api.deps import (
     StudyId,
     UserDep,
     WorkerLimit,
+    listed_numbers,
 )
 from adservice.api.responses import model_response
 from adservice.convert import study_schema, trial_schema, worker_schema
@@ -171,6 +172,14 @@ def list_trials(
     ] = 0,
     order_by: TrialOrder = "number",
     desc: bool = False,
+    numbers: Annotated[
+        str,
+        Query(
+            max_length=20_000,
+            description="only the trials of these numbers (comma-separated, at most 1000):"
+            " the dashboard's filters by param and score range",
+        ),
+    ] = "",
 ) -> list[Trial]:
     """Trials, optionally filtered, one page at a time (a bounded page keeps one request
     cheap); the total that match is in ``X-Total-Count``. Page with ``offset``, or in
@@ -180,6 +189,7 @@ def list_trials(
         session,
         study_id=study_id,
         state=state,
+        numbers=listed_numbers(numbers, "numbers") if numbers else None,
         after=after,
         offset=offset,
         limit=limit,

@@ -77,6 +77,16 @@ export async function stopStudy(studyId) {
   return response.json();
 }
 
+/** Replace a note (a study's or a trial's: its URL); resolves to the note as stored. */
+export async function saveNote(path, text) {
+  const response = await request(path, {
+    method: 'PUT',
+    headers: { ...changeHeaders(), 'Content-Type': 'application/json' },
+    body: JSON.stringify({ text }),
+  });
+  return response.json();
+}
+
 /** Delete a study; `force` also cancels the leases workers hold on its trials. */
 export async function deleteStudy(studyId, { force = false } = {}) {
   const query = force ? '?force=true' : '';

@@ -1,5 +1,6 @@
-// The dashboard: a studies list (#/) and a study page (#/studies/ID; a trial's dialog at
-// #/studies/ID/trials/N), kept current by polling. This module routes between them and
+// The dashboard: a studies list (#/), a study page (#/studies/ID; a trial's dialog at
+// #/studies/ID/trials/N) and a comparison of studies (#/compare?ids=1,2), kept current by
+// polling. This module routes between them and
 // polls; each panel is its own module (header, history, pareto, params, best, workers,
 // trials, trial-dialog, robot-view), composed by study.js.
 
@@ -9,6 +10,7 @@ import { setLive, showError } from './shell.js';
 import { bindSignIn, checkSession } from './signin.js';
 import { StudiesPage } from './studies.js';
 import { StudyPage } from './study.js';
+import { ComparePage } from './compare.js';
 import { closeTrialDialog } from './trial-dialog.js';
 
 const POLL_MS = 2000;
@@ -17,6 +19,15 @@ const view = document.querySelector('[data-view]');
 let page = null;
 
 const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+
+/** The studies a comparison's address names (#/compare?ids=1,2), in its order, each once;
+ * null for another address. */
+function comparedIds() {
+  const match = window.location.hash.match(/^#\/compare(?:\?ids=([\d,]*))?$/);
+  if (!match) return null;
+  const ids = (match[1] ?? '').split(',').filter(Boolean).map(Number);
+  return [...new Set(ids)];
+}
 
 /** The address's study and trial: #/studies/ID, #/studies/ID/trials/N, or neither. */
 function place() {
@@ -36,7 +47,10 @@ async function route() {
   }
   closeTrialDialog();
   page?.stop();
-  const current = studyId !== null ? new StudyPage(view, studyId) : new StudiesPage(view);
+  const compared = comparedIds();
+  let current;
+  if (compared !== null) current = new ComparePage(view, compared);
+  else current = studyId !== null ? new StudyPage(view, studyId) : new StudiesPage(view);
   page = current;
   try {
     await current.start();

@@ -6,7 +6,7 @@
 
 import { artifactNames, getJSON } from './api.js';
 import { formatNumber } from './charts.js';
-import { element, esc, finder, paramsTable, spawnUrl, urdfLink, urdfUrl } from './html.js';
+import { element, esc, finder, paramsTable, scoreSpread, spawnUrl, urdfLink, urdfUrl } from './html.js';
 import { objectiveNames } from './pareto.js';
 import { RobotView } from './robot-view.js';
 
@@ -110,7 +110,7 @@ export class BestCard {
     }
     const urdf = urdfLink(study, trial, this.artifacts, 'Download URDF');
     this.$('best').innerHTML = `
-      <p class="best-value">${formatNumber(trial.value)}</p>
+      <p class="best-value">${formatNumber(trial.value)}${scoreSpread(trial)}</p>
       <p>trial <a href="#" data-open-trial="${trial.id}">#${trial.number}</a>
         ${trial.worker_id ? `· by ${esc(trial.worker_id)}` : ''} ${urdf ? `· ${urdf}` : ''}</p>
       ${bestParams(study, trial.params, this.showAll)}`;

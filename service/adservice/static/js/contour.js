@@ -9,7 +9,10 @@
 // puts other choices at distance 1) rather than a fitted model: it needs nothing but the
 // trials, passes through each of them, and stays within the scores seen, so the colours
 // never promise a score no trial had. Where there are no trials it only averages the
-// nearest ones: the dots show where the data is.
+// nearest ones, which says nothing of what is there: a cell farther than UNEXPLORED (in
+// each axis's unit range; another choice of a categorical axis is 1 away) from every
+// trial is painted a neutral grey instead, "unexplored" in the legend, never a level of
+// the palette (which would paint an empty corner as the best, or the worst, region).
 
 import {
   AXIS,
@@ -31,6 +34,10 @@ const CELLS = 60;
  * cost one pass over them each. All are drawn as dots. */
 const MAX_SOURCES = 2000;
 const REACH = 64; // squared px: how close the pointer must be to name a trial
+/** How far (in each axis's unit range) a cell may be from its nearest trial and still
+ * be coloured by the interpolation: 15% of the axes' ranges. */
+export const UNEXPLORED = 0.15;
+const UNEXPLORED_COLOUR = '#d1d5db';
 
 /** Log-scale ticks in [lo, hi] (log10 units): powers of ten, or 1-2-5 steps if too few. */
 function logTicks(lo, hi) {
@@ -110,7 +117,8 @@ function unit(axis, at) {
   return axis.categorical ? at : (at - axis.lo) / (axis.hi - axis.lo);
 }
 
-/** Each grid cell's score, by inverse distance weighting (power 2) of the sources. */
+/** Each grid cell's score, by inverse distance weighting (power 2) of the sources, and
+ * (`near`) whether a source lies within UNEXPLORED of it. */
 function interpolate(ax, ay, sources) {
   const n = sources.length;
   const sx = Float64Array.from(sources, (s) => unit(ax, s.x));
@@ -118,18 +126,23 @@ function interpolate(ax, ay, sources) {
   const sv = Float64Array.from(sources, (s) => s.value);
   const along = (axis, cell, source) => (axis.categorical ? (cell === source ? 0 : 1) : cell - source);
   const z = [];
+  const near = [];
+  const reach = UNEXPLORED * UNEXPLORED;
   for (let gy = 0; gy < ay.cells; gy++) {
     const cy = unit(ay, ay.centre(gy));
     const row = new Float64Array(ax.cells);
+    const nearRow = new Array(ax.cells).fill(false);
     for (let gx = 0; gx < ax.cells; gx++) {
       const cx = unit(ax, ax.centre(gx));
       let sum = 0;
       let weights = 0;
       let exact = null;
+      let nearest = Infinity;
       for (let k = 0; k < n; k++) {
         const dx = along(ax, cx, sx[k]);
         const dy = along(ay, cy, sy[k]);
         const d2 = dx * dx + dy * dy;
+        if (d2 < nearest) nearest = d2;
         if (d2 < 1e-12) {
           exact = sv[k];
           break;
@@ -138,10 +151,12 @@ function interpolate(ax, ay, sources) {
         weights += 1 / d2;
       }
       row[gx] = exact ?? sum / weights;
+      nearRow[gx] = nearest <= reach;
     }
     z.push(row);
+    near.push(nearRow);
   }
-  return z;
+  return { z, near };
 }
 
 /** A trial's offset within its band, so trials of one choice do not hide each other. */
@@ -193,7 +208,8 @@ function drawContour(canvas, series, study, nx, ny) {
     const i = rows[Math.floor(r)];
     sources.push({ x: ax.at(i), y: ay.at(i), value: series.value[i] });
   }
-  const z = interpolate(ax, ay, sources);
+  const { z, near } = interpolate(ax, ay, sources);
+  let unexplored = 0;
 
   const pad = { left: 78, right: 14, top: 10, bottom: 42 };
   const right = width - pad.right;
@@ -206,7 +222,8 @@ function drawContour(canvas, series, study, nx, ny) {
     const top = edgeY(gy + 1);
     const size = edgeY(gy) - top;
     for (let gx = 0; gx < ax.cells; gx++) {
-      ctx.fillStyle = PALETTE[level(z[gy][gx])];
+      if (!near[gy][gx]) unexplored += 1;
+      ctx.fillStyle = near[gy][gx] ? PALETTE[level(z[gy][gx])] : UNEXPLORED_COLOUR;
       ctx.fillRect(edgeX(gx), top, edgeX(gx + 1) - edgeX(gx), size);
     }
   }
@@ -270,12 +287,14 @@ function drawContour(canvas, series, study, nx, ny) {
     ctx.stroke();
   }
   canvas.dataset.cells = `${ax.cells}x${ay.cells}`;
+  canvas.dataset.unexplored = String(unexplored);
   canvas.dataset.low = String(low);
   canvas.dataset.high = String(high);
   canvas.grid = {
     x: Array.from({ length: ax.cells }, (_, k) => ax.centre(k)),
     y: Array.from({ length: ay.cells }, (_, k) => ay.centre(k)),
     z: z.map((row) => Array.from(row)),
+    explored: near,
   };
   canvas.hit = {
     points,
@@ -285,7 +304,12 @@ function drawContour(canvas, series, study, nx, ny) {
       const gy = Math.floor(((bottom - y) / (bottom - pad.top)) * ay.cells);
       const inside = gx >= 0 && gx < ax.cells && gy >= 0 && gy < ay.cells;
       if (!inside) return null;
-      return { xText: ax.text(ax.centre(gx)), yText: ay.text(ay.centre(gy)), value: z[gy][gx] };
+      return {
+        xText: ax.text(ax.centre(gx)),
+        yText: ay.text(ay.centre(gy)),
+        value: z[gy][gx],
+        unexplored: !near[gy][gx],
+      };
     },
   };
   return { low, high, maximize, sampled: sources.length < rows.length ? sources.length : 0 };
@@ -352,7 +376,8 @@ export class ContourView {
       (trial ? `<div>trial #${p.number}</div>` : '') +
       `<div>${esc(x)} = ${esc(p.xText)} · ${esc(y)} = ${esc(p.yText)}</div>` +
       `<div>${esc(this.scoreName())} ${trial ? '' : '≈ '}${formatNumber(p.value)}` +
-      `${trial ? '' : ' (interpolated)'}</div>`
+      `${trial ? '' : ' (interpolated)'}</div>` +
+      (p.unexplored ? '<div>unexplored: no trial near, so the colour says nothing here</div>' : '')
     );
   }
 
@@ -371,7 +396,8 @@ export class ContourView {
   /** Draw for the params in `order` (those that vary, most important first). */
   draw(order) {
     this.order = order;
-    const { series, study } = this.page;
+    const study = this.page.study;
+    const series = this.series ?? this.page.series; // the params panel's: filtered, if so
     const options = order.map((name) => `<option value="${esc(name)}">${esc(name)}</option>`).join('');
     const selects = [this.$('contour-x'), this.$('contour-y')];
     for (const select of selects) {
@@ -413,6 +439,8 @@ export class ContourView {
       <span class="swatches">${swatches}</span>
       <span class="num" data-legend-high>${formatNumber(high)}</span>
       <span class="meta">yellow = best (${maximize ? 'highest' : 'lowest'}); interpolated by inverse
-        distance weighting, dots are trials</span>`;
+        distance weighting, dots are trials</span>
+      <span data-legend-unexplored><i style="background:${UNEXPLORED_COLOUR}"></i> unexplored: no
+        trial within ${Math.round(UNEXPLORED * 100)}% of the axes' ranges</span>`;
   }
 }

@@ -106,3 +106,21 @@ export function urdfLink(study, trial, artifacts, label = 'URDF') {
   const file = `trial-${trial.number}.urdf`;
   return `<a href="${url}" download="${file}" data-download="${file}">${label}</a>`;
 }
+
+/** The score's spread over a trial's evaluation episodes (each on a seed of its own), as
+ * its worker reported it (metrics score_std, score_min, score_max, eval_episodes), as a
+ * mark to put beside the score: `± 0.012`, the rest in its title. Empty when the trial's
+ * metrics do not carry it. */
+export function scoreSpread(trial) {
+  const metrics = trial?.metrics ?? {};
+  const std = metrics.score_std;
+  if (typeof std !== 'number' || !Number.isFinite(std)) return '';
+  const episodes = metrics.eval_episodes;
+  const over = typeof episodes === 'number' ? ` over ${formatNumber(episodes)} evaluation episodes (a seed each)` : '';
+  const range =
+    typeof metrics.score_min === 'number' && typeof metrics.score_max === 'number'
+      ? `, from ${formatNumber(metrics.score_min)} to ${formatNumber(metrics.score_max)}`
+      : '';
+  const title = `standard deviation of the score${over}${range}`;
+  return ` <span class="spread-mark" data-score-spread="${std}" title="${esc(title)}">± ${esc(formatNumber(std))}${episodes ? ` <span class="meta">(${formatNumber(episodes)} ep.)</span>` : ''}</span>`;
+}

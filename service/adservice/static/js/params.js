@@ -20,6 +20,7 @@ import {
 import { ContourView } from './contour.js';
 import { element, esc, finder } from './html.js';
 import { pedAnova, renderImportance, varyingParams } from './importance.js';
+import { SCORE } from './filters.js';
 import { isChoices } from './series.js';
 
 const PARALLEL_AXES = 8;
@@ -44,16 +45,25 @@ function plotted(series, name, study) {
   };
 }
 
+/** A filtered-out trial's line: light grey, under the others. */
+const FILTERED_OUT = 'rgba(156, 163, 175, 0.35)';
+const BRUSH = 'rgba(37, 99, 235, 0.18)';
+
 /**
  * Polylines across the axes `names` and the score, coloured by rank of score (yellow =
  * best), drawn worst first so the best lie on top. Past MAX_LINES complete trials it
  * draws the best half of that many and an even sample of the rest (rasterising
  * thousands of translucent lines is what costs), and says so in its return value.
+ * With `filters` active, the trials that fail them are grey lines under the rest, and
+ * each filtered axis shows its brushed range. Leaves `canvas.axes` (each axis's name,
+ * x, range and choices) for brushing, and `data-axes`, `data-passing` for the tests.
  */
-function drawParallel(canvas, series, names, direction, study) {
+function drawParallel(canvas, series, names, direction, study, filters, everything) {
   const { ctx, width, height } = prepare(canvas);
   const { complete } = series;
   canvas.dataset.lines = String(complete.length);
+  canvas.dataset.axes = JSON.stringify(names);
+  canvas.axes = null;
   if (complete.length === 0 || names.length === 0) {
     message(ctx, width, height, complete.length ? 'No numeric params vary yet' : 'No complete trials yet');
     canvas.dataset.drawn = '0';
@@ -100,8 +110,12 @@ function drawParallel(canvas, series, names, direction, study) {
 
   const good = kept ? kept.map((r) => allGood[r]) : allGood;
   const paths = PALETTE.map(() => new Path2D());
+  const greyed = new Path2D();
+  let passing = 0;
   rows.forEach((i, r) => {
-    const path = paths[bucket(good[r])];
+    const passes = !filters.active || filters.passes(everything, i);
+    if (passes) passing += 1;
+    const path = passes ? paths[bucket(good[r])] : greyed;
     let pen = false;
     columns.forEach((column, k) => {
       const value = column[i];
@@ -114,13 +128,41 @@ function drawParallel(canvas, series, names, direction, study) {
       pen = true;
     });
   });
-  ctx.globalAlpha = rows.length <= 50 ? 0.85 : Math.max(0.06, 6 / Math.sqrt(rows.length));
+  canvas.dataset.passing = String(passing);
   ctx.lineWidth = 1;
+  ctx.strokeStyle = FILTERED_OUT;
+  ctx.stroke(greyed);
+  ctx.globalAlpha = rows.length <= 50 ? 0.85 : Math.max(0.06, 6 / Math.sqrt(rows.length));
   paths.forEach((path, b) => {
     ctx.strokeStyle = PALETTE[b];
     ctx.stroke(path);
   });
   ctx.globalAlpha = 1;
+
+  // The brushed ranges, and where each axis is (for brushing).
+  const keys = [...names, SCORE];
+  canvas.axes = {
+    top,
+    bottom,
+    list: keys.map((name, k) => ({ name, x: axisX[k], range: ranges[k], labels: axes[k].labels })),
+  };
+  keys.forEach((name, k) => {
+    const range = filters.ranges.get(name);
+    if (!range) return;
+    let from;
+    let to;
+    if (range.choices) {
+      const at = axes[k].labels.map((label, index) => (range.choices.has(label) ? index : null)).filter((v) => v !== null);
+      if (at.length === 0) return;
+      [from, to] = [Math.min(...at) - 0.4, Math.max(...at) + 0.4];
+    } else {
+      [from, to] = [Math.max(range.low, ranges[k][0]), Math.min(range.high, ranges[k][1])];
+    }
+    ctx.fillStyle = BRUSH;
+    ctx.strokeStyle = '#2563eb';
+    ctx.fillRect(axisX[k] - 6, y(k, to), 12, y(k, from) - y(k, to));
+    ctx.strokeRect(axisX[k] - 6 + 0.5, y(k, to) + 0.5, 11, y(k, from) - y(k, to));
+  });
 
   ctx.textBaseline = 'middle';
   columns.forEach((_, k) => {
@@ -245,10 +287,63 @@ export class ParamsPanel {
       for (const b of tabs.querySelectorAll('button')) b.classList.toggle('active', b === button);
       this.draw();
     });
+    this.bindBrushing(this.$('parallel'));
+  }
+
+  /** Brushing an axis of the parallel coordinates (a vertical drag along it) filters
+   * the trials to that range of it (or those choices); a click on an axis clears its
+   * filter. The page's filters then redraw the panel and the trial table. */
+  bindBrushing(canvas) {
+    let start = null;
+    const axisAt = (x) => canvas.axes?.list.find((axis) => Math.abs(axis.x - x) <= 12) ?? null;
+    canvas.addEventListener('mousedown', (event) => {
+      const axis = axisAt(event.offsetX);
+      start = axis ? { axis, y: event.offsetY } : null;
+      if (start) event.preventDefault();
+    });
+    canvas.addEventListener('mousemove', (event) => {
+      canvas.style.cursor = start || axisAt(event.offsetX) ? 'ns-resize' : 'default';
+    });
+    window.addEventListener('mouseup', (event) => {
+      if (!start) return;
+      const { axis, y } = start;
+      start = null;
+      const box = canvas.getBoundingClientRect();
+      const endY = event.clientY - box.top;
+      const filters = this.page.filters;
+      if (Math.abs(endY - y) < 3) {
+        if (filters.ranges.has(axis.name)) filters.clear(axis.name);
+        return;
+      }
+      const { top, bottom } = canvas.axes;
+      const [lo, hi] = axis.range;
+      const value = (py) => lo + ((bottom - Math.min(bottom, Math.max(top, py))) / (bottom - top)) * (hi - lo);
+      const [low, high] = [value(Math.max(y, endY)), value(Math.min(y, endY))];
+      if (axis.labels) {
+        const choices = new Set(axis.labels.filter((_, index) => index >= low - 0.5 && index <= high + 0.5));
+        if (choices.size) filters.set(axis.name, { choices });
+        else filters.clear(axis.name);
+      } else {
+        filters.set(axis.name, { low, high });
+      }
+    });
+  }
+
+  /** The chart columns the panel draws: the searched params only (the page's
+   * `searchedSeries`), and with filters on, the complete trials that pass them. */
+  drawnSeries() {
+    const { series, searchedSeries, filters } = this.page;
+    const searched = searchedSeries ?? series;
+    if (!filters.active) return searched;
+    const complete = searched.complete.filter((i) => filters.passes(series, i));
+    return Object.assign(Object.create(searched), { complete });
   }
 
   draw() {
-    const { series, study, correlations } = this.page;
+    const { study, correlations, filters } = this.page;
+    const everything = this.page.series;
+    const series = this.page.searchedSeries ?? everything;
+    const drawn = this.drawnSeries();
     const parallel = this.$('parallel');
     const slices = this.$('slices');
     const correlation = this.$('correlation');
@@ -264,7 +359,8 @@ export class ParamsPanel {
       notes.push(`The ${shown} of ${names.length} varying params most rank-correlated with the score.`);
     }
     if (this.tab === 'parallel') {
-      const lines = drawParallel(parallel, series, names.slice(0, PARALLEL_AXES), study.direction, study);
+      const axes = names.slice(0, PARALLEL_AXES);
+      const lines = drawParallel(parallel, series, axes, study.direction, study, filters, everything);
       if (lines.drawn < lines.total) {
         notes.push(
           `Lines: the best ${lines.best.toLocaleString()} of ${lines.total.toLocaleString()} ` +
@@ -272,8 +368,18 @@ export class ParamsPanel {
         );
       }
     } else if (this.tab === 'slices') {
-      drawSlices(slices, series, names.slice(0, SLICE_PLOTS), study);
+      drawSlices(slices, drawn, names.slice(0, SLICE_PLOTS), study);
       notes.push('Colour: trial number, yellow early to purple late.');
+    }
+    if (filters.active) {
+      const passing = drawn.complete.length;
+      notes.push(
+        `Filtered: ${passing} of ${series.complete.length} complete trials pass ` +
+          `${filters.describe().map((f) => f.text).join(', ')}` +
+          (this.tab === 'parallel' ? ' (the others grey; click a brushed axis to clear it).' : '.'),
+      );
+    } else if (this.tab === 'parallel') {
+      notes.push('Drag along an axis to filter the trials to a range of it.');
     }
     this.$('params-note').textContent = notes.join(' ');
     if (this.tab === 'importance' || this.tab === 'contour') this.drawImportance(names);
@@ -302,8 +408,12 @@ export class ParamsPanel {
       return;
     }
     const varying = varyingParams(series);
+    const searched = (this.page.searchedSeries ?? series).params;
     const ranked = result.status === 'ok' ? result.importances.map((p) => p.name) : [];
-    const order = [...new Set([...ranked, ...correlated, ...varying])].filter((name) => varying.has(name));
+    const order = [...new Set([...ranked, ...correlated, ...varying])].filter(
+      (name) => varying.has(name) && name in searched,
+    );
+    this.contour.series = this.drawnSeries();
     this.contour.draw(order);
   }
 }

@@ -154,6 +154,20 @@ function pearson(a, b) {
   return saa > 0 && sbb > 0 ? sab / Math.sqrt(saa * sbb) : 0;
 }
 
+/** The chart columns of the params `study` searched (its `searched_params`, the rule
+ * the best design card lists them by): a tie's or mirror's copy of a searched spec, and
+ * what its study file fixed, left out; the structure and catalogue choices kept (as
+ * choices); a searched axis (`b.joint.axis`) as the angles the search chose
+ * (`b.joint.axis_theta`, `b.joint.axis_phi`), not its derived vector. A view of
+ * `series` (its other columns shared); all of them from a server that does not say. */
+export function searchedColumns(series, study) {
+  if (!Array.isArray(study.searched_params)) return series;
+  const searched = new Set(study.searched_params);
+  const kept = (name) => searched.has(name) || searched.has(name.replace(/_(theta|phi)$/, ''));
+  const params = Object.fromEntries(Object.entries(series.params).filter(([name]) => kept(name)));
+  return Object.assign(Object.create(series), { params });
+}
+
 /** Whether a column holds a categorical param's choices as text or booleans. */
 export function isChoices(column) {
   return column.some((value) => typeof value === 'string' || typeof value === 'boolean');

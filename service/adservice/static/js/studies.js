@@ -1,7 +1,9 @@
 // The studies list (#/): every study with its state, progress, best score and activity,
-// and every worker the server has seen.
+// a checkbox each to compare some side by side (compare.js), and every worker the server
+// has seen.
 
 import { getJSON } from './api.js';
+import { compareAddress } from './compare.js';
 import { formatNumber } from './charts.js';
 import { countsText, progressBar } from './header.js';
 import { ago, badge, element, esc } from './html.js';
@@ -19,8 +21,24 @@ function best(s) {
 export class StudiesPage {
   constructor(view) {
     this.root = element(`<div>
-      <section class="card"><h2>Studies</h2><div class="table-wrap" data-list>Loading…</div></section>
+      <section class="card"><h2>Studies
+        <button type="button" data-compare-picked disabled>Compare selected</button></h2>
+        <div class="table-wrap" data-list>Loading…</div></section>
     </div>`);
+    /** The studies ticked for comparison (kept across polls). */
+    this.picked = new Set();
+    const compare = this.root.querySelector('[data-compare-picked]');
+    this.root.addEventListener('change', (event) => {
+      const box = event.target.closest('input[data-pick]');
+      if (!box) return;
+      const id = Number(box.dataset.pick);
+      if (box.checked) this.picked.add(id);
+      else this.picked.delete(id);
+      compare.disabled = this.picked.size < 2;
+    });
+    compare.addEventListener('click', () => {
+      window.location.hash = compareAddress([...this.picked].sort((a, b) => a - b));
+    });
     this.workers = new ServerWorkersPanel();
     this.root.append(this.workers.root);
     view.replaceChildren(this.root);
@@ -47,6 +65,8 @@ export class StudiesPage {
       .sort((a, b) => b.id - a.id)
       .map(
         (s) => `<tr>
+          <td><input type="checkbox" data-pick="${s.id}" aria-label="compare ${esc(s.name)}"
+            ${this.picked.has(s.id) ? 'checked' : ''}></td>
           <td><a href="#/studies/${s.id}">${esc(s.name)}</a> <span class="meta">#${s.id}</span>
             ${s.task ? `<span class="tag">${esc(s.task.name)}</span>` : ''}</td>
           <td>${badge(s.state)}${s.proposal_failures > 0 ? ' <span class="tag failing">proposals failing</span>' : ''}</td>
@@ -57,7 +77,7 @@ export class StudiesPage {
       )
       .join('');
     target.innerHTML = `<table class="studies">
-      <thead><tr><th>Study</th><th>State</th><th>Progress</th><th>Best</th><th>Last activity</th></tr></thead>
+      <thead><tr><th title="compare">⇆</th><th>Study</th><th>State</th><th>Progress</th><th>Best</th><th>Last activity</th></tr></thead>
       <tbody>${rows}</tbody></table>`;
   }
 

@@ -9,12 +9,15 @@
 import { getJSON } from './api.js';
 import { BestCard } from './best.js';
 import { CurvesPanel } from './curves.js';
+import { EdfPanel } from './edf.js';
+import { Filters } from './filters.js';
 import { StudyHeader } from './header.js';
 import { HistoryPanel } from './history.js';
 import { element } from './html.js';
+import { NoteBox } from './notes.js';
 import { ParamsPanel } from './params.js';
 import { ParetoPanel } from './pareto.js';
-import { Series, paramCorrelations } from './series.js';
+import { Series, paramCorrelations, searchedColumns } from './series.js';
 import { showError } from './shell.js';
 import { SpreadCard } from './spread.js';
 import {
@@ -58,6 +61,14 @@ export class StudyPage {
     /** The varying params by rank correlation with the score, and their names. */
     this.correlations = [];
     this.searched = new Set();
+    /** The chart columns of the params the study searched (searchedColumns). */
+    this.searchedSeries = null;
+    this.filters = new Filters();
+    this.filters.onChange(() => {
+      this.params.draw();
+      this.trials.table.offset = 0;
+      this.trials.refresh();
+    });
     this.polls = 0;
     this.header = new StudyHeader(studyId);
     this.spread = new SpreadCard(this);
@@ -69,10 +80,14 @@ export class StudyPage {
     this.workers = new WorkersPanel(this);
     this.unserved = new UnservedCard(this);
     this.trials = new TrialsPanel(this);
+    this.edf = new EdfPanel(this);
+    this.note = new NoteBox(this.api('/note'), null);
+    const noteCard = element('<section class="card" data-study-note><h2>Note</h2></section>');
+    noteCard.append(this.note.root);
     this.root = element('<div class="study"><div class="grid"></div></div>');
     this.root.querySelector('.grid').append(this.history.root, this.best.root);
-    this.root.prepend(this.header.root, this.unserved.root, this.spread.root);
-    this.root.append(this.pareto.root, this.params.root, this.curves.root, this.workers.root, this.trials.root);
+    this.root.prepend(this.header.root, this.unserved.root, this.spread.root, noteCard);
+    this.root.append(this.pareto.root, this.params.root, this.edf.root, this.curves.root, this.workers.root, this.trials.root);
     view.replaceChildren(this.root);
     this.root.addEventListener('click', (event) => {
       const opener = event.target.closest('a[data-open-trial]');
@@ -97,7 +112,9 @@ export class StudyPage {
     this.study = await getJSON(this.api(''));
     this.signature = signatureOf(this.study);
     this.header.render(this.study);
+    this.note.study = this.study;
     await Promise.all([
+      this.note.load(),
       this.spread.load(),
       this.series.load(),
       this.trials.load(),
@@ -129,8 +146,10 @@ export class StudyPage {
     const changed = signatureOf(study) !== this.signature;
     const scoresChanged = study.n_complete !== this.study.n_complete;
     this.study = study;
+    this.note.study = study;
     this.signature = signatureOf(study);
     const work = [this.workers.load(), this.unserved.load()];
+    if (this.polls % 5 === 0) work.push(this.note.load());
     const curvesDue = changed || this.curves.wanted(study);
     if (curvesDue) work.push(this.curves.load());
     if (changed) {
@@ -177,7 +196,9 @@ export class StudyPage {
     this.curves.draw();
     if (!scoresChanged) return;
     this.pareto.draw();
-    this.correlations = paramCorrelations(this.series);
+    this.edf.draw();
+    this.searchedSeries = searchedColumns(this.series, this.study);
+    this.correlations = paramCorrelations(this.searchedSeries);
     this.searched = new Set(this.correlations.map((c) => c.name));
     this.params.draw();
   }

@@ -5,7 +5,19 @@
 
 import { getJSON } from './api.js';
 import { drawCurve, formatNumber } from './charts.js';
-import { attrsTable, badge, duration, esc, paramsTable, spawnUrl, urdfLink, urdfUrl, when } from './html.js';
+import {
+  attrsTable,
+  badge,
+  duration,
+  esc,
+  paramsTable,
+  scoreSpread,
+  spawnUrl,
+  urdfLink,
+  urdfUrl,
+  when,
+} from './html.js';
+import { NoteBox } from './notes.js';
 import { objectiveNames } from './pareto.js';
 import { RobotView } from './robot-view.js';
 
@@ -61,7 +73,7 @@ function outcome(study, trial) {
     ? `<table class="kv" data-trial-values>${names
         .map((name, k) => `<tr><th>${esc(name)}</th><td>${formatNumber(trial.values?.[k])}</td></tr>`)
         .join('')}</table>`
-    : `<p class="best-value">${formatNumber(trial.value)}</p>`;
+    : `<p class="best-value">${formatNumber(trial.value)}${scoreSpread(trial)}</p>`;
   if (trial.feasible === null || trial.feasible === undefined) return values;
   const verdict = trial.feasible ? 'meets the constraints' : 'infeasible: breaks a constraint';
   return `${values}<p class="meta" data-trial-feasible="${trial.feasible}">${verdict}</p>`;
@@ -121,6 +133,7 @@ export async function openTrialDialog(study, trialId) {
         ${metrics}
         <h3>Params</h3>${paramsTable(trial.params)}
         <div data-trial-attrs></div>
+        <h3>Note</h3><div data-trial-note></div>
       </div>
       <div>
         ${modelUrl ? '<h3>Robot</h3><div data-trial-model></div>' : ''}
@@ -135,9 +148,12 @@ export async function openTrialDialog(study, trialId) {
     heading.textContent = 'User attributes';
     dialog.querySelector('[data-trial-attrs]').append(heading, attrsTable(trial.user_attrs));
   }
+  const note = new NoteBox(`/api/v1/trials/${trial.id}/note`, study);
+  dialog.querySelector('[data-trial-note]').append(note.root);
   dialog.querySelector('[data-close]').addEventListener('click', () => dialog.close());
   shown = { studyId: study.id, number: trial.number };
   if (!dialog.open) dialog.showModal();
+  note.load().catch((error) => note.root.replaceChildren(`No note: ${error.message}`));
   const address = trialAddress(study.id, trial.number);
   if (window.location.hash !== address) window.history.pushState({ trialOpened: true }, '', address);
   if (modelUrl) {

@@ -6,7 +6,8 @@
 import { artifactNames, getJSON } from './api.js';
 import { formatNumber } from './charts.js';
 import { objectiveLabel, objectiveNames } from './pareto.js';
-import { ago, badge, duration, element, esc, finder, formatParam, urdfLink } from './html.js';
+import { ago, badge, duration, element, esc, finder, formatParam, scoreSpread, urdfLink } from './html.js';
+import { SCORE } from './filters.js';
 import { showError } from './shell.js';
 import { trialAddress } from './trial-dialog.js';
 
@@ -58,9 +59,13 @@ function columnsFor(study) {
 /** A row's outcome cells: its score, or its value of each objective. */
 function outcomeCells(study, trial) {
   const names = objectiveNames(study);
-  if (names.length === 0) return `<td class="num">${formatNumber(trial.value)}</td>`;
+  if (names.length === 0) return `<td class="num">${formatNumber(trial.value)}${scoreSpread(trial)}</td>`;
   return names.map((_, k) => `<td class="num">${formatNumber(trial.values?.[k])}</td>`).join('');
 }
+
+/** The most trial numbers one table request lists (the server's MAX_LISTED): past it,
+ * a filtered table is paged here, in order of number. */
+const MAX_LISTED = 1000;
 
 const INFEASIBLE = ' <span class="badge infeasible" title="breaks the study\'s constraints">infeasible</span>';
 
@@ -98,6 +103,13 @@ export class TrialsPanel {
         <button data-page="next" title="Next page">›</button>
         <button data-page="last" title="Last page">»</button>
       </div>
+      <form class="toolbar" data-range-form>
+        <label>Filter <select data-range-name></select></label>
+        <label>from <input data-range-low type="number" step="any" required></label>
+        <label>to <input data-range-high type="number" step="any" required></label>
+        <button>Filter</button>
+        <span class="filters" data-filters></span>
+      </form>
       <div class="table-wrap">
         <table class="trials" data-trials><thead><tr></tr></thead><tbody></tbody></table>
       </div>
@@ -157,6 +169,16 @@ export class TrialsPanel {
       this.table.offset = 0;
       this.refresh();
     });
+    this.$('range-form').addEventListener('submit', (event) => {
+      event.preventDefault();
+      const low = Number(this.$('range-low').value);
+      const high = Number(this.$('range-high').value);
+      this.page.filters.set(this.$('range-name').value, { low: Math.min(low, high), high: Math.max(low, high) });
+    });
+    this.$('filters').addEventListener('click', (event) => {
+      const chip = event.target.closest('button[data-clear-filter]');
+      if (chip) this.page.filters.clear(chip.dataset.clearFilter);
+    });
     this.$('page-size').addEventListener('change', (event) => {
       this.table.limit = Number(event.target.value);
       this.table.offset = 0;
@@ -187,7 +209,28 @@ export class TrialsPanel {
       desc: t.desc,
     });
     if (t.state) query.set('state', t.state);
-    const { body, total } = await getJSON(this.page.api(`/trials?${query}`), { withTotal: true });
+    let passing = null;
+    const { filters, series } = this.page;
+    if (filters.active) {
+      const numbers = filters.numbers(series);
+      if (numbers.length === 0) {
+        this.rows = [];
+        this.total = 0;
+        this.rowArtifacts = {};
+        return;
+      }
+      if (numbers.length > MAX_LISTED) {
+        // Too many to list: this page of them, in order of number, here.
+        passing = numbers.length;
+        const ordered = t.desc ? numbers.slice().reverse() : numbers;
+        query.set('numbers', ordered.slice(t.offset, t.offset + t.limit).join(','));
+        query.set('offset', 0);
+      } else {
+        query.set('numbers', numbers.join(','));
+      }
+    }
+    const { body, total: answered } = await getJSON(this.page.api(`/trials?${query}`), { withTotal: true });
+    const total = passing ?? answered;
     if (body.length === 0 && total > 0 && t.offset > 0) {
       t.offset = Math.floor((total - 1) / t.limit) * t.limit;
       return this.load();
@@ -219,6 +262,7 @@ export class TrialsPanel {
     const select = this.$('sort-param');
     const names = Object.keys(this.page.series.params);
     const ordered = [...names.filter((n) => searched.has(n)), ...names.filter((n) => !searched.has(n))];
+    this.renderFilters(ordered);
     const current = this.table.orderBy.startsWith('param:') ? this.table.orderBy.slice(6) : '';
     const signature = ordered.join('\n');
     if (select.dataset.names !== signature) {
@@ -229,6 +273,25 @@ export class TrialsPanel {
     const direction = this.$('sort-direction');
     direction.disabled = !current;
     direction.textContent = current && this.table.desc ? '▼' : '▲';
+  }
+
+  /** The filter bar: the params one can filter by (numeric ones, searched first, and the
+   * score) and a chip per active filter (a click clears it). */
+  renderFilters(ordered) {
+    const { series, filters } = this.page;
+    const numeric = ordered.filter((name) => series.params[name].some((v) => typeof v === 'number'));
+    const select = this.$('range-name');
+    const signature = numeric.join('\n');
+    if (select.dataset.names !== signature) {
+      const current = select.value;
+      select.dataset.names = signature;
+      select.innerHTML = [`<option value="${esc(SCORE)}">score</option>`, ...numeric.map((n) => `<option>${esc(n)}</option>`)].join('');
+      if (current) select.value = current;
+    }
+    this.$('filters').innerHTML = filters
+      .describe()
+      .map((f) => `<button type="button" class="chip" data-clear-filter="${esc(f.name)}" title="clear this filter">${esc(f.text)} ×</button>`)
+      .join('');
   }
 
   render() {
@@ -275,7 +338,8 @@ export class TrialsPanel {
       head.dataset.arrow = active ? (desc ? '▼' : '▲') : '';
     }
     const first = this.total ? offset + 1 : 0;
-    this.$('page-info').textContent = `${first}–${offset + this.rows.length} of ${this.total}`;
+    const filtered = this.page.filters.active ? ' passing the filters' : '';
+    this.$('page-info').textContent = `${first}–${offset + this.rows.length} of ${this.total}${filtered}`;
     trials.dataset.total = String(this.total);
     this.root.querySelector('[data-page="prev"]').disabled = offset === 0;
     this.root.querySelector('[data-page="first"]').disabled = offset === 0;
