@@ -4,7 +4,8 @@ as the worker configures it (today's baseline arm), and the same on batched worl
 (adworker.batched: PPO's ``n_envs``), in one run on one core.
 
     python bench/engines.py [--tasks stand-up,walk-forward] [--steps 3000] \\
-        [--ppo-steps 4096] [--worlds 8,16,32] [--agree 0] [--core 0] [--json FILE]
+        [--ppo-steps 4096] [--worlds 8,16,32] [--agree 0] [--learn 0] \\
+        [--learn-tasks stand-up] [--core 0] [--json FILE]
 
 Per task and engine: ``random``, control steps per CPU-second of ``env.step`` with a new
 uniform random action each step (resets counted, as an episode's end needs one); and,
@@ -23,16 +24,20 @@ the two engines' scores, per task.
 
 ``--worlds N,...`` (unless empty): per task and engine, ``random-batch``, control steps
 per CPU-second of a batch of the largest N worlds stepped with random actions (the
-batch's limit), and ``ppo-N``, the ``ppo`` learner with ``n_envs: N`` on the same
-budget (``--ppo-steps`` env steps, all worlds together; the same rollout of 512 samples,
-minibatches and epochs as one env). Then issue 59's goals per task: the best batched
-PPO on MuJoCo and on PyBullet over today's baseline (SB3 PPO, one env, PyBullet), and
-the learner's share of a batched PPO step, ``1 - ppo / random-batch``.
+batch's limit); ``ppo-N``, the ``ppo`` learner (stable-baselines3) with ``n_envs: N`` on
+the same budget (``--ppo-steps`` env steps, all worlds together; the same rollout of 512
+samples, minibatches and epochs as one env); and ``ppo-batch-N``, the ``ppo-batch``
+learner (adworker.batch_ppo, the worker's own PPO on the batch) with ``n_envs: N``, its
+other settings its defaults, on the same budget. Then issue 59's goals per task and
+batched learner: its best arm on MuJoCo and on PyBullet over today's baseline (SB3 PPO,
+one env, PyBullet), the learner's share of that arm's step, ``1 - ppo / random-batch``,
+and each arm's gradient updates per sample.
 
-``--learn N``: what the batch learns, not how fast: stand-up's arch trained with the
-``ppo`` learner's default budget (12,288 steps) with one env and with ``n_envs: 16``,
-seeds 0 to N-1, on each engine, each scored as the worker scores it (3 evaluation
-episodes); the mean score per engine and arm.
+``--learn N``: what the learners learn, not how fast: each of ``--learn-tasks``'
+designs trained on ``ppo``'s default budget (12,288 steps) by ``ppo`` with one env and
+with ``n_envs: 16``, and by ``ppo-batch`` at its defaults, seeds 0 to N-1, on each
+engine, each scored as the worker scores it (3 evaluation episodes); the mean score per
+task, engine and arm, its CPU-seconds and its gradient updates per sample.
 
 Prints a table and one ``BENCH`` line per figure (``bench/compare.py``); ``--json``
 writes the rows.
@@ -160,33 +165,79 @@ def ppo_rate(env: Any, steps: int, worlds: int = 1) -> float:
     return trained.train_steps / seconds
 
 
+def ppo_batch_rate(env: Any, steps: int, worlds: int) -> float:
+    """The worker's ``ppo-batch`` learner (adworker.batch_ppo, ``n_envs: worlds``, its
+    other settings its defaults): env steps per CPU-second of one ``train``, the batch's
+    building counted."""
+    from adclient.builtin_learners import BatchPPOOptions
+    from adclient.plugins import catalogue
+
+    learner = catalogue().learner("ppo-batch").load_factory()(BatchPPOOptions(n_envs=worlds))
+    started = time.process_time()
+    trained = learner.train(env, steps=steps, seed=0)
+    seconds = time.process_time() - started
+    return trained.train_steps / seconds
+
+
+def updates_per_sample(arm: str, steps: int) -> float:
+    """Gradient updates per env step of an arm's training of ``steps`` steps (its
+    options' ``work``)."""
+    from adclient.builtin_learners import BatchPPOOptions, PPOOptions
+
+    if arm.startswith("ppo-batch-"):
+        options: Any = BatchPPOOptions(n_envs=int(arm.removeprefix("ppo-batch-")))
+    else:
+        options = PPOOptions()
+    return options.work(steps).updates / steps
+
+
 LEARN_WORLDS = (1, 16)
-"""The ``--learn`` arms' ``n_envs``: today's one env and a batch."""
+"""The ``--learn`` arms' ``n_envs`` of the ``ppo`` learner: today's one env and a batch;
+beside them ``ppo-batch`` at its defaults (16 worlds)."""
 
 
-def learned_scores(seeds: int, folder: Path) -> list[dict[str, Any]]:
-    """Stand-up's arch trained by the ``ppo`` learner on its default budget with each of
-    ``LEARN_WORLDS``, seeds 0 to ``seeds - 1``, on each engine: the scores."""
-    from adclient.builtin_learners import PPOOptions
+def learned_scores(tasks: list[str], seeds: int, folder: Path) -> list[dict[str, Any]]:
+    """Each task's design trained on ``ppo``'s default budget (12,288 steps) by the
+    ``ppo`` learner with each of ``LEARN_WORLDS`` and by ``ppo-batch`` at its defaults,
+    seeds 0 to ``seeds - 1``, on each engine: the scores (3 evaluation episodes each,
+    as the worker scores a design) and each arm's CPU-seconds."""
+    from adclient.builtin_learners import BatchPPOOptions, PPOOptions
     from adclient.plugins import catalogue
     from adworker.learners import evaluate_policy
 
-    factory = catalogue().learner("ppo").load_factory()
+    arms: list[tuple[str, str, Any]] = [
+        (f"ppo n_envs {worlds}", "ppo", PPOOptions(n_envs=worlds)) for worlds in LEARN_WORLDS
+    ]
+    arms.append(("ppo-batch", "ppo-batch", BatchPPOOptions()))
     rows = []
-    for engine in ENGINES:
-        for worlds in LEARN_WORLDS:
-            scores = []
-            for seed in range(seeds):
-                env = make_env("stand-up", engine, folder)
-                try:
-                    learner = factory(PPOOptions(n_envs=worlds))
-                    trained = learner.train(env, steps=learner.default_steps, seed=seed)
-                    evaluation = [(seed + 1) * 10_000 + i for i in range(3)]
-                    episodes = evaluate_policy(env, trained.policy, evaluation)
-                finally:
-                    env.close()
-                scores.append(float(np.mean([episode.score for episode in episodes])))
-            rows.append({"engine": engine, "n_envs": worlds, "scores": scores})
+    for task in tasks:
+        for engine in ENGINES:
+            for arm, name, options in arms:
+                factory = catalogue().learner(name).load_factory()
+                scores, seconds = [], 0.0
+                for seed in range(seeds):
+                    env = make_env(task, engine, folder)
+                    try:
+                        learner = factory(options)
+                        started = time.process_time()
+                        trained = learner.train(env, steps=PPOOptions.default_steps, seed=seed)
+                        seconds += time.process_time() - started
+                        evaluation = [(seed + 1) * 10_000 + i for i in range(3)]
+                        episodes = evaluate_policy(env, trained.policy, evaluation)
+                    finally:
+                        env.close()
+                    scores.append(float(np.mean([episode.score for episode in episodes])))
+                work = options.work(PPOOptions.default_steps)
+                rows.append(
+                    {
+                        "task": task,
+                        "engine": engine,
+                        "arm": arm,
+                        "scores": scores,
+                        "cpu_seconds": seconds,
+                        "updates_per_sample": work.updates / PPOOptions.default_steps,
+                    }
+                )
     return rows
 
 
@@ -245,24 +296,38 @@ def agreement(task: str, count: int, folder: Path) -> dict[str, Any]:
     return {"task": task, "designs": count, "spearman": rho, "scores": scores}
 
 
-def goals(task: str, by_engine: dict[str, dict[str, Any]], world_counts: list[int]) -> None:
-    """Issue 59's goals for ``task``: the best batched PPO on each engine over today's
-    baseline (SB3 PPO, one env, PyBullet; 10x for MuJoCo, 2x for PyBullet), and the
-    learner's share of that batched PPO's CPU (at most half)."""
+LEARNERS = {"ppo": "batched", "ppo-batch": "lean"}
+"""The batched arms' learners and the figures' names of each: ``batched_*`` for SB3's
+PPO on the batch (``ppo``'s ``n_envs``), ``lean_*`` for ``ppo-batch``."""
+
+
+def goals(
+    task: str, by_engine: dict[str, dict[str, Any]], world_counts: list[int], steps: int
+) -> None:
+    """Issue 59's goals for ``task``, per batched learner: its best arm on each engine over
+    today's baseline (SB3 PPO, one env, PyBullet; 10x for MuJoCo, 2x for PyBullet), and
+    the learner's share of that arm's CPU (at most half), with the gradient updates per
+    sample of that arm and of the baseline."""
     baseline = by_engine["pybullet"]["ppo"]
-    for engine, goal in (("mujoco", 10.0), ("pybullet", 2.0)):
-        row = by_engine[engine]
-        best = max(world_counts, key=lambda count: row[f"ppo-{count}"])
-        speedup = row[f"ppo-{best}"] / baseline
-        share = 1.0 - row[f"ppo-{best}"] / row["random-batch"]
-        verdict = "met" if speedup >= goal else "missed"
-        print(
-            f"{task}: batched {engine} PPO (n_envs {best}) {speedup:.2f}x today's SB3 + "
-            f"PyBullet (goal {goal:g}x: {verdict}); learner's share {share:.1%} "
-            f"(goal <= 50%: {'met' if share <= 0.5 else 'missed'})"
-        )
-        emit(f"{task}.{engine}.batched_over_baseline", speedup, higher_is_better=True, unit="x")
-        emit(f"{task}.{engine}.batched_learner_share", share, higher_is_better=False)
+    for learner, figure in LEARNERS.items():
+        for engine, goal in (("mujoco", 10.0), ("pybullet", 2.0)):
+            row = by_engine[engine]
+            best = max(world_counts, key=lambda count: row[f"{learner}-{count}"])
+            arm = f"{learner}-{best}"
+            speedup = row[arm] / baseline
+            share = 1.0 - row[arm] / row["random-batch"]
+            verdict = "met" if speedup >= goal else "missed"
+            updates = updates_per_sample(arm, steps)
+            print(
+                f"{task}: {figure} {engine} PPO ({arm}) {speedup:.2f}x today's SB3 + "
+                f"PyBullet (goal {goal:g}x: {verdict}); learner's share {share:.1%} "
+                f"(goal <= 50%: {'met' if share <= 0.5 else 'missed'}); gradient updates "
+                f"per sample {updates:.4f} (today's {updates_per_sample('ppo', steps):.4f})"
+            )
+            emit(
+                f"{task}.{engine}.{figure}_over_baseline", speedup, higher_is_better=True, unit="x"
+            )
+            emit(f"{task}.{engine}.{figure}_learner_share", share, higher_is_better=False)
 
 
 def main() -> int:
@@ -281,6 +346,7 @@ def main() -> int:
         "--worlds", default="8,16,32", help="batched arms' world counts ('': no batched arm)"
     )
     parser.add_argument("--learn", type=int, default=0, help="seeds of the learning arm (0: none)")
+    parser.add_argument("--learn-tasks", default="stand-up", help="the learning arm's tasks")
     parser.add_argument("--core", type=int, default=0)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
@@ -319,6 +385,8 @@ def main() -> int:
                         row["ppo"] = ppo_rate(env, args.ppo_steps)
                         for count in world_counts:
                             row[f"ppo-{count}"] = ppo_rate(env, args.ppo_steps, count)
+                        for count in world_counts:
+                            row[f"ppo-batch-{count}"] = ppo_batch_rate(env, args.ppo_steps, count)
                 finally:
                     env.close()
                 rows.append(row)
@@ -327,15 +395,20 @@ def main() -> int:
             if args.agree
             else []
         )
-        learned = learned_scores(args.learn, folder) if args.learn else []
+        learn_tasks = args.learn_tasks.split(",")
+        learned = learned_scores(learn_tasks, args.learn, folder) if args.learn else []
     arms = ["random", *(["random-batch"] if world_counts else [])]
     if args.ppo_steps:
         arms += ["ppo", *(f"ppo-{count}" for count in world_counts)]
+        arms += [f"ppo-batch-{count}" for count in world_counts]
     print(f"{'task':<14} {'engine':<9} " + " ".join(f"{arm:>12}" for arm in arms))
     for row in rows:
         figures = " ".join(f"{row[arm]:>12,.0f}" for arm in arms)
         print(f"{row['task']:<14} {row['engine']:<9} {figures}")
-    print("(control steps per CPU-second; random-batch: the largest batch; ppo-N: n_envs N)")
+    print(
+        "(control steps per CPU-second; random-batch: the largest batch; ppo-N: n_envs N; "
+        "ppo-batch-N: the worker's own PPO, n_envs N)"
+    )
     for task in tasks:
         by_engine = {row["engine"]: row for row in rows if row["task"] == task}
         for arm in arms:
@@ -347,17 +420,22 @@ def main() -> int:
             print(f"{task}: mujoco / pybullet, {arm}: {ratio:.2f}x")
             emit(f"{task}.mujoco_over_pybullet.{arm}", ratio, higher_is_better=True, unit="x")
         if args.ppo_steps and world_counts:
-            goals(task, by_engine, world_counts)
+            goals(task, by_engine, world_counts, args.ppo_steps)
     for agreed_task in agreed:
         name, rho = agreed_task["task"], agreed_task["spearman"]
         print(f"{name}: {agreed_task['designs']} random designs, fast learner, Spearman {rho:.3f}")
         emit(f"{name}.agreement.spearman", rho, higher_is_better=True)
     for learned_row in learned:
-        engine, worlds, scores = learned_row["engine"], learned_row["n_envs"], learned_row["scores"]
+        task, engine, arm = learned_row["task"], learned_row["engine"], learned_row["arm"]
+        scores = learned_row["scores"]
         mean = float(np.mean(scores))
         listed = ", ".join(f"{score:.3f}" for score in scores)
-        print(f"stand-up, {engine}, PPO n_envs {worlds}: mean score {mean:.3f} ({listed})")
-        emit(f"stand-up.{engine}.learned.n_envs_{worlds}", mean, higher_is_better=True)
+        print(
+            f"{task}, {engine}, {arm}: mean score {mean:.3f} ({listed}); "
+            f"{learned_row['cpu_seconds']:.1f} CPU-s; updates per sample "
+            f"{learned_row['updates_per_sample']:.4f}"
+        )
+        emit(f"{task}.{engine}.learned.{arm.replace(' ', '_')}", mean, higher_is_better=True)
     if args.json is not None:
         found = {"rates": rows, "agreement": agreed, "learned": learned}
         args.json.write_text(json.dumps(found, indent=2) + "\n")

@@ -1,6 +1,8 @@
 """A study on MuJoCo end to end (issue 59): ``task.simulator: mujoco`` with a real adserver
-and a real adworker, the ``fast`` learner, beside the same study on PyBullet; and a
-simulator that is not one refused with a 422 naming it."""
+and a real adworker, the ``fast`` learner, beside the same study on PyBullet; a simulator
+that is not one, or what the batched learner (``ppo-batch``) cannot do, refused with a
+422 naming it. (Studies with the batched learners on either engine:
+tests/workers/test_batched.py.)"""
 
 from __future__ import annotations
 
@@ -68,4 +70,23 @@ def test_a_simulator_that_is_not_one_is_refused_naming_it(server) -> None:
     assert answer.status_code == 422, answer.text
     detail = answer.json()["detail"]
     assert "'bogus' is not a simulator" in detail and "pybullet, mujoco" in detail, detail
+    assert httpx.get(url, timeout=60).json() == [], "a refused study was stored"
+
+
+def test_the_batched_learner_refuses_what_it_cannot_do_naming_it(server) -> None:
+    """A shared controller (``ppo``'s alone) and options past the update budget are each
+    refused with a 422 at study creation, naming what is refused."""
+    url = f"{server.url}/api/v1/studies"
+    shared = one_design_study("shared", learner="ppo-batch", transfer="shared")
+    answer = httpx.post(url, json=shared, timeout=60)
+    assert answer.status_code == 422, answer.text
+    assert "ppo-batch" in answer.text and "shared" in answer.text, answer.text
+    costly = one_design_study("costly", learner="ppo-batch")
+    costly["task"]["train_steps"] = 1_000_000
+    costly["task"]["options"] = {
+        "learner_kwargs": {"n_envs": 1, "unroll": 1, "n_minibatches": 1, "n_epochs": 100}
+    }
+    answer = httpx.post(url, json=costly, timeout=60)
+    assert answer.status_code == 422, answer.text
+    assert "gradient updates" in answer.text and "n_epochs 100" in answer.text, answer.text
     assert httpx.get(url, timeout=60).json() == [], "a refused study was stored"
