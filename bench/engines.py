@@ -24,14 +24,17 @@ the two engines' scores, per task.
 
 ``--worlds N,...`` (unless empty): per task and engine, ``random-batch``, control steps
 per CPU-second of a batch of the largest N worlds stepped with random actions (the
-batch's limit); ``ppo-N``, the ``ppo`` learner (stable-baselines3) with ``n_envs: N`` on
-the same budget (``--ppo-steps`` env steps, all worlds together; the same rollout of 512
-samples, minibatches and epochs as one env); and ``ppo-batch-N``, the ``ppo-batch``
-learner (adworker.batch_ppo, the worker's own PPO on the batch) with ``n_envs: N``, its
-other settings its defaults, on the same budget. Then issue 59's goals per task and
-batched learner: its best arm on MuJoCo and on PyBullet over today's baseline (SB3 PPO,
-one env, PyBullet), the learner's share of that arm's step, ``1 - ppo / random-batch``,
-and each arm's gradient updates per sample.
+batch's limit); ``physics-batch``, the same batch's engine alone (each world's motor
+command and physics steps, no state read, task or observation: the limit of
+vectorising those); ``ppo-N``, the ``ppo`` learner (stable-baselines3) with ``n_envs:
+N`` on the same budget (``--ppo-steps`` env steps, all worlds together; the same
+rollout of 512 samples, minibatches and epochs as one env); and ``ppo-batch-N``, the
+``ppo-batch`` learner (adworker.batch_ppo, the worker's own PPO on the batch) with
+``n_envs: N``, its other settings its defaults, on the same budget. Then issue 59's
+goals per task and batched learner: its best arm on MuJoCo and on PyBullet over today's
+baseline (SB3 PPO, one env, PyBullet), the learner's share of that arm's step,
+``1 - ppo / random-batch``, each arm's gradient updates per sample, and the engine
+alone on the batch over the baseline (no learner on that engine could go past it).
 
 ``--learn N``: what the learners learn, not how fast: each of ``--learn-tasks``'
 designs trained on ``ppo``'s default budget (12,288 steps) by ``ppo`` with one env and
@@ -147,6 +150,31 @@ def random_batch_rate(env: Any, worlds: int, steps: int) -> float:
         started = time.process_time()
         for action in actions:
             batch.step(action)
+        return rounds * worlds / (time.process_time() - started)
+    finally:
+        batch.close_copies()
+
+
+def physics_batch_rate(env: Any, worlds: int, steps: int) -> float:
+    """Control steps per CPU-second of the engine alone on a batch of ``worlds`` worlds:
+    each world's motor command and its ``frame_skip`` physics steps (MuJoCo: one
+    ``mj_step`` call in C), without the state read, the task's metric and reward or the
+    observation (the limit of vectorising those across worlds)."""
+    from adworker.batched import BatchedEnv
+
+    batch = BatchedEnv.of(env, worlds)
+    try:
+        rng = np.random.default_rng(0)
+        rounds = max(1, steps // worlds)
+        shape = (rounds, worlds, env.action_space.shape[0])
+        actions = rng.uniform(-1, 1, shape).astype(np.float32)
+        batch.seed(0)
+        batch.reset()
+        started = time.process_time()
+        for action in actions:
+            for world, world_action in zip(batch.worlds, action, strict=True):
+                world.robot.act(world_action)
+                world.sim.step()
         return rounds * worlds / (time.process_time() - started)
     finally:
         batch.close_copies()
@@ -316,13 +344,15 @@ def goals(
             arm = f"{learner}-{best}"
             speedup = row[arm] / baseline
             share = 1.0 - row[arm] / row["random-batch"]
+            limit = row["physics-batch"] / baseline
             verdict = "met" if speedup >= goal else "missed"
             updates = updates_per_sample(arm, steps)
             print(
                 f"{task}: {figure} {engine} PPO ({arm}) {speedup:.2f}x today's SB3 + "
                 f"PyBullet (goal {goal:g}x: {verdict}); learner's share {share:.1%} "
                 f"(goal <= 50%: {'met' if share <= 0.5 else 'missed'}); gradient updates "
-                f"per sample {updates:.4f} (today's {updates_per_sample('ppo', steps):.4f})"
+                f"per sample {updates:.4f} (today's {updates_per_sample('ppo', steps):.4f}); "
+                f"the engine alone on the batch {limit:.2f}x"
             )
             emit(
                 f"{task}.{engine}.{figure}_over_baseline", speedup, higher_is_better=True, unit="x"
@@ -381,6 +411,9 @@ def main() -> int:
                     if world_counts:
                         row["random-batch"] = random_batch_rate(env, max(world_counts), args.steps)
                         row["random-batch-worlds"] = max(world_counts)
+                        row["physics-batch"] = physics_batch_rate(
+                            env, max(world_counts), args.steps
+                        )
                     if args.ppo_steps:
                         row["ppo"] = ppo_rate(env, args.ppo_steps)
                         for count in world_counts:
@@ -397,7 +430,7 @@ def main() -> int:
         )
         learn_tasks = args.learn_tasks.split(",")
         learned = learned_scores(learn_tasks, args.learn, folder) if args.learn else []
-    arms = ["random", *(["random-batch"] if world_counts else [])]
+    arms = ["random", *(["random-batch", "physics-batch"] if world_counts else [])]
     if args.ppo_steps:
         arms += ["ppo", *(f"ppo-{count}" for count in world_counts)]
         arms += [f"ppo-batch-{count}" for count in world_counts]
@@ -406,7 +439,8 @@ def main() -> int:
         figures = " ".join(f"{row[arm]:>12,.0f}" for arm in arms)
         print(f"{row['task']:<14} {row['engine']:<9} {figures}")
     print(
-        "(control steps per CPU-second; random-batch: the largest batch; ppo-N: n_envs N; "
+        "(control steps per CPU-second; random-batch, physics-batch: the largest batch; "
+        "ppo-N: n_envs N; "
         "ppo-batch-N: the worker's own PPO, n_envs N)"
     )
     for task in tasks:

@@ -24,15 +24,19 @@ def test_the_bench_reports_each_engines_rate_and_their_ratio(tmp_path: Path) -> 
         if line.startswith("BENCH "):
             figure = json.loads(line.removeprefix("BENCH "))
             figures[figure["metric"]] = figure["value"]
+    arms = ("random", "ppo", "random-batch", "physics-batch", "ppo-2", "ppo-4")
+    arms += ("ppo-batch-2", "ppo-batch-4")
     for engine in ("pybullet", "mujoco"):
-        for arm in ("random", "ppo", "random-batch", "ppo-2", "ppo-4"):
+        for arm in arms:
             assert figures[f"stand-up.{engine}.{arm}"] > 0
-        # the goals of issue 59: the best batched PPO over the baseline, the learner's share
-        best = max(figures[f"stand-up.{engine}.ppo-{count}"] for count in (2, 4))
-        speedup = figures[f"stand-up.{engine}.batched_over_baseline"]
-        assert speedup == best / figures["stand-up.pybullet.ppo"]
-        share = figures[f"stand-up.{engine}.batched_learner_share"]
-        assert share == 1 - best / figures[f"stand-up.{engine}.random-batch"]
+        # the goals of issue 59, per batched learner (SB3's PPO on the batch, the lean
+        # ppo-batch): the best batched arm over the baseline, the learner's share
+        for learner, figure in (("ppo", "batched"), ("ppo-batch", "lean")):
+            best = max(figures[f"stand-up.{engine}.{learner}-{count}"] for count in (2, 4))
+            speedup = figures[f"stand-up.{engine}.{figure}_over_baseline"]
+            assert speedup == best / figures["stand-up.pybullet.ppo"]
+            share = figures[f"stand-up.{engine}.{figure}_learner_share"]
+            assert share == 1 - best / figures[f"stand-up.{engine}.random-batch"]
     for arm in ("random", "ppo"):
         ratio = figures[f"stand-up.mujoco.{arm}"] / figures[f"stand-up.pybullet.{arm}"]
         assert figures[f"stand-up.mujoco_over_pybullet.{arm}"] == ratio
@@ -43,4 +47,7 @@ def test_the_bench_reports_each_engines_rate_and_their_ratio(tmp_path: Path) -> 
     ]
     assert all(row["frame_skip"] == 12 and row["joints"] == 2 for row in rows)
     assert all(row["random-batch-worlds"] == 4 for row in rows)
-    assert "batched mujoco PPO" in done.stdout and "batched pybullet PPO" in done.stdout
+    for engine in ("mujoco", "pybullet"):
+        assert f"batched {engine} PPO" in done.stdout and f"lean {engine} PPO" in done.stdout
+    # each goal line says the arm's gradient updates per sample beside today's
+    assert "gradient updates per sample 0.1250 (today's 0.1562)" in done.stdout
