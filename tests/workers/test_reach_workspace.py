@@ -5,6 +5,8 @@ episode seed's, inside the ball; the fixed base cannot be the distal link."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from pydantic import ValidationError
@@ -76,3 +78,17 @@ def test_the_fixed_base_is_no_distal_link_and_targets_fit_the_episode(engine_env
         ReachWorkspaceOptions.model_validate({"targets": 9, "episode_steps": 8})
     with pytest.raises(ValidationError, match="targets"):
         ReachWorkspaceOptions.model_validate({"targets": 17})
+
+
+def test_the_score_is_the_success_at_each_shares_end_as_documented(engine_env) -> None:
+    method = (Path(__file__).resolve().parents[2] / "docs" / "method.md").read_text()
+    arm = engine_env("reach-workspace", "crossed_chain", "pybullet", targets=3, success_radius=2.0)
+    assert f'"{arm.score_text}"' in method.replace("\n  ", " ")
+    arm.reset(seed=2)
+    for t in range(arm.episode_steps):  # sweep, so the success changes along the way
+        arm.step(np.array([np.sin(t / 5), np.cos(t / 7)], dtype=np.float32))
+    metric = arm.record.metric
+    steps = arm.episode_steps
+    ends = [steps // 3 - 1, 2 * steps // 3 - 1, steps - 1]
+    assert arm.record.score() == pytest.approx(np.mean([metric[end] for end in ends]))
+    assert len(set(metric)) > 3  # the metric moved, so other steps would score otherwise

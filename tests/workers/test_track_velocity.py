@@ -7,6 +7,7 @@ docs/method.md says it is."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -82,3 +83,22 @@ def test_the_speed_commanded_is_observed_and_changes_on_schedule(engine_env) -> 
         observation, *_ = env.step(np.zeros(env.joint_count, dtype=np.float32))
         seen.append(float(observation[-3]))
     assert seen == pytest.approx([0.1] * 4 + [0.3] * 4)
+
+
+def test_the_score_is_the_mean_over_the_episodes_steps_as_documented(engine_env) -> None:
+    """docs/method.md quotes the rule the curve names, and the score computes it: an
+    episode ended early by max_height counts its missing steps as 0."""
+    method = (Path(__file__).resolve().parents[2] / "docs" / "method.md").read_text()
+    env = engine_env("track-velocity", ACROSS, "pybullet", episode_steps=24)
+    assert f'"{env.score_text}"' in method.replace("\n  ", " ")
+    score, _ = crawl(env)
+    assert score == pytest.approx(float(np.mean(env.record.metric)))
+    flung = engine_env("track-velocity", ACROSS, "pybullet", episode_steps=24, max_height=0.1)
+    flung.reset(seed=0)
+    for _ in range(24):
+        *_, terminated, _, _ = flung.step(np.ones(flung.joint_count, dtype=np.float32))
+        if terminated:
+            break
+    metric = flung.record.metric
+    assert terminated and len(metric) < 24
+    assert flung.record.score() == pytest.approx(sum(metric) / 24)
