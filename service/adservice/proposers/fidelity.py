@@ -98,6 +98,15 @@ def choose_level(deviations: FloatArray, history: FidelityHistory) -> int:
     return len(history.grid) - 1
 
 
+def final(history: FidelityHistory, n_issued: int, offset: int) -> bool:
+    """Whether the ask's proposal ``offset`` is among the study's last ``FINAL_SHARE`` of
+    trials (at least its last one), which train at the top fidelity."""
+    if history.remaining is None:
+        return False
+    total = history.remaining + n_issued
+    return history.remaining - offset <= max(1, math.ceil(FINAL_SHARE * total))
+
+
 def design_features(Z: np.ndarray, request: ProposalRequest) -> np.ndarray:
     """Model inputs ``[tree index, u]`` as the GP's design features: ``u`` alone for one
     tree, a one-hot tree index beside it for several."""
@@ -140,10 +149,14 @@ class FidelityProposer:
         info: list[dict[str, Any]] = []
         n_start = min(max(initial_count(request) - request.n_issued, 0), count)
         if n_start:
+            top = len(history.grid) - 1
             for offset, row in enumerate(initial_points(request, bounds, n_start)):
+                level = top if final(history, request.n_issued, offset) else 0
                 rows.append(row)
                 info.append(
-                    self._info(history, 0, "sobol-initial", sobol_index=request.n_issued + offset)
+                    self._info(
+                        history, level, "sobol-initial", sobol_index=request.n_issued + offset
+                    )
                 )
         if n_start < count:
             model_rows, model_info = self._model_batch(
@@ -182,7 +195,7 @@ class FidelityProposer:
         X, y = request.X[finite], request.y[finite]
         observed = history.observed[finite]
         if len(y) < 2 or np.ptp(y) == 0.0:
-            return self._fallback(request, history, bounds, q, "too few distinct values")
+            return self._fallback(request, history, bounds, started, q, "too few distinct values")
         # pending points, and this ask's start points, count as observed at the mean
         believed = np.vstack([request.pending, started]) if len(started) else request.pending
         believed_steps = np.concatenate([history.pending, np.full(len(started), history.grid[0])])
@@ -195,7 +208,7 @@ class FidelityProposer:
         try:
             fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
         except Exception as error:  # a fit that fails proposes from the start's sequence
-            return self._fallback(request, history, bounds, q, f"fit failed: {error}")
+            return self._fallback(request, history, bounds, started, q, f"fit failed: {error}")
         model.eval()
 
         def posterior(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -217,15 +230,13 @@ class FidelityProposer:
                 )
 
         condition(self._inputs(believed, believed_steps, request, bounds, history))
-        final = history.remaining is not None and history.remaining <= max(
-            1, math.ceil(FINAL_SHARE * (history.remaining + request.n_issued))
-        )
         rng = np.random.default_rng(derived_seed(request.seed, request.n_issued, 61))
         rows: list[np.ndarray] = []
         infos: list[dict[str, Any]] = []
         at_top = np.full(len(X), history.grid[-1])
         top_observed = self._inputs(X, at_top, request, bounds, history)
-        for _ in range(q):
+        for offset in range(len(started), len(started) + q):
+            at_end = final(history, request.n_issued, offset)
             best = float(np.max(posterior(top_observed)[0]))
             candidates = self._candidates(request, bounds, rng, X, posterior, history)
             tops = np.full(len(candidates), history.grid[-1])
@@ -243,13 +254,13 @@ class FidelityProposer:
             )
             _, deviations = posterior(grid_inputs)
             deviations = deviations / spread
-            level = len(history.grid) - 1 if final else choose_level(deviations, history)
+            level = len(history.grid) - 1 if at_end else choose_level(deviations, history)
             rows.append(design)
             infos.append(
                 self._info(
                     history,
                     level,
-                    "boca-final" if final else "boca",
+                    "boca-final" if at_end else "boca",
                     log_ei=round(float(score[chosen]), 4),
                     deviations=[round(float(d), 4) for d in deviations],
                     thresholds=[round(float(g), 4) for g in threshold(history)],
@@ -302,10 +313,16 @@ class FidelityProposer:
         request: ProposalRequest,
         history: FidelityHistory,
         bounds: np.ndarray,
+        started: np.ndarray,
         q: int,
         reason: str,
     ) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
-        """The study's Sobol sequence at the lowest fidelity while the model cannot rank."""
-        unit = sobol_points(request.dim, request.seed, request.n_issued, q)
+        """The study's Sobol sequence at the lowest fidelity (the top at its end) while
+        the model cannot rank."""
+        unit = sobol_points(request.dim, request.seed, request.n_issued + len(started), q)
         rows = list(scale_to_bounds(unit, bounds))
-        return rows, [self._info(history, 0, "sobol-fallback", reason=reason) for _ in rows]
+        top, first = len(history.grid) - 1, len(started)
+        levels = [top if final(history, request.n_issued, first + i) else 0 for i in range(q)]
+        return rows, [
+            self._info(history, level, "sobol-fallback", reason=reason) for level in levels
+        ]
