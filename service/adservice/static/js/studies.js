@@ -65,19 +65,20 @@ export class StudiesPage {
       .sort((a, b) => b.id - a.id)
       .map(
         (s) => `<tr>
-          <td><input type="checkbox" data-pick="${s.id}" aria-label="compare ${esc(s.name)}"
-            ${this.picked.has(s.id) ? 'checked' : ''}></td>
           <td><a href="#/studies/${s.id}">${esc(s.name)}</a> <span class="meta">#${s.id}</span>
             ${s.task ? `<span class="tag">${esc(s.task.name)}</span>` : ''}</td>
           <td>${badge(s.state)}${s.proposal_failures > 0 ? ' <span class="tag failing">proposals failing</span>' : ''}</td>
           <td class="progress-cell">${progressBar(s, 'small')}<span class="meta">${esc(countsText(s))}</span></td>
           <td class="num">${best(s)}</td>
           <td title="${esc(s.updated_at)}">${ago(s.updated_at)}</td>
+          <td><input type="checkbox" data-pick="${s.id}" aria-label="compare ${esc(s.name)}"
+            ${this.picked.has(s.id) ? 'checked' : ''}></td>
         </tr>`,
       )
       .join('');
     target.innerHTML = `<table class="studies">
-      <thead><tr><th title="compare">⇆</th><th>Study</th><th>State</th><th>Progress</th><th>Best</th><th>Last activity</th></tr></thead>
+      <thead><tr><th>Study</th><th>State</th><th>Progress</th><th>Best</th><th>Last activity</th>
+        <th title="tick two or more, then Compare selected">Compare</th></tr></thead>
       <tbody>${rows}</tbody></table>`;
   }
 
