@@ -159,12 +159,12 @@ class ReachWorkspaceOptions(DiagonalGestureOptions):
     radius: float = Field(
         default=0.2, gt=0.0, le=5.0, description="The workspace ball's radius (m)"
     )
-    success_radius: float = Field(
+    tolerance: float = Field(
         default=0.1,
         gt=0.0,
         le=5.0,
-        description="A target's success is 1 - d / success_radius, d the distal tip's "
-        "distance from it (m), and 0 at or past this distance",
+        description="A target's success is exp(-d / tolerance), d the distal tip's "
+        "distance from it (m): 1 on it, 0.37 at this distance, 0.05 at three times it",
     )
 
     @model_validator(mode="after")
@@ -181,8 +181,8 @@ REACH_WORKSPACE = TaskSpec(
     name="reach-workspace",
     options=ReachWorkspaceOptions,
     description="An arm on a base link fixed upright reaches targets drawn in a ball, one "
-    "after another: the mean over the targets of 1 - d / success_radius (at least 0), d "
-    "its distal tip's distance from each at the end of that target's share of the episode.",
+    "after another: the mean over the targets of exp(-d / tolerance), d its distal "
+    "tip's distance from each at the end of that target's share of the episode.",
     factory="adworker.tasks.reach_workspace:ReachWorkspace.make_env",
     templates=True,
     fixed_base=True,

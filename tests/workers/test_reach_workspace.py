@@ -1,6 +1,8 @@
 """reach-workspace (issue 60): a fixed-base arm reaches targets drawn per episode from a
 ball, on PyBullet and MuJoCo. An arm that holds still, or folds its distal link away,
-scores 0; one that holds its tip on the targets scores near 1; the targets are the
+scores next to nothing; one that holds its tip on the targets scores near 1; the
+``fast`` learner finds more of the workspace with an arm that points anywhere than with
+one confined to a plane; the targets are the
 episode seed's, inside the ball; the fixed base cannot be the distal link."""
 
 from __future__ import annotations
@@ -34,9 +36,9 @@ def test_holding_still_or_folding_scores_nothing_and_holding_the_targets_scores(
     engine_env, engine: str
 ) -> None:
     arm = engine_env("reach-workspace", "crossed_chain", engine, episode_steps=16)
-    assert hold(arm, [0.0, 0.0]) == 0.0  # straight up, far above the workspace
+    assert hold(arm, [0.0, 0.0]) < 0.01  # straight up, far above the workspace
     assert arm.task_metrics()["distance"] > 0.3
-    assert hold(arm, [1.0, -1.0]) == 0.0  # the distal link folded down and away
+    assert hold(arm, [1.0, -1.0]) < 0.01  # the distal link folded down and away
     # where the arm's tip rests in POSE, a workspace of a millimetre: it holds its tip
     # on every target
     hold(arm, POSE)
@@ -53,7 +55,7 @@ def test_holding_still_or_folding_scores_nothing_and_holding_the_targets_scores(
     assert hold(on, POSE) > 0.8
     assert on.task_metrics()["distance"] < 0.02
     # success is read at the end of each target's share: passing over it does not count
-    assert hold(on, [0.0, 0.0]) == 0.0
+    assert hold(on, [0.0, 0.0]) < 0.01
 
 
 def test_targets_are_the_seeds_and_inside_the_ball(engine_env) -> None:
@@ -82,7 +84,7 @@ def test_the_fixed_base_is_no_distal_link_and_targets_fit_the_episode(engine_env
 
 def test_the_score_is_the_success_at_each_shares_end_as_documented(engine_env) -> None:
     method = (Path(__file__).resolve().parents[2] / "docs" / "method.md").read_text()
-    arm = engine_env("reach-workspace", "crossed_chain", "pybullet", targets=3, success_radius=2.0)
+    arm = engine_env("reach-workspace", "crossed_chain", "pybullet", targets=3, tolerance=2.0)
     assert f'"{arm.score_text}"' in method.replace("\n  ", " ")
     arm.reset(seed=2)
     for t in range(arm.episode_steps):  # sweep, so the success changes along the way
@@ -92,3 +94,12 @@ def test_the_score_is_the_success_at_each_shares_end_as_documented(engine_env) -
     ends = [steps // 3 - 1, 2 * steps // 3 - 1, steps - 1]
     assert arm.record.score() == pytest.approx(np.mean([metric[end] for end in ends]))
     assert len(set(metric)) > 3  # the metric moved, so other steps would score otherwise
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_fast_reaches_more_with_an_arm_that_points_anywhere(engine_env, engine: str) -> None:
+    scores = {}
+    for design in ("crossed_chain", "parallel_chain"):
+        arm = engine_env("reach-workspace", design, engine)
+        scores[design] = test_engines.fast_score(arm)
+    assert scores["crossed_chain"] > 2 * scores["parallel_chain"] > 0.0, scores

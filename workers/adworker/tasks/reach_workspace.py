@@ -8,16 +8,19 @@ target in turn; the policy observes the current target and the vector from the d
 tip to it. The distal tip is the far end of ``distal_link`` (its shape centre plus half
 its length along its long axis; by default diagonal-gesture's choice of link).
 
-Success at a target: max(0, 1 - d / ``success_radius``), d the tip's distance from it
-(m). Metric per step: the success at the current target; reward: the metric. Score:
-the mean over the targets of the success at the last step of each target's share (the
-pose it is left holding, not a pass on the way). Each evaluation episode reports
+Success at a target: exp(-d / ``tolerance``), d the tip's distance from it (m): 1 on
+it, 0.37 a tolerance away, 0.05 at three, never quite 0, so a search over poses (the
+``fast`` learner's) is led towards the workspace from anywhere. Metric per step: the
+success at the current target; reward: the metric. Score: the mean over the targets of
+the success at the last step of each target's share (the pose it is left holding, not
+a pass on the way). Each evaluation episode reports
 ``task.distance``: the mean of those final distances (m). A distal link no joint moves
 (the fixed base itself) is refused when the env is built.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
@@ -96,7 +99,7 @@ class ReachWorkspace(Task[ReachWorkspaceOptions]):
         if self._step in self.ends:
             self._distances.append(distance)
         self._step += 1
-        return max(0.0, 1.0 - distance / self.options.success_radius)
+        return math.exp(-distance / self.options.tolerance)
 
     def score(self, metric: list[float]) -> float:
         return sum(metric[end] for end in self.ends if end < len(metric)) / len(self.ends)
