@@ -43,7 +43,8 @@ from adservice.proposers.base import (
     model_inputs,
 )
 from adservice.proposers.initial import initial_count, initial_points
-from adservice.proposers.qei import QEIOptions, _canonical
+from adservice.proposers.qei import _canonical
+from adservice.proposers.qei_shared import QEIOptions, limit_threads
 from adservice.proposers.simple import derived_seed, scale_to_bounds, sobol_points
 
 THRESHOLD = 1.0
@@ -190,6 +191,7 @@ class FidelityProposer:
         from botorch.models.transforms.outcome import Standardize
         from gpytorch.mlls import ExactMarginalLogLikelihood
 
+        limit_threads(torch)  # one intra-op thread, as qei: small matrices on shared cores
         started_at = time.process_time()
         finite = np.isfinite(request.y)
         X, y = request.X[finite], request.y[finite]
