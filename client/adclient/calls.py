@@ -33,6 +33,7 @@ from adclient.schemas import (
     HeartbeatResponse,
     Job,
     LearnerInfo,
+    Note,
     Replay,
     SharedUpdate,
     SharedVersion,
@@ -117,6 +118,36 @@ class ServerCalls(Transport):
             idempotent=True,
         ).json()
         return Study.model_validate(data)
+
+    # -- notes -----------------------------------------------------------------------
+
+    def study_note(self, study_id: int) -> Note:
+        """The study's note (empty ``text`` where none was written)."""
+        return Note.model_validate(self._get_json(f"{API}/studies/{int(study_id)}/note"))
+
+    def set_study_note(self, study_id: int, text: str) -> Note:
+        """Replace the study's note (its owner or an admin; empty text removes it)."""
+        path = f"{API}/studies/{int(study_id)}/note"
+        data = self.request("PUT", path, json_body={"text": text}, idempotent=True).json()
+        return Note.model_validate(data)
+
+    def trial_note(self, trial: TrialRef) -> Note:
+        """The trial's note (empty ``text`` where none was written)."""
+        return Note.model_validate(self._get_json(f"{API}/trials/{trial_id_of(trial)}/note"))
+
+    def set_trial_note(self, trial: TrialRef, text: str) -> Note:
+        """Replace the trial's note (its study's owner or an admin; empty text removes it)."""
+        path = f"{API}/trials/{trial_id_of(trial)}/note"
+        data = self.request("PUT", path, json_body={"text": text}, idempotent=True).json()
+        return Note.model_validate(data)
+
+    def trial_by_number(self, study_id: int, number: int) -> Trial | None:
+        """Trial ``number`` of the study (as the dashboard and ``trials`` number them), or
+        None when it has no such trial."""
+        found = self._get_json(
+            f"{API}/studies/{int(study_id)}/trials", params={"numbers": int(number), "limit": 1}
+        )
+        return Trial.model_validate(found[0]) if found else None
 
     def set_trial_user_attrs(
         self, trial: TrialRef, attrs: Mapping[str, Any], *, worker_id: str | None = None

@@ -13,6 +13,7 @@ import pytest
 
 from adclient.schemas import MAX_NOTE_CHARS
 from adclient.testing.servers import ServerProcess, make_token
+from adclient.testing.workers import run_adclient
 from tests.conftest import DATABASES
 
 pytestmark = [pytest.mark.e2e]
@@ -97,3 +98,41 @@ def test_only_the_owner_writes_notes_everyone_reads_them_bounded_and_as_sent(
     alice.delete(f"/api/v1/studies/{sid}").raise_for_status()
     assert reader.get(f"/api/v1/trials/{trial['id']}/note").status_code == 404
     assert reader.get(f"/api/v1/studies/{sid}/note").status_code == 404
+
+
+def test_adclient_note_reads_and_writes_a_study_and_a_trials_note(secured: ServerProcess) -> None:
+    """``adclient note STUDY [--trial N] [TEXT]`` as a user runs it: the owner writes, the
+    note prints as it was written (markup as text), another user is refused (exit 4)."""
+    alice_token = make_token(secured, "user", name="carol")
+    alice = httpx.Client(
+        base_url=secured.url,
+        headers={"Authorization": f"Bearer {alice_token}", "X-Activedesign-Client": "test"},
+        timeout=30,
+        verify=False,
+    )
+    sid = alice.post("/api/v1/studies", json=ASKED).raise_for_status().json()["id"]
+    alice.post(f"/api/v1/studies/{sid}/ask", json={"count": 2}).raise_for_status()
+    as_carol = ("--token", alice_token)
+
+    empty = run_adclient(secured, *as_carol, "note", str(sid))
+    assert empty.returncode == 0 and empty.stdout.strip() == f"study {sid} has no note"
+    text = "[bold]two[/bold] lines\nhere"
+    saved = run_adclient(secured, *as_carol, "note", str(sid), text)
+    assert saved.returncode == 0, saved.stderr
+    assert saved.stdout.strip() == f"note of study {sid} saved: {len(text)} characters"
+    shown = run_adclient(secured, *as_carol, "note", str(sid))
+    assert shown.stdout == "[bold]two[/bold] lines\nhere\n"
+    run_adclient(secured, *as_carol, "note", str(sid), "--trial", "1", "the good one")
+    trial = alice.get(f"/api/v1/studies/{sid}/trials", params={"numbers": "1"}).json()[0]
+    assert alice.get(f"/api/v1/trials/{trial['id']}/note").json()["text"] == "the good one"
+    assert run_adclient(secured, *as_carol, "note", str(sid), "--trial", "1").stdout == (
+        "the good one\n"
+    )
+    missing = run_adclient(secured, *as_carol, "note", str(sid), "--trial", "7")
+    assert missing.returncode == 1 and f"study {sid} has no trial 7" in missing.stderr
+
+    other = ("--token", make_token(secured, "user", name="dave"))
+    refused = run_adclient(secured, *other, "note", str(sid), "mine")
+    assert refused.returncode == 4, refused.stderr  # forbidden: the README's exit codes
+    assert "only its owner or an admin may change it" in refused.stderr
+    assert run_adclient(secured, *other, "note", str(sid)).stdout.startswith("[bold]two")

@@ -7,7 +7,7 @@ rich tables, or JSON with ``--json``. Errors end with one line on stderr and exi
 status 1 (2 for bad usage), never a traceback.
 
 The app, its options and what the commands share are in ``common``; the commands in
-``studies`` (submit, studies, status, stop), ``workers``, ``trials`` (trials, best, pareto,
+``studies`` (submit, studies, status, stop, note), ``workers``, ``trials`` (trials, best, pareto,
 ask, tell, enqueue), ``data`` (import, export, delete), ``files`` (a trial's files, which
 ``best --save`` writes too) and ``replay`` (a trial's episode as a GIF); what ``submit``
 reads in ``study_file``, and the closest valid name for an unknown field in ``suggest``.

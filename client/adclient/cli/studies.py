@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -343,3 +344,45 @@ def stop(
         out.print(f'{before.n_queued} queued trials ended as failed ("study stopped")')
     if info.n_running:
         out.print(f"{info.n_running} running trials may still be told")
+
+
+@app.command()
+@friendly
+def note(
+    ctx: typer.Context,
+    study_id: int = typer.Argument(..., metavar="STUDY"),
+    text: str | None = typer.Argument(
+        None, metavar="[TEXT|-]", help="The new text ('-': read from stdin; '': remove it)."
+    ),
+    trial: int | None = typer.Option(
+        None, "--trial", metavar="N", help="Trial number N's note, not the study's."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Show a study's note, or trial N's; with TEXT, replace it (its owner or an admin).
+
+    The note is the dashboard's: free text, at most 10000 characters."""
+    if text == "-":
+        text = sys.stdin.read()
+    subject = f"study {study_id}" if trial is None else f"trial {trial} of study {study_id}"
+    with get_settings(ctx).client() as client, study_scope(study_id):
+        found = None if trial is None else client.trial_by_number(study_id, trial)
+        if trial is not None and found is None:
+            fail(f"study {study_id} has no trial {trial}")
+        if text is None:
+            saved = client.study_note(study_id) if found is None else client.trial_note(found)
+        elif found is None:
+            saved = client.set_study_note(study_id, text)
+        else:
+            saved = client.set_trial_note(found, text)
+    if as_json:
+        print_json(saved)
+        return
+    if text is not None:
+        said = f"{len(saved.text)} characters" if saved.text else "removed"
+        stdout_console().print(f"note of {escape(subject)} saved: {said}")
+        return
+    if not saved.text:
+        stdout_console().print(f"{escape(subject)} has no note")
+        return
+    sys.stdout.write(saved.text if saved.text.endswith("\n") else f"{saved.text}\n")
