@@ -12,7 +12,10 @@ motor quantities, so a task is written once against this module's classes and sc
 same quantities on either engine.
 
 What does not depend on the engine lives here: the mapping of an action onto the joints'
-targets, the robot's own observation, link lookup and the camera's framing.
+targets (position control) or torques (torque control), the motors' power as a fraction
+of their peak, a payload's starting place, the robot's own observation, link lookup and
+the camera's framing. Each engine randomises an episode's masses, friction and motor
+strength (:meth:`EngineRobot.randomise`) and carries a payload the same way.
 """
 
 from __future__ import annotations

@@ -23,6 +23,11 @@ The world is the URDF the PyBullet path loads (a design's, or a template's own),
   the joint to the setpoint. Under a steady
   load it holds within that spring's give where PyBullet's holds exactly (stand-up's
   arch bent to 1.41 rad holds at 1.39);
+- under torque control (``control: torque``), a motor actuator on every driven joint
+  instead, its force the action times the joint's effort (capped at the effort, as this
+  episode's motor strength scales it);
+- a payload (``PayloadSpec``), where a task asks for one: a free box body after the
+  robot's, touching the links and the ground;
 - the same time step, ``frame_skip`` and gravity; MuJoCo's ``implicitfast`` integrator
   (the servo's damping integrated implicitly, stable at a 120 Hz step).
 

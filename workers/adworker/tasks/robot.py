@@ -14,7 +14,12 @@ driven by position control: the action, in [-1, 1] per joint, maps linearly onto
 joint's [lower, upper] range as its target (a continuous joint's: -pi to pi). The engine's motor
 then applies whatever torque, up to the joint's effort, brings the joint to its target
 (capped at its velocity); a :class:`MotorMeter` reads that applied torque after every
-physics step.
+physics step. Under torque control (``control: torque``) the position motors are
+disabled and each joint takes the action times its effort as its torque, applied before
+every physics step (PyBullet applies a commanded torque for one step only).
+
+A payload (``PayloadSpec``) is a box body of its own, set on its link after the robot
+is placed and saved with it, so every episode starts with it resting there.
 """
 
 from __future__ import annotations
