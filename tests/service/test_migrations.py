@@ -260,3 +260,37 @@ def test_0014_drops_the_study_counters_and_going_down_counts_the_trials(
         ).one()
     engine.dispose()
     assert tuple(counts) == (3, 1, 1, 6)
+
+
+def test_0016_adds_notes_that_go_with_their_study_and_trial_and_goes_back_down(
+    empty_database_url: str,
+) -> None:
+    """Stored studies have no notes from 0016 on; a note names its study, and a trial's
+    its trial, each going with it (ON DELETE CASCADE); going back down drops the notes and
+    keeps the studies and trials."""
+    from alembic import command
+
+    config = _alembic(empty_database_url)
+    command.upgrade(config, "0013")
+    engine = sa.create_engine(empty_database_url)
+    with engine.begin() as connection:
+        _old_study(connection, ["complete"])
+    command.upgrade(config, "head")
+    with engine.begin() as connection:
+        assert connection.execute(sa.text("SELECT count(*) FROM notes")).scalar() == 0
+        connection.execute(
+            sa.text(
+                "INSERT INTO notes (study_id, trial_id, text, updated_at) SELECT study_id, id,"
+                " 'ran hot', '2024-01-02 00:00:00' FROM trials"
+            )
+        )
+        keys = sa.inspect(connection).get_foreign_keys("notes")
+    assert sorted((key["referred_table"], key["options"].get("ondelete")) for key in keys) == [
+        ("studies", "CASCADE"),
+        ("trials", "CASCADE"),
+    ]
+    command.downgrade(config, "0015")
+    with engine.connect() as connection:
+        assert "notes" not in sa.inspect(connection).get_table_names()
+        assert connection.execute(sa.text("SELECT count(*) FROM trials")).scalar() == 1
+    engine.dispose()
