@@ -100,6 +100,8 @@ def test_only_the_owner_writes_notes_everyone_reads_them_bounded_and_as_sent(
     assert reader.get(f"/api/v1/studies/{sid}/note").status_code == 404
 
 
+# The CLI reads what the API answers: on SQLite alone (the API test above runs on both).
+@pytest.mark.parametrize("secured", ["sqlite"], indirect=True)
 def test_adclient_note_reads_and_writes_a_study_and_a_trials_note(secured: ServerProcess) -> None:
     """``adclient note STUDY [--trial N] [TEXT]`` as a user runs it: the owner writes, the
     note prints as it was written (markup as text), another user is refused (exit 4)."""
