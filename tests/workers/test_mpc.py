@@ -68,6 +68,69 @@ def test_a_design_that_cannot_stand_scores_its_radius_under_mpc_as_under_fast(
     assert planned < radius + 0.01, (planned, fast)
 
 
+SPINNER = {
+    "structure_index": 5,
+    "root": "a",
+    "links": [
+        {"name": name, "shape": "cylinder", "length": length, "radius": length / 10, "mass": mass}
+        for name, length, mass in (
+            ("a", 0.4, 1.0),
+            ("b", 0.4, 1.0),
+            ("c", 0.35, 0.6),
+            ("d", 0.35, 0.6),
+            ("e", 0.35, 0.6),
+        )
+    ],
+    "joints": [
+        {
+            "name": f"{parent}_{child}",
+            "parent": parent,
+            "child": child,
+            "axis": [
+                math.sin(theta) * math.cos(phi),
+                math.sin(theta) * math.sin(phi),
+                math.cos(theta),
+            ],
+            "axis_theta": theta,
+            "axis_phi": phi,
+            "position": 1.0,
+            "lower": -math.pi / 2,
+            "upper": math.pi / 2,
+            "effort": 20.0,
+            "velocity": 5.0,
+        }
+        for parent, child, theta, phi in (
+            ("a", "b", 1.3675498955141112, 0.3035040974805909),
+            ("b", "c", 1.0282714313205616, 0.6919450695110478),
+            ("c", "d", 1.7341069018972217, 1.146516249942931),
+            ("d", "e", 1.3205670485778331, 1.6560256269361266),
+        )
+    ],
+}
+"""A chain of five of examples/multi-structure.yaml's space (bench/engines.py's random
+designs of lift-highest, the fourth): with its axes askew, a planner searching hard
+finds motions in which MuJoCo's soft contacts give the body energy its motors never put
+in, spinning it up until it flies off (its mean top 1,031 m over three episodes, before
+the planner ranked such rollouts last)."""
+
+
+def test_a_design_the_planner_could_fling_off_scores_within_its_reach(engine_env) -> None:
+    from adclient.designs import Design
+
+    design = Design.model_validate(SPINNER)
+    env = engine_env("lift-highest", design, "mujoco")
+    learner = MPCLearner(MPCOptions())
+    (score,) = mpc_scores_of(learner, env, [10_000])
+    reach = sum(link.length + 2 * link.radius for link in design.links)
+    assert 0.0 < score <= reach, score  # no higher than the whole chain standing on end
+    assert learner.planner is not None and learner.planner.unphysical > 0
+
+
+def mpc_scores_of(learner: MPCLearner, env: Any, seeds: list[int]) -> list[float]:
+    trained = learner.train(env, steps=0, seed=0)
+    return [episode.score for episode in evaluate_policy(env, trained.policy, seeds)]
+
+
 def test_planning_leaves_the_world_and_the_task_as_they_were(engine_env) -> None:
     """The rollouts run on a copy: the episode's state, the servos' setpoints and the
     task's own state (walk-forward's distance so far) are untouched by a plan."""
