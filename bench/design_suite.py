@@ -73,6 +73,19 @@ file, reported beside the runs of ``off`` (design_suite-i37-20-d14fcf2.jsonl rel
 most 16), so the covering start gives each tree K random designs (issue 37's two per
 tree: ``--label qei=qei-two --starts-per-tree 2``).
 
+Issue 61 added the floor traps (``adclient.testing.tree_traps``: floor-8, floor-16,
+needle-floor-32, needle-floor-64), where a tree's first random design says almost
+nothing, and ran the default (``floor_looks``) beside ``floor_looks: false`` (the
+default before it), each into its own file, then reported them with the recorded
+GPSampler, TPE and random-search runs and the traps' own (bench/RESULTS.md, "Floor
+looks"):
+
+    .venv/bin/python bench/design_suite.py --seeds 20 --methods qei --no-write \
+        --results bench/results/design_suite-i61-floor.jsonl
+    .venv/bin/python bench/design_suite.py --seeds 20 --methods qei --label qei=qei-today \
+        --proposer-options '{"floor_looks": false}' --no-write \
+        --results bench/results/design_suite-i61-today.jsonl
+
 ``--seeds 2 --no-write --results /tmp/x.jsonl`` while developing.
 """
 
@@ -96,10 +109,25 @@ sys.path.insert(0, str(ROOT))
 from adclient.decode import build_design, spec_layout  # noqa: E402
 from adclient.design import DesignSpace  # noqa: E402
 from adclient.designs import Design  # noqa: E402
-from adclient.testing.design_objectives import EIGHT_TREES, OBJECTIVES, Objective  # noqa: E402
+from adclient.testing.design_objectives import (  # noqa: E402
+    EIGHT_TREES,
+    LIMBS5_STRUCTURES,
+    OBJECTIVES,
+    Objective,
+)
 from adclient.testing.servers import ServerProcess  # noqa: E402
+from adclient.testing.tree_traps import FLOOR_TRAPS  # noqa: E402
 from adservice.proposers.initial import COVERED_CHOICES  # noqa: E402
 from bench.proposer_results import write_subsection  # noqa: E402
+
+SUITE = {
+    **OBJECTIVES,
+    **{name: Objective(name, space, score) for name, (space, score) in FLOOR_TRAPS.items()},
+}
+"""The suite's objectives: design_objectives' and (issue 61) the floor traps."""
+SUITE_EIGHT_TREES = EIGHT_TREES | {
+    name for name, (space, _) in FLOOR_TRAPS.items() if space["structures"] == LIMBS5_STRUCTURES
+}
 
 RESULTS_PATH = ROOT / "bench" / "results" / "design_suite-i26.jsonl"
 """Issue 26's runs (the code before it: ``design_suite.jsonl``, 10 seeds, 4 objectives)."""
@@ -250,7 +278,7 @@ def report(records: list[dict], subject: str = "qei") -> str:
         + f" | median vs GP | q1 vs random | {subject} worst seed (of base) | every seed |",
         "| --- | " + " | ".join("---" for _ in methods) + " | --- | --- | --- | --- |",
     ]
-    for name in OBJECTIVES:
+    for name in SUITE:
         rows = {
             m: [r for r in records if r["objective"] == name and r["method"] == m] for m in methods
         }
@@ -297,7 +325,7 @@ def report(records: list[dict], subject: str = "qei") -> str:
             [
                 s
                 for r in records
-                if r["method"] == m and r["objective"] in EIGHT_TREES
+                if r["method"] == m and r["objective"] in SUITE_EIGHT_TREES
                 for s in r["ask_seconds"][BUDGET - 3 :]
             ]
         )
@@ -319,7 +347,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--objectives", nargs="+", default=list(OBJECTIVES))
+    parser.add_argument("--objectives", nargs="+", default=list(SUITE))
     parser.add_argument("--methods", nargs="+", default=DEFAULT_METHODS)
     parser.add_argument("--results", type=Path, default=RESULTS_PATH, help="JSON lines, resumed")
     parser.add_argument("--no-write", action="store_true")
@@ -371,7 +399,7 @@ def main() -> int:
             try:
                 with httpx.Client(base_url=server.url, timeout=300) as http:
                     for number, (name, method, seed) in enumerate(todo, start=1):
-                        objective = OBJECTIVES[name]
+                        objective = SUITE[name]
                         started = time.perf_counter()
                         if method in SERVICE_METHODS:
                             result = run_service(

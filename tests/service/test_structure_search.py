@@ -25,10 +25,17 @@ from adclient.decode import decode
 from adclient.design import DesignSpace
 from adclient.designs import Design
 from adclient.testing.design_objectives import OBJECTIVES, limbs5_space, spec_dominated
+from adclient.testing.tree_traps import FLOOR_TRAPS, OTHERS_CEILING
 from adservice.proposers import get_proposer
 from adservice.proposers.base import ProposalRequest, empty_history, model_inputs, search_vectors
 from adservice.proposers.gpfit import fit_outcome
-from adservice.proposers.initial import LOOK_CHANCE, LOOK_DESIGNS, structure_order, thompson_turn
+from adservice.proposers.initial import (
+    LOOK_CHANCE,
+    LOOK_DESIGNS,
+    floor_trees,
+    structure_order,
+    thompson_turn,
+)
 from adservice.proposers.posterior import Posterior
 from adservice.proposers.qei_shared import QEIOptions
 from adservice.representation import build_representation, search_structure
@@ -109,9 +116,11 @@ def scored_study(
     evaluations: int,
     seed: int,
     options: dict[str, Any] | None = None,
+    until: Callable[[int, float], bool] | None = None,
 ) -> tuple[list[int], list[float], list[str]]:
     """The trees a qei study of ``evaluations`` asks proposes, in order, their scores
-    and each ask's method."""
+    and each ask's method; ``until(tree, score)``: stop after the first design for which
+    it holds."""
     representation = build_representation(space)
     search = search_structure(space, representation)
     bounds = np.asarray(representation.bounds, dtype=np.float64)
@@ -128,6 +137,8 @@ def scored_study(
         y.append(score(design))
         trees.append(design.structure_index)
         methods.append(proposal.info[0]["method"])
+        if until is not None and until(trees[-1], y[-1]):
+            break
     return trees, y, methods
 
 
@@ -346,14 +357,17 @@ def test_the_default_goes_back_to_trees_whose_first_designs_were_poor() -> None:
 def test_thompson_looks_end_after_two_per_tree() -> None:
     """Long studies where other trees keep winning draws (unused-specs: the four e
     trees are alike, so each may beat the incumbent's): no tree gets more than two
-    looks, nor a look once it has three designs, and none goes to the incumbent's tree.
-    How many looks one seed takes depends on its path (floating point differs between
-    machines), so the rules are checked on every look of three seeds, which look at
-    least three times together."""
+    looks (Thompson and floor looks together), nor a look once it has three designs,
+    and none goes to the incumbent's tree. How many looks one seed takes depends on
+    its path (floating point differs between machines: with Thompson looks alone a
+    fresh clone on another CPU took 2 where this one took 3), so the rules are checked
+    on every look of three seeds; floor looks go to trees whose start design scored on
+    the floor, which the start alone decides, so the three seeds look at least three
+    times together on any machine."""
     looks = 0
     for seed in range(3):
         trees, y, methods = suite_study("unused-specs", seed, 60, {})
-        looked = [k for k, method in enumerate(methods) if method == "thompson"]
+        looked = [k for k, method in enumerate(methods) if method in ("thompson", "floor-look")]
         looks += len(looked)
         per_tree = np.bincount([trees[k] for k in looked], minlength=8)
         assert per_tree.max() <= LOOK_DESIGNS, (seed, per_tree)
@@ -484,3 +498,63 @@ def test_a_look_inside_spec_constraints_is_drawn_inside_not_moved_onto_their_edg
     assert polytope.holds(vectors).all()
     inside = polytope.slack(vectors).max(axis=1) < -1e-6
     assert inside.sum() >= 15, polytope.slack(vectors)
+
+
+def floor_study(
+    name: str, seed: int, options: dict[str, Any], until_found: bool = True
+) -> tuple[list[int], list[float], list[str]]:
+    """A study of 30 asks of the floor trap ``name`` as bench/design_suite.py asks it;
+    ``until_found``: it stops at the first design of the best tree above every other
+    tree's ceiling."""
+    space, score = FLOOR_TRAPS[name]
+
+    def found(tree: int, value: float) -> bool:
+        return until_found and tree == score.best and value > OTHERS_CEILING
+
+    return scored_study(
+        DesignSpace.model_validate(space),
+        score,
+        30,
+        seed,
+        {"raw_samples": 2048, **options},
+        until=found,
+    )
+
+
+def test_the_default_finds_a_best_tree_whose_start_design_scored_on_the_floor() -> None:
+    """Issue 61's seeded trap (``floor-8``): the best tree's optimum is a plateau that a
+    random design of it misses more often than not, and every other tree tops out at
+    0.3 on a broad plateau. On seeds 0 to 13, the covering start (Sobol, the same on
+    any machine) puts the best tree's one design on the start's floor on seeds 1, 3, 6
+    and 13. Before floor looks every one of them refined a wrong tree for all 22 model
+    asks (the GP's output scale, learned from the start's low scores, left the best
+    tree no posterior draw above the incumbent: no Thompson look went to it); with
+    them, at least three of the four reach a design of the best tree above every other
+    tree's ceiling within 30 evaluations (all four here, at asks 10 to 14), and with
+    ``floor_looks: false`` the first does not."""
+    space, score = FLOOR_TRAPS["floor-8"]
+    parsed = DesignSpace.model_validate(space)
+    representation = build_representation(parsed)
+    search = search_structure(parsed, representation)
+    bounds = np.asarray(representation.bounds, dtype=np.float64)
+    on_floor = []
+    for seed in range(14):
+        start = get_proposer("qei").propose(
+            request(search, bounds, np.zeros(0), np.zeros(0), seed=seed, count=8)
+        )
+        designs = [decode(parsed, representation, v) for v in start.candidates]
+        trees = np.array([design.structure_index for design in designs])
+        floor = floor_trees(trees, np.array([score(d) for d in designs]), 8, 8)
+        if floor[score.best]:
+            on_floor.append(seed)
+    assert on_floor == [1, 3, 6, 13]
+    found = 0
+    for seed in on_floor:
+        trees, y, methods = floor_study("floor-8", seed, {})
+        assert trees[:8].count(score.best) == 1
+        found += trees[-1] == score.best and y[-1] > OTHERS_CEILING
+    assert found >= 3, found
+    for seed in on_floor[:1]:
+        trees, y, methods = floor_study("floor-8", seed, {"floor_looks": False})
+        assert "floor-look" not in methods
+        assert max(y) <= OTHERS_CEILING, (seed, trees, y)

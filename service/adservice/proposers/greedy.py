@@ -3,7 +3,9 @@ objectives or constraints in ``multiobjective``): each step maximises its acquis
 over the mixed domain (``acquisition.maximise``) with the previous steps' candidates
 pending. With ``second_looks: thompson`` (the default) a step that is a look turn
 (``initial.thompson_turn``) whose posterior draw favours another tree than the
-incumbent's (``looks.drawn_tree``) is a random design of that tree; with ``judged`` or
+incumbent's (``looks.drawn_tree``) is a random design of that tree, and one whose draw
+favours the incumbent's tree, with ``floor_looks``, a random design of a tree whose one
+design scored on the start's floor (``initial.floor_trees``); with ``judged`` or
 ``always`` a step that is a second look (``initial.second_look``) maximises the
 acquisition over the structures observed once: with ``judged`` over those the tree
 judgement (``looks.tree_chances``) gives a chance of beating the incumbent, with
@@ -28,6 +30,7 @@ from adservice.proposers.base import (
 from adservice.proposers.initial import (
     LOOK_CHANCE,
     LOOK_DESIGNS,
+    floor_trees,
     initial_count,
     second_look,
     thompson_turn,
@@ -99,6 +102,9 @@ class Greedy:
     """A look chooses among the trees the judgement passes (``second_looks: judged``)."""
     thompson: bool = False
     """Looks are Thompson looks (``second_looks: thompson``)."""
+    floor: np.ndarray | None = None
+    """Per structure, whether its designs all scored on the start's floor
+    (``initial.floor_trees``; ``floor_looks``); None: no floor looks."""
 
     @classmethod
     def of(
@@ -135,7 +141,7 @@ class Greedy:
             spec_width=search.spec_high - search.spec_low if search is not None else None,
         )
         pending_Z = model_inputs(X_pending, bounds, search) if len(X_pending) else Z[:0]
-        counts = None
+        counts = floor = None
         if options.second_looks != "off" and search is not None and search.n_structures > 1:
             # every trial the study has, not only those the model trains on: observed
             # (whatever their values), failed (the older ones are not pending points),
@@ -144,6 +150,16 @@ class Greedy:
             older = failed[: max(0, len(failed) - MAX_FAILED_AS_PENDING)]
             trees = [design_trees(part, search) for part in (request.X, older, X_pending)]
             counts = np.bincount(np.concatenate(trees), minlength=search.n_structures)
+            if options.second_looks == "thompson" and options.floor_looks:
+                y = np.asarray(request.y, dtype=np.float64).reshape(-1)
+                X = np.asarray(request.X, dtype=np.float64).reshape(len(y), -1)
+                usable = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
+                floor = floor_trees(
+                    design_trees(X[usable], search),
+                    y[usable],
+                    initial_count(request),
+                    search.n_structures,
+                )
         return cls(
             domain=domain,
             raw_count=options.raw_samples or max(default_raw, num_restarts),
@@ -159,6 +175,7 @@ class Greedy:
             if request.spec_polytope is not None
             else None,
             structure_counts=counts,
+            floor=floor,
             end_number=request.n_issued + request.count,
             n_start=initial_count(request),
             judged=options.second_looks == "judged",
@@ -198,10 +215,14 @@ class Greedy:
                     counts[round(float(z[0]))] += 1
                 number = self.end_number - q + step
                 if self.thompson:
+                    method = "thompson"
                     look = self._thompson_look(counts, number, step_seed, draw, taken)
+                    if look is None and draw is not None:
+                        method = "floor-look"
+                        look = self._floor_look(counts, number, step_seed, taken)
                     if look is not None:
                         found.chosen.append(look)
-                        found.methods.append("thompson")
+                        found.methods.append(method)
                         found.values.append(float("nan"))
                         found.second_looks.append(True)
                         found.chances.append(None)
@@ -271,13 +292,35 @@ class Greedy:
         posterior draw favours; None for a free choice (not a look turn, the draw
         favours the incumbent's tree or one with more than ``LOOK_DESIGNS`` designs, or
         the random design was proposed before)."""
-        from adservice.proposers.acquisition import TAKEN_TOL, nearest_distance, raw_samples
-
         if draw is None or not thompson_turn(counts, number, self.n_start):
             return None
         tree = draw(np.arange(len(counts)), step_seed)
         if tree == round(float(self.incumbents[0, 0])) or counts[tree] > LOOK_DESIGNS:
             return None
+        return self._random_design(tree, step_seed, taken)
+
+    def _floor_look(
+        self, counts: np.ndarray, number: int, step_seed: int, taken: np.ndarray | None
+    ) -> np.ndarray | None:
+        """A floor look's design (model inputs): on a look turn the draw left to the
+        model, a random design of a tree, drawn at random, whose one design scored on the
+        start's floor (``floor``); None where there is none (or without floor looks)."""
+        if self.floor is None or not thompson_turn(counts, number, self.n_start):
+            return None
+        trees = np.flatnonzero(self.floor & (counts == 1))
+        trees = trees[trees != round(float(self.incumbents[0, 0]))]
+        if not len(trees):
+            return None
+        tree = int(trees[np.random.default_rng([step_seed, 40]).integers(len(trees))])
+        return self._random_design(tree, step_seed, taken)
+
+    def _random_design(
+        self, tree: int, step_seed: int, taken: np.ndarray | None
+    ) -> np.ndarray | None:
+        """A random design of ``tree`` (model inputs), inside the spec constraints; None
+        where it was proposed before."""
+        from adservice.proposers.acquisition import TAKEN_TOL, nearest_distance, raw_samples
+
         rng = np.random.default_rng([step_seed, 39])
         look = raw_samples(self.domain, 1, rng, np.array([tree]))
         if self.region is not None:

@@ -18,6 +18,13 @@ with ``judged`` the ask is a second look among the structures seen once whose ch
 beating the incumbent (``looks.tree_chances``) is at least ``LOOK_CHANCE``, and a free
 choice when none has; with ``always`` among every structure seen once. ``off`` never
 looks (docs/method.md, "The model's choices").
+
+A start design that scored on the floor says almost nothing of its tree (a narrow
+optimum missed looks the same as a poor tree), yet the GP, its output scale learned from
+the low scores it has seen, gives such a tree no draw that beats the incumbent. So with
+``floor_looks`` (the default, with ``thompson``), a look turn that the draw leaves to the
+model goes to a tree whose one design is on the start's floor (``floor_trees``) instead:
+one more random design of it.
 """
 
 from __future__ import annotations
@@ -38,6 +45,9 @@ SECOND_LOOK_EVERY = 2
 LOOK_DESIGNS = 2
 """A Thompson look goes to a tree with at most this many designs (observed, failed or
 pending), so a long study's looks end: a tree gets at most two beyond its start design."""
+FLOOR_BAND = 0.1
+"""A start design scored on the floor when it lies in this bottom share of the range of
+the start's scores (``floor_trees``)."""
 LOOK_CHANCE = 0.2
 """A judged second look goes to the trees seen once whose chance of beating the incumbent
 (``looks.tree_chances``) is at least this."""
@@ -141,3 +151,19 @@ def thompson_turn(counts: np.ndarray, number: int, n_start: int) -> bool:
         and model_number >= 0
         and model_number % SECOND_LOOK_EVERY == SECOND_LOOK_EVERY - 1
     )
+
+
+def floor_trees(trees: np.ndarray, y: np.ndarray, n_start: int, n_structures: int) -> np.ndarray:
+    """Per structure, whether every observed design of it (``trees``, ``y``: the study's
+    observations in the order told) scored on the floor of the start: in the bottom
+    ``FLOOR_BAND`` of the range of the first ``n_start`` observations' scores. A
+    structure never observed is not on the floor (the model holds it uncertain); with
+    fewer than two start scores, or a start of one score, none is."""
+    floor = np.zeros(n_structures, dtype=bool)
+    start = y[:n_start]
+    if len(start) < 2 or np.ptp(start) <= 0:
+        return floor
+    band = float(start.min() + FLOOR_BAND * np.ptp(start))
+    seen = np.bincount(trees, minlength=n_structures) > 0
+    above = np.bincount(trees, weights=(y > band).astype(np.float64), minlength=n_structures)
+    return seen & (above == 0)

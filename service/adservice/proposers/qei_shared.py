@@ -84,6 +84,14 @@ class QEIOptions(ProposerOptions):
         "(looks.tree_chances), or among all of them (initial.second_look); off: never "
         "(true and false: always and off); bench/RESULTS.md has each one's figures",
     )
+    floor_looks: bool = Field(
+        default=True,
+        description="with second_looks: thompson, a look turn whose posterior draw favours "
+        "the incumbent's tree (or a spent one) gives one more random design to a tree whose "
+        "one design scored on the start's floor (the bottom tenth of the start's range; "
+        "initial.floor_trees), at random among them; false: such a turn is the model's "
+        "free choice, as before issue 61",
+    )
     max_train: int | None = Field(
         default=None,
         ge=16,
