@@ -242,7 +242,7 @@ def learned_scores(tasks: list[str], seeds: int, folder: Path) -> list[dict[str,
         for engine in ENGINES:
             for arm, name, options in arms:
                 factory = catalogue().learner(name).load_factory()
-                scores, seconds = [], 0.0
+                scores, seconds, diverged = [], 0.0, []
                 for seed in range(seeds):
                     env = make_env(task, engine, folder)
                     try:
@@ -252,20 +252,26 @@ def learned_scores(tasks: list[str], seeds: int, folder: Path) -> list[dict[str,
                         seconds += time.process_time() - started
                         evaluation = [(seed + 1) * 10_000 + i for i in range(3)]
                         episodes = evaluate_policy(env, trained.policy, evaluation)
+                    except RuntimeError as error:  # MuJoCo's SimulationDiverged: a failed job
+                        if type(error).__name__ != "SimulationDiverged":
+                            raise
+                        diverged.append(seed)
+                        continue
                     finally:
                         env.close()
                     scores.append(float(np.mean([episode.score for episode in episodes])))
                 work = options.work(PPOOptions.default_steps)
-                rows.append(
-                    {
-                        "task": task,
-                        "engine": engine,
-                        "arm": arm,
-                        "scores": scores,
-                        "cpu_seconds": seconds,
-                        "updates_per_sample": work.updates / PPOOptions.default_steps,
-                    }
-                )
+                row = {
+                    "task": task,
+                    "engine": engine,
+                    "arm": arm,
+                    "scores": scores,
+                    "diverged_seeds": diverged,
+                    "cpu_seconds": seconds,
+                    "updates_per_sample": work.updates / PPOOptions.default_steps,
+                }
+                print(json.dumps(row), flush=True)
+                rows.append(row)
     return rows
 
 
@@ -462,8 +468,10 @@ def main() -> int:
     for learned_row in learned:
         task, engine, arm = learned_row["task"], learned_row["engine"], learned_row["arm"]
         scores = learned_row["scores"]
-        mean = float(np.mean(scores))
+        mean = float(np.mean(scores)) if scores else float("nan")
         listed = ", ".join(f"{score:.3f}" for score in scores)
+        failed = learned_row["diverged_seeds"]
+        listed += f"; diverged (a failed job): seeds {failed}" if failed else ""
         print(
             f"{task}, {engine}, {arm}: mean score {mean:.3f} ({listed}); "
             f"{learned_row['cpu_seconds']:.1f} CPU-s; updates per sample "
