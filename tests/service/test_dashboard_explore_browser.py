@@ -26,7 +26,12 @@ import yaml
 
 from adclient.testing.servers import ServerProcess
 from tests.service.chromium import Chromium
-from tests.service.dashboard_pages import COUNT_PIXELS, EXAMPLES, STUDY_PAGE_READY, tell
+from tests.service.dashboard_pages import (
+    COUNT_PIXELS,
+    EXAMPLES,
+    STUDY_PAGE_READY,
+    tell,
+)
 
 pytestmark = [
     pytest.mark.browser,
