@@ -27,7 +27,6 @@ from pydantic import BaseModel, ConfigDict
 if TYPE_CHECKING:
     from adclient.boxspace import BoxEncoding
     from adclient.polytope import SpecPolytope
-    from adservice.proposers.fidelity import FidelityHistory
 
 FloatArray = NDArray[np.float64]
 
@@ -152,6 +151,27 @@ class SpecRegion:
             search_vectors(Z, self.bounds, self.search), self.polytope, self.bounds
         )
         return model_inputs(vectors, self.bounds, self.search) if moved.any() else Z
+
+
+@dataclass(frozen=True)
+class FidelityHistory:
+    """What the multi-fidelity proposer (``adservice.proposers.fidelity``) knows of a
+    study's fidelity: ``grid`` (the fidelities a trial may
+    train to, lowest first, the last the target) and each one's ``cost``; ``observed`` and
+    ``pending`` the fidelity of each row of ``X`` and of ``pending``; ``remaining`` the
+    trials the study may still create (None: no limit)."""
+
+    grid: FloatArray
+    cost: FloatArray
+    observed: FloatArray
+    pending: FloatArray
+    remaining: int | None = None
+
+    def level(self, steps: FloatArray) -> FloatArray:
+        """Fidelities on the model's scale: 0 at the lowest, 1 at the target, log-spaced."""
+        low, high = math.log(self.grid[0]), math.log(self.grid[-1])
+        clipped = np.clip(np.asarray(steps, dtype=np.float64), self.grid[0], self.grid[-1])
+        return (np.log(clipped) - low) / (high - low)
 
 
 @dataclass(frozen=True)

@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 from scipy.special import ndtr
 
 from adservice.proposers.base import (
+    FidelityHistory,
     FloatArray,
     Proposal,
     ProposalRequest,
@@ -63,26 +63,6 @@ LOCAL_CANDIDATES = 64
 LOCAL_CENTRES = 4
 LOCAL_STEP = 0.1
 """The local moves' standard deviation, a share of each coordinate's range."""
-
-
-@dataclass(frozen=True)
-class FidelityHistory:
-    """What the proposer knows of a study's fidelity: ``grid`` (the fidelities a trial may
-    train to, lowest first, the last the target) and each one's ``cost``; ``observed`` and
-    ``pending`` the fidelity of each row of ``X`` and of ``pending``; ``remaining`` the
-    trials the study may still create (None: no limit)."""
-
-    grid: FloatArray
-    cost: FloatArray
-    observed: FloatArray
-    pending: FloatArray
-    remaining: int | None = None
-
-    def level(self, steps: FloatArray) -> FloatArray:
-        """Fidelities on the model's scale: 0 at the lowest, 1 at the target, log-spaced."""
-        low, high = math.log(self.grid[0]), math.log(self.grid[-1])
-        clipped = np.clip(np.asarray(steps, dtype=np.float64), self.grid[0], self.grid[-1])
-        return (np.log(clipped) - low) / (high - low)
 
 
 def threshold(history: FidelityHistory) -> FloatArray:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from sqlalchemy.orm import Session
@@ -28,7 +28,7 @@ from adservice.locks import StudyLocks
 from adservice.principals import Principal, check_manager
 from adservice.proposal_runner import AskBudget, ProposalRunner
 from adservice.proposers import DEFAULT_PROPOSER, Proposal, ProposalRequest, Proposer, get_proposer
-from adservice.proposers.base import DEGRADED, empty_history
+from adservice.proposers.base import DEGRADED, FidelityHistory, empty_history
 from adservice.repository import promotion as promotion_repo
 from adservice.repository import quotas as quota_repo
 from adservice.repository import studies as study_repo
@@ -39,9 +39,6 @@ from adservice.services import urdfs
 from adservice.services.budget import check_ask_memory
 from adservice.services.configs import StudyConfig, StudyConfigs
 from adservice.services.proposal_failures import Backoff, failures_recorded
-
-if TYPE_CHECKING:
-    from adservice.proposers.fidelity import FidelityHistory
 
 
 def _request(
@@ -100,8 +97,6 @@ def _fidelities(
     fidelity = config.task.fidelity if config.task is not None else None
     if fidelity is None:
         return None
-    from adservice.proposers.fidelity import FidelityHistory
-
     grid = np.asarray(fidelity.grid(), dtype=np.float64)
     empty = np.zeros(0)
     return FidelityHistory(
