@@ -156,8 +156,11 @@ class Networks:
         self.refresh()
 
     def to(self, device: str) -> None:
+        """Move the networks to the torch device the update runs on (the rollout's
+        copies stay NumPy)."""
         self.actor.to(device)
         self.critic.to(device)
+        self.log_std.data = self.log_std.data.to(device)  # in place: the same Parameter
 
 
 def _fits(own: dict[str, Any], given: dict[str, Any], prefix: str) -> None:
@@ -249,6 +252,7 @@ class BatchPPOLearner(Learner):
         torch.set_num_threads(1)
         self.warm_problem = None
         networks = self.networks(env, seed)
+        networks.to(learner_device())
         optimiser = self.optimiser(networks)
         done_steps = 0
         warm = False
@@ -268,7 +272,6 @@ class BatchPPOLearner(Learner):
         elif isinstance(start, Shared):
             self.warm_problem = f"the {self.name} learner has no shared controller (ppo has)"
             log.warning("shared start refused (%s): training from scratch", self.warm_problem)
-        networks.to(learner_device())
         batch = BatchedEnv.of(env, self.settings.n_envs)
         curve: list[dict[str, float]] = []
         try:
@@ -472,11 +475,11 @@ def load(networks: Networks, optimiser: Any, checkpoint: bytes) -> int:
         names = [f"adam.{index}.exp_avg", f"adam.{index}.exp_avg_sq"]
         if not all(name in arrays for name in names):
             continue
-        moments = [torch.as_tensor(arrays[name]) for name in names]
+        moments = [torch.as_tensor(arrays[name]).to(parameter.device) for name in names]
         if any(tuple(m.shape) != tuple(parameter.shape) for m in moments):
             raise CheckpointError(f"Adam's moments of parameter {index} do not fit it")
         optimiser.state[parameter] = {
-            "step": torch.tensor(float(adam_step)),
+            "step": torch.tensor(float(adam_step)),  # on the CPU, as Adam keeps it
             "exp_avg": moments[0].float(),
             "exp_avg_sq": moments[1].float(),
         }
