@@ -171,12 +171,15 @@ class TaskConfig(StrictInput):
         return max(1, budget // 4)
 
     def at_fidelity(self, steps: int | None) -> TaskConfig:
-        """The task a trial of a study with a ``fidelity`` runs: train_steps its
-        fidelity, else (a trial the proposer did not choose one for, an enqueued one)
-        the target fidelity; the task itself without a fidelity."""
+        """The task a trial of a study with a ``fidelity`` runs, as its job carries it:
+        train_steps its fidelity, else (a trial the proposer did not choose one for, an
+        enqueued one) the target fidelity, and no fidelity (a worker needs only the
+        steps, so a worker older than ``fidelity`` runs the job); the task itself
+        without a fidelity."""
         if self.fidelity is None:
             return self
-        return self.model_copy(update={"train_steps": steps or self.fidelity.max})
+        steps = steps or self.fidelity.max
+        return self.model_copy(update={"train_steps": steps, "fidelity": None})
 
 
 def option_problems(
