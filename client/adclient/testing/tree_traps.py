@@ -78,8 +78,11 @@ def floor_trap(
 
 
 def many_trees_space(count: int, seed: int) -> dict[str, Any]:
-    """``count`` of the 125 trees of 5 links, drawn from ``seed``."""
-    space = all_trees_space("abcde", radius=False)
+    """``count`` of the 125 trees of 5 links, drawn from ``seed``; designs whose links
+    meet at the rest pose are scored too (``allow_overlaps``: a synthetic score, and many
+    trees of 5 links of one radius fold siblings through each other at rest, so without
+    it the server refuses the space)."""
+    space = {**all_trees_space("abcde", radius=False), "allow_overlaps": True}
     trees = DesignSpace.model_validate({**space, "max_structures": 1000}).tree_structures()
     chosen = sorted(np.random.default_rng([962, seed]).choice(len(trees), count, replace=False))
     space["structures"] = [[list(edge) for edge in trees[int(k)]] for k in chosen]
