@@ -253,7 +253,7 @@ def test_filters_by_a_params_range_typed_or_brushed_narrow_the_table_and_the_plo
 
 def edf_curves(browser: Chromium, selector: str) -> list[dict[str, Any]]:
     return list(
-        json.loads(browser.evaluate(f"document.querySelector('{selector}').dataset.curves"))
+        json.loads(browser.evaluate(f"document.querySelector('{selector}').dataset.edfCurves"))
     )
 
 

@@ -8,7 +8,7 @@ import { AXIS, drawXAxis, drawYAxis, extent, message, prepare } from './charts.j
 export const LINE_COLOURS = ['#2563eb', '#ea580c', '#16a34a', '#9333ea', '#dc2626', '#0891b2', '#ca8a04', '#4b5563'];
 
 /**
- * Draw the EDF of each group ({label, values}) on `canvas`. Leaves `data-curves` (JSON:
+ * Draw the EDF of each group ({label, values}) on `canvas`. Leaves `data-edf-curves` (JSON:
  * each group's label, count and its curve's steps [[x, fraction]]) for the browser tests.
  */
 export function drawEdf(canvas, groups) {
@@ -18,7 +18,7 @@ export function drawEdf(canvas, groups) {
     const steps = sorted.map((v, k) => [v, (k + 1) / sorted.length]);
     return { label: group.label, n: sorted.length, steps };
   });
-  canvas.dataset.curves = JSON.stringify(curves);
+  canvas.dataset.edfCurves = JSON.stringify(curves);
   const all = curves.flatMap((c) => c.steps.map(([v]) => v));
   if (all.length === 0) {
     message(ctx, width, height, 'No complete trials yet');
