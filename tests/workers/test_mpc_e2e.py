@@ -33,7 +33,8 @@ def test_a_mpc_study_on_mujoco_reaches_a_score_through_a_real_worker(
     body["task"]["options"] = {"learner_kwargs": PLANNER}
     with Client(server.url) as client:
         study = client.create_study(body)
-        assert "mpc" in {learner.name for learner in client.learners()}
+        engines = {learner.name: learner.simulators for learner in client.learners()}
+        assert engines["mpc"] == ["mujoco"] and engines["ppo"] == ["pybullet", "mujoco"]
         worker = WorkerProcess(server, tmp_path, "mpc", "--max-jobs", "1")
         try:
             assert worker.wait() == 0, worker.log()

@@ -421,3 +421,8 @@ class LearnerInfo(BaseModel):
     options_schema: dict[str, Any] | None = Field(
         description="JSON schema of task.options.learner_kwargs; null: it takes none"
     )
+    simulators: list[str] = Field(
+        default_factory=lambda: list(SIMULATORS),
+        description="the engines a study may name for it (task.simulator): every one, or "
+        "those it declares (mpc: mujoco)",
+    )

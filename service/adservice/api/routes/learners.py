@@ -7,7 +7,7 @@ import functools
 
 from fastapi import APIRouter
 
-from adclient.plugins import catalogue
+from adclient.plugins import SIMULATORS, catalogue
 from adclient.schemas import LearnerInfo
 from adservice.api.deps import ReaderDep
 
@@ -21,6 +21,7 @@ def _learners() -> list[LearnerInfo]:
             name=name,
             description=spec.description,
             options_schema=spec.options.model_json_schema() if spec.options else None,
+            simulators=list(spec.simulators or SIMULATORS),
         )
         for name, spec in sorted(catalogue().learners.items())
     ]
