@@ -2,14 +2,15 @@
 designs agrees with the ``ppo`` learner's, and what each costs, in one run on one core.
 
     python bench/mpc.py [--designs 16] [--tasks stand-up,lift-highest] [--ppo-steps N]
-        [--mpc-options '{"method": "cem"}'] [--core 0] [--json FILE]
+        [--mpc-options '{"samples": 32}'] [--cem] [--core 0] [--json FILE]
 
 The designs are bench/engines.py's ``--agree`` arm's (its ``random_designs``: uniform
 draws of examples/stand-up.yaml's space and of examples/multi-structure.yaml's, seed 59),
 each built on MuJoCo as the worker builds it and scored as the worker scores any learner
 (the task's three evaluation episodes of a task seed 0, ``evaluate_policy``) with ``mpc``
 (its defaults, or ``--mpc-options``), ``ppo`` at its default budget (12,288 steps, unless
-``--ppo-steps``) and ``fast``. Per task: Spearman's rank correlation of mpc's scores with
+``--ppo-steps``) and ``fast`` (and, with ``--cem``, ``mpc-cem``: mpc's options with
+``method: cem``). Per task: Spearman's rank correlation of mpc's scores with
 ppo's and with fast's (and fast's with ppo's), and the CPU seconds per design of each
 learner (``time.process_time``: its training and its evaluation episodes, one thread,
 the process pinned to ``--core``; torch's first set-up in the process left out by one
@@ -75,31 +76,34 @@ def scored(
 
 
 def compare(
-    task: str, count: int, folder: Path, mpc_options: dict[str, Any], ppo_steps: int | None
+    task: str,
+    count: int,
+    folder: Path,
+    arms: dict[str, tuple[str, dict[str, Any]]],
+    ppo_steps: int | None,
 ) -> dict[str, Any]:
+    """Every arm's scores of the task's ``count`` designs, their CPU seconds, and each
+    arm's Spearman rank correlation with ``ppo``'s and ``fast``'s."""
     from scipy.stats import spearmanr
 
-    scores: dict[str, list[float]] = {name: [] for name in LEARNERS}
-    seconds: dict[str, list[float]] = {name: [] for name in LEARNERS}
+    scores: dict[str, list[float]] = {name: [] for name in arms}
+    seconds: dict[str, list[float]] = {name: [] for name in arms}
     for k, design in enumerate(random_designs(task, count, seed=59)):
-        for name in LEARNERS:
-            options = mpc_options if name == "mpc" else {}
-            steps = ppo_steps if name == "ppo" else None
-            score, cpu = scored(task, design, name, folder, options, steps)
+        for name, (learner, options) in arms.items():
+            steps = ppo_steps if learner == "ppo" else None
+            score, cpu = scored(task, design, learner, folder, options, steps)
             scores[name].append(score)
             seconds[name].append(cpu)
-        row = ", ".join(f"{n} {scores[n][-1]:.3f} ({seconds[n][-1]:.1f} s)" for n in LEARNERS)
+        row = ", ".join(f"{n} {scores[n][-1]:.3f} ({seconds[n][-1]:.1f} s)" for n in arms)
         print(f"  {task} design {k}: {row}", flush=True)
-
-    def rho(a: str, b: str) -> float:
-        return float(spearmanr(scores[a], scores[b]).statistic)
-
+    pairs = [(a, b) for a in arms for b in ("ppo", "fast") if a not in ("ppo", b)]
     return {
         "task": task,
         "designs": count,
-        "spearman": {"mpc~ppo": rho("mpc", "ppo"), "mpc~fast": rho("mpc", "fast")}
-        | {"fast~ppo": rho("fast", "ppo")},
-        "cpu_s_per_design": {name: float(np.mean(seconds[name])) for name in LEARNERS},
+        "spearman": {
+            f"{a}~{b}": float(spearmanr(scores[a], scores[b]).statistic) for a, b in pairs
+        },
+        "cpu_s_per_design": {name: float(np.mean(seconds[name])) for name in arms},
         "scores": scores,
         "seconds": seconds,
     }
@@ -111,6 +115,9 @@ def main() -> int:
     parser.add_argument("--tasks", default=",".join(AGREEMENT_STUDIES))
     parser.add_argument("--ppo-steps", type=int, default=None)
     parser.add_argument("--mpc-options", default="{}", help="mpc's learner_kwargs, JSON")
+    parser.add_argument(
+        "--cem", action="store_true", help="an arm mpc-cem besides: mpc's options, method cem"
+    )
     parser.add_argument("--core", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
@@ -120,28 +127,27 @@ def main() -> int:
 
     torch.set_num_threads(1)
     mpc_options = json.loads(args.mpc_options)
+    arms = {name: (name, mpc_options if name == "mpc" else {}) for name in LEARNERS}
+    if args.cem:
+        arms["mpc-cem"] = ("mpc", mpc_options | {"method": "cem"})
     tasks = [t for t in args.tasks.split(",") if t]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         # torch's set-up, once a worker: not a design's cost
         scored(tasks[0], random_designs(tasks[0], 1, seed=0)[0], "ppo", folder, {}, 64)
-        results = [compare(t, args.designs, folder, mpc_options, args.ppo_steps) for t in tasks]
+        results = [compare(t, args.designs, folder, arms, args.ppo_steps) for t in tasks]
     print()
-    heads = "Spearman mpc~ppo | mpc~fast | fast~ppo | CPU s/design mpc | ppo | fast"
-    print(f"| task | designs | {heads} |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in results:
         rho, cpu = r["spearman"], r["cpu_s_per_design"]
-        print(
-            f"| {r['task']} | {r['designs']} | {rho['mpc~ppo']:.3f} | {rho['mpc~fast']:.3f} | "
-            f"{rho['fast~ppo']:.3f} | {cpu['mpc']:.2f} | {cpu['ppo']:.2f} | {cpu['fast']:.2f} |"
-        )
+        print(f"{r['task']}, {r['designs']} designs:")
+        print("  Spearman " + ", ".join(f"{pair} {value:.3f}" for pair, value in rho.items()))
+        print("  CPU s/design " + ", ".join(f"{name} {value:.2f}" for name, value in cpu.items()))
+        means = {name: float(np.mean(r["scores"][name])) for name in arms}
+        print("  mean score " + ", ".join(f"{name} {value:.3f}" for name, value in means.items()))
         for pair, value in rho.items():
             emit(f"{r['task']}.spearman.{pair}", value, higher_is_better=True)
         for name, value in cpu.items():
             emit(f"{r['task']}.cpu_s_per_design.{name}", value, higher_is_better=False)
-        means = {name: float(np.mean(r["scores"][name])) for name in LEARNERS}
-        print(f"  {r['task']} mean scores: " + ", ".join(f"{n} {v:.3f}" for n, v in means.items()))
     if args.json is not None:
         args.json.write_text(json.dumps(results, indent=1))
     return 0
