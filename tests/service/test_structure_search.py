@@ -558,3 +558,14 @@ def test_the_default_finds_a_best_tree_whose_start_design_scored_on_the_floor() 
         trees, y, methods = floor_study("floor-8", seed, {"floor_looks": False})
         assert "floor-look" not in methods
         assert max(y) <= OTHERS_CEILING, (seed, trees, y)
+
+
+def test_a_tree_is_on_the_floor_while_every_design_of_it_lies_in_the_starts_bottom_tenth() -> None:
+    """``floor_trees``: the band is the bottom tenth of the start's range (the first
+    ``n_start`` scores), whatever later designs score; a tree with one design above it
+    is off the floor, an untried tree is not on it, and a start of one score has no
+    floor."""
+    trees = np.array([0, 1, 2, 3, 1, 2])
+    y = np.array([0.0, 0.5, 1.0, 0.08, 0.02, 5.0])
+    assert floor_trees(trees, y, 4, 5).tolist() == [True, False, False, True, False]
+    assert floor_trees(trees, np.full(6, 0.3), 4, 5).tolist() == [False] * 5
