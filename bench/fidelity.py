@@ -1,9 +1,10 @@
 """Multi-fidelity design studies (issue 61): worker CPU to a good design, four ways, on
 the robot tasks with PPO, through a real ``adserver`` and real ``adworker`` processes.
 
-Each sitting (a task and a seed) runs every arm in turn on one fresh server (a SQLite
-file), one adworker per study (started once the study is ready, stopped when it is done),
-so a job has the worker to itself and the arms share the sitting's load:
+Each run (a task, an arm and a seed) has a fresh server (a SQLite file) and one adworker
+per study (started once the study is ready, stopped when it is done), so a job has the
+worker to itself; a sitting runs every arm of a task and seed in turn (several sittings
+may run side by side, one process each, ``--first-seed``):
 
 - ``full``: today's study: ``qei`` (4 initial points), every design trained to the full
   budget (``--full-steps``), ``--full-trials`` designs.
