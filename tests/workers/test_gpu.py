@@ -1,0 +1,105 @@
+"""The GPU path on Warp's CPU device (issue 59): designs of one tree in one MuJoCo Warp
+batch play the CPU MuJoCo engine's episodes, and a PPO with one policy per design trains
+on the batch. Skipped, saying why, where the ``gpu`` extra (mujoco-warp) is missing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip(
+    "mujoco_warp", reason="the GPU path needs the gpu extra: pip install -e '.[gpu]'"
+)
+
+import torch
+
+from adworker import designs
+from adworker.gpu.ppo import GpuPPOOptions, evaluate, train
+from adworker.gpu.warp_batch import WarpBatch
+
+TOLERANCE = 2e-3
+"""m (a link's height) and rad (a joint angle): float32 in the batch, float64 on the CPU
+engine; measured over these episodes at most 4e-5. A design tumbling under random actions, or an
+arch balanced on its feet's tips, parts from its CPU twin after some 20 control steps
+(whether a foot touches flips on a float's difference): chaos, not a difference in the
+model, so this test drives a pose that holds."""
+
+
+def fold_actions(steps: int) -> np.ndarray:
+    """The joints bent opposite ways over 8 control steps, then held: the middle link
+    lifts with both feet down."""
+    ramp = np.minimum(1.0, np.arange(steps)[:, None] / 8)
+    return (ramp * np.array([[0.7, -0.7]])).astype(np.float32)
+
+
+def test_each_world_of_a_warp_batch_of_two_designs_plays_the_cpu_engines_episode(env_of):
+    shorter = designs.arch_chain(length=0.3, mass=1.5)
+    envs = [
+        env_of("stand-up", "arch_chain", simulator="mujoco"),
+        env_of("stand-up", shorter, simulator="mujoco"),
+    ]
+    batch = WarpBatch(envs, 2, device="cpu")
+    assert {"body_mass", "geom_size", "body_pos"} <= set(batch.per_world_fields)
+    steps = envs[0].episode_steps
+    actions = fold_actions(steps)
+    observation = batch.reset(seed=7)
+    heights, angles = [], []
+    scores = None
+    for t in range(steps):
+        observation, reward, scores = batch.step(torch.as_tensor(actions[t]).repeat(4, 1))
+        heights.append(reward.numpy().copy())
+        angles.append(observation[:, : batch.joints].numpy().copy())
+    assert scores is not None  # the episode ended with its last step
+    lifted = np.array(heights)
+    assert lifted.max() > 0.1  # the arch stood up: a height that can disagree
+    for world in range(4):
+        env = envs[world // 2]
+        env.reset(seed=7 + world)
+        cpu_heights, cpu_angles = [], []
+        for t in range(steps):
+            cpu_observation, reward, _, truncated, info = env.step(actions[t])
+            cpu_heights.append(reward)
+            cpu_angles.append(cpu_observation[: batch.joints])
+        assert truncated
+        np.testing.assert_allclose(lifted[:, world], cpu_heights, atol=TOLERANCE)
+        # The batch's last observation is the next episode's first (its worlds reset).
+        np.testing.assert_allclose(np.array(angles)[:-1, world], cpu_angles[:-1], atol=TOLERANCE)
+        assert abs(float(scores[world]) - info["score"]) < TOLERANCE
+    # The two designs are other worlds: the shorter arch lifts its middle less high.
+    assert lifted[:, :2].max() > lifted[:, 2:].max() + 0.02
+
+
+def test_a_batch_refuses_designs_of_another_tree_and_what_it_does_not_compute(env_of):
+    arch = env_of("stand-up", "arch_chain", simulator="mujoco")
+    star = designs.tree_design(
+        [("a", "b"), ("a", "c"), ("a", "d")],
+        {"b": (1.0, 0.0), "c": (1.0, 2.0), "d": (1.0, 4.0)},
+    )
+    with pytest.raises(ValueError, match="not of one tree"):
+        WarpBatch([arch, env_of("stand-up", star, simulator="mujoco")], 1, device="cpu")
+    with pytest.raises(ValueError, match="MuJoCo's world"):
+        WarpBatch([env_of("stand-up", "arch_chain")], 1, device="cpu")
+    with pytest.raises(ValueError, match="no batched metric"):
+        WarpBatch([env_of("lift-highest", "arch_chain", simulator="mujoco")], 1, device="cpu")
+    with pytest.raises(ValueError, match="at most"):
+        WarpBatch([arch], 70_000, device="cpu")
+    assert GpuPPOOptions(steps=0).problems() == [
+        "steps must be 1 to 100000000 env steps per design"
+    ]
+
+
+@pytest.mark.slow
+def test_ppo_on_the_batch_trains_each_designs_policy_above_its_untrained_one(env_of):
+    # Two copies of one design: two policies, each initialised from its own draws and
+    # trained on its own worlds, in one run (a run's CPU is per batch step, not per world).
+    envs = [env_of("stand-up", "arch_chain", simulator="mujoco") for _ in range(2)]
+    batch = WarpBatch(envs, 16, device="cpu")
+    seed = 3
+    random_policy = evaluate(batch, None, seed + 1_000_000)
+    options = GpuPPOOptions(steps=4096, unroll=16, epochs=8, learning_rate=3e-3, seed=seed)
+    _, result = train(batch, options)
+    assert result.env_steps >= 4096
+    assert len(result.curve) == 4096 // 16 // batch.episode_steps
+    # Random actions toss the arch about (a foot off the ground scores 0): about 0.012.
+    for before, after in zip(random_policy, result.scores, strict=True):
+        assert after > before + 0.01, (random_policy, result.scores)
