@@ -103,3 +103,39 @@ def test_ppo_on_the_batch_trains_each_designs_policy_above_its_untrained_one(env
     # Random actions toss the arch about (a foot off the ground scores 0): about 0.012.
     for before, after in zip(random_policy, result.scores, strict=True):
         assert after > before + 0.01, (random_policy, result.scores)
+
+
+@pytest.mark.e2e
+def test_a_gpu_worker_trains_two_trials_of_one_tree_in_one_batch_and_tells_each(
+    server, tmp_path
+) -> None:
+    """A real adserver and ``adworker --batch-designs 2`` (on Warp's CPU device): a
+    stand-up study on MuJoCo with PPO, its two trials leased together, trained in one
+    batch and told, each its own score."""
+    from adclient import Client
+    from adclient.testing.workers import WorkerProcess
+    from tests.workers.robots import stand_up_study
+
+    with Client(server.url) as client:
+        study = stand_up_study(
+            client, max_trials=2, learner="ppo", simulator="mujoco", train_steps=256
+        )
+        worker = WorkerProcess(
+            server,
+            tmp_path,
+            "gpu",
+            "--batch-designs",
+            "2",
+            "--worlds-per-design",
+            "4",
+            "--max-jobs",
+            "2",
+        )
+        try:
+            assert worker.wait() == 0, worker.log()
+        finally:
+            worker.stop()
+        trials = client.trials(study.id)
+        assert [t.state for t in trials] == ["complete"] * 2, worker.log()
+        assert all(t.value is not None and t.value >= 0 for t in trials)
+        assert "trained 2 designs together, 256 env steps each" in worker.log()

@@ -35,6 +35,7 @@ from adclient.devices import LEARNER_DEVICE_VARIABLE, device_problem
 from adworker.jobprocess import JobLimits, setup_problem
 from adworker.pool import run_pool
 from adworker.worker import (
+    EXIT_OK,
     EXIT_SETUP,
     Worker,
     WorkerConfig,
@@ -158,6 +159,16 @@ def run(
         help="Seconds the current job gets to finish after SIGTERM; then it is abandoned.",
     ),
     log_level: str = typer.Option("info", "--log-level", envvar="AD_LOG_LEVEL"),
+    batch_designs: int = typer.Option(
+        0,
+        "--batch-designs",
+        min=0,
+        help="GPU mode (the gpu extra): lease up to this many stand-up trials on MuJoCo and "
+        "train those of one study and tree in one MuJoCo Warp batch (adworker.gpu); 0: off.",
+    ),
+    worlds_per_design: int = typer.Option(
+        16, "--worlds-per-design", min=1, help="With --batch-designs: worlds per design."
+    ),
 ) -> None:
     """Lease and evaluate jobs until stopped."""
     if ctx.invoked_subcommand is not None:
@@ -203,6 +214,8 @@ def run(
         stop_grace=stop_grace,
     )
     configure_logging(level, base_id)
+    if batch_designs:
+        raise typer.Exit(_run_gpu_batches(config, batch_designs, worlds_per_design))
     if ray is not None:
         raise typer.Exit(
             _run_on_ray(config, concurrency, ray, learner_device.value, ray_cpus, ray_gpus, level)
@@ -230,6 +243,34 @@ def _threads_of_imported_torch() -> None:
     threads = os.environ["OMP_NUM_THREADS"]
     if torch is not None and threads.isdigit() and int(threads) > 0:
         torch.set_num_threads(int(threads))
+
+
+def _run_gpu_batches(config: WorkerConfig, batch_designs: int, worlds_per_design: int) -> int:
+    """``--batch-designs``: the GPU mode (adworker.gpu.jobs, the one path that imports
+    MuJoCo Warp)."""
+    import tempfile
+
+    from adclient import Client
+    from adworker.gpu.jobs import run_batches
+
+    client = Client(
+        config.server,
+        config.token,
+        verify=str(config.ca_bundle) if config.ca_bundle is not None else True,
+    )
+    with tempfile.TemporaryDirectory(prefix="adworker-gpu-") as folder:
+        told = run_batches(
+            client,
+            config.worker_id,
+            Path(folder),
+            batch_designs=batch_designs,
+            worlds_per_design=worlds_per_design,
+            max_jobs=config.max_jobs,
+            idle_exit=config.idle_exit,
+            poll=config.poll,
+        )
+    logging.getLogger(__name__).info("told %d trials (--batch-designs)", told)
+    return EXIT_OK
 
 
 def _run_on_ray(
