@@ -134,9 +134,9 @@ def random_rate(env: Any, steps: int) -> float:
     return steps / (time.process_time() - started)
 
 
-def random_batch_rate(env: Any, worlds: int, steps: int) -> float:
-    """Control steps per CPU-second of a batch of ``worlds`` worlds of ``env`` stepped with
-    random actions, all worlds together (resets included)."""
+def batch_rate(env: Any, worlds: int, steps: int, step: Any) -> float:
+    """Control steps per CPU-second of ``step(batch, actions)`` (one round of all worlds)
+    on a batch of ``worlds`` worlds of ``env`` given random actions, seeded and reset."""
     from adworker.batched import BatchedEnv
 
     batch = BatchedEnv.of(env, worlds)
@@ -149,10 +149,16 @@ def random_batch_rate(env: Any, worlds: int, steps: int) -> float:
         batch.reset()
         started = time.process_time()
         for action in actions:
-            batch.step(action)
+            step(batch, action)
         return rounds * worlds / (time.process_time() - started)
     finally:
         batch.close_copies()
+
+
+def random_batch_rate(env: Any, worlds: int, steps: int) -> float:
+    """Control steps per CPU-second of a batch of ``worlds`` worlds of ``env`` stepped with
+    random actions, all worlds together (resets included)."""
+    return batch_rate(env, worlds, steps, lambda batch, action: batch.step(action))
 
 
 def physics_batch_rate(env: Any, worlds: int, steps: int) -> float:
@@ -160,24 +166,13 @@ def physics_batch_rate(env: Any, worlds: int, steps: int) -> float:
     each world's motor command and its ``frame_skip`` physics steps (MuJoCo: one
     ``mj_step`` call in C), without the state read, the task's metric and reward or the
     observation (the limit of vectorising those across worlds)."""
-    from adworker.batched import BatchedEnv
 
-    batch = BatchedEnv.of(env, worlds)
-    try:
-        rng = np.random.default_rng(0)
-        rounds = max(1, steps // worlds)
-        shape = (rounds, worlds, env.action_space.shape[0])
-        actions = rng.uniform(-1, 1, shape).astype(np.float32)
-        batch.seed(0)
-        batch.reset()
-        started = time.process_time()
-        for action in actions:
-            for world, world_action in zip(batch.worlds, action, strict=True):
-                world.robot.act(world_action)
-                world.sim.step()
-        return rounds * worlds / (time.process_time() - started)
-    finally:
-        batch.close_copies()
+    def engine_alone(batch: Any, action: np.ndarray) -> None:
+        for world, world_action in zip(batch.worlds, action, strict=True):
+            world.robot.act(world_action)
+            world.sim.step()
+
+    return batch_rate(env, worlds, steps, engine_alone)
 
 
 def ppo_rate(env: Any, steps: int, worlds: int = 1) -> float:
