@@ -14,7 +14,7 @@ pytest.importorskip(
 import torch
 
 from adworker import designs
-from adworker.gpu.ppo import GpuPPOOptions, evaluate, train
+from adworker.gpu.ppo import DesignPolicies, GpuPPOOptions, evaluate, train
 from adworker.gpu.warp_batch import WarpBatch
 
 TOLERANCE = 2e-3
@@ -90,19 +90,28 @@ def test_a_batch_refuses_designs_of_another_tree_and_what_it_does_not_compute(en
 
 @pytest.mark.slow
 def test_ppo_on_the_batch_trains_each_designs_policy_above_its_untrained_one(env_of):
-    # Two copies of one design: two policies, each initialised from its own draws and
-    # trained on its own worlds, in one run (a run's CPU is per batch step, not per world).
-    envs = [env_of("stand-up", "arch_chain", simulator="mujoco") for _ in range(2)]
+    # Four copies of one design: four policies, each initialised from its own draws and
+    # trained on its own worlds, in one run (Warp's CPU device costs per batch step, about
+    # 80 ms, nearly whatever the worlds: four policies cost about what one does).
+    envs = [env_of("stand-up", "arch_chain", simulator="mujoco") for _ in range(4)]
     batch = WarpBatch(envs, 16, device="cpu")
     seed = 3
-    random_policy = evaluate(batch, None, seed + 1_000_000)
+    final_episode = seed + 1_000_000  # the seed of train's scoring episode
+    random_policy = evaluate(batch, None, final_episode)
+    untrained = DesignPolicies(4, batch.observation_size, batch.joints, 64, seed)
+    before = evaluate(batch, untrained, final_episode)  # train's own initial weights
     options = GpuPPOOptions(steps=4096, unroll=16, epochs=8, learning_rate=3e-3, seed=seed)
     _, result = train(batch, options)
     assert result.env_steps >= 4096
     assert len(result.curve) == 4096 // 16 // batch.episode_steps
-    # Random actions toss the arch about (a foot off the ground scores 0): about 0.012.
-    for before, after in zip(random_policy, result.scores, strict=True):
-        assert after > before + 0.01, (random_policy, result.scores)
+    gains = [after - start for after, start in zip(result.scores, before, strict=True)]
+    # Untrained, the arch lies flat and scores its radius (0.04); random actions toss it
+    # about (a foot off the ground scores 0: about 0.012). Trained, every policy beats
+    # random actions and most stand the arch's middle higher than flat; a policy of four
+    # may stay near flat on this budget, so the best gain is asserted, not each.
+    assert all(a > r + 0.01 for a, r in zip(result.scores, random_policy, strict=True))
+    assert max(gains) > 0.03, (before, result.scores)
+    assert sorted(gains)[1] > 0.0, (before, result.scores)
 
 
 @pytest.mark.e2e
