@@ -106,12 +106,13 @@ def test_ppo_on_the_batch_trains_each_designs_policy_above_its_untrained_one(env
     assert len(result.curve) == 4096 // 16 // batch.episode_steps
     gains = [after - start for after, start in zip(result.scores, before, strict=True)]
     # Untrained, the arch lies flat and scores its radius (0.04); random actions toss it
-    # about (a foot off the ground scores 0: about 0.012). Trained, every policy beats
-    # random actions and most stand the arch's middle higher than flat; a policy of four
-    # may stay near flat on this budget, so the best gain is asserted, not each.
-    assert all(a > r + 0.01 for a, r in zip(result.scores, random_policy, strict=True))
-    assert max(gains) > 0.03, (before, result.scores)
-    assert sorted(gains)[1] > 0.0, (before, result.scores)
+    # about (a foot off the ground scores 0: about 0.012). Trained (seeds 3 and 5 here):
+    # every policy above every random-action world's score, the four's mean 0.04 to 0.06
+    # over their untrained weights, the best 0.15 to 0.18; a policy of four may stay near
+    # flat on this budget, so the mean and the best gain are asserted, not each.
+    assert min(result.scores) > max(random_policy), (random_policy, result.scores)
+    assert sum(gains) / len(gains) > 0.02, (before, result.scores)
+    assert max(gains) > 0.05, (before, result.scores)
 
 
 @pytest.mark.e2e
