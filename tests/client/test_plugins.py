@@ -172,6 +172,8 @@ def test_a_study_naming_a_broken_task_says_why_it_does_not_load(plugin_site: Pat
 
 
 def test_a_missing_task_is_a_plugin_error_listing_the_installed_ones() -> None:
-    with pytest.raises(PluginError, match="the installed learners are ddpg, fast, mpc, ppo, ppo-batch, sac, td3"):
+    with pytest.raises(
+        PluginError, match="the installed learners are ddpg, fast, mpc, ppo, ppo-batch, sac, td3"
+    ):
         catalogue().learner("dreamer")
     assert isinstance(catalogue().learner("fast"), LearnerSpec)
