@@ -79,9 +79,10 @@ CASES: dict[str, dict[str, Any]] = {
     "proposer.options.colour: unknown option of qei (its options: noise, kernel, ...)": stand_up(
         _set("proposer.options", {"colour": "red"})
     ),
-    "task.name: unknown task 'stand_up'; the installed tasks are diagonal-gesture, "
-    "lift-highest, stand-up, walk-forward (a task that workers of your own serve, such as "
-    "adworker --function, needs external: true)": stand_up(_set("task.name", "stand_up")),
+    "task.name: unknown task 'stand_up'; the installed tasks are carry-payload, "
+    "diagonal-gesture, lift-highest, reach-workspace, stand-up, track-velocity, walk-forward "
+    "(a task that workers of your own serve, such as adworker --function, needs external: "
+    "true)": stand_up(_set("task.name", "stand_up")),
     "task.options: frame_skip: Input should be greater than or equal to 1": stand_up(
         _set("task.options", {"frame_skip": 0})
     ),

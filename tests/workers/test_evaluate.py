@@ -158,7 +158,9 @@ def test_evaluate_job_refuses_a_box_space(tmp_path) -> None:
 
 def test_evaluate_job_rejects_an_unknown_learner_naming_the_installed_ones(tmp_path) -> None:
     job = make_job("stand-up", stand_up_specs(HALF_PI, HALF_PI), learner="hill-climb")
-    with pytest.raises(JobError, match=r"unknown learner .hill-climb.*ddpg, fast, ppo, sac, td3"):
+    with pytest.raises(
+        JobError, match=r"unknown learner .hill-climb.*ddpg, fast, mpc, ppo, ppo-batch, sac, td3"
+    ):
         evaluate_job(job, tmp_path)
 
 

@@ -97,8 +97,14 @@ def test_the_catalogue_lists_the_plugin_with_its_option_schemas(
 @pytest.mark.parametrize(
     ("task", "named"),
     [
-        ({"name": "reach-down"}, ["task.name", "unknown task 'reach-down'", "reach-up, stand-up"]),
-        ({"learner": "grasp"}, ["task.learner", "unknown learner 'grasp'", "fast, hold, ppo"]),
+        (
+            {"name": "reach-down"},
+            ["task.name", "unknown task 'reach-down'", "reach-up, reach-workspace, stand-up"],
+        ),
+        (
+            {"learner": "grasp"},
+            ["task.learner", "unknown learner 'grasp'", "fast, hold, mpc, ppo, ppo-batch"],
+        ),
         ({"options": {"tip_link": ""}}, ["task.options: tip_link:", "at least 1 character"]),
         ({"options": {"reach": 2}}, ["unknown option of task 'reach-up'", "tip_link"]),
         ({"options": {"learner_kwargs": {"pose": 2}}}, ["learner_kwargs.pose:", "1"]),
