@@ -17,6 +17,10 @@ from adworker import designs
 from adworker.gpu.ppo import DesignPolicies, GpuPPOOptions, evaluate, train
 from adworker.gpu.warp_batch import WarpBatch
 
+pytestmark = pytest.mark.xdist_group("warp")
+"""One test process compiles Warp's kernels once (about 26 s of CPU on a fresh machine)
+and runs every test of the batch."""
+
 TOLERANCE = 2e-3
 """m (a link's height) and rad (a joint angle): float32 in the batch, float64 on the CPU
 engine; measured over these episodes at most 4e-5. A design tumbling under random actions, or an
