@@ -15,6 +15,7 @@ from fastapi.testclient import TestClient
 from adclient.testing.servers import SDK_HEADERS, ServerProcess
 from adservice.app import create_app
 from adservice.settings import Settings
+from tests.conftest import DATABASES
 
 LOCAL = "http://localhost"
 """The in-process app answers only Host names it is served under (loopback by default)."""
@@ -88,3 +89,19 @@ def module_http(tmp_path_factory: pytest.TempPathFactory) -> Iterator[httpx.Clie
             yield client
     finally:
         server.stop()
+
+
+@pytest.fixture(scope="module", params=DATABASES)
+def secured(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[ServerProcess]:
+    """One real adserver with auth on per kind of database, shared by a module's tests
+    that take it (each makes studies and tokens of its own)."""
+    workdir = tmp_path_factory.mktemp("secured")
+    if request.param == "postgresql":
+        url = request.getfixturevalue("postgres_cluster").create_database()
+    else:
+        url = f"sqlite:///{workdir / 'studies.db'}"
+    server = ServerProcess(database_url=url, workdir=workdir, env={"AD_AUTH": "true"})
+    yield server.start()
+    server.stop()

@@ -6,15 +6,12 @@ text removes it, and a note goes with its study."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import httpx
 import pytest
 
 from adclient.schemas import MAX_NOTE_CHARS
 from adclient.testing.servers import ServerProcess, make_token
 from adclient.testing.workers import run_adclient
-from tests.conftest import DATABASES
 
 pytestmark = [pytest.mark.e2e]
 
@@ -24,20 +21,6 @@ ASKED = {
     "proposer": {"name": "random"},
 }
 HOSTILE = "<img src=x onerror=\"document.title='owned'\">\n<script>alert(1)</script> & more"
-
-
-@pytest.fixture(scope="module", params=DATABASES)
-def secured(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[ServerProcess]:
-    workdir = tmp_path_factory.mktemp("notes")
-    if request.param == "postgresql":
-        url = request.getfixturevalue("postgres_cluster").create_database()
-    else:
-        url = f"sqlite:///{workdir / 'studies.db'}"
-    server = ServerProcess(database_url=url, workdir=workdir, env={"AD_AUTH": "true"})
-    yield server.start()
-    server.stop()
 
 
 def client(server: ServerProcess, role: str, name: str = "") -> httpx.Client:

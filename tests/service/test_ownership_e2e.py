@@ -11,7 +11,6 @@ import httpx
 import pytest
 
 from adclient.testing.servers import ServerProcess, make_token
-from tests.conftest import DATABASES
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("ownership")]
 
@@ -25,23 +24,6 @@ MANAGED = {
 ASKED = {**MANAGED, "name": "asked", "task": None}
 PNG = b"\x89PNG\r\n\x1a\n" + bytes(64)
 SCRIPT_SVG = b'<svg xmlns="http://www.w3.org/2000/svg"><script>alert(1)</script></svg>'
-
-
-@pytest.fixture(scope="module", params=DATABASES)
-def secured(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[ServerProcess]:
-    """One server with auth on per kind of database, shared by the module's tests that
-    take it: each makes studies of its own and leases only its own task's jobs
-    (:func:`managed`)."""
-    workdir = tmp_path_factory.mktemp("secured")
-    if request.param == "postgresql":
-        url = request.getfixturevalue("postgres_cluster").create_database()
-    else:
-        url = f"sqlite:///{workdir / 'studies.db'}"
-    server = ServerProcess(database_url=url, workdir=workdir, env={"AD_AUTH": "true"})
-    yield server.start()
-    server.stop()
 
 
 @pytest.fixture(scope="module")
