@@ -12,9 +12,9 @@ import httpx
 import pytest
 
 from adclient.testing.servers import ServerProcess
-from tests.service.test_ownership_e2e import as_token, secured, token
+from tests.service.test_ownership_e2e import as_token, token
 
-__all__ = ["secured", "token"]  # the module's server with auth on, and its tokens
+__all__ = ["token"]  # the tokens of the module's server with auth on (conftest's secured)
 
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("lease-ownership")]
 
